@@ -1,0 +1,1 @@
+//! Criterion benches for the workspace; run with `cargo bench -p openlcb-benches`.

@@ -1,0 +1,97 @@
+//! [`Config`]: every bound and timer of a [`StreamEndpoint`](crate::StreamEndpoint).
+
+use crate::Duration;
+use crate::wire::ReplyCode;
+
+/// What the destination does with an incoming Stream Initiate Request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum AcceptPolicy {
+    /// Accept every well-formed request while there is room (an `Opened` event follows).
+    AcceptAll,
+    /// Refuse every request with this code (a node that has streams but takes none now).
+    RejectAll(ReplyCode),
+    /// Raise `Event::IncomingRequest` and wait for `accept` or `reject`; a request left
+    /// undecided for [`Config::decision_timeout`] is refused with 0x2020 (buffer unavailable).
+    Ask,
+}
+
+/// Bounds and timers. Every table and buffer the endpoint keeps is sized from here.
+///
+/// Memory bound of the destination side: `max_streams` receive buffers of at most
+/// `max_window` bytes (twice that with `early_proceed`). The source side buffers nothing: a
+/// write is turned into Data Send messages at once, up to the credit.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct Config {
+    /// Streams open at once, both roles, all peers (incoming requests awaiting a decision
+    /// count too). A request over the bound gets Initiate Reply 0x2020.
+    pub max_streams: usize,
+    /// Streams open at once with any one peer, per role (at most 255: the stream ID space).
+    pub max_streams_per_peer: usize,
+    /// The largest window (Max Buffer Size) this node grants as a destination, 1..=65535.
+    pub max_window: u16,
+    /// As destination, send one Proceed ahead, as soon as the first byte of a window has
+    /// arrived, so the source never idles waiting (draft §7.3 allows at most one early
+    /// Proceed). The receive buffer is then two windows.
+    pub early_proceed: bool,
+    /// What to do with incoming requests.
+    pub accept_policy: AcceptPolicy,
+    /// As source, how long to wait for the Initiate Reply. The message network standard wants
+    /// at least 3 s; OpenMRN waits 20 s, and so does this crate by default.
+    pub reply_timeout: Duration,
+    /// As source, how long to wait for a Proceed when out of credit before terminating with
+    /// TDE 0x2010. Default 30 s: bootloaders writing flash between windows needed that long.
+    pub proceed_timeout: Duration,
+    /// As source, send a zero-length Data Send (keep-alive, draft §7.3) when nothing was sent
+    /// for this long while the stream has credit. `None` disables it. Default 15 s.
+    pub keepalive_interval: Option<Duration>,
+    /// As destination, terminate (TDE 0x2010) a stream whose source sent nothing for this long
+    /// while it held credit (a source that reset or went silent). `None` disables it.
+    /// Default 60 s, four keep-alive intervals.
+    pub idle_timeout: Option<Duration>,
+    /// With [`AcceptPolicy::Ask`], how long a request may wait for the application's decision.
+    /// Default 500 ms, inside the 750 ms the message network standard allows for a response.
+    pub decision_timeout: Duration,
+    /// Replies to node-level queries (Verify Node ID, Protocol Support Inquiry, OIR for unknown
+    /// MTIs) are dropped and counted once this many messages wait to be transmitted. Stream
+    /// traffic is never dropped; it is bounded by credit instead.
+    pub transmit_queue_limit: usize,
+    /// Queue Initialization Complete as the first message (message network standard §3.2).
+    /// Turn off when the application announces the node itself.
+    pub send_initialization_complete: bool,
+    /// Protocol bits OR-ed into the Protocol Support Reply besides Stream (0x2000_0000_0000).
+    pub extra_protocols: u64,
+    /// Answer addressed messages this endpoint does not handle with OIR 0x1043. Turn off when
+    /// the application handles other protocols (and answers those it does not know itself).
+    pub reject_unknown_mti: bool,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            max_streams: 64,
+            max_streams_per_peer: 16,
+            max_window: 2048,
+            early_proceed: true,
+            accept_policy: AcceptPolicy::AcceptAll,
+            reply_timeout: Duration::from_secs(20),
+            proceed_timeout: Duration::from_secs(30),
+            keepalive_interval: Some(Duration::from_secs(15)),
+            idle_timeout: Some(Duration::from_secs(60)),
+            decision_timeout: Duration::from_millis(500),
+            transmit_queue_limit: 256,
+            send_initialization_complete: true,
+            extra_protocols: 0,
+            reject_unknown_mti: true,
+        }
+    }
+}
+
+impl Config {
+    /// The most receive-buffer memory the destination side can hold, in bytes.
+    pub fn receive_memory_bound(&self) -> usize {
+        let per_stream = usize::from(self.max_window) * if self.early_proceed { 2 } else { 1 };
+        per_stream.saturating_mul(self.max_streams)
+    }
+}

@@ -1,0 +1,1095 @@
+//! [`StreamEndpoint`]: one local node's stream engine, both roles, many streams and peers.
+//!
+//! Inputs are `handle_message` and `handle_timeout`; commands are `open`, `write`, `flush`,
+//! `finish`, `abort`, `accept`, `reject` and `read`; outputs are `poll_transmit`,
+//! `poll_event` and `poll_timeout`. After any input or command, drain `poll_transmit` and
+//! `poll_event` until `None`, then arm a timer for `poll_timeout`.
+
+mod stream;
+mod timer;
+
+use alloc::collections::{BTreeMap, VecDeque};
+use alloc::vec::Vec;
+
+use bytes::Bytes;
+
+use self::stream::{Destination, DestinationState, Half, Source, SourceState, Stream};
+use self::timer::{Timer, TimerTable};
+use crate::config::{AcceptPolicy, Config};
+use crate::event::{Event, Role, StreamInfo, Termination, TimeoutKind};
+use crate::wire::{
+    DataComplete, DataProceed, DataSend, Emit, ErrorCode, ErrorReport, InitiateReply, InitiateRequest,
+    ReplyClass, ReplyCode, CompleteCount,
+};
+use crate::{ContentUid, Duration, Instant, Message, MessageRef, Mti, NodeId, StreamId, node};
+
+/// Names one stream of one endpoint. A handle outlives its stream safely: once the stream is
+/// gone, commands on it return [`StreamError::UnknownStream`], even if the slot is reused.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct StreamHandle {
+    slot: u16,
+    generation: u16,
+}
+
+impl core::fmt::Debug for StreamHandle {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "StreamHandle({}#{})", self.slot, self.generation)
+    }
+}
+
+/// Why a command on a stream could not be carried out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum StreamError {
+    /// No such stream (never existed, or it has ended and been released).
+    #[error("no such stream")]
+    UnknownStream,
+    /// The command belongs to the other role (e.g. `write` on a destination stream).
+    #[error("the command is for the other end of the stream")]
+    WrongRole,
+    /// The stream is not in a state that allows the command (e.g. `write` before `Opened`).
+    #[error("the stream is not open")]
+    NotOpen,
+    /// [`Config::max_streams`] streams are open.
+    #[error("the stream table is full")]
+    TableFull,
+    /// [`Config::max_streams_per_peer`] streams are open with that node, or no stream ID is free.
+    #[error("no stream ID is free for that node")]
+    NoFreeStreamId,
+    /// The requested source stream ID is in use with that node.
+    #[error("that stream ID is in use with that node")]
+    StreamIdInUse,
+    /// A Max Buffer Size of 0 was asked for.
+    #[error("the Max Buffer Size must be 1..=65535")]
+    ZeroBufferSize,
+    /// The destination is this node itself.
+    #[error("a node cannot open a stream to itself")]
+    SelfAddressed,
+}
+
+/// What to open: [`StreamEndpoint::open`]'s argument.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct OpenOptions {
+    /// The destination node.
+    pub destination: NodeId,
+    /// Proposed Max Buffer Size (the destination may lower it), 1..=65535.
+    pub max_buffer_size: u16,
+    /// What the stream carries (draft §7.2: needed when the stream was not announced).
+    pub content_uid: Option<ContentUid>,
+    /// A DID agreed beforehand by another protocol (Memory Configuration Read Stream).
+    pub proposed_destination: Option<StreamId>,
+    /// A SID agreed beforehand by another protocol (Memory Configuration Write Stream);
+    /// otherwise the endpoint picks one, rotating so a recently closed SID is not reused.
+    pub source_stream: Option<StreamId>,
+}
+
+impl OpenOptions {
+    /// A stream to `destination` proposing `max_buffer_size`, no UID, no proposed IDs.
+    pub fn new(destination: NodeId, max_buffer_size: u16) -> Self {
+        OpenOptions {
+            destination,
+            max_buffer_size,
+            content_uid: None,
+            proposed_destination: None,
+            source_stream: None,
+        }
+    }
+
+    /// Carry a Stream Content UID.
+    pub fn content_uid(mut self, uid: ContentUid) -> Self {
+        self.content_uid = Some(uid);
+        self
+    }
+
+    /// Propose a DID agreed by another protocol.
+    pub fn proposed_destination(mut self, did: StreamId) -> Self {
+        self.proposed_destination = Some(did);
+        self
+    }
+
+    /// Use this SID.
+    pub fn source_stream(mut self, sid: StreamId) -> Self {
+        self.source_stream = Some(sid);
+        self
+    }
+}
+
+/// Inputs that were ignored or refused, by cause. Nothing here is ever a panic.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct Stats {
+    /// Messages handled.
+    pub messages_in: u64,
+    /// Messages queued for transmission.
+    pub messages_out: u64,
+    /// Addressed to another node.
+    pub not_for_us: u64,
+    /// A stream message that did not parse (too short, 0xFF stream ID, zero buffer).
+    pub malformed: u64,
+    /// Data Send for a DID not open with that source.
+    pub unknown_stream_data: u64,
+    /// Proceed for a stream that is not open, or with the wrong DID.
+    pub stray_proceeds: u64,
+    /// Complete for an unknown stream, with the wrong SID, or a duplicate.
+    pub stray_completes: u64,
+    /// Reply for no pending request, or a second Reply.
+    pub stray_replies: u64,
+    /// TDE or OIR that matched no stream.
+    pub stray_error_reports: u64,
+    /// Data beyond the granted window that still fitted the buffer (tolerated).
+    pub window_overruns: u64,
+    /// Data beyond the count a Complete stated, or after the stream ended.
+    pub excess_data: u64,
+    /// Accepting Replies whose window exceeded what was proposed (used as given).
+    pub oversized_windows: u64,
+    /// Incoming requests refused (any code).
+    pub requests_refused: u64,
+    /// Node-level replies dropped because the transmit queue was at its limit.
+    pub replies_dropped: u64,
+    /// Messages claiming to come from this node's own ID.
+    pub own_echoes: u64,
+}
+
+/// Key of the stream index: the peer, this node's role, and the ID this node assigned.
+type StreamKey = (NodeId, Role, StreamId);
+
+#[derive(Debug, Default)]
+struct Slot {
+    generation: u16,
+    stream: Option<Stream>,
+}
+
+/// The outputs, kept apart from the stream table so both can be borrowed at once.
+#[derive(Debug)]
+struct Outputs {
+    node: NodeId,
+    transmits: VecDeque<Message>,
+    events: VecDeque<Event>,
+    stats: Stats,
+}
+
+impl Outputs {
+    fn send(&mut self, mti: Mti, peer: NodeId, payload: Bytes) {
+        self.stats.messages_out = self.stats.messages_out.saturating_add(1);
+        self.transmits.push_back(Message::addressed(mti, self.node, peer, payload));
+    }
+
+    fn send_wire(&mut self, mti: Mti, peer: NodeId, body: &impl Emit) {
+        self.send(mti, peer, body.to_bytes());
+    }
+
+    fn terminate(&mut self, peer: NodeId, code: ErrorCode, role: Role) {
+        // Draft §7.4: the source terminates naming 0x0888, the destination naming 0x1F88.
+        let mti = match role {
+            Role::Source => Mti::STREAM_DATA_PROCEED,
+            Role::Destination => Mti::STREAM_DATA_SEND,
+        };
+        self.send_wire(Mti::TERMINATE_DUE_TO_ERROR, peer, &ErrorReport { code, mti: Some(mti) });
+    }
+
+    fn event(&mut self, event: Event) {
+        self.events.push_back(event);
+    }
+}
+
+/// One node's stream engine. See the crate documentation for the drive loop.
+#[derive(Debug)]
+pub struct StreamEndpoint {
+    config: Config,
+    slots: Vec<Slot>,
+    index: BTreeMap<StreamKey, u16>,
+    next_source_id: StreamId,
+    next_destination_id: StreamId,
+    out: Outputs,
+}
+
+impl StreamEndpoint {
+    /// An endpoint for the local node `node`. With
+    /// [`Config::send_initialization_complete`] the first transmit is Initialization Complete.
+    pub fn new(node: NodeId, config: Config) -> Self {
+        let mut out = Outputs { node, transmits: VecDeque::new(), events: VecDeque::new(), stats: Stats::default() };
+        if config.send_initialization_complete {
+            out.transmits.push_back(node::initialization_complete(node));
+        }
+        StreamEndpoint {
+            config,
+            slots: Vec::new(),
+            index: BTreeMap::new(),
+            next_source_id: StreamId::MIN,
+            next_destination_id: StreamId::MIN,
+            out,
+        }
+    }
+
+    // ----- getters -----
+
+    /// The local Node ID.
+    pub fn node_id(&self) -> NodeId {
+        self.out.node
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// Counters of handled, ignored and refused inputs.
+    pub fn stats(&self) -> Stats {
+        self.out.stats
+    }
+
+    /// Streams in the table (open, pending, or closed with unread data).
+    pub fn stream_count(&self) -> usize {
+        self.index.len()
+    }
+
+    /// What is known about a stream.
+    pub fn stream_info(&self, handle: StreamHandle) -> Option<StreamInfo> {
+        self.stream(handle).map(Stream::info)
+    }
+
+    /// As source: bytes that may be written now without waiting for a Proceed.
+    pub fn credit(&self, handle: StreamHandle) -> Option<u32> {
+        match &self.stream(handle)?.half {
+            Half::Source(source) if source.state == SourceState::Sending => Some(source.credit),
+            Half::Source(_) => Some(0),
+            Half::Destination(_) => None,
+        }
+    }
+
+    /// As destination: bytes received and not yet read.
+    pub fn buffered(&self, handle: StreamHandle) -> Option<usize> {
+        match &self.stream(handle)?.half {
+            Half::Destination(d) => Some(d.buffer.len()),
+            Half::Source(_) => None,
+        }
+    }
+
+    /// As destination: the most `buffered` can ever be for this stream.
+    pub fn buffer_capacity(&self, handle: StreamHandle) -> Option<usize> {
+        match &self.stream(handle)?.half {
+            Half::Destination(d) => Some(d.capacity),
+            Half::Source(_) => None,
+        }
+    }
+
+    /// Every live handle, in slot order.
+    pub fn handles(&self) -> impl Iterator<Item = StreamHandle> + '_ {
+        self.slots.iter().enumerate().filter(|(_, s)| s.stream.is_some()).filter_map(|(i, s)| {
+            Some(StreamHandle { slot: u16::try_from(i).ok()?, generation: s.generation })
+        })
+    }
+
+    // ----- outputs -----
+
+    /// The next message to send.
+    pub fn poll_transmit(&mut self) -> Option<Message> {
+        self.out.transmits.pop_front()
+    }
+
+    /// The next event.
+    pub fn poll_event(&mut self) -> Option<Event> {
+        self.out.events.pop_front()
+    }
+
+    /// When to call `handle_timeout` next.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        self.slots.iter().filter_map(|s| s.stream.as_ref()?.timers.next()).min()
+    }
+
+    // ----- inputs -----
+
+    /// Feeds one received message. Messages for other nodes are ignored (and counted).
+    pub fn handle_message(&mut self, now: Instant, msg: MessageRef<'_>) {
+        self.out.stats.messages_in = self.out.stats.messages_in.saturating_add(1);
+        if msg.source == self.out.node {
+            self.out.stats.own_echoes = self.out.stats.own_echoes.saturating_add(1);
+            return;
+        }
+        match msg.destination {
+            Some(dest) if dest != self.out.node => {
+                self.out.stats.not_for_us = self.out.stats.not_for_us.saturating_add(1);
+                return;
+            }
+            None if msg.mti.is_addressed() => {
+                self.out.stats.malformed = self.out.stats.malformed.saturating_add(1);
+                return;
+            }
+            _ => {}
+        }
+        let peer = msg.source;
+        match msg.mti {
+            Mti::STREAM_INITIATE_REQUEST => self.on_request(now, peer, msg.payload),
+            Mti::STREAM_INITIATE_REPLY => self.on_reply(now, peer, msg.payload),
+            Mti::STREAM_DATA_SEND => self.on_data(now, peer, msg.payload),
+            Mti::STREAM_DATA_PROCEED => self.on_proceed(now, peer, msg.payload),
+            Mti::STREAM_DATA_COMPLETE => self.on_complete(now, peer, msg.payload),
+            Mti::OPTIONAL_INTERACTION_REJECTED | Mti::TERMINATE_DUE_TO_ERROR => {
+                self.on_error_report(msg.mti, peer, ErrorReport::parse(msg.payload));
+            }
+            _ => {
+                if let Some(reply) = node::answer(self.out.node, &self.config, msg) {
+                    if self.out.transmits.len() >= self.config.transmit_queue_limit {
+                        self.out.stats.replies_dropped = self.out.stats.replies_dropped.saturating_add(1);
+                    } else {
+                        self.out.stats.messages_out = self.out.stats.messages_out.saturating_add(1);
+                        self.out.transmits.push_back(reply);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Runs every timer due at `now`. Calling it early or twice is harmless.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        for index in 0..self.slots.len() {
+            while let Some(timer) = self.slots.get_mut(index).and_then(|s| s.stream.as_mut()).and_then(|s| s.timers.take_expired(now)) {
+                self.on_timer(now, index, timer);
+            }
+        }
+    }
+
+    /// The transport reports `peer` gone (e.g. its CAN alias was released): every stream with
+    /// it ends with [`Termination::PeerLost`], without sending anything to it.
+    pub fn peer_lost(&mut self, peer: NodeId) {
+        let handles: Vec<StreamHandle> =
+            self.handles().filter(|h| self.stream(*h).is_some_and(|s| s.peer == peer)).collect();
+        for handle in handles {
+            self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::PeerLost });
+        }
+    }
+
+    /// The transport lost its link (e.g. this node's CAN alias): every stream ends with
+    /// [`Termination::LinkLost`].
+    pub fn link_lost(&mut self) {
+        let handles: Vec<StreamHandle> = self.handles().collect();
+        for handle in handles {
+            self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::LinkLost });
+        }
+    }
+
+    // ----- commands: source -----
+
+    /// Sends a Stream Initiate Request. `Opened` or `Rejected` (or `TimedOut`) follows.
+    pub fn open(&mut self, now: Instant, options: OpenOptions) -> Result<StreamHandle, StreamError> {
+        if options.max_buffer_size == 0 {
+            return Err(StreamError::ZeroBufferSize);
+        }
+        if options.destination == self.out.node {
+            return Err(StreamError::SelfAddressed);
+        }
+        let peer = options.destination;
+        let sid = match options.source_stream {
+            Some(sid) if self.index.contains_key(&(peer, Role::Source, sid)) => return Err(StreamError::StreamIdInUse),
+            Some(sid) => sid,
+            None => self.free_id(peer, Role::Source)?,
+        };
+        self.check_room(peer, Role::Source)?;
+        let mut timers = TimerTable::default();
+        timers.set(Timer::Reply, now + self.config.reply_timeout);
+        let stream = Stream {
+            peer,
+            source_stream: sid,
+            destination_stream: options.proposed_destination,
+            window: options.max_buffer_size,
+            content_uid: options.content_uid,
+            timers,
+            half: Half::Source(Source { state: SourceState::AwaitingReply, credit: 0, sent: 0, write_blocked: false }),
+        };
+        let handle = self.insert(stream)?;
+        if options.source_stream.is_none() {
+            self.next_source_id = sid.next();
+        }
+        let request = InitiateRequest {
+            max_buffer_size: options.max_buffer_size,
+            source_stream: sid,
+            proposed_destination: options.proposed_destination,
+            content_uid: options.content_uid,
+        };
+        self.out.send_wire(Mti::STREAM_INITIATE_REQUEST, peer, &request);
+        Ok(handle)
+    }
+
+    /// Sends as much of `data` as the credit allows, as Data Send messages that never cross a
+    /// window boundary, and returns how many bytes were taken. A short count means: wait for
+    /// `Writable`. Each message is one allocation (its `Bytes` payload); nothing is buffered.
+    pub fn write(&mut self, now: Instant, handle: StreamHandle, data: &[u8]) -> Result<usize, StreamError> {
+        let keepalive = self.config.keepalive_interval;
+        let proceed_timeout = self.config.proceed_timeout;
+        let (stream, out) = self.parts(handle)?;
+        let Half::Source(source) = &mut stream.half else { return Err(StreamError::WrongRole) };
+        if source.state != SourceState::Sending {
+            return Err(StreamError::NotOpen);
+        }
+        let did = stream.destination_stream.ok_or(StreamError::NotOpen)?;
+        let window = u64::from(stream.window.max(1));
+        let mut rest = data;
+        while !rest.is_empty() && source.credit > 0 {
+            // Never merge bytes of two windows into one message (draft §7.3, gateways count on it).
+            let to_boundary = window - source.sent % window;
+            let n = rest.len().min(source.credit as usize).min(to_boundary as usize);
+            let (chunk, tail) = rest.split_at(n);
+            let mut payload = Vec::with_capacity(n + 1);
+            payload.push(did.as_raw());
+            payload.extend_from_slice(chunk);
+            out.send(Mti::STREAM_DATA_SEND, stream.peer, Bytes::from(payload));
+            source.credit -= n as u32;
+            source.sent += n as u64;
+            rest = tail;
+        }
+        let taken = data.len() - rest.len();
+        if !rest.is_empty() {
+            source.write_blocked = true;
+        }
+        if source.credit == 0 {
+            stream.timers.set(Timer::Proceed, now + proceed_timeout);
+        }
+        if taken > 0 {
+            if let Some(interval) = keepalive {
+                stream.timers.set(Timer::Keepalive, now + interval);
+            }
+        }
+        Ok(taken)
+    }
+
+    /// Sends a zero-length Data Send (a flush: gateways pass on what they hold). Uses no credit.
+    pub fn flush(&mut self, now: Instant, handle: StreamHandle) -> Result<(), StreamError> {
+        let keepalive = self.config.keepalive_interval;
+        let (stream, out) = self.parts(handle)?;
+        send_flush(stream, out)?;
+        if let Some(interval) = keepalive {
+            stream.timers.set(Timer::Keepalive, now + interval);
+        }
+        Ok(())
+    }
+
+    /// Sends Stream Data Complete with the byte count (form B, 6 bytes; wire-spec §4.5) and
+    /// releases the stream. Its SID is not reused until the rotation comes round again.
+    pub fn finish(&mut self, _now: Instant, handle: StreamHandle) -> Result<(), StreamError> {
+        let (stream, out) = self.parts(handle)?;
+        let Half::Source(source) = &stream.half else { return Err(StreamError::WrongRole) };
+        let did = match (source.state, stream.destination_stream) {
+            (SourceState::Sending, Some(did)) => did,
+            _ => return Err(StreamError::NotOpen),
+        };
+        let complete = DataComplete {
+            source_stream: stream.source_stream,
+            destination_stream: did,
+            count: CompleteCount::Total(source.sent as u32),
+        };
+        out.send_wire(Mti::STREAM_DATA_COMPLETE, stream.peer, &complete);
+        self.release(handle);
+        Ok(())
+    }
+
+    // ----- commands: destination -----
+
+    /// Accepts a request raised by `IncomingRequest`, granting `min(proposed, window,
+    /// Config::max_window)` (`window: None` means `Config::max_window`).
+    pub fn accept(&mut self, now: Instant, handle: StreamHandle, window: Option<u16>) -> Result<(), StreamError> {
+        let local = window.unwrap_or(self.config.max_window).min(self.config.max_window);
+        let slot = self.slot_index(handle).ok_or(StreamError::UnknownStream)?;
+        match &self.stream(handle).ok_or(StreamError::UnknownStream)?.half {
+            Half::Destination(d) if d.state == DestinationState::AwaitingDecision => {}
+            Half::Destination(_) => return Err(StreamError::NotOpen),
+            Half::Source(_) => return Err(StreamError::WrongRole),
+        }
+        self.accept_slot(now, slot, local);
+        Ok(())
+    }
+
+    /// Refuses a request raised by `IncomingRequest` with `code` (a reject code: 0x1xxx or
+    /// 0x2xxx; an accept code is replaced by 0x1000).
+    pub fn reject(&mut self, _now: Instant, handle: StreamHandle, code: ReplyCode) -> Result<(), StreamError> {
+        match &self.stream(handle).ok_or(StreamError::UnknownStream)?.half {
+            Half::Destination(d) if d.state == DestinationState::AwaitingDecision => {}
+            Half::Destination(_) => return Err(StreamError::NotOpen),
+            Half::Source(_) => return Err(StreamError::WrongRole),
+        }
+        let code = if code.is_accept() { ReplyCode::PERMANENT } else { code };
+        if let Some(stream) = self.stream(handle) {
+            let (peer, sid) = (stream.peer, stream.source_stream);
+            self.refuse(peer, sid, code);
+        }
+        self.release(handle);
+        Ok(())
+    }
+
+    /// Copies received bytes into `buf` and returns how many. `Ok(0)` means nothing is
+    /// buffered now (wait for `Readable`). Reading frees buffer space, which may send a
+    /// Proceed. Once a closed stream has been read empty its handle is released.
+    pub fn read(&mut self, now: Instant, handle: StreamHandle, buf: &mut [u8]) -> Result<usize, StreamError> {
+        let idle = self.config.idle_timeout;
+        let slot = self.slot_index(handle).ok_or(StreamError::UnknownStream)?;
+        let Some(stream) = self.slots.get_mut(slot).and_then(|s| s.stream.as_mut()) else {
+            return Err(StreamError::UnknownStream);
+        };
+        let Half::Destination(dest) = &mut stream.half else { return Err(StreamError::WrongRole) };
+        if dest.state == DestinationState::AwaitingDecision {
+            return Err(StreamError::NotOpen);
+        }
+        let n = buf.len().min(dest.buffer.len());
+        for (to, from) in buf.iter_mut().zip(dest.buffer.drain(..n)) {
+            *to = from;
+        }
+        let drained_and_closed = dest.state == DestinationState::Closed && dest.buffer.is_empty();
+        if drained_and_closed {
+            self.release(handle);
+        } else if send_due_proceed(stream, &mut self.out) {
+            restart_idle(now, stream, idle);
+        }
+        Ok(n)
+    }
+
+    // ----- commands: both roles -----
+
+    /// Ends the stream at once with Terminate Due To Error `code` (e.g. 0x2000) and releases
+    /// it; unread data is discarded. A pending request is refused instead, a closed stream is
+    /// just released. No event follows.
+    pub fn abort(&mut self, _now: Instant, handle: StreamHandle, code: ErrorCode) -> Result<(), StreamError> {
+        let stream = self.stream(handle).ok_or(StreamError::UnknownStream)?;
+        let (peer, role, sid) = (stream.peer, stream.role(), stream.source_stream);
+        match &stream.half {
+            Half::Destination(d) if d.state == DestinationState::AwaitingDecision => {
+                self.refuse(peer, sid, ReplyCode(code.0));
+            }
+            Half::Destination(d) if d.state == DestinationState::Closed => {}
+            _ => self.out.terminate(peer, code, role),
+        }
+        self.release(handle);
+        Ok(())
+    }
+
+    // ----- message handlers -----
+
+    fn on_request(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
+        let request = match InitiateRequest::parse(payload) {
+            Ok(request) => request,
+            Err(_) => {
+                self.count_malformed();
+                // Wire-spec §6.3: answer what can be answered. With a usable SID, a Reply with
+                // buffer 0 and 0x1080; without enough bytes for one, an OIR so the source
+                // stops waiting. A SID of 0xFF must be ignored.
+                match payload.get(4).copied().map(StreamId::new) {
+                    Some(Some(sid)) => self.refuse(peer, sid, ReplyCode::INVALID_REQUEST),
+                    Some(None) => {}
+                    None => {
+                        let oir = ErrorReport { code: ErrorCode::INVALID_ARGUMENTS, mti: Some(Mti::STREAM_INITIATE_REQUEST) };
+                        self.out.send_wire(Mti::OPTIONAL_INTERACTION_REJECTED, peer, &oir);
+                    }
+                }
+                return;
+            }
+        };
+        let sid = request.source_stream;
+        if let Some(handle) = self.find_by_source_id(peer, sid) {
+            if self.is_duplicate_request(handle, &request) {
+                // The same request again (a duplicated frame): answer it the same way.
+                self.resend_accept(handle);
+                return;
+            }
+            // The source no longer knows the old stream (it reset): that one is over.
+            self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::Superseded });
+        }
+        if let AcceptPolicy::RejectAll(code) = self.config.accept_policy {
+            self.refuse(peer, sid, code);
+            return;
+        }
+        let did = match request.proposed_destination {
+            Some(did) if self.index.contains_key(&(peer, Role::Destination, did)) => {
+                self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
+                return;
+            }
+            Some(did) => did,
+            None => match self.free_id(peer, Role::Destination) {
+                Ok(did) => did,
+                Err(_) => {
+                    self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
+                    return;
+                }
+            },
+        };
+        if self.check_room(peer, Role::Destination).is_err() {
+            self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
+            return;
+        }
+        let stream = Stream {
+            peer,
+            source_stream: sid,
+            destination_stream: Some(did),
+            window: request.max_buffer_size,
+            content_uid: request.content_uid,
+            timers: TimerTable::default(),
+            half: Half::Destination(Destination::pending()),
+        };
+        let Ok(handle) = self.insert(stream) else {
+            self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
+            return;
+        };
+        if request.proposed_destination.is_none() {
+            self.next_destination_id = did.next();
+        }
+        match self.config.accept_policy {
+            AcceptPolicy::Ask => {
+                let deadline = now + self.config.decision_timeout;
+                if let Some(stream) = self.stream_mut(handle) {
+                    stream.timers.set(Timer::Decision, deadline);
+                    let info = stream.info();
+                    self.out.event(Event::IncomingRequest { handle, info });
+                }
+            }
+            _ => {
+                let max_window = self.config.max_window;
+                self.accept_slot(now, usize::from(handle.slot), max_window);
+            }
+        }
+    }
+
+    fn on_reply(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
+        let Ok(reply) = InitiateReply::parse(payload) else { return self.count_malformed() };
+        let Some(handle) = self.find(peer, Role::Source, reply.source_stream) else {
+            return self.count(|s| &mut s.stray_replies);
+        };
+        let keepalive = self.config.keepalive_interval;
+        let Ok((stream, out)) = self.parts(handle) else { return };
+        let Half::Source(source) = &mut stream.half else { return };
+        if source.state != SourceState::AwaitingReply {
+            return bump(&mut out.stats.stray_replies);
+        }
+        match (reply.class(), reply.destination_stream) {
+            (ReplyClass::Accepted, Some(did)) => {
+                if reply.max_buffer_size > stream.window {
+                    // The destination counts windows of the size it chose; using a smaller one
+                    // here would deadlock, so take it as given (and count the oddity).
+                    bump(&mut out.stats.oversized_windows);
+                }
+                source.state = SourceState::Sending;
+                source.credit = u32::from(reply.max_buffer_size);
+                stream.window = reply.max_buffer_size;
+                stream.destination_stream = Some(did);
+                stream.timers.stop(Timer::Reply);
+                if let Some(interval) = keepalive {
+                    stream.timers.set(Timer::Keepalive, now + interval);
+                }
+                let info = stream.info();
+                out.event(Event::Opened { handle, info });
+            }
+            // An accept without a usable DID cannot be answered: wait for the timeout.
+            (ReplyClass::Accepted, None) => self.count_malformed(),
+            (class, _) => {
+                self.end(handle, |h| Event::Rejected { handle: h, code: reply.code, class });
+            }
+        }
+    }
+
+    fn on_data(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
+        let Ok(data) = DataSend::parse(payload) else { return self.count_malformed() };
+        let Some(handle) = self.find(peer, Role::Destination, data.destination_stream) else {
+            return self.count(|s| &mut s.unknown_stream_data);
+        };
+        let idle = self.config.idle_timeout;
+        let Ok((stream, out)) = self.parts(handle) else { return };
+        let Half::Destination(dest) = &mut stream.half else { return };
+        let expected = match dest.state {
+            DestinationState::Receiving => None,
+            DestinationState::Draining { expected } => Some(expected),
+            DestinationState::AwaitingDecision | DestinationState::Closed => {
+                return bump(&mut out.stats.excess_data);
+            }
+        };
+        let bytes = data.data;
+        if bytes.len() > dest.free_space() {
+            // Overrun beyond what the buffer holds: data would be lost, so end the stream.
+            dest.state = DestinationState::Closed;
+            stream.timers.stop_all();
+            out.terminate(peer, ErrorCode::OUT_OF_ORDER, Role::Destination);
+            out.event(Event::Terminated { handle, cause: Termination::WindowOverrun });
+            if dest.buffer.is_empty() {
+                self.release(handle);
+            }
+            return;
+        }
+        let len = bytes.len() as u64;
+        if len > dest.outstanding() {
+            bump(&mut out.stats.window_overruns);
+            dest.granted = dest.received.saturating_add(len);
+        }
+        let was_empty = dest.buffer.is_empty();
+        dest.buffer.extend(bytes.iter().copied());
+        dest.received = dest.received.saturating_add(len);
+        if was_empty && !bytes.is_empty() {
+            out.event(Event::Readable { handle });
+        }
+        match expected {
+            Some(expected) if dest.received >= expected => {
+                let total = dest.received;
+                self.finish_destination(handle, total, Some(expected));
+            }
+            _ => {
+                send_due_proceed(stream, out);
+                restart_idle(now, stream, idle);
+            }
+        }
+    }
+
+    fn on_proceed(&mut self, _now: Instant, peer: NodeId, payload: &[u8]) {
+        let Ok(proceed) = DataProceed::parse(payload) else { return self.count_malformed() };
+        let Some(handle) = self.find(peer, Role::Source, proceed.source_stream) else {
+            return self.count(|s| &mut s.stray_proceeds);
+        };
+        let Ok((stream, out)) = self.parts(handle) else { return };
+        let Half::Source(source) = &mut stream.half else { return };
+        if source.state != SourceState::Sending || stream.destination_stream != Some(proceed.destination_stream) {
+            return bump(&mut out.stats.stray_proceeds);
+        }
+        source.credit = source.credit.saturating_add(u32::from(stream.window));
+        stream.timers.stop(Timer::Proceed);
+        if core::mem::take(&mut source.write_blocked) {
+            out.event(Event::Writable { handle });
+        }
+    }
+
+    fn on_complete(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
+        let Ok(complete) = DataComplete::parse(payload) else { return self.count_malformed() };
+        let Some(handle) = self.find(peer, Role::Destination, complete.destination_stream) else {
+            return self.count(|s| &mut s.stray_completes);
+        };
+        let idle = self.config.idle_timeout;
+        let Ok((stream, out)) = self.parts(handle) else { return };
+        let Half::Destination(dest) = &mut stream.half else { return };
+        if stream.source_stream != complete.source_stream || dest.state != DestinationState::Receiving {
+            return bump(&mut out.stats.stray_completes);
+        }
+        let received = dest.received;
+        match complete.count.missing_after(received) {
+            None => self.finish_destination(handle, received, None),
+            Some(0) => self.finish_destination(handle, received, Some(received)),
+            // On CAN a Complete out-arbitrates data frames still queued (wire-spec §6.3 note):
+            // wait for what the source may still have in flight, never more than its credit.
+            Some(missing) if missing <= dest.outstanding() => {
+                let expected = received.saturating_add(missing);
+                dest.state = DestinationState::Draining { expected };
+                if let Some(timeout) = idle {
+                    stream.timers.set(Timer::Idle, now + timeout);
+                }
+            }
+            // The count cannot be reached: it is below what arrived, or beyond any credit.
+            Some(missing) => {
+                let stated = received.saturating_add(missing).min(received.saturating_add(u64::from(u32::MAX)));
+                self.finish_destination(handle, received, Some(stated));
+            }
+        }
+    }
+
+    fn on_error_report(&mut self, mti: Mti, peer: NodeId, report: ErrorReport) {
+        // An OIR naming the request refuses every request still waiting at that peer; it
+        // carries no SID (draft §7.1).
+        if mti == Mti::OPTIONAL_INTERACTION_REJECTED && report.mti == Some(Mti::STREAM_INITIATE_REQUEST) {
+            let pending: Vec<StreamHandle> = self
+                .handles()
+                .filter(|h| {
+                    self.stream(*h).is_some_and(|s| {
+                        s.peer == peer && matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply)
+                    })
+                })
+                .collect();
+            if pending.is_empty() {
+                return self.count(|s| &mut s.stray_error_reports);
+            }
+            let code = ReplyCode(report.code.0);
+            let class = if code.is_accept() { ReplyClass::Permanent } else { code.class() };
+            for handle in pending {
+                self.end(handle, |h| Event::Rejected { handle: h, code, class });
+            }
+            return;
+        }
+        // A TDE (or OIR) names the last MTI of the interaction, which tells which end the peer
+        // is; it does not say which stream (wire-spec Q5): end every stream with that peer in
+        // that role, or in both roles when the MTI is missing or unknown.
+        let peer_is = match report.mti {
+            Some(Mti::STREAM_DATA_SEND | Mti::STREAM_INITIATE_REQUEST | Mti::STREAM_DATA_COMPLETE) => Some(Role::Destination),
+            Some(Mti::STREAM_DATA_PROCEED | Mti::STREAM_INITIATE_REPLY) => Some(Role::Source),
+            Some(_) if mti == Mti::OPTIONAL_INTERACTION_REJECTED => {
+                return self.count(|s| &mut s.stray_error_reports);
+            }
+            _ => None,
+        };
+        let affected: Vec<StreamHandle> = self
+            .handles()
+            .filter(|h| {
+                self.stream(*h).is_some_and(|s| {
+                    let our_role = s.role();
+                    s.peer == peer && peer_is.is_none_or(|peer_role| peer_role != our_role)
+                        && !matches!(&s.half, Half::Destination(d) if d.state == DestinationState::Closed)
+                })
+            })
+            .collect();
+        if affected.is_empty() {
+            return self.count(|s| &mut s.stray_error_reports);
+        }
+        for handle in affected {
+            self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::ByPeer(report.code) });
+        }
+    }
+
+    fn on_timer(&mut self, now: Instant, slot: usize, timer: Timer) {
+        let keepalive = self.config.keepalive_interval;
+        let Some(s) = self.slots.get_mut(slot) else { return };
+        let generation = s.generation;
+        let Some(stream) = s.stream.as_mut() else { return };
+        let handle = StreamHandle { slot: slot as u16, generation };
+        let (peer, role) = (stream.peer, stream.role());
+        match timer {
+            Timer::Keepalive => {
+                if let (Ok(()), Some(interval)) = (send_flush(stream, &mut self.out), keepalive) {
+                    stream.timers.set(Timer::Keepalive, now + interval);
+                }
+            }
+            Timer::Reply => self.end(handle, |h| Event::TimedOut { handle: h, kind: TimeoutKind::Reply }),
+            Timer::Proceed | Timer::Idle => {
+                self.out.terminate(peer, ErrorCode::TIMEOUT, role);
+                let kind = if timer == Timer::Proceed { TimeoutKind::Proceed } else { TimeoutKind::Idle };
+                self.end(handle, |h| Event::TimedOut { handle: h, kind });
+            }
+            Timer::Decision => {
+                let sid = stream.source_stream;
+                self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
+                self.end(handle, |h| Event::TimedOut { handle: h, kind: TimeoutKind::Decision });
+            }
+        }
+    }
+
+    // ----- helpers -----
+
+    fn accept_slot(&mut self, now: Instant, slot: usize, local_window: u16) {
+        let early = self.config.early_proceed;
+        let idle = self.config.idle_timeout;
+        let Some(s) = self.slots.get_mut(slot) else { return };
+        let handle = StreamHandle { slot: slot as u16, generation: s.generation };
+        let Some(stream) = s.stream.as_mut() else { return };
+        let window = stream.window.min(local_window).max(1);
+        stream.window = window;
+        stream.half = Half::Destination(Destination::new(window, early));
+        stream.timers.stop(Timer::Decision);
+        if let Some(timeout) = idle {
+            stream.timers.set(Timer::Idle, now + timeout);
+        }
+        let reply = InitiateReply {
+            max_buffer_size: window,
+            code: ReplyCode::ACCEPT,
+            source_stream: stream.source_stream,
+            destination_stream: stream.destination_stream,
+        };
+        self.out.send_wire(Mti::STREAM_INITIATE_REPLY, stream.peer, &reply);
+        let info = stream.info();
+        self.out.event(Event::Opened { handle, info });
+    }
+
+    fn is_duplicate_request(&self, handle: StreamHandle, request: &InitiateRequest) -> bool {
+        self.stream(handle).is_some_and(|s| match &s.half {
+            Half::Destination(d) => {
+                d.state == DestinationState::Receiving
+                    && d.received == 0
+                    && s.content_uid == request.content_uid
+                    && request.proposed_destination.is_none_or(|did| s.destination_stream == Some(did))
+                    && s.window <= request.max_buffer_size
+            }
+            Half::Source(_) => false,
+        })
+    }
+
+    fn resend_accept(&mut self, handle: StreamHandle) {
+        if let Some(stream) = self.stream(handle) {
+            let reply = InitiateReply {
+                max_buffer_size: stream.window,
+                code: ReplyCode::ACCEPT,
+                source_stream: stream.source_stream,
+                destination_stream: stream.destination_stream,
+            };
+            let peer = stream.peer;
+            self.out.send_wire(Mti::STREAM_INITIATE_REPLY, peer, &reply);
+        }
+    }
+
+    /// Sends a refusing Reply: buffer 0, the SID echoed, DID 0 (never 0xFF, wire-spec §4.2).
+    fn refuse(&mut self, peer: NodeId, sid: StreamId, code: ReplyCode) {
+        self.out.stats.requests_refused = self.out.stats.requests_refused.saturating_add(1);
+        let reply = InitiateReply { max_buffer_size: 0, code, source_stream: sid, destination_stream: None };
+        self.out.send_wire(Mti::STREAM_INITIATE_REPLY, peer, &reply);
+    }
+
+    /// Completes a destination stream: the `Finished` event, then release once read empty.
+    fn finish_destination(&mut self, handle: StreamHandle, total: u64, stated: Option<u64>) {
+        let Some(stream) = self.stream_mut(handle) else { return };
+        stream.timers.stop_all();
+        let Half::Destination(dest) = &mut stream.half else { return };
+        dest.state = DestinationState::Closed;
+        let empty = dest.buffer.is_empty();
+        let matched = stated.is_none_or(|s| s == total);
+        self.out.event(Event::Finished { handle, total, stated, matched });
+        if empty {
+            self.release(handle);
+        }
+    }
+
+    /// Ends a stream with `event`: a source or pending stream is released at once, a
+    /// destination keeps its unread data until the application has read it.
+    fn end(&mut self, handle: StreamHandle, event: impl FnOnce(StreamHandle) -> Event) {
+        let Some(stream) = self.stream_mut(handle) else { return };
+        stream.timers.stop_all();
+        let keep = match &mut stream.half {
+            Half::Destination(d) if !d.buffer.is_empty() => {
+                d.state = DestinationState::Closed;
+                true
+            }
+            _ => false,
+        };
+        self.out.event(event(handle));
+        if !keep {
+            self.release(handle);
+        }
+    }
+
+    fn count(&mut self, counter: impl FnOnce(&mut Stats) -> &mut u64) {
+        bump(counter(&mut self.out.stats));
+    }
+
+    fn count_malformed(&mut self) {
+        self.count(|s| &mut s.malformed);
+    }
+
+    fn check_room(&self, peer: NodeId, role: Role) -> Result<(), StreamError> {
+        if self.index.len() >= self.config.max_streams {
+            return Err(StreamError::TableFull);
+        }
+        let with_peer = self.index.range((peer, role, StreamId::MIN)..=(peer, role, StreamId::MAX)).count();
+        if with_peer >= self.config.max_streams_per_peer.min(255) {
+            return Err(StreamError::NoFreeStreamId);
+        }
+        Ok(())
+    }
+
+    /// The next ID in the rotation not open with `peer` in `role`.
+    fn free_id(&self, peer: NodeId, role: Role) -> Result<StreamId, StreamError> {
+        let mut id = match role {
+            Role::Source => self.next_source_id,
+            Role::Destination => self.next_destination_id,
+        };
+        for _ in 0..255 {
+            if !self.index.contains_key(&(peer, role, id)) {
+                return Ok(id);
+            }
+            id = id.next();
+        }
+        Err(StreamError::NoFreeStreamId)
+    }
+
+    fn insert(&mut self, stream: Stream) -> Result<StreamHandle, StreamError> {
+        let key = (stream.peer, stream.role(), stream.local_id().ok_or(StreamError::NotOpen)?);
+        let slot = match self.slots.iter().position(|s| s.stream.is_none()) {
+            Some(free) => free,
+            None if self.slots.len() < self.config.max_streams.min(usize::from(u16::MAX)) => {
+                self.slots.push(Slot::default());
+                self.slots.len() - 1
+            }
+            None => return Err(StreamError::TableFull),
+        };
+        let entry = self.slots.get_mut(slot).ok_or(StreamError::TableFull)?;
+        entry.stream = Some(stream);
+        let slot = slot as u16;
+        self.index.insert(key, slot);
+        Ok(StreamHandle { slot, generation: entry.generation })
+    }
+
+    fn release(&mut self, handle: StreamHandle) {
+        let Some(slot) = self.slot_index(handle) else { return };
+        let Some(entry) = self.slots.get_mut(slot) else { return };
+        if let Some(stream) = entry.stream.take() {
+            entry.generation = entry.generation.wrapping_add(1);
+            if let Some(id) = stream.local_id() {
+                self.index.remove(&(stream.peer, stream.role(), id));
+            }
+        }
+    }
+
+    fn slot_index(&self, handle: StreamHandle) -> Option<usize> {
+        let slot = usize::from(handle.slot);
+        let entry = self.slots.get(slot)?;
+        (entry.generation == handle.generation && entry.stream.is_some()).then_some(slot)
+    }
+
+    fn stream(&self, handle: StreamHandle) -> Option<&Stream> {
+        self.slots.get(self.slot_index(handle)?)?.stream.as_ref()
+    }
+
+    fn stream_mut(&mut self, handle: StreamHandle) -> Option<&mut Stream> {
+        let slot = self.slot_index(handle)?;
+        self.slots.get_mut(slot)?.stream.as_mut()
+    }
+
+    fn parts(&mut self, handle: StreamHandle) -> Result<(&mut Stream, &mut Outputs), StreamError> {
+        let slot = self.slot_index(handle).ok_or(StreamError::UnknownStream)?;
+        let stream = self.slots.get_mut(slot).and_then(|s| s.stream.as_mut()).ok_or(StreamError::UnknownStream)?;
+        Ok((stream, &mut self.out))
+    }
+
+    fn find(&self, peer: NodeId, role: Role, id: StreamId) -> Option<StreamHandle> {
+        let slot = *self.index.get(&(peer, role, id))?;
+        let generation = self.slots.get(usize::from(slot))?.generation;
+        Some(StreamHandle { slot, generation })
+    }
+
+    /// A destination stream from `peer` by the source's SID (the index is keyed by DID).
+    fn find_by_source_id(&self, peer: NodeId, sid: StreamId) -> Option<StreamHandle> {
+        self.index
+            .range((peer, Role::Destination, StreamId::MIN)..=(peer, Role::Destination, StreamId::MAX))
+            .map(|(_, slot)| *slot)
+            .find(|slot| {
+                self.slots.get(usize::from(*slot)).and_then(|s| s.stream.as_ref()).is_some_and(|s| s.source_stream == sid)
+            })
+            .and_then(|slot| Some(StreamHandle { slot, generation: self.slots.get(usize::from(slot))?.generation }))
+    }
+}
+
+/// Adds one to a counter.
+fn bump(counter: &mut u64) {
+    *counter = counter.saturating_add(1);
+}
+
+/// A zero-length Data Send on an open source stream.
+fn send_flush(stream: &Stream, out: &mut Outputs) -> Result<(), StreamError> {
+    let Half::Source(source) = &stream.half else { return Err(StreamError::WrongRole) };
+    match (source.state, stream.destination_stream) {
+        (SourceState::Sending, Some(did)) => {
+            out.send(Mti::STREAM_DATA_SEND, stream.peer, Bytes::copy_from_slice(&[did.as_raw()]));
+            Ok(())
+        }
+        _ => Err(StreamError::NotOpen),
+    }
+}
+
+/// Sends the Proceed the destination owes, if any (never more than one ahead, see
+/// `Destination::proceed_due`), and says whether it did.
+fn send_due_proceed(stream: &mut Stream, out: &mut Outputs) -> bool {
+    let window = stream.window;
+    let Half::Destination(dest) = &mut stream.half else { return false };
+    let Some(did) = stream.destination_stream else { return false };
+    if !dest.proceed_due(window) {
+        return false;
+    }
+    dest.granted = dest.granted.saturating_add(u64::from(window));
+    let proceed = DataProceed { source_stream: stream.source_stream, destination_stream: did };
+    out.send_wire(Mti::STREAM_DATA_PROCEED, stream.peer, &proceed);
+    true
+}
+
+/// Runs the idle timer only while the source holds credit: a source waiting for a Proceed
+/// (because our reader is slow) is not idle.
+fn restart_idle(now: Instant, stream: &mut Stream, idle: Option<Duration>) {
+    let waiting_for_source = matches!(&stream.half, Half::Destination(d) if d.outstanding() > 0);
+    match idle {
+        Some(timeout) if waiting_for_source => stream.timers.set(Timer::Idle, now + timeout),
+        _ => stream.timers.stop(Timer::Idle),
+    }
+}

@@ -1,0 +1,153 @@
+//! One stream's state: the fields both roles share, and the source or destination half.
+
+use alloc::collections::VecDeque;
+
+use super::timer::TimerTable;
+use crate::event::{Role, StreamInfo};
+use crate::{ContentUid, NodeId, StreamId};
+
+/// A stream in the endpoint's table.
+#[derive(Debug)]
+pub(crate) struct Stream {
+    pub(crate) peer: NodeId,
+    pub(crate) source_stream: StreamId,
+    pub(crate) destination_stream: Option<StreamId>,
+    /// Proposed Max Buffer Size until open, then the negotiated window.
+    pub(crate) window: u16,
+    pub(crate) content_uid: Option<ContentUid>,
+    pub(crate) timers: TimerTable,
+    pub(crate) half: Half,
+}
+
+/// The role-specific part.
+#[derive(Debug)]
+pub(crate) enum Half {
+    Source(Source),
+    Destination(Destination),
+}
+
+/// Source states. A source stream leaves the table as soon as it ends, so there is no
+/// closed state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum SourceState {
+    /// Initiate Request sent (draft state "Initiated").
+    AwaitingReply,
+    /// Accepted (draft state "Open").
+    Sending,
+}
+
+#[derive(Debug)]
+pub(crate) struct Source {
+    pub(crate) state: SourceState,
+    /// Bytes the source may still send; never negative, grows by a window per Proceed.
+    pub(crate) credit: u32,
+    /// Payload bytes sent so far.
+    pub(crate) sent: u64,
+    /// A write came up short: raise `Writable` when credit returns.
+    pub(crate) write_blocked: bool,
+}
+
+/// Destination states.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum DestinationState {
+    /// Request received; the application decides ([`AcceptPolicy::Ask`](crate::AcceptPolicy)).
+    AwaitingDecision,
+    /// Accepted (draft state "Open").
+    Receiving,
+    /// Complete arrived before all the data it counted: wait for `expected` bytes in total.
+    Draining { expected: u64 },
+    /// Ended (finished, terminated or timed out); buffered data waits for the application.
+    Closed,
+}
+
+#[derive(Debug)]
+pub(crate) struct Destination {
+    pub(crate) state: DestinationState,
+    /// Received, not yet read. Never holds more than `capacity`.
+    pub(crate) buffer: VecDeque<u8>,
+    /// One window, or two with early Proceed.
+    pub(crate) capacity: usize,
+    /// Total bytes the source has been allowed to send (a window per Proceed, plus the first).
+    pub(crate) granted: u64,
+    /// Total payload bytes received.
+    pub(crate) received: u64,
+    pub(crate) early_proceed: bool,
+}
+
+impl Stream {
+    pub(crate) fn role(&self) -> Role {
+        match self.half {
+            Half::Source(_) => Role::Source,
+            Half::Destination(_) => Role::Destination,
+        }
+    }
+
+    /// The ID this node assigned: SID as source, DID as destination.
+    pub(crate) fn local_id(&self) -> Option<StreamId> {
+        match self.half {
+            Half::Source(_) => Some(self.source_stream),
+            Half::Destination(_) => self.destination_stream,
+        }
+    }
+
+    pub(crate) fn info(&self) -> StreamInfo {
+        StreamInfo {
+            peer: self.peer,
+            role: self.role(),
+            source_stream: self.source_stream,
+            destination_stream: self.destination_stream,
+            window: self.window,
+            content_uid: self.content_uid,
+        }
+    }
+}
+
+impl Destination {
+    pub(crate) fn new(window: u16, early_proceed: bool) -> Self {
+        let capacity = usize::from(window) * if early_proceed { 2 } else { 1 };
+        Destination {
+            state: DestinationState::Receiving,
+            buffer: VecDeque::with_capacity(capacity),
+            capacity,
+            granted: u64::from(window),
+            received: 0,
+            early_proceed,
+        }
+    }
+
+    /// A pending request has no buffer yet.
+    pub(crate) fn pending() -> Self {
+        Destination {
+            state: DestinationState::AwaitingDecision,
+            buffer: VecDeque::new(),
+            capacity: 0,
+            granted: 0,
+            received: 0,
+            early_proceed: false,
+        }
+    }
+
+    /// Credit the source still holds.
+    pub(crate) fn outstanding(&self) -> u64 {
+        self.granted.saturating_sub(self.received)
+    }
+
+    pub(crate) fn free_space(&self) -> usize {
+        self.capacity.saturating_sub(self.buffer.len())
+    }
+
+    /// Draft §7.3: a Proceed grants one more window. Without early Proceed it goes once the
+    /// current window has fully arrived; with it, one window ahead as soon as the first byte
+    /// of the current window is in. Either way only while the buffer can hold everything the
+    /// source could then send: this is where a slow reader slows the source.
+    pub(crate) fn proceed_due(&self, window: u16) -> bool {
+        if self.state != DestinationState::Receiving {
+            return false;
+        }
+        let window = u64::from(window);
+        let outstanding = self.outstanding();
+        let due = if self.early_proceed { outstanding < window } else { outstanding == 0 };
+        let room = self.free_space() as u64;
+        due && room >= outstanding.saturating_add(window)
+    }
+}

@@ -1,0 +1,226 @@
+//! Validated identifiers: [`NodeId`], [`StreamId`] and [`ContentUid`].
+
+use core::fmt;
+use core::str::FromStr;
+
+/// A 48-bit OpenLCB Node ID, printed and parsed as `05.01.01.01.22.00`.
+///
+/// Node ID 0 is not a valid node (MN §3.3) but it is representable, because a few messages
+/// (an empty AME, a global Verify Node ID) carry no node at all and callers want one type.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+pub struct NodeId(u64);
+
+impl NodeId {
+    /// The largest Node ID: all 48 bits set.
+    pub const MAX: NodeId = NodeId(0xFFFF_FFFF_FFFF);
+
+    /// A Node ID from its 48-bit value, or `None` if bits above 47 are set.
+    pub const fn new(raw: u64) -> Option<Self> {
+        if raw > Self::MAX.0 { None } else { Some(NodeId(raw)) }
+    }
+
+    /// The 48-bit value.
+    pub const fn as_raw(self) -> u64 {
+        self.0
+    }
+
+    /// A Node ID from its six wire bytes, most significant first.
+    pub const fn from_bytes(b: [u8; 6]) -> Self {
+        NodeId(
+            (b[0] as u64) << 40
+                | (b[1] as u64) << 32
+                | (b[2] as u64) << 24
+                | (b[3] as u64) << 16
+                | (b[4] as u64) << 8
+                | b[5] as u64,
+        )
+    }
+
+    /// A Node ID from the first six bytes of `bytes`, or `None` if there are fewer.
+    pub fn from_slice(bytes: &[u8]) -> Option<Self> {
+        let six: [u8; 6] = bytes.get(..6)?.try_into().ok()?;
+        Some(Self::from_bytes(six))
+    }
+
+    /// The six wire bytes, most significant first.
+    pub const fn to_bytes(self) -> [u8; 6] {
+        let b = self.0.to_be_bytes();
+        [b[2], b[3], b[4], b[5], b[6], b[7]]
+    }
+}
+
+impl fmt::Display for NodeId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let b = self.to_bytes();
+        write!(f, "{:02X}.{:02X}.{:02X}.{:02X}.{:02X}.{:02X}", b[0], b[1], b[2], b[3], b[4], b[5])
+    }
+}
+
+impl fmt::Debug for NodeId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "NodeId({self})")
+    }
+}
+
+/// Why a text could not be read as a [`NodeId`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ParseNodeIdError {
+    /// Not six groups of one or two hex digits separated by dots, nor 1..=12 bare hex digits.
+    #[error("a Node ID is six hex bytes separated by dots, e.g. 05.01.01.01.22.00")]
+    Format,
+}
+
+impl FromStr for NodeId {
+    type Err = ParseNodeIdError;
+
+    /// Accepts `05.01.01.01.22.00` (also with `:` or `-` separators) and bare hex such as
+    /// `050101012200` or `0x050101012200`.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let s = s.trim();
+        if s.contains(['.', ':', '-']) {
+            let mut bytes = [0u8; 6];
+            let mut groups = s.split(['.', ':', '-']);
+            for byte in &mut bytes {
+                let group = groups.next().ok_or(ParseNodeIdError::Format)?;
+                if group.is_empty() || group.len() > 2 {
+                    return Err(ParseNodeIdError::Format);
+                }
+                *byte = u8::from_str_radix(group, 16).map_err(|_| ParseNodeIdError::Format)?;
+            }
+            if groups.next().is_some() {
+                return Err(ParseNodeIdError::Format);
+            }
+            return Ok(NodeId::from_bytes(bytes));
+        }
+        let hex = s.strip_prefix("0x").or_else(|| s.strip_prefix("0X")).unwrap_or(s);
+        if hex.is_empty() || hex.len() > 12 || !hex.bytes().all(|c| c.is_ascii_hexdigit()) {
+            return Err(ParseNodeIdError::Format);
+        }
+        let raw = u64::from_str_radix(hex, 16).map_err(|_| ParseNodeIdError::Format)?;
+        NodeId::new(raw).ok_or(ParseNodeIdError::Format)
+    }
+}
+
+/// A stream ID (SID or DID): 0..=254. The value 0xFF is reserved and is never a `StreamId`.
+///
+/// Draft §4 / TN §2.5: "0xFF must never be sent and must be ignored upon receipt".
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct StreamId(u8);
+
+impl StreamId {
+    /// The lowest stream ID, 0.
+    pub const MIN: StreamId = StreamId(0);
+    /// The highest stream ID, 254.
+    pub const MAX: StreamId = StreamId(0xFE);
+    /// The reserved raw value, used on the wire only as "no DID proposed" (wire-spec §10 C-17).
+    pub const RESERVED: u8 = 0xFF;
+
+    /// A stream ID, or `None` for the reserved 0xFF.
+    pub const fn new(raw: u8) -> Option<Self> {
+        if raw == Self::RESERVED { None } else { Some(StreamId(raw)) }
+    }
+
+    /// The raw byte.
+    pub const fn as_raw(self) -> u8 {
+        self.0
+    }
+
+    /// The next ID in the rotation 0, 1, .., 254, 0, ..
+    pub const fn next(self) -> Self {
+        if self.0 >= Self::RESERVED - 1 { StreamId(0) } else { StreamId(self.0 + 1) }
+    }
+}
+
+impl fmt::Debug for StreamId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "StreamId(0x{:02X})", self.0)
+    }
+}
+
+impl fmt::Display for StreamId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "0x{:02X}", self.0)
+    }
+}
+
+/// A 6-byte Stream Content UID (draft §4): names what a stream carries. Never all zero.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct ContentUid([u8; 6]);
+
+impl ContentUid {
+    /// A content UID, or `None` if all six bytes are zero.
+    pub const fn new(bytes: [u8; 6]) -> Option<Self> {
+        if NodeId::from_bytes(bytes).as_raw() == 0 { None } else { Some(ContentUid(bytes)) }
+    }
+
+    /// The six bytes.
+    pub const fn to_bytes(self) -> [u8; 6] {
+        self.0
+    }
+}
+
+impl fmt::Debug for ContentUid {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "ContentUid({})", NodeId::from_bytes(self.0))
+    }
+}
+
+impl fmt::Display for ContentUid {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Display::fmt(&NodeId::from_bytes(self.0), f)
+    }
+}
+
+impl FromStr for ContentUid {
+    type Err = ParseNodeIdError;
+
+    /// Same text forms as [`NodeId`]; all zero is refused.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let id: NodeId = s.parse()?;
+        ContentUid::new(id.to_bytes()).ok_or(ParseNodeIdError::Format)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn node_id_bytes_round_trip() {
+        let id = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x00]);
+        assert_eq!(id.as_raw(), 0x0501_0101_2200);
+        assert_eq!(id.to_bytes(), [0x05, 0x01, 0x01, 0x01, 0x22, 0x00]);
+        assert_eq!(NodeId::from_slice(&[1, 2, 3, 4, 5]), None);
+        assert_eq!(NodeId::new(0x1_0000_0000_0000), None);
+    }
+
+    #[test]
+    fn node_id_text_forms() {
+        let id = NodeId::new(0x0501_0101_2200).unwrap();
+        assert_eq!(id.to_string(), "05.01.01.01.22.00");
+        assert_eq!("05.01.01.01.22.00".parse::<NodeId>(), Ok(id));
+        assert_eq!("5.1.1.1.22.0".parse::<NodeId>(), Ok(id));
+        assert_eq!("050101012200".parse::<NodeId>(), Ok(id));
+        assert_eq!("0x050101012200".parse::<NodeId>(), Ok(id));
+        for bad in ["", "05.01.01.01.22", "05.01.01.01.22.00.00", "05.01.01.01.22.100", "zz", "1234567890123"] {
+            assert!(bad.parse::<NodeId>().is_err(), "{bad:?} parsed");
+        }
+    }
+
+    #[test]
+    fn stream_id_reserves_ff_and_rotates() {
+        assert_eq!(StreamId::new(0xFF), None);
+        assert_eq!(StreamId::new(0xFE).unwrap().next(), StreamId::new(0).unwrap());
+        assert_eq!(StreamId::new(7).unwrap().next().as_raw(), 8);
+    }
+
+    #[test]
+    fn content_uid_is_never_zero() {
+        assert_eq!(ContentUid::new([0; 6]), None);
+        let uid = ContentUid::new([5, 1, 1, 1, 0x22, 0xFF]).unwrap();
+        assert_eq!(uid.to_string(), "05.01.01.01.22.FF");
+        assert_eq!("05.01.01.01.22.FF".parse::<ContentUid>(), Ok(uid));
+        assert!("00.00.00.00.00.00".parse::<ContentUid>().is_err());
+    }
+}

@@ -1,0 +1,68 @@
+//! Full-format messages: [`MessageRef`] borrowed on the way in, [`Message`] owned on the way out.
+
+use bytes::Bytes;
+
+use crate::{Mti, NodeId};
+
+/// A received message, borrowing its payload from the transport's buffer.
+///
+/// For MTIs with the event bit the Event ID is the first 8 bytes of `payload`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MessageRef<'a> {
+    /// The message type.
+    pub mti: Mti,
+    /// The sending node.
+    pub source: NodeId,
+    /// The addressed node, for MTIs with the address bit (`None` for global messages).
+    pub destination: Option<NodeId>,
+    /// The data after the MTI and Node IDs.
+    pub payload: &'a [u8],
+}
+
+/// A message to send, owning its payload. Stream data is a `Bytes` handle, never copied again
+/// by the core after it is built.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Message {
+    /// The message type.
+    pub mti: Mti,
+    /// The sending node.
+    pub source: NodeId,
+    /// The addressed node, for MTIs with the address bit (`None` for global messages).
+    pub destination: Option<NodeId>,
+    /// The data after the MTI and Node IDs.
+    pub payload: Bytes,
+}
+
+impl Message {
+    /// A global (unaddressed) message.
+    pub fn global(mti: Mti, source: NodeId, payload: impl Into<Bytes>) -> Self {
+        Message { mti, source, destination: None, payload: payload.into() }
+    }
+
+    /// An addressed message.
+    pub fn addressed(mti: Mti, source: NodeId, destination: NodeId, payload: impl Into<Bytes>) -> Self {
+        Message { mti, source, destination: Some(destination), payload: payload.into() }
+    }
+
+    /// A view of this message as if it had just been received.
+    pub fn as_ref(&self) -> MessageRef<'_> {
+        MessageRef {
+            mti: self.mti,
+            source: self.source,
+            destination: self.destination,
+            payload: &self.payload,
+        }
+    }
+}
+
+impl MessageRef<'_> {
+    /// An owned copy (copies the payload).
+    pub fn to_message(&self) -> Message {
+        Message {
+            mti: self.mti,
+            source: self.source,
+            destination: self.destination,
+            payload: Bytes::copy_from_slice(self.payload),
+        }
+    }
+}

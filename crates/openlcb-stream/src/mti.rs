@@ -1,0 +1,137 @@
+//! The 16-bit common-format Message Type Indicator, as an open type.
+
+use core::fmt;
+
+/// An MTI (MN §3.1.1). Unknown values keep their raw bits, print as hex and can be quoted
+/// back in an Optional Interaction Rejected.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Mti(pub u16);
+
+impl Mti {
+    /// Initialization Complete (full protocol).
+    pub const INITIALIZATION_COMPLETE: Mti = Mti(0x0100);
+    /// Initialization Complete, simple node.
+    pub const INITIALIZATION_COMPLETE_SIMPLE: Mti = Mti(0x0101);
+    /// Verify Node ID, addressed.
+    pub const VERIFY_NODE_ID_ADDRESSED: Mti = Mti(0x0488);
+    /// Verify Node ID, global.
+    pub const VERIFY_NODE_ID_GLOBAL: Mti = Mti(0x0490);
+    /// Verified Node ID.
+    pub const VERIFIED_NODE_ID: Mti = Mti(0x0170);
+    /// Verified Node ID, simple node.
+    pub const VERIFIED_NODE_ID_SIMPLE: Mti = Mti(0x0171);
+    /// Optional Interaction Rejected.
+    pub const OPTIONAL_INTERACTION_REJECTED: Mti = Mti(0x0068);
+    /// Terminate Due To Error.
+    pub const TERMINATE_DUE_TO_ERROR: Mti = Mti(0x00A8);
+    /// Protocol Support Inquiry.
+    pub const PROTOCOL_SUPPORT_INQUIRY: Mti = Mti(0x0828);
+    /// Protocol Support Reply.
+    pub const PROTOCOL_SUPPORT_REPLY: Mti = Mti(0x0668);
+    /// Datagram (the whole message, full format).
+    pub const DATAGRAM: Mti = Mti(0x1C48);
+    /// Datagram Received OK.
+    pub const DATAGRAM_RECEIVED_OK: Mti = Mti(0x0A28);
+    /// Datagram Rejected.
+    pub const DATAGRAM_REJECTED: Mti = Mti(0x0A48);
+    /// Stream Initiate Request.
+    pub const STREAM_INITIATE_REQUEST: Mti = Mti(0x0CC8);
+    /// Stream Initiate Reply.
+    pub const STREAM_INITIATE_REPLY: Mti = Mti(0x0868);
+    /// Stream Data Send.
+    pub const STREAM_DATA_SEND: Mti = Mti(0x1F88);
+    /// Stream Data Proceed.
+    pub const STREAM_DATA_PROCEED: Mti = Mti(0x0888);
+    /// Stream Data Complete.
+    pub const STREAM_DATA_COMPLETE: Mti = Mti(0x08A8);
+
+    /// The raw value.
+    pub const fn as_raw(self) -> u16 {
+        self.0
+    }
+
+    /// A destination Node ID follows the source (bit 0x0008).
+    pub const fn is_addressed(self) -> bool {
+        self.0 & 0x0008 != 0
+    }
+
+    /// An Event ID begins the payload (bit 0x0004).
+    pub const fn has_event(self) -> bool {
+        self.0 & 0x0004 != 0
+    }
+
+    /// The data part of a stream or datagram (bit 0x1000): on CAN a frame format, not a CAN-MTI.
+    pub const fn is_stream_or_datagram(self) -> bool {
+        self.0 & 0x1000 != 0
+    }
+
+    /// Must not be forwarded through gateways (bit 0x2000).
+    pub const fn is_special(self) -> bool {
+        self.0 & 0x2000 != 0
+    }
+
+    /// The priority group, 0 (highest) to 3 (bits 11-10).
+    pub const fn priority(self) -> u8 {
+        ((self.0 >> 10) & 0x3) as u8
+    }
+
+    /// One of the five stream MTIs.
+    pub const fn is_stream(self) -> bool {
+        matches!(self.0, 0x0CC8 | 0x0868 | 0x1F88 | 0x0888 | 0x08A8)
+    }
+
+    /// A well-known name, or `None` for values this crate has no constant for.
+    pub const fn name(self) -> Option<&'static str> {
+        Some(match self.0 {
+            0x0100 | 0x0101 => "Initialization Complete",
+            0x0488 | 0x0490 => "Verify Node ID",
+            0x0170 | 0x0171 => "Verified Node ID",
+            0x0068 => "Optional Interaction Rejected",
+            0x00A8 => "Terminate Due To Error",
+            0x0828 => "Protocol Support Inquiry",
+            0x0668 => "Protocol Support Reply",
+            0x1C48 => "Datagram",
+            0x0A28 => "Datagram Received OK",
+            0x0A48 => "Datagram Rejected",
+            0x0CC8 => "Stream Initiate Request",
+            0x0868 => "Stream Initiate Reply",
+            0x1F88 => "Stream Data Send",
+            0x0888 => "Stream Data Proceed",
+            0x08A8 => "Stream Data Complete",
+            _ => return None,
+        })
+    }
+}
+
+impl fmt::Debug for Mti {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.name() {
+            Some(name) => write!(f, "Mti(0x{:04X} {name})", self.0),
+            None => write!(f, "Mti(0x{:04X})", self.0),
+        }
+    }
+}
+
+impl fmt::Display for Mti {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "0x{:04X}", self.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bits_of_the_stream_mtis() {
+        assert!(Mti::STREAM_DATA_SEND.is_addressed());
+        assert!(Mti::STREAM_DATA_SEND.is_stream_or_datagram());
+        assert!(!Mti::STREAM_DATA_PROCEED.is_stream_or_datagram());
+        assert_eq!(Mti::STREAM_INITIATE_REQUEST.priority(), 3);
+        assert_eq!(Mti::STREAM_DATA_COMPLETE.priority(), 2);
+        assert!(!Mti::VERIFY_NODE_ID_GLOBAL.is_addressed());
+        assert!(Mti(0x05B4).has_event());
+        assert_eq!(format!("{:?}", Mti(0x1234)), "Mti(0x1234)");
+        assert_eq!(format!("{:?}", Mti::STREAM_DATA_SEND), "Mti(0x1F88 Stream Data Send)");
+    }
+}
