@@ -46,12 +46,7 @@ impl Message {
 
     /// A view of this message as if it had just been received.
     pub fn as_ref(&self) -> MessageRef<'_> {
-        MessageRef {
-            mti: self.mti,
-            source: self.source,
-            destination: self.destination,
-            payload: &self.payload,
-        }
+        MessageRef { mti: self.mti, source: self.source, destination: self.destination, payload: &self.payload }
     }
 }
 

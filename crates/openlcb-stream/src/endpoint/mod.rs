@@ -18,8 +18,8 @@ use self::timer::{Timer, TimerTable};
 use crate::config::{AcceptPolicy, Config};
 use crate::event::{Event, Role, StreamInfo, Termination, TimeoutKind};
 use crate::wire::{
-    DataComplete, DataProceed, DataSend, Emit, ErrorCode, ErrorReport, InitiateReply, InitiateRequest,
-    ReplyClass, ReplyCode, CompleteCount,
+    CompleteCount, DataComplete, DataProceed, DataSend, Emit, ErrorCode, ErrorReport, InitiateReply, InitiateRequest,
+    ReplyClass, ReplyCode,
 };
 use crate::{ContentUid, Duration, Instant, Message, MessageRef, Mti, NodeId, StreamId, node};
 
@@ -87,13 +87,7 @@ pub struct OpenOptions {
 impl OpenOptions {
     /// A stream to `destination` proposing `max_buffer_size`, no UID, no proposed IDs.
     pub fn new(destination: NodeId, max_buffer_size: u16) -> Self {
-        OpenOptions {
-            destination,
-            max_buffer_size,
-            content_uid: None,
-            proposed_destination: None,
-            source_stream: None,
-        }
+        OpenOptions { destination, max_buffer_size, content_uid: None, proposed_destination: None, source_stream: None }
     }
 
     /// Carry a Stream Content UID.
@@ -276,9 +270,11 @@ impl StreamEndpoint {
 
     /// Every live handle, in slot order.
     pub fn handles(&self) -> impl Iterator<Item = StreamHandle> + '_ {
-        self.slots.iter().enumerate().filter(|(_, s)| s.stream.is_some()).filter_map(|(i, s)| {
-            Some(StreamHandle { slot: u16::try_from(i).ok()?, generation: s.generation })
-        })
+        self.slots
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.stream.is_some())
+            .filter_map(|(i, s)| Some(StreamHandle { slot: u16::try_from(i).ok()?, generation: s.generation }))
     }
 
     // ----- outputs -----
@@ -344,7 +340,9 @@ impl StreamEndpoint {
     /// Runs every timer due at `now`. Calling it early or twice is harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
         for index in 0..self.slots.len() {
-            while let Some(timer) = self.slots.get_mut(index).and_then(|s| s.stream.as_mut()).and_then(|s| s.timers.take_expired(now)) {
+            while let Some(timer) =
+                self.slots.get_mut(index).and_then(|s| s.stream.as_mut()).and_then(|s| s.timers.take_expired(now))
+            {
                 self.on_timer(now, index, timer);
             }
         }
@@ -529,10 +527,7 @@ impl StreamEndpoint {
         if dest.state == DestinationState::AwaitingDecision {
             return Err(StreamError::NotOpen);
         }
-        let n = buf.len().min(dest.buffer.len());
-        for (to, from) in buf.iter_mut().zip(dest.buffer.drain(..n)) {
-            *to = from;
-        }
+        let n = copy_out(&mut dest.buffer, buf);
         let drained_and_closed = dest.state == DestinationState::Closed && dest.buffer.is_empty();
         if drained_and_closed {
             self.release(handle);
@@ -575,7 +570,8 @@ impl StreamEndpoint {
                     Some(Some(sid)) => self.refuse(peer, sid, ReplyCode::INVALID_REQUEST),
                     Some(None) => {}
                     None => {
-                        let oir = ErrorReport { code: ErrorCode::INVALID_ARGUMENTS, mti: Some(Mti::STREAM_INITIATE_REQUEST) };
+                        let oir =
+                            ErrorReport { code: ErrorCode::INVALID_ARGUMENTS, mti: Some(Mti::STREAM_INITIATE_REQUEST) };
                         self.out.send_wire(Mti::OPTIONAL_INTERACTION_REJECTED, peer, &oir);
                     }
                 }
@@ -775,9 +771,9 @@ impl StreamEndpoint {
                 }
             }
             // The count cannot be reached: it is below what arrived, or beyond any credit.
-            Some(missing) => {
-                let stated = received.saturating_add(missing).min(received.saturating_add(u64::from(u32::MAX)));
-                self.finish_destination(handle, received, Some(stated));
+            Some(_) => {
+                let stated = complete.count.stated().map(u64::from);
+                self.finish_destination(handle, received, stated);
             }
         }
     }
@@ -790,7 +786,8 @@ impl StreamEndpoint {
                 .handles()
                 .filter(|h| {
                     self.stream(*h).is_some_and(|s| {
-                        s.peer == peer && matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply)
+                        s.peer == peer
+                            && matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply)
                     })
                 })
                 .collect();
@@ -808,7 +805,9 @@ impl StreamEndpoint {
         // is; it does not say which stream (wire-spec Q5): end every stream with that peer in
         // that role, or in both roles when the MTI is missing or unknown.
         let peer_is = match report.mti {
-            Some(Mti::STREAM_DATA_SEND | Mti::STREAM_INITIATE_REQUEST | Mti::STREAM_DATA_COMPLETE) => Some(Role::Destination),
+            Some(Mti::STREAM_DATA_SEND | Mti::STREAM_INITIATE_REQUEST | Mti::STREAM_DATA_COMPLETE) => {
+                Some(Role::Destination)
+            }
             Some(Mti::STREAM_DATA_PROCEED | Mti::STREAM_INITIATE_REPLY) => Some(Role::Source),
             Some(_) if mti == Mti::OPTIONAL_INTERACTION_REJECTED => {
                 return self.count(|s| &mut s.stray_error_reports);
@@ -820,7 +819,8 @@ impl StreamEndpoint {
             .filter(|h| {
                 self.stream(*h).is_some_and(|s| {
                     let our_role = s.role();
-                    s.peer == peer && peer_is.is_none_or(|peer_role| peer_role != our_role)
+                    s.peer == peer
+                        && peer_is.is_none_or(|peer_role| peer_role != our_role)
                         && !matches!(&s.half, Half::Destination(d) if d.state == DestinationState::Closed)
                 })
             })
@@ -915,7 +915,8 @@ impl StreamEndpoint {
     /// Sends a refusing Reply: buffer 0, the SID echoed, DID 0 (never 0xFF, wire-spec §4.2).
     fn refuse(&mut self, peer: NodeId, sid: StreamId, code: ReplyCode) {
         self.out.stats.requests_refused = self.out.stats.requests_refused.saturating_add(1);
-        let reply = InitiateReply { max_buffer_size: 0, code, source_stream: sid, destination_stream: None };
+        let reply =
+            InitiateReply { max_buffer_size: 0, code, source_stream: sid, destination_stream: Some(StreamId::MIN) };
         self.out.send_wire(Mti::STREAM_INITIATE_REPLY, peer, &reply);
     }
 
@@ -1046,10 +1047,29 @@ impl StreamEndpoint {
             .range((peer, Role::Destination, StreamId::MIN)..=(peer, Role::Destination, StreamId::MAX))
             .map(|(_, slot)| *slot)
             .find(|slot| {
-                self.slots.get(usize::from(*slot)).and_then(|s| s.stream.as_ref()).is_some_and(|s| s.source_stream == sid)
+                self.slots
+                    .get(usize::from(*slot))
+                    .and_then(|s| s.stream.as_ref())
+                    .is_some_and(|s| s.source_stream == sid)
             })
             .and_then(|slot| Some(StreamHandle { slot, generation: self.slots.get(usize::from(slot))?.generation }))
     }
+}
+
+/// Moves the front of `from` into `to`, two slice copies at most; returns the count.
+fn copy_out(from: &mut VecDeque<u8>, to: &mut [u8]) -> usize {
+    let (front, back) = from.as_slices();
+    let n_front = front.len().min(to.len());
+    let n_back = back.len().min(to.len().saturating_sub(n_front));
+    if let (Some(dst), Some(src)) = (to.get_mut(..n_front), front.get(..n_front)) {
+        dst.copy_from_slice(src);
+    }
+    if let (Some(dst), Some(src)) = (to.get_mut(n_front..n_front + n_back), back.get(..n_back)) {
+        dst.copy_from_slice(src);
+    }
+    let n = n_front + n_back;
+    from.drain(..n);
+    n
 }
 
 /// Adds one to a counter.

@@ -49,7 +49,8 @@ impl TimerTable {
 
     /// Removes and returns the first timer due at `now`.
     pub(crate) fn take_expired(&mut self, now: Instant) -> Option<Timer> {
-        let timer = Timer::ALL.into_iter().find(|t| self.0.get(*t as usize).copied().flatten().is_some_and(|at| at <= now))?;
+        let timer =
+            Timer::ALL.into_iter().find(|t| self.0.get(*t as usize).copied().flatten().is_some_and(|at| at <= now))?;
         self.stop(timer);
         Some(timer)
     }

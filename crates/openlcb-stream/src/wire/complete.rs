@@ -1,6 +1,6 @@
 //! Stream Data Complete (0x08A8): four encodings in the wild, told apart by length.
 
-use super::{BufferTooSmall, Emit, DecodeError, byte, need, put, stream_id};
+use super::{BufferTooSmall, DecodeError, Emit, byte, need, put, stream_id};
 use crate::{Mti, StreamId};
 
 /// The byte count a Complete carries (wire-spec §4.5, C-8, C-10).
@@ -15,17 +15,21 @@ pub enum CompleteCount {
 }
 
 impl CompleteCount {
+    /// The count as sent, if any.
+    pub fn stated(self) -> Option<u32> {
+        match self {
+            CompleteCount::Unknown => None,
+            CompleteCount::Total(n) | CompleteCount::Modulo24(n) => Some(n),
+        }
+    }
+
     /// How many more bytes must arrive after `received` for the count to match, or `None`
     /// for an unknown count. Counts are modular, so the answer is `(count - received) mod 2^k`.
     pub fn missing_after(self, received: u64) -> Option<u64> {
         match self {
             CompleteCount::Unknown => None,
-            CompleteCount::Total(total) => {
-                Some(u64::from(total.wrapping_sub(received as u32)))
-            }
-            CompleteCount::Modulo24(total) => {
-                Some(u64::from(total.wrapping_sub(received as u32) & 0x00FF_FFFF))
-            }
+            CompleteCount::Total(total) => Some(u64::from(total.wrapping_sub(received as u32))),
+            CompleteCount::Modulo24(total) => Some(u64::from(total.wrapping_sub(received as u32) & 0x00FF_FFFF)),
         }
     }
 }

@@ -1,6 +1,6 @@
 //! Stream Data Send (0x1F88) and Stream Data Proceed (0x0888).
 
-use super::{BufferTooSmall, Emit, DecodeError, byte, need, put, stream_id};
+use super::{BufferTooSmall, DecodeError, Emit, byte, need, put, stream_id};
 use crate::{Mti, StreamId};
 
 /// Stream Data Send, source to destination (draft §5.3, wire-spec §4.3): `DID payload…`.

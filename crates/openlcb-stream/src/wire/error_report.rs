@@ -62,10 +62,7 @@ pub struct ErrorReport {
 impl ErrorReport {
     /// Parses any payload.
     pub fn parse(payload: &[u8]) -> Self {
-        ErrorReport {
-            code: ErrorCode(be16(payload, 0)),
-            mti: (payload.len() >= 4).then(|| Mti(be16(payload, 2))),
-        }
+        ErrorReport { code: ErrorCode(be16(payload, 0)), mti: (payload.len() >= 4).then(|| Mti(be16(payload, 2))) }
     }
 }
 

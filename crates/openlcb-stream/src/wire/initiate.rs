@@ -2,7 +2,7 @@
 
 use core::fmt;
 
-use super::{BufferTooSmall, Emit, DecodeError, be16, byte, need, put, stream_id};
+use super::{BufferTooSmall, DecodeError, Emit, be16, byte, need, put, stream_id};
 use crate::{ContentUid, Mti, StreamId};
 
 /// Stream Initiate Request, source to destination (draft §5.1, wire-spec §4.1).
@@ -36,16 +36,8 @@ impl InitiateRequest {
             return Err(DecodeError::ZeroBufferSize);
         }
         let proposed_destination = payload.get(5).copied().and_then(StreamId::new);
-        let content_uid = payload
-            .get(6..12)
-            .and_then(|uid| <[u8; 6]>::try_from(uid).ok())
-            .and_then(ContentUid::new);
-        Ok(InitiateRequest {
-            max_buffer_size,
-            source_stream,
-            proposed_destination,
-            content_uid,
-        })
+        let content_uid = payload.get(6..12).and_then(|uid| <[u8; 6]>::try_from(uid).ok()).and_then(ContentUid::new);
+        Ok(InitiateRequest { max_buffer_size, source_stream, proposed_destination, content_uid })
     }
 }
 
@@ -208,11 +200,13 @@ impl Emit for InitiateReply {
         6
     }
 
-    /// Writes the 6-byte form. A missing DID is sent as 0x00, never 0xFF (wire-spec §4.2).
+    /// Writes the 6-byte form. `None` is written back as the 0xFF it was parsed from; the
+    /// endpoint never emits it: its rejects carry DID 0x00 (wire-spec §4.2, the checker fails
+    /// a 0xFF there).
     fn emit(&self, buf: &mut [u8]) -> Result<usize, BufferTooSmall> {
         let [b0, b1] = self.max_buffer_size.to_be_bytes();
         let [c0, c1] = self.code.0.to_be_bytes();
-        let did = self.destination_stream.map_or(0, StreamId::as_raw);
+        let did = self.destination_stream.map_or(StreamId::RESERVED, StreamId::as_raw);
         put(buf, &[b0, b1, c0, c1, self.source_stream.as_raw(), did])
     }
 }

@@ -6,9 +6,9 @@
 //! Offsets are into the message payload, after the MTI and Node IDs.
 
 mod complete;
+mod data;
 mod error_report;
 mod initiate;
-mod data;
 
 pub use complete::{CompleteCount, DataComplete};
 pub use data::{DataProceed, DataSend};
@@ -103,3 +103,6 @@ pub trait Emit {
         bytes::Bytes::from(out)
     }
 }
+
+#[cfg(test)]
+mod tests;

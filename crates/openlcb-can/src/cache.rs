@@ -1,0 +1,175 @@
+//! [`AliasCache`]: the bounded alias <-> Node ID table of remote nodes, least recently used
+//! entry evicted first.
+
+use alloc::vec::Vec;
+
+use openlcb_stream::NodeId;
+
+use crate::NodeAlias;
+
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    alias: NodeAlias,
+    node: NodeId,
+    last_used: u64,
+}
+
+/// Alias mappings of remote nodes, at most `capacity` of them. Each alias and each Node ID
+/// appears at most once. Lookups that find an entry mark it used.
+#[derive(Debug, Clone)]
+pub struct AliasCache {
+    entries: Vec<Entry>,
+    capacity: usize,
+    clock: u64,
+}
+
+impl AliasCache {
+    /// An empty cache holding at most `capacity` mappings (all memory taken up front).
+    pub fn new(capacity: usize) -> Self {
+        AliasCache {
+            entries: Vec::with_capacity(capacity),
+            capacity,
+            clock: 0,
+        }
+    }
+
+    fn tick(&mut self) -> u64 {
+        self.clock = self.clock.wrapping_add(1);
+        self.clock
+    }
+
+    /// Records `alias` <-> `node`, replacing any mapping of either. Returns the mapping
+    /// evicted to make room, if one was.
+    pub fn insert(&mut self, alias: NodeAlias, node: NodeId) -> Option<(NodeAlias, NodeId)> {
+        let last_used = self.tick();
+        self.entries.retain(|e| e.alias != alias && e.node != node);
+        let mut evicted = None;
+        if self.entries.len() >= self.capacity {
+            let oldest = self
+                .entries
+                .iter()
+                .enumerate()
+                .min_by_key(|(_, e)| e.last_used)
+                .map(|(i, _)| i)?;
+            let e = self.entries.swap_remove(oldest);
+            evicted = Some((e.alias, e.node));
+        }
+        self.entries.push(Entry {
+            alias,
+            node,
+            last_used,
+        });
+        evicted
+    }
+
+    /// The node holding `alias`, marking the entry used.
+    pub fn node(&mut self, alias: NodeAlias) -> Option<NodeId> {
+        let now = self.tick();
+        let entry = self.entries.iter_mut().find(|e| e.alias == alias)?;
+        entry.last_used = now;
+        Some(entry.node)
+    }
+
+    /// The alias of `node`, marking the entry used.
+    pub fn alias(&mut self, node: NodeId) -> Option<NodeAlias> {
+        let now = self.tick();
+        let entry = self.entries.iter_mut().find(|e| e.node == node)?;
+        entry.last_used = now;
+        Some(entry.alias)
+    }
+
+    /// The node holding `alias`, without marking it used.
+    pub fn peek_node(&self, alias: NodeAlias) -> Option<NodeId> {
+        self.entries
+            .iter()
+            .find(|e| e.alias == alias)
+            .map(|e| e.node)
+    }
+
+    /// The alias of `node`, without marking it used.
+    pub fn peek_alias(&self, node: NodeId) -> Option<NodeAlias> {
+        self.entries
+            .iter()
+            .find(|e| e.node == node)
+            .map(|e| e.alias)
+    }
+
+    /// Forgets `alias` and returns the node that held it.
+    pub fn remove_alias(&mut self, alias: NodeAlias) -> Option<NodeId> {
+        let index = self.entries.iter().position(|e| e.alias == alias)?;
+        Some(self.entries.swap_remove(index).node)
+    }
+
+    /// Forgets every mapping (a global AME, CFT §6.2.3).
+    pub fn clear(&mut self) {
+        self.entries.clear();
+    }
+
+    /// Mappings held.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// No mapping is held.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn alias(raw: u16) -> NodeAlias {
+        NodeAlias::new(raw).unwrap()
+    }
+
+    fn node(raw: u64) -> NodeId {
+        NodeId::new(raw).unwrap()
+    }
+
+    #[test]
+    fn maps_both_ways_and_replaces_stale_entries() {
+        let mut cache = AliasCache::new(4);
+        cache.insert(alias(0x456), node(2));
+        assert_eq!(cache.node(alias(0x456)), Some(node(2)));
+        assert_eq!(cache.alias(node(2)), Some(alias(0x456)));
+        // The node came back with a new alias: the old one is gone.
+        cache.insert(alias(0x789), node(2));
+        assert_eq!(cache.peek_node(alias(0x456)), None);
+        assert_eq!(cache.peek_alias(node(2)), Some(alias(0x789)));
+        // Another node took the alias: the old node is gone.
+        cache.insert(alias(0x789), node(3));
+        assert_eq!(cache.peek_alias(node(2)), None);
+        assert_eq!(cache.len(), 1);
+    }
+
+    #[test]
+    fn evicts_the_least_recently_used() {
+        let mut cache = AliasCache::new(2);
+        cache.insert(alias(1), node(1));
+        cache.insert(alias(2), node(2));
+        cache.node(alias(1));
+        assert_eq!(cache.insert(alias(3), node(3)), Some((alias(2), node(2))));
+        assert_eq!(cache.peek_node(alias(1)), Some(node(1)));
+        assert_eq!(cache.len(), 2);
+    }
+
+    #[test]
+    fn remove_and_clear() {
+        let mut cache = AliasCache::new(2);
+        cache.insert(alias(1), node(1));
+        assert_eq!(cache.remove_alias(alias(1)), Some(node(1)));
+        assert_eq!(cache.remove_alias(alias(1)), None);
+        cache.insert(alias(2), node(2));
+        cache.clear();
+        assert!(cache.is_empty());
+    }
+
+    #[test]
+    fn zero_capacity_holds_nothing() {
+        let mut cache = AliasCache::new(0);
+        assert_eq!(cache.insert(alias(1), node(1)), None);
+        assert!(cache.is_empty());
+    }
+}

@@ -1,0 +1,362 @@
+//! Outgoing messages split into frames: [`Fragments`] (wire-spec §7.2, §7.3).
+//!
+//! - global messages: format 1, the payload in the data bytes (at most 8);
+//! - addressed messages: format 1, data bytes 0-1 = framing flags + destination alias, then at
+//!   most 6 payload bytes a frame; an empty payload is one 2-byte frame;
+//! - Stream Data Send: format 7 with the destination alias in the header, data byte 0 = DID,
+//!   then at most 7 payload bytes a frame; a DID alone is one 1-byte frame (a flush).
+
+use openlcb_stream::Mti;
+
+use crate::NodeAlias;
+use crate::frame::CanFrame;
+use crate::header::{CanHeader, FrameKind};
+
+/// Payload bytes of an addressed format 1 frame.
+pub const ADDRESSED_PAYLOAD_PER_FRAME: usize = 6;
+/// Payload bytes of a stream data frame, after the DID.
+pub const STREAM_PAYLOAD_PER_FRAME: usize = 7;
+
+/// Framing flags in data byte 0 of an addressed frame (wire-spec §7.2, active low).
+mod framing {
+    /// More frames follow.
+    pub(crate) const NOT_LAST: u8 = 0x10;
+    /// Frames came before.
+    pub(crate) const NOT_FIRST: u8 = 0x20;
+    /// Both flag bits.
+    pub(crate) const MASK: u8 = 0x30;
+}
+
+/// Where a frame of an addressed message sits in its message (data byte 0, bits 5-4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum FramePosition {
+    /// `00`: the whole message.
+    Only,
+    /// `01`: the first of several.
+    First,
+    /// `11`: neither first nor last.
+    Middle,
+    /// `10`: the last of several.
+    Last,
+}
+
+impl FramePosition {
+    /// The position named by data byte 0 of an addressed frame.
+    pub const fn from_flags(byte0: u8) -> Self {
+        match byte0 & framing::MASK {
+            0 => FramePosition::Only,
+            framing::NOT_LAST => FramePosition::First,
+            framing::NOT_FIRST => FramePosition::Last,
+            _ => FramePosition::Middle,
+        }
+    }
+
+    /// The flag bits for data byte 0.
+    pub const fn flags(self) -> u8 {
+        match self {
+            FramePosition::Only => 0,
+            FramePosition::First => framing::NOT_LAST,
+            FramePosition::Middle => framing::NOT_LAST | framing::NOT_FIRST,
+            FramePosition::Last => framing::NOT_FIRST,
+        }
+    }
+}
+
+/// Why a message cannot be put on CAN.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum EncodeError {
+    /// An addressed MTI (or Stream Data Send) without a destination alias.
+    #[error("{0:?} needs a destination")]
+    MissingDestination(Mti),
+    /// A Stream Data Send without even the DID byte.
+    #[error("Stream Data Send without a DID")]
+    EmptyStreamData,
+    /// A global message of more than 8 bytes (this crate does not split global messages).
+    #[error("global message of {0} bytes does not fit one frame")]
+    GlobalTooLong(usize),
+    /// An MTI that format 1 cannot carry (bits 15-12 set) other than Stream Data Send, e.g. a
+    /// datagram (not implemented by this crate).
+    #[error("{0:?} has no CAN form here")]
+    Unsupported(Mti),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Layout {
+    Global,
+    Addressed { destination: NodeAlias },
+    StreamData,
+}
+
+/// An iterator over the frames of one message. Holds the payload (any `AsRef<[u8]>`, e.g. the
+/// core's `Bytes`) and an offset: no copy of the payload, no allocation.
+#[derive(Debug, Clone)]
+pub struct Fragments<P> {
+    id: u32,
+    layout: Layout,
+    payload: P,
+    offset: usize,
+    finished: bool,
+}
+
+impl<P: AsRef<[u8]>> Fragments<P> {
+    /// The frames of `mti` from `source` to `destination` (`None` for a global message)
+    /// carrying `payload`. For Stream Data Send the payload starts with the DID.
+    pub fn new(
+        mti: Mti,
+        source: NodeAlias,
+        destination: Option<NodeAlias>,
+        payload: P,
+    ) -> Result<Self, EncodeError> {
+        let len = payload.as_ref().len();
+        let (kind, layout) = if mti == Mti::STREAM_DATA_SEND {
+            let destination = destination.ok_or(EncodeError::MissingDestination(mti))?;
+            if len == 0 {
+                return Err(EncodeError::EmptyStreamData);
+            }
+            (FrameKind::StreamData { destination }, Layout::StreamData)
+        } else if mti.as_raw() & 0xF000 != 0 {
+            return Err(EncodeError::Unsupported(mti));
+        } else if mti.is_addressed() {
+            let destination = destination.ok_or(EncodeError::MissingDestination(mti))?;
+            (
+                FrameKind::Message {
+                    can_mti: mti.as_raw(),
+                },
+                Layout::Addressed { destination },
+            )
+        } else {
+            if len > CanFrame::MAX_DATA {
+                return Err(EncodeError::GlobalTooLong(len));
+            }
+            (
+                FrameKind::Message {
+                    can_mti: mti.as_raw(),
+                },
+                Layout::Global,
+            )
+        };
+        let id = CanHeader { kind, source }.to_id();
+        Ok(Fragments {
+            id,
+            layout,
+            payload,
+            offset: 0,
+            finished: false,
+        })
+    }
+
+    /// Frames still to come.
+    pub fn remaining(&self) -> usize {
+        if self.finished {
+            return 0;
+        }
+        let len = self.payload.as_ref().len();
+        match self.layout {
+            Layout::Global => 1,
+            Layout::Addressed { .. } => len
+                .saturating_sub(self.offset)
+                .div_ceil(ADDRESSED_PAYLOAD_PER_FRAME)
+                .max(1),
+            Layout::StreamData => {
+                let body_left = len.saturating_sub(1).saturating_sub(self.offset);
+                body_left.div_ceil(STREAM_PAYLOAD_PER_FRAME).max(1)
+            }
+        }
+    }
+}
+
+impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
+    type Item = CanFrame;
+
+    fn next(&mut self) -> Option<CanFrame> {
+        if self.finished {
+            return None;
+        }
+        let payload = self.payload.as_ref();
+        let frame = match self.layout {
+            Layout::Global => {
+                self.finished = true;
+                CanFrame::build(self.id, |data| copy_into(data, 0, payload))
+            }
+            Layout::Addressed { destination } => {
+                let rest = payload.get(self.offset..).unwrap_or(&[]);
+                let chunk = rest.get(..ADDRESSED_PAYLOAD_PER_FRAME).unwrap_or(rest);
+                let first = self.offset == 0;
+                self.offset = self.offset.saturating_add(chunk.len());
+                let last = self.offset >= payload.len();
+                self.finished = last;
+                let position = match (first, last) {
+                    (true, true) => FramePosition::Only,
+                    (true, false) => FramePosition::First,
+                    (false, true) => FramePosition::Last,
+                    (false, false) => FramePosition::Middle,
+                };
+                let [high, low] = destination.as_raw().to_be_bytes();
+                CanFrame::build(self.id, |data| {
+                    data[0] = position.flags() | (high & 0x0F);
+                    data[1] = low;
+                    copy_into(data, 2, chunk)
+                })
+            }
+            Layout::StreamData => {
+                let (did, body) = payload.split_first().unwrap_or((&0, &[]));
+                let rest = body.get(self.offset..).unwrap_or(&[]);
+                let chunk = rest.get(..STREAM_PAYLOAD_PER_FRAME).unwrap_or(rest);
+                self.offset = self.offset.saturating_add(chunk.len());
+                self.finished = self.offset >= body.len();
+                CanFrame::build(self.id, |data| {
+                    data[0] = *did;
+                    copy_into(data, 1, chunk)
+                })
+            }
+        };
+        Some(frame)
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let n = self.remaining();
+        (n, Some(n))
+    }
+}
+
+/// Copies `bytes` to `data[at..]` as far as it fits and returns the used length.
+fn copy_into(data: &mut [u8; 8], at: usize, bytes: &[u8]) -> usize {
+    let Some(room) = data.get_mut(at..) else {
+        return at.min(CanFrame::MAX_DATA);
+    };
+    let n = room.len().min(bytes.len());
+    if let (Some(to), Some(from)) = (room.get_mut(..n), bytes.get(..n)) {
+        to.copy_from_slice(from);
+    }
+    at + n
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn alias(raw: u16) -> NodeAlias {
+        NodeAlias::new(raw).unwrap()
+    }
+
+    fn frames(mti: Mti, src: u16, dst: Option<u16>, payload: &[u8]) -> Vec<(u32, Vec<u8>)> {
+        let it = Fragments::new(mti, alias(src), dst.map(alias), payload).unwrap();
+        let hint = it.size_hint().0;
+        let out: Vec<_> = it.map(|f| (f.raw_id(), f.payload().to_vec())).collect();
+        assert_eq!(out.len(), hint, "size_hint");
+        out
+    }
+
+    #[test]
+    fn position_flags_round_trip() {
+        for p in [
+            FramePosition::Only,
+            FramePosition::First,
+            FramePosition::Middle,
+            FramePosition::Last,
+        ] {
+            assert_eq!(FramePosition::from_flags(p.flags() | 0x0F), p);
+        }
+        assert_eq!(FramePosition::from_flags(0x14), FramePosition::First);
+        assert_eq!(FramePosition::from_flags(0x24), FramePosition::Last);
+    }
+
+    #[test]
+    fn addressed_message_without_payload_is_one_two_byte_frame() {
+        assert_eq!(
+            frames(Mti::VERIFY_NODE_ID_ADDRESSED, 0x123, Some(0x456), &[]),
+            [(0x1948_8123, vec![0x04, 0x56])]
+        );
+    }
+
+    #[test]
+    fn addressed_message_of_exactly_six_bytes_is_one_frame() {
+        let out = frames(
+            Mti::STREAM_INITIATE_REPLY,
+            0x456,
+            Some(0x123),
+            &[0, 0x10, 0x80, 0, 4, 7],
+        );
+        assert_eq!(
+            out,
+            [(0x1986_8456, vec![0x01, 0x23, 0, 0x10, 0x80, 0, 4, 7])]
+        );
+    }
+
+    #[test]
+    fn addressed_message_of_thirteen_bytes_is_first_middle_last() {
+        let payload: Vec<u8> = (1..=13).collect();
+        let out = frames(Mti::STREAM_INITIATE_REQUEST, 0x123, Some(0xFED), &payload);
+        assert_eq!(
+            out,
+            [
+                (0x19CC_8123, vec![0x1F, 0xED, 1, 2, 3, 4, 5, 6]),
+                (0x19CC_8123, vec![0x3F, 0xED, 7, 8, 9, 10, 11, 12]),
+                (0x19CC_8123, vec![0x2F, 0xED, 13]),
+            ]
+        );
+    }
+
+    #[test]
+    fn stream_data_takes_seven_bytes_a_frame() {
+        let payload: Vec<u8> = core::iter::once(7).chain(0..16).collect();
+        let out = frames(Mti::STREAM_DATA_SEND, 0x123, Some(0x456), &payload);
+        assert_eq!(
+            out,
+            [
+                (0x1F45_6123, vec![7, 0, 1, 2, 3, 4, 5, 6]),
+                (0x1F45_6123, vec![7, 7, 8, 9, 10, 11, 12, 13]),
+                (0x1F45_6123, vec![7, 14, 15]),
+            ]
+        );
+        let exact: Vec<u8> = core::iter::once(7).chain(0..7).collect();
+        assert_eq!(
+            frames(Mti::STREAM_DATA_SEND, 0x123, Some(0x456), &exact).len(),
+            1
+        );
+    }
+
+    #[test]
+    fn stream_flush_is_a_did_only_frame() {
+        assert_eq!(
+            frames(Mti::STREAM_DATA_SEND, 0x123, Some(0x456), &[7]),
+            [(0x1F45_6123, vec![7])]
+        );
+    }
+
+    #[test]
+    fn global_message_carries_the_payload_in_the_data() {
+        let node = [5, 1, 1, 1, 0x22, 0];
+        assert_eq!(
+            frames(Mti::INITIALIZATION_COMPLETE, 0x123, None, &node),
+            [(0x1910_0123, node.to_vec())]
+        );
+    }
+
+    #[test]
+    fn refuses_what_it_cannot_carry() {
+        let a = alias(0x123);
+        let err = |mti, dst, payload: &[u8]| Fragments::new(mti, a, dst, payload).err();
+        assert_eq!(
+            err(Mti::STREAM_DATA_SEND, Some(a), &[]),
+            Some(EncodeError::EmptyStreamData)
+        );
+        assert_eq!(
+            err(Mti::STREAM_DATA_SEND, None, &[1]),
+            Some(EncodeError::MissingDestination(Mti::STREAM_DATA_SEND))
+        );
+        assert_eq!(
+            err(Mti::STREAM_DATA_PROCEED, None, &[1, 2]),
+            Some(EncodeError::MissingDestination(Mti::STREAM_DATA_PROCEED))
+        );
+        assert_eq!(
+            err(Mti::DATAGRAM, Some(a), &[1]),
+            Some(EncodeError::Unsupported(Mti::DATAGRAM))
+        );
+        assert_eq!(
+            err(Mti::VERIFY_NODE_ID_GLOBAL, None, &[0; 9]),
+            Some(EncodeError::GlobalTooLong(9))
+        );
+    }
+}

@@ -1,0 +1,190 @@
+//! [`CanFrame`]: an identifier and up to 8 data bytes, inline, `Copy`, no heap.
+
+use embedded_can::{ExtendedId, Id, StandardId};
+
+use crate::header::{CanHeader, HeaderError};
+
+/// One CAN frame. OpenLCB sends only extended data frames; standard and remote frames can be
+/// represented because a bus carries them and a driver hands them over (they are ignored).
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+pub struct CanFrame {
+    id: Id,
+    remote: bool,
+    len: u8,
+    data: [u8; 8],
+}
+
+impl CanFrame {
+    /// The most data bytes a classic CAN frame carries.
+    pub const MAX_DATA: usize = 8;
+
+    /// An extended data frame with the 29-bit `id` (bits above 28 are dropped) and `data`,
+    /// or `None` if `data` is longer than 8 bytes.
+    pub fn extended(id: u32, data: &[u8]) -> Option<Self> {
+        let id = ExtendedId::new(id & ExtendedId::MAX.as_raw())?;
+        Self::with_id(Id::Extended(id), data)
+    }
+
+    /// A standard (11-bit) data frame, or `None` if `id` exceeds 11 bits or `data` 8 bytes.
+    /// OpenLCB never sends one; a bus may carry them.
+    pub fn standard(id: u16, data: &[u8]) -> Option<Self> {
+        Self::with_id(Id::Standard(StandardId::new(id)?), data)
+    }
+
+    /// The data frame for an OpenLCB header.
+    pub fn from_header(header: &CanHeader, data: &[u8]) -> Option<Self> {
+        Self::extended(header.to_id(), data)
+    }
+
+    fn with_id(id: Id, data: &[u8]) -> Option<Self> {
+        let mut frame = CanFrame {
+            id,
+            remote: false,
+            len: 0,
+            data: [0; 8],
+        };
+        frame.data.get_mut(..data.len())?.copy_from_slice(data);
+        frame.len = data.len() as u8;
+        Some(frame)
+    }
+
+    /// An extended frame whose data is filled by `fill`, which writes into the 8-byte array
+    /// and returns the length it used (clamped to 8). Builds frames without a staging buffer.
+    pub(crate) fn build(id: u32, fill: impl FnOnce(&mut [u8; 8]) -> usize) -> Self {
+        let mut data = [0u8; 8];
+        let len = fill(&mut data).min(Self::MAX_DATA) as u8;
+        let id = ExtendedId::new(id & ExtendedId::MAX.as_raw()).unwrap_or(ExtendedId::ZERO);
+        CanFrame {
+            id: Id::Extended(id),
+            remote: false,
+            len,
+            data,
+        }
+    }
+
+    /// The raw identifier: 29 bits for an extended frame, 11 for a standard one.
+    pub fn raw_id(&self) -> u32 {
+        match self.id {
+            Id::Extended(id) => id.as_raw(),
+            Id::Standard(id) => u32::from(id.as_raw()),
+        }
+    }
+
+    /// The OpenLCB view of an extended data frame's identifier.
+    pub fn header(&self) -> Result<CanHeader, FrameError> {
+        match (self.id, self.remote) {
+            (Id::Standard(_), _) => Err(FrameError::Standard),
+            (_, true) => Err(FrameError::Remote),
+            (Id::Extended(id), false) => CanHeader::parse(id.as_raw()).map_err(FrameError::Header),
+        }
+    }
+
+    /// The data bytes.
+    pub fn payload(&self) -> &[u8] {
+        self.data.get(..usize::from(self.len)).unwrap_or(&[])
+    }
+}
+
+impl core::fmt::Debug for CanFrame {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self.id {
+            Id::Extended(id) => write!(f, "CanFrame(X{:08X}", id.as_raw())?,
+            Id::Standard(id) => write!(f, "CanFrame(S{:03X}", id.as_raw())?,
+        }
+        f.write_str(if self.remote { " R" } else { " N" })?;
+        for byte in self.payload() {
+            write!(f, "{byte:02X}")?;
+        }
+        f.write_str(")")
+    }
+}
+
+/// Why a frame is not an OpenLCB frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FrameError {
+    /// An 11-bit standard frame (CFT §4: tolerate, ignore).
+    #[error("standard (11-bit) frame")]
+    Standard,
+    /// A remote (RTR) frame (CFT §4: never sent by OpenLCB).
+    #[error("remote frame")]
+    Remote,
+    /// The identifier is not a valid OpenLCB header.
+    #[error("bad header: {0}")]
+    Header(HeaderError),
+}
+
+impl embedded_can::Frame for CanFrame {
+    fn new(id: impl Into<Id>, data: &[u8]) -> Option<Self> {
+        Self::with_id(id.into(), data)
+    }
+
+    fn new_remote(id: impl Into<Id>, dlc: usize) -> Option<Self> {
+        if dlc > Self::MAX_DATA {
+            return None;
+        }
+        Some(CanFrame {
+            id: id.into(),
+            remote: true,
+            len: dlc as u8,
+            data: [0; 8],
+        })
+    }
+
+    fn is_extended(&self) -> bool {
+        matches!(self.id, Id::Extended(_))
+    }
+
+    fn is_remote_frame(&self) -> bool {
+        self.remote
+    }
+
+    fn id(&self) -> Id {
+        self.id
+    }
+
+    fn dlc(&self) -> usize {
+        usize::from(self.len)
+    }
+
+    /// The data bytes (empty for a remote frame, whose DLC only states a length).
+    fn data(&self) -> &[u8] {
+        if self.remote { &[] } else { self.payload() }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use embedded_can::Frame;
+
+    use super::*;
+    use crate::header::FrameKind;
+
+    #[test]
+    fn extended_frame_accessors() {
+        let frame = CanFrame::extended(0x1F22_522A, &[0x55, 0x41, 0x42, 0x43]).unwrap();
+        assert!(frame.is_extended() && frame.is_data_frame());
+        assert_eq!(frame.dlc(), 4);
+        assert_eq!(frame.data(), &[0x55, 0x41, 0x42, 0x43]);
+        assert_eq!(frame.raw_id(), 0x1F22_522A);
+        assert!(matches!(
+            frame.header().unwrap().kind,
+            FrameKind::StreamData { .. }
+        ));
+        assert_eq!(format!("{frame:?}"), "CanFrame(X1F22522A N55414243)");
+        assert_eq!(CanFrame::extended(0x1F22_522A, &[0; 9]), None);
+    }
+
+    #[test]
+    fn standard_and_remote_frames_are_not_openlcb() {
+        let standard = <CanFrame as Frame>::new(StandardId::new(0x72D).unwrap(), &[1, 2]).unwrap();
+        assert!(standard.is_standard());
+        assert_eq!(standard.header(), Err(FrameError::Standard));
+        let remote = CanFrame::new_remote(ExtendedId::new(0x1910_0123).unwrap(), 3).unwrap();
+        assert!(remote.is_remote_frame());
+        assert_eq!(remote.dlc(), 3);
+        assert_eq!(remote.data(), &[] as &[u8]);
+        assert_eq!(remote.header(), Err(FrameError::Remote));
+        assert_eq!(CanFrame::new_remote(ExtendedId::ZERO, 9), None);
+    }
+}

@@ -1,0 +1,128 @@
+//! Sans-IO OpenLCB (LCC) CAN transport, so that the stream core runs unchanged over a CAN
+//! segment.
+//!
+//! - [`CanHeader`]: the 29-bit identifier as a typed view; [`CanFrame`]: an identifier and up
+//!   to 8 data bytes, implementing [`embedded_can::Frame`] (re-exported as [`embedded_can`]).
+//! - [`Fragments`]: a message split into frames (format 1 with framing flags and 6 payload
+//!   bytes a frame, format 7 stream data with the DID and 7 payload bytes a frame);
+//!   [`Reassembler`]: bounded reassembly with the message network's error cases.
+//! - [`AliasLogin`]: CID 7..4, the reserve wait, RID, AMD; defence, loss and duplicate Node
+//!   ID detection; [`AliasGenerator`]: the Technical Note's preferred alias generator.
+//! - [`AliasCache`]: remote alias mappings, bounded, least recently used evicted first.
+//! - [`CanLink`]: one node's adapter between core [`Message`](openlcb_stream::Message)s and
+//!   frames, tying the above together.
+//! - [`gridconnect`]: the `:X19CC8123N...;` text form, encoder and resumable decoder.
+//!
+//! # The drive loop
+//!
+//! [`CanLink`] has the shape of the stream endpoint: inputs
+//! [`handle_frame`](CanLink::handle_frame) and [`handle_timeout`](CanLink::handle_timeout),
+//! the command [`send`](CanLink::send), outputs [`poll_transmit`](CanLink::poll_transmit),
+//! [`poll_event`](CanLink::poll_event) and [`poll_timeout`](CanLink::poll_timeout). After any
+//! input or command, drain the outputs, then arm a timer for the earliest `poll_timeout` of
+//! link and endpoint. Received messages are handed to a closure, borrowing the frame (or the
+//! link's reassembly buffer), so the endpoint takes them without a copy:
+//!
+//! ```
+//! use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent};
+//! use openlcb_stream::{Config, Instant, NodeId, StreamEndpoint};
+//!
+//! let node = NodeId::new(0x05_01_01_01_22_00).unwrap();
+//! let mut endpoint = StreamEndpoint::new(node, Config::default());
+//! let mut link = CanLink::new(Instant::ZERO, node, CanConfig::default());
+//! let mut bus: Vec<CanFrame> = Vec::new(); // stands in for the CAN driver
+//!
+//! // One turn of the loop: at `now`, with whatever frames arrived.
+//! let mut turn = |now: Instant, received: &[CanFrame], bus: &mut Vec<CanFrame>| {
+//!     link.handle_timeout(now);
+//!     endpoint.handle_timeout(now);
+//!     for frame in received {
+//!         link.handle_frame(now, frame, |msg| endpoint.handle_message(now, msg));
+//!     }
+//!     while let Some(event) = link.poll_event() {
+//!         match event {
+//!             LinkEvent::AliasLost { .. } => endpoint.link_lost(),
+//!             LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
+//!             _ => {}
+//!         }
+//!     }
+//!     while let Some(msg) = endpoint.poll_transmit() {
+//!         let _ = link.send(now, msg); // a refusal is counted in link.stats()
+//!     }
+//!     while let Some(frame) = link.poll_transmit() {
+//!         bus.push(frame);
+//!     }
+//!     while let Some(_event) = endpoint.poll_event() { /* the application's business */ }
+//!     [link.poll_timeout(), endpoint.poll_timeout()].into_iter().flatten().min()
+//! };
+//!
+//! // CID 7..4 go out at once; the core's Initialization Complete waits for the alias.
+//! let wake = turn(Instant::ZERO, &[], &mut bus);
+//! assert_eq!(bus.len(), 4);
+//! assert_eq!(wake, Some(Instant::from_millis(200)));
+//! // 200 ms later: RID, AMD, then Initialization Complete.
+//! turn(Instant::from_millis(200), &[], &mut bus);
+//! let ids: Vec<u32> = bus[4..].iter().map(CanFrame::raw_id).collect();
+//! assert_eq!(ids, [0x1070_0343, 0x1070_1343, 0x1910_0343]);
+//! ```
+//!
+//! # Choices where the standards leave room
+//!
+//! - Reassembly errors (0x2041, 0x2042, 0x2011, and 0x2020 when no slot or length is left)
+//!   are counted in [`LinkStats`] and answered with Optional Interaction Rejected quoting
+//!   the MTI ([`CanConfig::reject_reassembly_errors`]): the receiver declines the broken
+//!   interaction; a TDE would end every stream with that peer in the core.
+//! - A message from an alias not in the cache is held (bounded by
+//!   [`CanConfig::max_held_messages`]) and an addressed Verify Node ID goes to that alias; its
+//!   Verified Node ID (or an AMD) releases the held messages in arrival order. Messages still
+//!   held after [`CanConfig::resolve_timeout`] are dropped and counted.
+//! - A message for a node whose alias is unknown waits while an AME for that Node ID is out;
+//!   after [`CanConfig::resolve_timeout`] it is dropped with [`LinkEvent::Unreachable`].
+//! - After losing its alias the link logs in again with the generator's next alias and sends
+//!   Initialization Complete itself (the endpoint sends it only once, when created).
+//! - Datagram frames (formats 2-5) are counted and ignored; global messages longer than one
+//!   frame are refused by [`CanLink::send`].
+//! - The link does not see its own transmitted frames; a driver whose controller echoes them
+//!   must filter them out, or they read as an alias collision.
+
+#![cfg_attr(not(test), no_std)]
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::indexing_slicing
+    )
+)]
+#![warn(missing_docs)]
+
+extern crate alloc;
+
+mod alias;
+mod cache;
+mod fragment;
+mod frame;
+pub mod gridconnect;
+mod header;
+mod link;
+mod login;
+mod reassembly;
+
+#[cfg(feature = "fuzzing")]
+#[doc(hidden)]
+pub mod fuzzing;
+
+pub use embedded_can;
+
+pub use alias::{AliasGenerator, NodeAlias};
+pub use cache::AliasCache;
+pub use fragment::{
+    ADDRESSED_PAYLOAD_PER_FRAME, EncodeError, Fragments, FramePosition, STREAM_PAYLOAD_PER_FRAME,
+};
+pub use frame::{CanFrame, FrameError};
+pub use gridconnect::{GridConnectDecoder, GridConnectError};
+pub use header::{CanHeader, DatagramFrame, FrameKind, HeaderError};
+pub use link::{CanConfig, CanLink, LinkEvent, LinkStats, SendError};
+pub use login::{AliasLogin, LoginEvent, LoginState, LoginStats};
+pub use reassembly::{Reassembler, ReassemblyError, ReassemblyKey};

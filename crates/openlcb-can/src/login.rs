@@ -1,0 +1,500 @@
+//! [`AliasLogin`]: reserving, defending and releasing the local node's alias (CFT §6.2,
+//! wire-spec §7.5), in the same handle/poll shape as the stream endpoint.
+//!
+//! ```text
+//! Checking --(reserve wait elapsed: RID, AMD)--> Permitted
+//!    ^  |                                            |
+//!    |  +-- frame from our alias: next alias, CIDs   +-- CID with our alias: RID (defence)
+//!    +------- other frame from our alias: AMR, Lost -+
+//! any state --(AMD with our Node ID from another alias)--> Stopped (sends nothing more)
+//! ```
+
+use alloc::collections::VecDeque;
+
+use openlcb_stream::{Duration, Instant, NodeId};
+
+use crate::NodeAlias;
+use crate::alias::AliasGenerator;
+use crate::frame::CanFrame;
+use crate::header::{CanHeader, FrameKind};
+
+/// Frames the login can have queued at once: CID 7..4, RID, AMD, AMR, one AMD answer.
+const QUEUE_BOUND: usize = 8;
+/// Events the login can have queued at once.
+const EVENT_BOUND: usize = 8;
+
+/// Where the login stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum LoginState {
+    /// Inhibited: CID frames sent for `alias`, waiting until `deadline` before RID.
+    Checking {
+        /// The tentative alias.
+        alias: NodeAlias,
+        /// When RID may go out.
+        deadline: Instant,
+    },
+    /// The alias is ours and announced (AMD sent): anything may be sent.
+    Permitted {
+        /// The alias.
+        alias: NodeAlias,
+    },
+    /// Another node announced our Node ID: nothing more is sent until the node is reset.
+    Stopped,
+}
+
+/// What the login tells its owner.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum LoginEvent {
+    /// RID and AMD are queued: the node may send messages from `alias`.
+    Permitted {
+        /// The reserved alias.
+        alias: NodeAlias,
+    },
+    /// A frame from another node used the tentative `alias` during the check; a new alias is
+    /// being checked.
+    Conflict {
+        /// The abandoned alias.
+        alias: NodeAlias,
+    },
+    /// Another node used our permitted `alias`: AMR is queued and a new login has started.
+    /// Everything tied to the old alias (streams) is over.
+    Lost {
+        /// The released alias.
+        alias: NodeAlias,
+    },
+    /// Another node (`other`) announced this node's Node ID. The login has stopped.
+    DuplicateNodeId {
+        /// The alias of the other node.
+        other: NodeAlias,
+    },
+}
+
+/// Counters of the login.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct LoginStats {
+    /// Tentative aliases abandoned because another node used them.
+    pub conflicts: u64,
+    /// RIDs sent to defend our alias against a CID.
+    pub defences: u64,
+    /// Permitted aliases lost to another node (AMR sent).
+    pub losses: u64,
+    /// AMDs sent in answer to AME.
+    pub enquiry_answers: u64,
+    /// Frames or events not queued because the queue was full.
+    pub dropped: u64,
+}
+
+/// The local node's alias state machine. Feed it every received frame, call `handle_timeout`
+/// when `poll_timeout` says, and send what `poll_transmit` returns, promptly: the reserve wait
+/// counts from when the CID frames were queued.
+#[derive(Debug, Clone)]
+pub struct AliasLogin {
+    node: NodeId,
+    generator: AliasGenerator,
+    reserve_wait: Duration,
+    state: LoginState,
+    transmits: VecDeque<CanFrame>,
+    events: VecDeque<LoginEvent>,
+    stats: LoginStats,
+}
+
+impl AliasLogin {
+    /// Starts the login of `node` at `now`: the CID frames of the first alias are queued.
+    /// The first alias is `first_alias` if given, else the generator's (seeded with `node`);
+    /// later aliases always come from the generator.
+    pub fn new(
+        now: Instant,
+        node: NodeId,
+        first_alias: Option<NodeAlias>,
+        reserve_wait: Duration,
+    ) -> Self {
+        let mut generator = AliasGenerator::new(node);
+        let alias = first_alias.unwrap_or_else(|| generator.next_alias());
+        let mut login = AliasLogin {
+            node,
+            generator,
+            reserve_wait,
+            state: LoginState::Checking {
+                alias,
+                deadline: now,
+            },
+            transmits: VecDeque::with_capacity(QUEUE_BOUND),
+            events: VecDeque::with_capacity(EVENT_BOUND),
+            stats: LoginStats::default(),
+        };
+        login.check(now, alias);
+        login
+    }
+
+    // ----- getters -----
+
+    /// The state.
+    pub fn state(&self) -> LoginState {
+        self.state
+    }
+
+    /// The alias once permitted.
+    pub fn alias(&self) -> Option<NodeAlias> {
+        match self.state {
+            LoginState::Permitted { alias } => Some(alias),
+            _ => None,
+        }
+    }
+
+    /// The local Node ID.
+    pub fn node_id(&self) -> NodeId {
+        self.node
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> LoginStats {
+        self.stats
+    }
+
+    // ----- outputs -----
+
+    /// The next frame to send.
+    pub fn poll_transmit(&mut self) -> Option<CanFrame> {
+        self.transmits.pop_front()
+    }
+
+    /// The next event.
+    pub fn poll_event(&mut self) -> Option<LoginEvent> {
+        self.events.pop_front()
+    }
+
+    /// When to call `handle_timeout` next.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        match self.state {
+            LoginState::Checking { deadline, .. } => Some(deadline),
+            _ => None,
+        }
+    }
+
+    // ----- inputs -----
+
+    /// Moves on to Permitted once the reserve wait is over. Early or repeated calls are harmless.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        if let LoginState::Checking { alias, deadline } = self.state {
+            if now >= deadline {
+                self.queue(CanHeader::control(FrameKind::ReserveId, alias), &[]);
+                self.queue(
+                    CanHeader::control(FrameKind::AliasMapDefinition, alias),
+                    &self.node.to_bytes(),
+                );
+                self.state = LoginState::Permitted { alias };
+                self.event(LoginEvent::Permitted { alias });
+            }
+        }
+    }
+
+    /// Feeds one received frame. Returns true if the frame came from an alias this node holds
+    /// or checks (it is not a peer's frame and must not be used further).
+    pub fn handle_frame(&mut self, now: Instant, frame: &CanFrame) -> bool {
+        match frame.header() {
+            Ok(header) => self.handle_header(now, &header, frame.payload()),
+            Err(_) => false,
+        }
+    }
+
+    /// [`handle_frame`](Self::handle_frame) for a frame whose header is already parsed.
+    pub fn handle_header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> bool {
+        if self.state == LoginState::Stopped {
+            return false;
+        }
+        let claimed = NodeId::from_slice(data);
+        match header.kind {
+            FrameKind::AliasMapEnquiry => {
+                if let LoginState::Permitted { alias } = self.state {
+                    // CFT §6.2.3: answer a global AME, or one naming our Node ID.
+                    if (data.is_empty() || claimed == Some(self.node))
+                        && !self.has_queued(FrameKind::AliasMapDefinition)
+                    {
+                        self.stats.enquiry_answers = self.stats.enquiry_answers.saturating_add(1);
+                        self.queue(
+                            CanHeader::control(FrameKind::AliasMapDefinition, alias),
+                            &self.node.to_bytes(),
+                        );
+                    }
+                }
+            }
+            FrameKind::AliasMapDefinition
+                if claimed == Some(self.node) && !self.holds(header.source) =>
+            {
+                // CFT §6.2.5: another node announced our Node ID. Send nothing more.
+                self.state = LoginState::Stopped;
+                self.transmits.clear();
+                self.event(LoginEvent::DuplicateNodeId {
+                    other: header.source,
+                });
+                return false;
+            }
+            _ => {}
+        }
+        if !self.holds(header.source) {
+            return false;
+        }
+        match (self.state, header.kind) {
+            (LoginState::Checking { alias, .. }, _) => {
+                self.stats.conflicts = self.stats.conflicts.saturating_add(1);
+                self.event(LoginEvent::Conflict { alias });
+                let next = self.generator.next_alias();
+                self.check(now, next);
+            }
+            (LoginState::Permitted { alias }, FrameKind::CheckId { .. }) => {
+                if !self.has_queued(FrameKind::ReserveId) {
+                    self.stats.defences = self.stats.defences.saturating_add(1);
+                    self.queue(CanHeader::control(FrameKind::ReserveId, alias), &[]);
+                }
+            }
+            (LoginState::Permitted { alias }, _) => {
+                self.stats.losses = self.stats.losses.saturating_add(1);
+                self.transmits.clear();
+                self.queue(
+                    CanHeader::control(FrameKind::AliasMapReset, alias),
+                    &self.node.to_bytes(),
+                );
+                self.event(LoginEvent::Lost { alias });
+                let next = self.generator.next_alias();
+                self.check(now, next);
+            }
+            (LoginState::Stopped, _) => {}
+        }
+        true
+    }
+
+    // ----- helpers -----
+
+    /// The alias is ours: permitted, or being checked.
+    fn holds(&self, alias: NodeAlias) -> bool {
+        match self.state {
+            LoginState::Checking { alias: ours, .. } | LoginState::Permitted { alias: ours } => {
+                ours == alias
+            }
+            LoginState::Stopped => false,
+        }
+    }
+
+    /// Queues CID 7..4 for `alias` (dropping frames of an abandoned alias) and starts the wait.
+    fn check(&mut self, now: Instant, alias: NodeAlias) {
+        let kept_amr = self
+            .transmits
+            .iter()
+            .copied()
+            .find(|f| is_kind(f, FrameKind::AliasMapReset));
+        self.transmits.clear();
+        if let Some(amr) = kept_amr {
+            self.transmits.push_back(amr);
+        }
+        let id = self.node.as_raw();
+        for sequence in (4u8..=7).rev() {
+            let shift = 12 * u32::from(sequence - 4);
+            let node_id_bits = ((id >> shift) & 0xFFF) as u16;
+            self.queue(
+                CanHeader::control(
+                    FrameKind::CheckId {
+                        sequence,
+                        node_id_bits,
+                    },
+                    alias,
+                ),
+                &[],
+            );
+        }
+        self.state = LoginState::Checking {
+            alias,
+            deadline: now + self.reserve_wait,
+        };
+    }
+
+    fn has_queued(&self, kind: FrameKind) -> bool {
+        self.transmits.iter().any(|f| is_kind(f, kind))
+    }
+
+    fn queue(&mut self, header: CanHeader, data: &[u8]) {
+        match CanFrame::from_header(&header, data) {
+            Some(frame) if self.transmits.len() < QUEUE_BOUND => self.transmits.push_back(frame),
+            _ => self.stats.dropped = self.stats.dropped.saturating_add(1),
+        }
+    }
+
+    fn event(&mut self, event: LoginEvent) {
+        if self.events.len() < EVENT_BOUND {
+            self.events.push_back(event);
+        } else {
+            self.stats.dropped = self.stats.dropped.saturating_add(1);
+        }
+    }
+}
+
+fn is_kind(frame: &CanFrame, kind: FrameKind) -> bool {
+    frame.header().is_ok_and(|h| h.kind == kind)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn alias(raw: u16) -> NodeAlias {
+        NodeAlias::new(raw).unwrap()
+    }
+
+    fn ids(login: &mut AliasLogin) -> Vec<u32> {
+        core::iter::from_fn(|| login.poll_transmit())
+            .map(|f| f.raw_id())
+            .collect()
+    }
+
+    fn frame(id: u32, data: &[u8]) -> CanFrame {
+        CanFrame::extended(id, data).unwrap()
+    }
+
+    const NODE: u64 = 0x0201_0D00_0003;
+
+    fn login() -> AliasLogin {
+        AliasLogin::new(
+            Instant::ZERO,
+            NodeId::new(NODE).unwrap(),
+            Some(alias(0x555)),
+            Duration::from_millis(200),
+        )
+    }
+
+    #[test]
+    fn checking_cids_then_rid_and_amd_after_the_wait() {
+        let mut l = login();
+        assert_eq!(
+            ids(&mut l),
+            [0x1702_0555, 0x1610_D555, 0x1500_0555, 0x1400_3555]
+        );
+        assert_eq!(l.poll_timeout(), Some(Instant::from_millis(200)));
+        l.handle_timeout(Instant::from_millis(199));
+        assert_eq!(l.alias(), None);
+        assert!(ids(&mut l).is_empty());
+        l.handle_timeout(Instant::from_millis(200));
+        assert_eq!(ids(&mut l), [0x1070_0555, 0x1070_1555]);
+        assert_eq!(
+            l.poll_event(),
+            Some(LoginEvent::Permitted {
+                alias: alias(0x555)
+            })
+        );
+        assert_eq!(l.alias(), Some(alias(0x555)));
+        assert_eq!(l.poll_timeout(), None);
+    }
+
+    #[test]
+    fn checking_frame_from_our_alias_picks_the_next_alias() {
+        let mut l = login();
+        ids(&mut l);
+        assert!(l.handle_frame(
+            Instant::from_millis(50),
+            &frame(0x1910_0555, &[1, 2, 3, 4, 5, 6])
+        ));
+        assert_eq!(
+            l.poll_event(),
+            Some(LoginEvent::Conflict {
+                alias: alias(0x555)
+            })
+        );
+        let LoginState::Checking {
+            alias: next,
+            deadline,
+        } = l.state()
+        else {
+            panic!()
+        };
+        assert_ne!(next, alias(0x555));
+        assert_eq!(deadline, Instant::from_millis(250));
+        let expected = AliasGenerator::new(NodeId::new(NODE).unwrap()).next_alias();
+        assert_eq!(next, expected, "retries come from the generator");
+        assert_eq!(ids(&mut l).len(), 4);
+    }
+
+    #[test]
+    fn permitted_cid_with_our_alias_is_defended_once() {
+        let mut l = login();
+        l.handle_timeout(Instant::from_millis(200));
+        ids(&mut l);
+        l.poll_event();
+        assert!(l.handle_frame(Instant::from_millis(300), &frame(0x1712_3555, &[])));
+        assert!(l.handle_frame(Instant::from_millis(300), &frame(0x1645_6555, &[])));
+        assert_eq!(ids(&mut l), [0x1070_0555]);
+        assert_eq!(l.alias(), Some(alias(0x555)));
+        assert_eq!(l.stats().defences, 1);
+    }
+
+    #[test]
+    fn permitted_other_frame_with_our_alias_sends_amr_and_starts_over() {
+        let mut l = login();
+        l.handle_timeout(Instant::from_millis(200));
+        ids(&mut l);
+        l.poll_event();
+        assert!(l.handle_frame(
+            Instant::from_millis(300),
+            &frame(0x1070_1555, &[9, 9, 9, 9, 9, 9])
+        ));
+        assert_eq!(
+            l.poll_event(),
+            Some(LoginEvent::Lost {
+                alias: alias(0x555)
+            })
+        );
+        let sent = ids(&mut l);
+        assert_eq!(
+            sent.first(),
+            Some(&0x1070_3555),
+            "AMR of the old alias first"
+        );
+        assert_eq!(sent.len(), 5);
+        assert!(matches!(l.state(), LoginState::Checking { .. }));
+    }
+
+    #[test]
+    fn answers_global_ame_and_ame_for_us_only_when_permitted() {
+        let mut l = login();
+        ids(&mut l);
+        assert!(!l.handle_frame(Instant::ZERO, &frame(0x1070_2777, &[])));
+        assert!(ids(&mut l).is_empty(), "inhibited nodes never reply");
+        l.handle_timeout(Instant::from_millis(200));
+        ids(&mut l);
+        l.handle_frame(Instant::from_millis(300), &frame(0x1070_2777, &[]));
+        assert_eq!(ids(&mut l), [0x1070_1555]);
+        l.handle_frame(
+            Instant::from_millis(300),
+            &frame(0x1070_2777, &NodeId::new(NODE).unwrap().to_bytes()),
+        );
+        assert_eq!(ids(&mut l), [0x1070_1555]);
+        l.handle_frame(
+            Instant::from_millis(300),
+            &frame(0x1070_2777, &[5, 1, 1, 1, 0x22, 1]),
+        );
+        assert!(ids(&mut l).is_empty(), "AME for another node");
+        assert_eq!(l.stats().enquiry_answers, 2);
+    }
+
+    #[test]
+    fn amd_with_our_node_id_from_another_alias_stops_everything() {
+        let mut l = login();
+        l.handle_timeout(Instant::from_millis(200));
+        ids(&mut l);
+        l.poll_event();
+        l.handle_frame(
+            Instant::from_millis(300),
+            &frame(0x1070_1777, &NodeId::new(NODE).unwrap().to_bytes()),
+        );
+        assert_eq!(
+            l.poll_event(),
+            Some(LoginEvent::DuplicateNodeId {
+                other: alias(0x777)
+            })
+        );
+        assert_eq!(l.state(), LoginState::Stopped);
+        l.handle_frame(Instant::from_millis(300), &frame(0x1070_2777, &[]));
+        l.handle_timeout(Instant::from_millis(9000));
+        assert!(ids(&mut l).is_empty());
+    }
+}

@@ -1,0 +1,213 @@
+//! A virtual CAN bus for the integration tests: nodes (a `CanLink` and a `StreamEndpoint`
+//! each), virtual time, every frame broadcast to every other node and recorded as
+//! GridConnect text.
+#![allow(dead_code, unreachable_pub)]
+
+pub mod published;
+
+use openlcb_can::gridconnect::{self, GridConnectDecoder};
+use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
+use openlcb_stream::{Config, Event, Instant, NodeId, StreamEndpoint};
+
+pub const A_ID: u64 = 0x0501_0101_2200;
+pub const B_ID: u64 = 0x0501_0101_2201;
+
+pub fn node_id(raw: u64) -> NodeId {
+    NodeId::new(raw).unwrap()
+}
+
+pub fn alias(raw: u16) -> NodeAlias {
+    NodeAlias::new(raw).unwrap()
+}
+
+/// The GridConnect text of a frame.
+pub fn text(frame: &CanFrame) -> String {
+    let mut buf = [0u8; gridconnect::MAX_ENCODED_LEN];
+    let n = gridconnect::encode(frame, &mut buf).unwrap();
+    String::from_utf8(buf[..n].to_vec()).unwrap()
+}
+
+/// The frame of one GridConnect text.
+pub fn frame(text: &str) -> CanFrame {
+    let mut decoder = GridConnectDecoder::new();
+    let mut input = text.as_bytes();
+    let frame = decoder
+        .decode(&mut input)
+        .expect("a whole frame")
+        .expect("a valid frame");
+    assert!(input.is_empty(), "one frame only: {text}");
+    frame
+}
+
+/// The core configuration of the worked example (wire-spec §9.2).
+pub fn core_config() -> Config {
+    let mut c = Config::default();
+    c.max_window = 16;
+    c.early_proceed = false;
+    c
+}
+
+pub fn can_config(first_alias: u16) -> CanConfig {
+    let mut c = CanConfig::default();
+    c.first_alias = Some(alias(first_alias));
+    c
+}
+
+pub struct Node {
+    pub link: CanLink,
+    pub endpoint: StreamEndpoint,
+    pub link_events: Vec<LinkEvent>,
+    pub events: Vec<Event>,
+    pub received: Vec<u8>,
+    /// Read received stream data as it arrives.
+    pub reading: bool,
+}
+
+impl Node {
+    pub fn new(now: Instant, id: u64, core: Config, can: CanConfig) -> Self {
+        Node {
+            link: CanLink::new(now, node_id(id), can),
+            endpoint: StreamEndpoint::new(node_id(id), core),
+            link_events: Vec::new(),
+            events: Vec::new(),
+            received: Vec::new(),
+            reading: true,
+        }
+    }
+
+    /// Feeds one frame from the bus.
+    pub fn receive(&mut self, now: Instant, frame: &CanFrame) {
+        let endpoint = &mut self.endpoint;
+        self.link
+            .handle_frame(now, frame, |msg| endpoint.handle_message(now, msg));
+    }
+
+    /// Link events to the endpoint, endpoint messages to the link, data read. Returns the
+    /// frames the link has to send.
+    pub fn service(&mut self, now: Instant) -> Vec<CanFrame> {
+        while let Some(event) = self.link.poll_event() {
+            match event {
+                LinkEvent::AliasLost { .. } => self.endpoint.link_lost(),
+                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => {
+                    self.endpoint.peer_lost(node)
+                }
+                _ => {}
+            }
+            self.link_events.push(event);
+        }
+        if self.reading {
+            let mut buf = [0u8; 64];
+            for handle in self.endpoint.handles().collect::<Vec<_>>() {
+                while let Ok(n @ 1..) = self.endpoint.read(now, handle, &mut buf) {
+                    self.received.extend_from_slice(&buf[..n]);
+                }
+            }
+        }
+        while let Some(event) = self.endpoint.poll_event() {
+            self.events.push(event);
+        }
+        while let Some(msg) = self.endpoint.poll_transmit() {
+            self.link
+                .send(now, msg)
+                .expect("the link takes the message");
+        }
+        core::iter::from_fn(|| self.link.poll_transmit()).collect()
+    }
+
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        [self.link.poll_timeout(), self.endpoint.poll_timeout()]
+            .into_iter()
+            .flatten()
+            .min()
+    }
+}
+
+pub struct Bus {
+    pub now: Instant,
+    pub nodes: Vec<Node>,
+    /// Every frame sent, as (sender index, GridConnect text).
+    pub trace: Vec<(usize, String)>,
+}
+
+impl Bus {
+    pub fn new(nodes: Vec<Node>) -> Self {
+        Bus {
+            now: Instant::ZERO,
+            nodes,
+            trace: Vec::new(),
+        }
+    }
+
+    /// Moves frames between the nodes until no one has anything to send.
+    pub fn pump(&mut self) {
+        for _ in 0..100_000 {
+            let mut moved = false;
+            for i in 0..self.nodes.len() {
+                let frames = self.nodes[i].service(self.now);
+                for frame in frames {
+                    moved = true;
+                    self.broadcast(Some(i), &frame);
+                }
+            }
+            if !moved {
+                return;
+            }
+        }
+        panic!("the bus never went quiet");
+    }
+
+    /// Puts `frame` on the bus as if from a node outside the test (or from node `from`).
+    pub fn broadcast(&mut self, from: Option<usize>, frame: &CanFrame) {
+        self.trace.push((from.unwrap_or(usize::MAX), text(frame)));
+        let now = self.now;
+        for (j, node) in self.nodes.iter_mut().enumerate() {
+            if Some(j) != from {
+                node.receive(now, frame);
+            }
+        }
+    }
+
+    /// Advances virtual time to `t`, runs the timers, pumps.
+    pub fn advance_to(&mut self, t: Instant) {
+        assert!(t >= self.now);
+        self.now = t;
+        for node in &mut self.nodes {
+            node.link.handle_timeout(t);
+            node.endpoint.handle_timeout(t);
+        }
+        self.pump();
+    }
+
+    /// The earliest timer of any node.
+    pub fn next_timeout(&self) -> Option<Instant> {
+        self.nodes.iter().filter_map(Node::poll_timeout).min()
+    }
+
+    /// Runs timers in order until none is due before `limit`.
+    pub fn run_until(&mut self, limit: Instant) {
+        self.pump();
+        let mut turns = 0;
+        while let Some(t) = self.next_timeout().filter(|t| *t <= limit) {
+            turns += 1;
+            assert!(turns < 100_000, "a timer keeps firing at {t:?}");
+            self.advance_to(t.max(self.now));
+        }
+        if self.now < limit {
+            self.advance_to(limit);
+        }
+    }
+
+    /// The trace of one sender as text.
+    pub fn sent_by(&self, sender: usize) -> Vec<&str> {
+        self.trace
+            .iter()
+            .filter(|(s, _)| *s == sender)
+            .map(|(_, t)| t.as_str())
+            .collect()
+    }
+
+    /// Forgets the trace so far.
+    pub fn clear_trace(&mut self) {
+        self.trace.clear();
+    }
+}

@@ -1,0 +1,243 @@
+//! Entry points for the fuzz targets in `fuzz/`. Not a stable API.
+//!
+//! Assertions here are the fuzzers' oracles, so panicking and indexing are the point.
+#![allow(clippy::indexing_slicing, clippy::panic, clippy::expect_used, missing_docs)]
+
+use alloc::vec::Vec;
+
+use arbitrary::Arbitrary;
+
+use crate::wire::{DataComplete, DataProceed, DataSend, Emit, ErrorReport, InitiateReply, InitiateRequest};
+use crate::wire::{ErrorCode, ReplyCode};
+use crate::{AcceptPolicy, Config, Duration, Instant, MessageRef, Mti, NodeId, OpenOptions, StreamEndpoint};
+
+/// Parses `data` as every stream message; whatever parses must re-emit and re-parse to the
+/// same value, and re-emit to the same bytes.
+pub fn stream_wire(data: &[u8]) {
+    fn check<T: Emit + PartialEq + core::fmt::Debug>(first: T, reparse: impl Fn(&[u8]) -> Option<T>) {
+        let bytes = first.to_bytes();
+        assert_eq!(bytes.len(), first.buffer_len());
+        let second = reparse(&bytes).expect("emitted bytes must parse");
+        assert_eq!(first, second);
+        assert_eq!(second.to_bytes(), bytes);
+    }
+    if let Ok(m) = InitiateRequest::parse(data) {
+        check(m, |b| InitiateRequest::parse(b).ok());
+    }
+    if let Ok(m) = InitiateReply::parse(data) {
+        check(m, |b| InitiateReply::parse(b).ok());
+    }
+    if let Ok(m) = DataSend::parse(data) {
+        let bytes = m.to_bytes();
+        assert_eq!(&bytes[..], data, "Data Send re-emits exactly what it parsed");
+    }
+    if let Ok(m) = DataProceed::parse(data) {
+        check(m, |b| DataProceed::parse(b).ok());
+    }
+    if let Ok(m) = DataComplete::parse(data) {
+        check(m, |b| DataComplete::parse(b).ok());
+    }
+    check(ErrorReport::parse(data), |b| Some(ErrorReport::parse(b)));
+}
+
+/// Who a fuzzed message claims to come from.
+#[derive(Debug, Clone, Copy, Arbitrary)]
+pub enum Sender {
+    /// The other endpoint of the pair.
+    Peer,
+    /// A third node no stream knows.
+    Stranger,
+    /// This endpoint's own Node ID.
+    Itself,
+}
+
+/// One step of a fuzzed session between endpoints A and B.
+#[derive(Debug, Clone, Arbitrary)]
+pub enum Op {
+    /// Deliver everything queued between A and B.
+    Pump,
+    /// Hand an arbitrary message to A (or B).
+    Inject { to_b: bool, from: Sender, mti: u16, addressed_elsewhere: bool, payload: Vec<u8> },
+    /// A stream message with a chosen MTI and payload, to A (or B) from its peer.
+    InjectStream { to_b: bool, kind: u8, payload: Vec<u8> },
+    /// Open a stream from A to B (or B to A).
+    Open { from_b: bool, window: u16, sid: Option<u8>, did: Option<u8> },
+    /// Write `len` bytes on stream number `stream`.
+    Write { from_b: bool, stream: u8, len: u16 },
+    /// Flush.
+    Flush { from_b: bool, stream: u8 },
+    /// Finish.
+    Finish { from_b: bool, stream: u8 },
+    /// Abort with a code.
+    Abort { on_b: bool, stream: u8, code: u16 },
+    /// Accept a pending request with a window.
+    Accept { on_b: bool, stream: u8, window: Option<u16> },
+    /// Reject a pending request.
+    Reject { on_b: bool, stream: u8, code: u16 },
+    /// Read up to `len` bytes.
+    Read { on_b: bool, stream: u8, len: u16 },
+    /// Let time pass and run timers.
+    Advance { millis: u16 },
+    /// The transport says the peer is gone, or the link is.
+    Lost { on_b: bool, whole_link: bool },
+}
+
+const A: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x22, 0]);
+const B: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x22, 1]);
+const STRANGER: NodeId = NodeId::from_bytes([9, 9, 9, 9, 9, 9]);
+
+/// Runs `ops` against two small endpoints and checks the bounds after every step.
+pub fn endpoint_ops(ops: &[Op]) {
+    let config = |ask: bool| Config {
+        max_streams: 6,
+        max_streams_per_peer: 4,
+        max_window: 300,
+        accept_policy: if ask { AcceptPolicy::Ask } else { AcceptPolicy::AcceptAll },
+        ..Config::default()
+    };
+    let mut pair = [StreamEndpoint::new(A, config(false)), StreamEndpoint::new(B, config(true))];
+    let ids = [A, B];
+    let mut now = Instant::ZERO;
+    let data = [0x5Au8; 4096];
+    let mut buf = [0u8; 4096];
+    for op in ops.iter().take(512) {
+        match op {
+            Op::Pump => {
+                for _ in 0..64 {
+                    let mut moved = false;
+                    for side in 0..2 {
+                        while let Some(msg) = pair[side].poll_transmit() {
+                            pair[1 - side].handle_message(now, msg.as_ref());
+                            moved = true;
+                        }
+                    }
+                    if !moved {
+                        break;
+                    }
+                }
+            }
+            Op::Inject { to_b, from, mti, addressed_elsewhere, payload } => {
+                let to = usize::from(*to_b);
+                let source = match from {
+                    Sender::Peer => ids[1 - to],
+                    Sender::Stranger => STRANGER,
+                    Sender::Itself => ids[to],
+                };
+                let mti = Mti(*mti);
+                let destination = mti.is_addressed().then_some(if *addressed_elsewhere { STRANGER } else { ids[to] });
+                pair[to].handle_message(now, MessageRef { mti, source, destination, payload });
+            }
+            Op::InjectStream { to_b, kind, payload } => {
+                let to = usize::from(*to_b);
+                let mti = [
+                    Mti::STREAM_INITIATE_REQUEST,
+                    Mti::STREAM_INITIATE_REPLY,
+                    Mti::STREAM_DATA_SEND,
+                    Mti::STREAM_DATA_PROCEED,
+                    Mti::STREAM_DATA_COMPLETE,
+                    Mti::TERMINATE_DUE_TO_ERROR,
+                    Mti::OPTIONAL_INTERACTION_REJECTED,
+                ][usize::from(*kind) % 7];
+                pair[to]
+                    .handle_message(now, MessageRef { mti, source: ids[1 - to], destination: Some(ids[to]), payload });
+            }
+            Op::Open { from_b, window, sid, did } => {
+                let from = usize::from(*from_b);
+                let mut options = OpenOptions::new(ids[1 - from], *window);
+                options.source_stream = sid.and_then(crate::StreamId::new);
+                options.proposed_destination = did.and_then(crate::StreamId::new);
+                let _ = pair[from].open(now, options);
+            }
+            Op::Write { from_b, stream, len } => {
+                let side = usize::from(*from_b);
+                if let Some(h) = nth_handle(&pair[side], *stream) {
+                    let before = pair[side].credit(h);
+                    if let Ok(n) = pair[side].write(now, h, &data[..usize::from(*len).min(data.len())]) {
+                        let after = pair[side].credit(h).unwrap_or(0);
+                        assert_eq!(before.unwrap_or(0) - after, n as u32, "credit drops by what was written");
+                    }
+                }
+            }
+            Op::Flush { from_b, stream } => {
+                let side = usize::from(*from_b);
+                if let Some(h) = nth_handle(&pair[side], *stream) {
+                    let _ = pair[side].flush(now, h);
+                }
+            }
+            Op::Finish { from_b, stream } => {
+                let side = usize::from(*from_b);
+                if let Some(h) = nth_handle(&pair[side], *stream) {
+                    let _ = pair[side].finish(now, h);
+                }
+            }
+            Op::Abort { on_b, stream, code } => {
+                let side = usize::from(*on_b);
+                if let Some(h) = nth_handle(&pair[side], *stream) {
+                    let _ = pair[side].abort(now, h, ErrorCode(*code));
+                }
+            }
+            Op::Accept { on_b, stream, window } => {
+                let side = usize::from(*on_b);
+                if let Some(h) = nth_handle(&pair[side], *stream) {
+                    let _ = pair[side].accept(now, h, *window);
+                }
+            }
+            Op::Reject { on_b, stream, code } => {
+                let side = usize::from(*on_b);
+                if let Some(h) = nth_handle(&pair[side], *stream) {
+                    let _ = pair[side].reject(now, h, ReplyCode(*code));
+                }
+            }
+            Op::Read { on_b, stream, len } => {
+                let side = usize::from(*on_b);
+                if let Some(h) = nth_handle(&pair[side], *stream) {
+                    let len = usize::from(*len).min(buf.len());
+                    let _ = pair[side].read(now, h, &mut buf[..len]);
+                }
+            }
+            Op::Advance { millis } => {
+                now += Duration::from_millis(u64::from(*millis) * 100);
+                for endpoint in &mut pair {
+                    endpoint.handle_timeout(now);
+                }
+            }
+            Op::Lost { on_b, whole_link } => {
+                let side = usize::from(*on_b);
+                if *whole_link {
+                    pair[side].link_lost();
+                } else {
+                    pair[side].peer_lost(ids[1 - side]);
+                }
+            }
+        }
+        for endpoint in &mut pair {
+            check_bounds(endpoint, now);
+            while endpoint.poll_event().is_some() {}
+        }
+    }
+}
+
+fn nth_handle(endpoint: &StreamEndpoint, n: u8) -> Option<crate::StreamHandle> {
+    let count = endpoint.handles().count();
+    if count == 0 {
+        return None;
+    }
+    endpoint.handles().nth(usize::from(n) % count)
+}
+
+fn check_bounds(endpoint: &StreamEndpoint, now: Instant) {
+    let config = endpoint.config();
+    assert!(endpoint.stream_count() <= config.max_streams);
+    assert_eq!(endpoint.stream_count(), endpoint.handles().count());
+    for h in endpoint.handles() {
+        if let (Some(buffered), Some(capacity)) = (endpoint.buffered(h), endpoint.buffer_capacity(h)) {
+            assert!(buffered <= capacity, "buffered {buffered} > capacity {capacity}");
+            assert!(capacity <= 2 * usize::from(config.max_window));
+        }
+    }
+    if let Some(deadline) = endpoint.poll_timeout() {
+        // A timer already due must have been run by the last `handle_timeout`, unless no
+        // time has passed since it was armed.
+        let _ = (deadline, now);
+    }
+}
