@@ -86,7 +86,7 @@ fn encoded_stream_data(chunk: usize) -> (Vec<Message>, Vec<u8>) {
     let mut wire = Vec::new();
     for (i, message) in messages.iter().enumerate() {
         let prefix = LinkPrefix { gateway: NODE_A, capture_time: CaptureTime::wrapping(i as u64) };
-        TcpFrame::new(prefix, message.as_ref()).encode_to_vec(&mut wire).expect("encode");
+        TcpFrame::new(prefix, message.as_ref()).encode_to(&mut wire).expect("encode");
     }
     (messages, wire)
 }
@@ -118,7 +118,7 @@ fn codec(c: &mut Criterion) {
                 out.clear();
                 for message in &messages {
                     let prefix = LinkPrefix { gateway: NODE_A, capture_time: CaptureTime::MAX };
-                    TcpFrame::new(prefix, message.as_ref()).encode_to_vec(&mut out).expect("encode");
+                    TcpFrame::new(prefix, message.as_ref()).encode_to(&mut out).expect("encode");
                 }
                 assert_eq!(out.len(), wire.len());
             })

@@ -458,3 +458,23 @@ fn alias_taken_mid_stream_ends_both_sides_without_a_hang() {
     assert_eq!(bus.nodes[0].link.queued_messages(), 0);
     assert_eq!(bus.next_timeout(), None, "no timer left: no hang");
 }
+
+#[test]
+fn send_refuses_messages_without_a_can_form_and_beyond_the_queue_bound() {
+    let mut can = can_config(0x123);
+    can.transmit_queue_limit = 2;
+    let mut solo = Solo::new(can);
+    let a = node_id(A_ID);
+    let long = Message::global(Mti::VERIFY_NODE_ID_GLOBAL, a, vec![0u8; 9]);
+    assert_eq!(
+        solo.node.link.send(solo.now, long),
+        Err(SendError::Encode(openlcb_can::EncodeError::GlobalTooLong(9)))
+    );
+    // Not yet permitted: messages wait, up to the bound.
+    let verify = Message::global(Mti::VERIFY_NODE_ID_GLOBAL, a, Vec::new());
+    solo.node.link.send(solo.now, verify.clone()).unwrap();
+    solo.node.link.send(solo.now, verify.clone()).unwrap();
+    assert_eq!(solo.node.link.send(solo.now, verify), Err(SendError::QueueFull));
+    assert_eq!(solo.node.link.stats().send_refused, 2);
+    assert_eq!(solo.node.link.queued_messages(), 2);
+}

@@ -41,6 +41,8 @@ pub enum Termination {
     Superseded,
     /// The transport reported the peer gone (for example its CAN alias was released).
     PeerLost,
+    /// The peer sent Initialization Complete: it restarted and has forgotten its streams.
+    PeerRestarted,
     /// The transport lost the link (for example this node's CAN alias).
     LinkLost,
 }

@@ -699,6 +699,31 @@ fn any_peer_lost_ends_its_streams() {
 }
 
 #[test]
+fn any_initialization_complete_from_peer_ends_its_streams() {
+    let mut b = Bench::new(config());
+    let s = b.open_source(16);
+    let (d, did) = b.open_destination();
+    b.peer(Mti::STREAM_DATA_SEND, &data(did, b"ab"));
+    b.events();
+    b.peer(Mti::INITIALIZATION_COMPLETE, &PEER.to_bytes());
+    assert_eq!(
+        b.events(),
+        [
+            Event::Terminated { handle: s, cause: Termination::PeerRestarted },
+            Event::Terminated { handle: d, cause: Termination::PeerRestarted }
+        ]
+    );
+    assert_eq!(read_all(&mut b, d), b"ab");
+    b.peer(Mti::INITIALIZATION_COMPLETE, &PEER.to_bytes());
+    assert!(b.events().is_empty(), "a node with no streams with us changes nothing");
+    // A request that crossed the peer's announcement on the wire is still answered.
+    let pending = b.ep.open(b.now, OpenOptions::new(PEER, 16)).unwrap();
+    b.peer(Mti::INITIALIZATION_COMPLETE, &PEER.to_bytes());
+    assert!(b.events().is_empty());
+    assert!(b.ep.stream_info(pending).is_some());
+}
+
+#[test]
 fn any_message_for_another_node_is_ignored() {
     let mut b = Bench::new(config());
     b.ep.handle_message(

@@ -349,18 +349,11 @@ impl Decoder {
         let missing = |n: usize| DecodeError::Truncated { missing: u32::try_from(n).unwrap_or(u32::MAX) };
         match self.state {
             State::Failed(error) => Err(error),
-            State::Header { have: 1.., .. } => Err(missing(HEADER_LEN.saturating_sub(self.header_have()))),
+            State::Header { have: have @ 1.., .. } => Err(missing(HEADER_LEN.saturating_sub(have))),
             State::Body { length, .. } => Err(missing(length.saturating_sub(self.body.len()))),
             State::Skip { remaining } => Err(missing(remaining)),
             State::Header { .. } if self.reassembly.current.is_some() => Err(DecodeError::PartsUnfinished),
             State::Header { .. } => Ok(()),
-        }
-    }
-
-    fn header_have(&self) -> usize {
-        match self.state {
-            State::Header { have, .. } => have,
-            _ => 0,
         }
     }
 
@@ -425,7 +418,9 @@ impl Decoder {
                         return Step::NeedMore;
                     }
                     let [f0, f1, l0, l1, l2] = *bytes;
-                    if let Some(error) = self.on_header(Flags(u16::from_be_bytes([f0, f1])), u32::from_be_bytes([0, l0, l1, l2])) {
+                    if let Some(error) =
+                        self.on_header(Flags(u16::from_be_bytes([f0, f1])), u32::from_be_bytes([0, l0, l1, l2]))
+                    {
                         return Step::Error(error);
                     }
                 }
@@ -440,35 +435,34 @@ impl Decoder {
                 }
                 State::Body { flags, length } => {
                     let (flags, length) = (*flags, *length);
-                    let outcome = if let Some((body, rest)) =
-                        input.split_at_checked(length).filter(|_| self.body.is_empty())
-                    {
-                        *input = rest;
-                        self.state = State::START;
-                        match on_body(&mut self.reassembly, &mut self.stats, flags, body) {
-                            BodyOutcome::Frame(frame) => return Step::Frame(frame),
-                            BodyOutcome::Part(outcome) => Ok(outcome),
-                            BodyOutcome::Malformed(error) => Err(error),
-                        }
-                    } else {
-                        if self.body.is_empty() {
-                            self.body.reserve_exact(length);
-                        }
-                        let (taken, rest) = input.split_at(input.len().min(length.saturating_sub(self.body.len())));
-                        self.body.extend_from_slice(taken);
-                        *input = rest;
-                        if self.body.len() < length {
-                            return Step::NeedMore;
-                        }
-                        self.state = State::START;
-                        let outcome = match on_body(&mut self.reassembly, &mut self.stats, flags, &self.body) {
-                            BodyOutcome::Frame(_) => return Step::Buffered,
-                            BodyOutcome::Part(outcome) => Ok(outcome),
-                            BodyOutcome::Malformed(error) => Err(error),
+                    let outcome =
+                        if let Some((body, rest)) = input.split_at_checked(length).filter(|_| self.body.is_empty()) {
+                            *input = rest;
+                            self.state = State::START;
+                            match on_body(&mut self.reassembly, &mut self.stats, flags, body) {
+                                BodyOutcome::Frame(frame) => return Step::Frame(frame),
+                                BodyOutcome::Part(outcome) => Ok(outcome),
+                                BodyOutcome::Malformed(error) => Err(error),
+                            }
+                        } else {
+                            if self.body.is_empty() {
+                                self.body.reserve_exact(length);
+                            }
+                            let (taken, rest) = input.split_at(input.len().min(length.saturating_sub(self.body.len())));
+                            self.body.extend_from_slice(taken);
+                            *input = rest;
+                            if self.body.len() < length {
+                                return Step::NeedMore;
+                            }
+                            self.state = State::START;
+                            let outcome = match on_body(&mut self.reassembly, &mut self.stats, flags, &self.body) {
+                                BodyOutcome::Frame(_) => return Step::Buffered,
+                                BodyOutcome::Part(outcome) => Ok(outcome),
+                                BodyOutcome::Malformed(error) => Err(error),
+                            };
+                            self.body.clear();
+                            outcome
                         };
-                        self.body.clear();
-                        outcome
-                    };
                     match outcome {
                         Ok(PartOutcome::Stored) => {}
                         Ok(PartOutcome::Reassembled) => return Step::Reassembled,

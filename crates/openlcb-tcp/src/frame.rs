@@ -12,10 +12,9 @@
 //!  25/31    n payload               (an Event ID first if MTI & 0x0004)
 //! ```
 
-use alloc::vec::Vec;
 use core::fmt;
 
-use bytes::BytesMut;
+use bytes::BufMut;
 use openlcb_stream::{Instant, MessageRef, Mti, NodeId};
 
 /// Flags (2 bytes) and length (3 bytes): what must be read before a message's size is known.
@@ -223,37 +222,27 @@ impl<'a> TcpFrame<'a> {
         HEADER_LEN.saturating_add(self.length_field())
     }
 
-    /// Writes the frame (flags 0x8000, one part) to the front of `buf`, returning its length.
-    /// Never panics: a short buffer gets [`EncodeError::BufferTooSmall`].
+    /// Writes the frame (flags 0x8000, one part) to the front of `buf` and returns its length.
+    /// Never panics: a short buffer gets [`EncodeError::BufferTooSmall`] and is left as it was.
     pub fn encode(&self, buf: &mut [u8]) -> Result<usize, EncodeError> {
-        let needed = self.encoded_len();
-        let got = buf.len();
-        let mut rest = buf;
-        let mut too_small = false;
-        self.write_fields(|field| match core::mem::take(&mut rest).split_at_mut_checked(field.len()) {
-            Some((to, after)) => {
-                to.copy_from_slice(field);
-                rest = after;
-            }
-            None => too_small = true,
-        })?;
-        if too_small { Err(EncodeError::BufferTooSmall { needed, got }) } else { Ok(needed) }
+        let mut cursor = buf;
+        self.encode_to(&mut cursor)
     }
 
-    /// Appends the frame to `out` (one `reserve`, so a reused buffer does not allocate) and
-    /// returns the number of bytes appended.
-    pub fn encode_to_bytes_mut(&self, out: &mut BytesMut) -> Result<usize, EncodeError> {
-        self.check()?;
-        out.reserve(self.encoded_len());
-        self.write_fields(|field| out.extend_from_slice(field))
-    }
-
-    /// Appends the frame to `out` (one `reserve`, so a reused buffer does not allocate) and
-    /// returns the number of bytes appended.
-    pub fn encode_to_vec(&self, out: &mut Vec<u8>) -> Result<usize, EncodeError> {
-        self.check()?;
-        out.reserve(self.encoded_len());
-        self.write_fields(|field| out.extend_from_slice(field))
+    /// Appends the frame (flags 0x8000, one part) to `out` and returns the number of bytes
+    /// appended. A `BytesMut` or `Vec<u8>` grows as needed (a reused one with room does not
+    /// allocate); a `&mut [u8]` without room gets [`EncodeError::BufferTooSmall`] and nothing
+    /// is written.
+    pub fn encode_to<B: BufMut + ?Sized>(&self, out: &mut B) -> Result<usize, EncodeError> {
+        let fixed = self.fixed_fields()?;
+        let needed = fixed.len().saturating_add(self.message.payload.len());
+        let got = out.remaining_mut();
+        if got < needed {
+            return Err(EncodeError::BufferTooSmall { needed, got });
+        }
+        out.put_slice(fixed.as_slice());
+        out.put_slice(self.message.payload);
+        Ok(needed)
     }
 
     /// The checks every encoder makes before writing a byte.
@@ -271,13 +260,11 @@ impl<'a> TcpFrame<'a> {
         Ok(())
     }
 
-    /// Checks the frame, then hands each field's bytes to `sink` in wire order and returns the
-    /// total length. The one place that knows the field order.
-    fn write_fields(&self, mut sink: impl FnMut(&[u8])) -> Result<usize, EncodeError> {
+    /// Checks the frame and lays out everything before the payload, in wire order: the one
+    /// place that knows the field order.
+    fn fixed_fields(&self) -> Result<FixedFields, EncodeError> {
         self.check()?;
         let length = u32::try_from(self.length_field()).unwrap_or(MAX_LENGTH).to_be_bytes();
-        let mut fixed = [0u8; MAX_FIXED_LEN];
-        let mut at = 0;
         let destination = self.message.destination.map(NodeId::to_bytes);
         let fields: [&[u8]; 7] = [
             &Flags::MESSAGE.0.to_be_bytes(),
@@ -288,15 +275,30 @@ impl<'a> TcpFrame<'a> {
             &self.message.source.to_bytes(),
             destination.as_ref().map_or(&[], |d| d.as_slice()),
         ];
+        let mut fixed = FixedFields { bytes: [0; MAX_FIXED_LEN], len: 0 };
         for field in fields {
-            if let Some(to) = fixed.get_mut(at..at + field.len()) {
+            if let Some(to) = fixed.bytes.get_mut(fixed.len..fixed.len + field.len()) {
                 to.copy_from_slice(field);
-                at += field.len();
+                fixed.len += field.len();
             }
         }
-        sink(fixed.get(..at).unwrap_or_default());
-        sink(self.message.payload);
-        Ok(at + self.message.payload.len())
+        Ok(fixed)
+    }
+}
+
+/// Flags, length, prefix, MTI and Node IDs of one frame, laid out.
+struct FixedFields {
+    bytes: [u8; MAX_FIXED_LEN],
+    len: usize,
+}
+
+impl FixedFields {
+    fn as_slice(&self) -> &[u8] {
+        self.bytes.get(..self.len).unwrap_or_default()
+    }
+
+    fn len(&self) -> usize {
+        self.len
     }
 }
 

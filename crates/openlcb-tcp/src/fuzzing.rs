@@ -80,7 +80,7 @@ fn reencode_what_decodes(data: &[u8]) {
         let Some(result) = decoder.decode(&mut input) else { break };
         let Ok(frame) = result else { continue };
         encoded.clear();
-        assert!(frame.encode_to_vec(&mut encoded).is_ok(), "a decoded message does not encode");
+        assert!(frame.encode_to(&mut encoded).is_ok(), "a decoded message does not encode");
         if decoder.stats().parts != parts_before {
             continue; // reassembled: its bytes were spread over several parts
         }
@@ -117,7 +117,7 @@ fn decode_what_encodes(data: &[u8]) {
     let capture_time = CaptureTime::wrapping(NodeId::from_slice(time).map_or(0, NodeId::as_raw));
     let frame = TcpFrame::new(LinkPrefix { gateway: node(gateway), capture_time }, message);
     let mut encoded = Vec::new();
-    assert_eq!(frame.encode_to_vec(&mut encoded), Ok(frame.encoded_len()));
+    assert_eq!(frame.encode_to(&mut encoded), Ok(frame.encoded_len()));
 
     let mut decoder = Decoder::new(crate::MAX_LENGTH);
     let mut decoded = 0;
@@ -127,7 +127,7 @@ fn decode_what_encodes(data: &[u8]) {
         while let Some(result) = decoder.decode(&mut input) {
             assert_eq!(result, Ok(frame), "the decoded message differs");
             if let Ok(back) = result {
-                assert!(back.encode_to_vec(&mut reencoded).is_ok());
+                assert!(back.encode_to(&mut reencoded).is_ok());
             }
             decoded += 1;
         }

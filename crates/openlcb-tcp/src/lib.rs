@@ -5,8 +5,9 @@
 //! the link and a 48-bit capture time. This crate provides:
 //!
 //! - [`TcpFrame`]: a link prefix plus a core [`MessageRef`](openlcb_stream::MessageRef), with
-//!   [`encoded_len`](TcpFrame::encoded_len) and encoders into a caller's `&mut [u8]`, a
-//!   [`BytesMut`](bytes::BytesMut) or a `Vec<u8>`;
+//!   [`encoded_len`](TcpFrame::encoded_len), [`encode`](TcpFrame::encode) into a caller's
+//!   `&mut [u8]` and [`encode_to`](TcpFrame::encode_to) any [`BufMut`](bytes::BufMut) (a
+//!   reused [`BytesMut`](bytes::BytesMut) or `Vec<u8>`);
 //! - [`Decoder`]: a bounded streaming decoder that takes bytes in pieces of any size;
 //! - [`TcpLink`]: one node's adapter between a [`StreamEndpoint`](openlcb_stream::StreamEndpoint)
 //!   and the byte stream, in the core's handle/poll shape.

@@ -97,10 +97,7 @@ impl TcpLink {
     /// if it [closes the link](DecodeError::closes_link), the end of decoding.
     ///
     /// The link prefix is dropped here; use a [`Decoder`] directly to see it.
-    pub fn poll_receive<'s, 'i: 's>(
-        &'s mut self,
-        input: &mut &'i [u8],
-    ) -> Option<Result<MessageRef<'s>, DecodeError>> {
+    pub fn poll_receive<'s, 'i: 's>(&'s mut self, input: &mut &'i [u8]) -> Option<Result<MessageRef<'s>, DecodeError>> {
         let before = input.len();
         let decoded = self.decoder.decode(input);
         self.stats.bytes_in = self.stats.bytes_in.saturating_add((before - input.len()) as u64);
@@ -118,7 +115,7 @@ impl TcpLink {
     /// added. A message that cannot be encoded is dropped, counted and reported.
     pub fn send(&mut self, now: Instant, message: &Message) -> Result<usize, EncodeError> {
         let prefix = LinkPrefix { gateway: self.gateway, capture_time: CaptureTime::from_instant(now) };
-        match TcpFrame::new(prefix, message.as_ref()).encode_to_vec(&mut self.transmit) {
+        match TcpFrame::new(prefix, message.as_ref()).encode_to(&mut self.transmit) {
             Ok(written) => {
                 self.stats.messages_out = self.stats.messages_out.saturating_add(1);
                 self.stats.bytes_out = self.stats.bytes_out.saturating_add(written as u64);
@@ -211,7 +208,7 @@ mod tests {
             let now = Instant::from_millis(i as u64);
             let message = data_send(len);
             let prefix = LinkPrefix { gateway: link.gateway(), capture_time: CaptureTime::from_instant(now) };
-            TcpFrame::new(prefix, message.as_ref()).encode_to_vec(&mut expected).unwrap();
+            TcpFrame::new(prefix, message.as_ref()).encode_to(&mut expected).unwrap();
             link.send(now, &message).unwrap();
             // The socket takes 100 bytes per write.
             while link.transmit_pending().len() > 100 {

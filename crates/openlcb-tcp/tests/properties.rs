@@ -25,7 +25,7 @@ proptest! {
     ) {
         let mut wire = Vec::new();
         for (prefix, message) in &frames {
-            TcpFrame::new(*prefix, message.as_ref()).encode_to_vec(&mut wire).unwrap();
+            TcpFrame::new(*prefix, message.as_ref()).encode_to(&mut wire).unwrap();
         }
         let mut cuts: Vec<usize> = cuts.iter().map(|i| i.index(wire.len() + 1)).collect();
         cuts.sort_unstable();
@@ -36,7 +36,7 @@ proptest! {
             start = end;
             while let Some(result) = decoder.decode(&mut input) {
                 let frame = result.unwrap();
-                frame.encode_to_vec(&mut reencoded).unwrap();
+                frame.encode_to(&mut reencoded).unwrap();
                 decoded.push((frame.prefix, frame.message.to_message()));
             }
             prop_assert!(input.is_empty());

@@ -27,7 +27,7 @@ fn data_send() -> Message {
 /// The encoded bytes of `message` behind `prefix`.
 fn encode(prefix: LinkPrefix, message: &Message) -> Vec<u8> {
     let mut out = Vec::new();
-    TcpFrame::new(prefix, message.as_ref()).encode_to_vec(&mut out).unwrap();
+    TcpFrame::new(prefix, message.as_ref()).encode_to(&mut out).unwrap();
     out
 }
 
@@ -189,7 +189,10 @@ fn chained_message_is_rejected_and_skipped() {
     assert_eq!(out, [Out::Error(error), ok(A, 2, data_send())]);
     assert!(!error.closes_link());
     assert_eq!(decoder.stats().chained_skipped, 1);
-    assert_eq!(error.to_string(), "flags field 0xC000 has the chaining bit 0x4000 set; chained prefixes are not supported");
+    assert_eq!(
+        error.to_string(),
+        "flags field 0xC000 has the chaining bit 0x4000 set; chained prefixes are not supported"
+    );
 }
 
 #[test]
@@ -277,7 +280,10 @@ fn part_from_another_gateway_is_rejected_and_reassembly_goes_on() {
 #[test]
 fn parts_too_short_for_mti_and_node_ids_are_rejected() {
     let first = raw(0x8400, &[prefix(A, 1).gateway.to_bytes(), [0, 0, 0, 0, 0, 1]].concat());
-    let last = raw(0x8800, &[&prefix(A, 2).gateway.to_bytes()[..], &[0, 0, 0, 0, 0, 2, 0x1F, 0x88, 5, 1, 1, 1, 0x22]].concat());
+    let last = raw(
+        0x8800,
+        &[&prefix(A, 2).gateway.to_bytes()[..], &[0, 0, 0, 0, 0, 2, 0x1F, 0x88, 5, 1, 1, 1, 0x22]].concat(),
+    );
     let (out, decoder) = decode_all_ways(100, &[first, last].concat());
     assert_eq!(out, [Out::Error(DecodeError::PartsTooShort { got: 7, needed: 14 })]);
     assert_eq!(decoder.end_of_input(), Ok(()));
@@ -323,6 +329,7 @@ fn encoder_refuses_a_short_buffer_and_inconsistent_destinations() {
     let frame = TcpFrame::new(prefix(A, 1), message.as_ref());
     let mut short = [0u8; 47];
     assert_eq!(frame.encode(&mut short), Err(EncodeError::BufferTooSmall { needed: 48, got: 47 }));
+    assert_eq!(short, [0u8; 47], "nothing is written to a buffer that is too small");
 
     let mut missing = message.clone();
     missing.destination = None;
@@ -333,7 +340,7 @@ fn encoder_refuses_a_short_buffer_and_inconsistent_destinations() {
     let global = Message::addressed(Mti::VERIFY_NODE_ID_GLOBAL, node(A), node(B), vec![]);
     let frame = TcpFrame::new(prefix(A, 1), global.as_ref());
     let mut vec = Vec::new();
-    assert_eq!(frame.encode_to_vec(&mut vec), Err(EncodeError::UnexpectedDestination { mti: Mti::VERIFY_NODE_ID_GLOBAL }));
+    assert_eq!(frame.encode_to(&mut vec), Err(EncodeError::UnexpectedDestination { mti: Mti::VERIFY_NODE_ID_GLOBAL }));
     assert!(vec.is_empty());
 }
 
@@ -343,8 +350,8 @@ fn encoder_refuses_a_length_over_24_bits() {
     let message = Message::addressed(Mti::STREAM_DATA_SEND, node(A), node(B), payload);
     let mut out = Vec::new();
     let frame = TcpFrame::new(prefix(A, 1), message.as_ref());
-    assert_eq!(frame.encode_to_vec(&mut out), Err(EncodeError::TooLong { length: 0x100_0000 }));
+    assert_eq!(frame.encode_to(&mut out), Err(EncodeError::TooLong { length: 0x100_0000 }));
     assert!(out.is_empty());
     let fits = Message { payload: message.payload.slice(1..), ..message };
-    assert_eq!(TcpFrame::new(prefix(A, 1), fits.as_ref()).encode_to_vec(&mut out), Ok(0x100_0004));
+    assert_eq!(TcpFrame::new(prefix(A, 1), fits.as_ref()).encode_to(&mut out), Ok(0x100_0004));
 }

@@ -105,7 +105,9 @@ fn worked_example_moves_the_published_bytes_through_two_links() {
     let sid = StreamId::new(4).unwrap();
     let stream = a.endpoint.open(ms(1), OpenOptions::new(node(B), 16).source_stream(sid)).unwrap();
     assert_eq!(carry(ms(1), &mut a, &mut b), hex(vector("M1 Initiate Request").wire));
-    let Some(Event::Opened { handle: b_stream, info }) = b.events().into_iter().next() else { panic!("B did not open") };
+    let Some(Event::Opened { handle: b_stream, info }) = b.events().into_iter().next() else {
+        panic!("B did not open")
+    };
     assert_eq!(info.destination_stream, StreamId::new(7));
 
     // M2: B accepts with DID 7.

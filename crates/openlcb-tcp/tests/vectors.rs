@@ -37,11 +37,11 @@ fn every_vector_encodes_byte_for_byte() {
         assert_eq!(&buf[..wire.len()], &wire[..], "{}", v.name);
 
         let mut bytes_mut = BytesMut::from(&b"xy"[..]);
-        assert_eq!(frame.encode_to_bytes_mut(&mut bytes_mut), Ok(wire.len()));
+        assert_eq!(frame.encode_to(&mut bytes_mut), Ok(wire.len()));
         assert_eq!(&bytes_mut[2..], &wire[..], "{}", v.name);
 
         let mut vec = Vec::new();
-        assert_eq!(frame.encode_to_vec(&mut vec), Ok(wire.len()));
+        assert_eq!(frame.encode_to(&mut vec), Ok(wire.len()));
         assert_eq!(vec, wire, "{}", v.name);
     }
 }

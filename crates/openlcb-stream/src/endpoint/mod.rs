@@ -324,6 +324,7 @@ impl StreamEndpoint {
             Mti::OPTIONAL_INTERACTION_REJECTED | Mti::TERMINATE_DUE_TO_ERROR => {
                 self.on_error_report(msg.mti, peer, ErrorReport::parse(msg.payload));
             }
+            Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => self.peer_restarted(peer),
             _ => {
                 if let Some(reply) = node::answer(self.out.node, &self.config, msg) {
                     if self.out.transmits.len() >= self.config.transmit_queue_limit {
@@ -351,11 +352,7 @@ impl StreamEndpoint {
     /// The transport reports `peer` gone (e.g. its CAN alias was released): every stream with
     /// it ends with [`Termination::PeerLost`], without sending anything to it.
     pub fn peer_lost(&mut self, peer: NodeId) {
-        let handles: Vec<StreamHandle> =
-            self.handles().filter(|h| self.stream(*h).is_some_and(|s| s.peer == peer)).collect();
-        for handle in handles {
-            self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::PeerLost });
-        }
+        self.end_all_with(peer, Termination::PeerLost);
     }
 
     /// The transport lost its link (e.g. this node's CAN alias): every stream ends with
@@ -949,6 +946,42 @@ impl StreamEndpoint {
         self.out.event(event(handle));
         if !keep {
             self.release(handle);
+        }
+    }
+
+    /// `peer` announced itself: every stream it had taken part in is forgotten there. A request
+    /// still waiting for its Reply stays: messages from one node arrive in order, so the peer
+    /// will see the request after its restart and answer it.
+    fn peer_restarted(&mut self, peer: NodeId) {
+        let handles: Vec<StreamHandle> = self
+            .handles()
+            .filter(|h| {
+                self.stream(*h).is_some_and(|s| {
+                    s.peer == peer
+                        && match &s.half {
+                            Half::Source(src) => src.state != SourceState::AwaitingReply,
+                            Half::Destination(d) => d.state != DestinationState::Closed,
+                        }
+                })
+            })
+            .collect();
+        for handle in handles {
+            self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::PeerRestarted });
+        }
+    }
+
+    /// Ends every stream with `peer` that is not over yet, without sending anything.
+    fn end_all_with(&mut self, peer: NodeId, cause: Termination) {
+        let handles: Vec<StreamHandle> = self
+            .handles()
+            .filter(|h| {
+                self.stream(*h).is_some_and(|s| {
+                    s.peer == peer && !matches!(&s.half, Half::Destination(d) if d.state == DestinationState::Closed)
+                })
+            })
+            .collect();
+        for handle in handles {
+            self.end(handle, |h| Event::Terminated { handle: h, cause });
         }
     }
 
