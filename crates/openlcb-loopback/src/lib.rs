@@ -12,7 +12,7 @@
 //! let bus = net.add_bus(125_000, 16);
 //! let a = net.add_can_node(NodeId::new(0x0501_0101_2200).unwrap(), bus, NodeOptions::default());
 //! let b = net.add_can_node(NodeId::new(0x0501_0101_2201).unwrap(), bus, NodeOptions::default());
-//! let t = net.add_transfer(TransferSpec { from: a, to: b, bytes: 10_000, window: 2048, start: Instant::ZERO });
+//! let t = net.add_transfer(TransferSpec::new(a, b, 10_000, 2048));
 //! net.run(Instant::from_millis(60_000), 1_000_000).unwrap();
 //! assert_eq!(net.transfers()[t].outcome, Outcome::Completed);
 //! ```
@@ -25,7 +25,7 @@ mod net;
 mod rng;
 
 pub use net::{
-    FrameFaults, NetStats, Network, NeverIdle, NodeIndex, NodeOptions, Outcome, ScheduledFault, TransferReport,
+    FrameCounts, FrameFaults, NetStats, Network, NeverIdle, NodeIndex, NodeOptions, Outcome, ScheduledFault, TransferReport,
     TransferSpec,
 };
 pub use rng::{Rng, pattern_byte};

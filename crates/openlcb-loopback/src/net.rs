@@ -77,6 +77,19 @@ pub struct TransferSpec {
     pub start: Instant,
 }
 
+impl TransferSpec {
+    /// `bytes` from `from` to `to` with a proposed `window`, starting at once.
+    pub fn new(from: NodeIndex, to: NodeIndex, bytes: u64, window: u16) -> Self {
+        TransferSpec { from, to, bytes, window, start: Instant::ZERO }
+    }
+
+    /// Start at `at` instead.
+    pub fn at(mut self, at: Instant) -> Self {
+        self.start = at;
+        self
+    }
+}
+
 /// How a transfer ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Outcome {
@@ -116,15 +129,63 @@ pub struct TransferReport {
     pub ended_at: Option<Instant>,
 }
 
+/// CAN frames delivered, by what they carried.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FrameCounts {
+    /// Stream Data Send (format 7).
+    pub stream_data: u64,
+    /// Stream Data Proceed.
+    pub proceed: u64,
+    /// Stream Initiate Request and Reply.
+    pub initiate: u64,
+    /// Stream Data Complete.
+    pub complete: u64,
+    /// TDE and OIR.
+    pub error_report: u64,
+    /// Other OpenLCB messages (Initialization Complete, Verified Node ID, ...).
+    pub other_message: u64,
+    /// CAN control frames (CID, RID, AMD, AME, AMR).
+    pub control: u64,
+}
+
+impl FrameCounts {
+    fn count(&mut self, frame: &CanFrame) {
+        use openlcb_can::FrameKind;
+        use openlcb_stream::Mti;
+        let counter = match frame.header().map(|h| h.kind) {
+            Ok(FrameKind::StreamData { .. }) => &mut self.stream_data,
+            Ok(FrameKind::Message { can_mti }) => match Mti(can_mti) {
+                Mti::STREAM_DATA_PROCEED => &mut self.proceed,
+                Mti::STREAM_INITIATE_REQUEST | Mti::STREAM_INITIATE_REPLY => &mut self.initiate,
+                Mti::STREAM_DATA_COMPLETE => &mut self.complete,
+                Mti::TERMINATE_DUE_TO_ERROR | Mti::OPTIONAL_INTERACTION_REJECTED => &mut self.error_report,
+                _ => &mut self.other_message,
+            },
+            Ok(FrameKind::Datagram { .. }) => &mut self.other_message,
+            _ => &mut self.control,
+        };
+        *counter += 1;
+    }
+
+    /// All of them.
+    pub fn total(&self) -> u64 {
+        self.stream_data
+            + self.proceed
+            + self.initiate
+            + self.complete
+            + self.error_report
+            + self.other_message
+            + self.control
+    }
+}
+
 /// Counters of a whole run.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct NetStats {
     /// Driver steps taken.
     pub steps: u64,
-    /// CAN frames delivered to receivers (counted once per frame, not per receiver).
-    pub frames: u64,
-    /// CAN frames that were stream data (format 7).
-    pub data_frames: u64,
+    /// CAN frames delivered (counted once per frame, not per receiver), by kind.
+    pub frames: FrameCounts,
     /// Bus busy time, summed over buses.
     pub bus_busy: Duration,
     /// Stuff bits sent.
@@ -202,7 +263,20 @@ struct Transfer {
     report: TransferReport,
     /// Key of its byte pattern.
     key: u64,
+    /// The bytes to send, when given; otherwise `pattern_byte(key, i)`.
+    data: Option<std::sync::Arc<[u8]>>,
+    /// The SID to use, when given.
+    chosen_source_stream: Option<openlcb_stream::StreamId>,
     source_stream: Option<u8>,
+}
+
+impl Transfer {
+    fn byte(&self, index: u64) -> u8 {
+        match &self.data {
+            Some(data) => data.get(index as usize).copied().unwrap_or(0),
+            None => pattern_byte(self.key, index),
+        }
+    }
 }
 
 /// Many nodes on virtual time. Build it, add nodes, buses, pipes and transfers, then [`run`](Network::run).
@@ -218,6 +292,7 @@ pub struct Network {
     rng: Rng,
     stats: NetStats,
     scratch: Vec<u8>,
+    trace: Option<Vec<(Instant, CanFrame)>>,
 }
 
 impl Network {
@@ -234,6 +309,7 @@ impl Network {
             rng: Rng::new(seed),
             stats: NetStats::default(),
             scratch: vec![0; 64 * 1024],
+            trace: None,
         }
     }
 
@@ -283,6 +359,16 @@ impl Network {
         self.nodes.len() - 1
     }
 
+    /// Starts recording every frame delivered on any bus, with the time it ended.
+    pub fn record_frames(&mut self) {
+        self.trace = Some(Vec::new());
+    }
+
+    /// The frames recorded since [`record_frames`](Self::record_frames).
+    pub fn recorded_frames(&self) -> &[(Instant, CanFrame)] {
+        self.trace.as_deref().unwrap_or_default()
+    }
+
     /// Random faults for every frame delivery from now on.
     pub fn set_frame_faults(&mut self, faults: FrameFaults) {
         self.faults = faults;
@@ -294,8 +380,19 @@ impl Network {
         self.scheduled.sort_by_key(|(t, _)| *t);
     }
 
-    /// A transfer; returns its number.
+    /// A transfer of a generated pattern; returns its number.
     pub fn add_transfer(&mut self, spec: TransferSpec) -> usize {
+        self.push_transfer(spec, None, None)
+    }
+
+    /// A transfer of exactly `data` (its length overrides `spec.bytes`), optionally on a
+    /// chosen SID; returns its number.
+    pub fn add_transfer_of(&mut self, mut spec: TransferSpec, data: &[u8], sid: Option<openlcb_stream::StreamId>) -> usize {
+        spec.bytes = data.len() as u64;
+        self.push_transfer(spec, Some(data.into()), sid)
+    }
+
+    fn push_transfer(&mut self, spec: TransferSpec, data: Option<std::sync::Arc<[u8]>>, sid: Option<openlcb_stream::StreamId>) -> usize {
         let key = self.rng.next_u64();
         self.transfers.push(Transfer {
             report: TransferReport {
@@ -308,6 +405,8 @@ impl Network {
                 ended_at: None,
             },
             key,
+            data,
+            chosen_source_stream: sid,
             source_stream: None,
         });
         if let Some(node) = self.nodes.get_mut(spec.from) {
@@ -319,6 +418,11 @@ impl Network {
     /// The virtual time.
     pub fn now(&self) -> Instant {
         self.now
+    }
+
+    /// Byte `index` of transfer `transfer`'s payload (0 past its end or for no such transfer).
+    pub fn transfer_byte(&self, transfer: usize, index: u64) -> u8 {
+        self.transfers.get(transfer).map_or(0, |t| t.byte(index))
     }
 
     /// Reports of every transfer, in the order they were added.
@@ -360,6 +464,18 @@ impl Network {
     /// Runs until every transfer has an outcome and nothing is in flight, or `until` is
     /// reached; fails if that takes more than `max_steps` steps.
     pub fn run(&mut self, until: Instant, max_steps: u64) -> Result<(), NeverIdle> {
+        self.drive(until, max_steps, true)
+    }
+
+    /// Runs until `until` even when everything has settled (timers, logins, keep-alives go
+    /// on); fails if that takes more than `max_steps` steps.
+    pub fn run_until(&mut self, until: Instant, max_steps: u64) -> Result<(), NeverIdle> {
+        self.drive(until, max_steps, false)?;
+        self.now = self.now.max(until);
+        Ok(())
+    }
+
+    fn drive(&mut self, until: Instant, max_steps: u64, stop_when_settled: bool) -> Result<(), NeverIdle> {
         loop {
             self.stats.steps += 1;
             if self.stats.steps > max_steps {
@@ -376,7 +492,7 @@ impl Network {
             let settled = self.transfers.iter().all(|t| t.report.outcome != Outcome::Pending)
                 && self.buses.iter().all(|b| b.on_wire().is_none() && b.next_event_ns(self.now_ns()).is_none())
                 && self.nodes.iter().all(|n| n.inbox.is_empty());
-            if settled {
+            if settled && stop_when_settled {
                 return Ok(());
             }
             match self.next_event() {
@@ -481,9 +597,9 @@ impl Network {
             if wire.delivery == Delivery::Corrupted {
                 continue;
             }
-            self.stats.frames += 1;
-            if wire.frame.raw_id() >> 24 == 0x1F {
-                self.stats.data_frames += 1;
+            self.stats.frames.count(&wire.frame);
+            if let Some(trace) = &mut self.trace {
+                trace.push((end, wire.frame));
             }
             for node in &mut self.nodes {
                 let Port::Can { bus, port, .. } = &node.port else { continue };
@@ -587,7 +703,9 @@ impl Network {
             }
             let Some(to) = self.nodes.get(spec.to).map(|n| n.id) else { continue };
             let Some(node) = self.nodes.get_mut(index) else { continue };
-            match node.endpoint.open(now, OpenOptions::new(to, spec.window)) {
+            let mut options = OpenOptions::new(to, spec.window);
+            options.source_stream = transfer.chosen_source_stream;
+            match node.endpoint.open(now, options) {
                 Ok(handle) => {
                     transfer.report.opened_at = Some(now);
                     transfer.source_stream = node.endpoint.stream_info(handle).map(|i| i.source_stream.as_raw());
@@ -712,7 +830,7 @@ impl Network {
             let n = left.min(credit.max(1)).min(self.scratch.len() as u64) as usize;
             let start = transfer.report.sent;
             for (i, byte) in self.scratch.iter_mut().take(n).enumerate() {
-                *byte = pattern_byte(transfer.key, start + i as u64);
+                *byte = transfer.byte(start + i as u64);
             }
             match node.endpoint.write(now, handle, self.scratch.get(..n).unwrap_or_default()) {
                 Ok(written) if written > 0 => transfer.report.sent += written as u64,
@@ -738,7 +856,7 @@ impl Network {
                         .iter()
                         .take(n)
                         .enumerate()
-                        .take_while(|(i, b)| **b == pattern_byte(t.key, base + *i as u64))
+                        .take_while(|(i, b)| **b == t.byte(base + *i as u64))
                         .count();
                     t.report.verified_prefix += good as u64;
                 }

@@ -1,0 +1,281 @@
+//! `lcc-stream sim`: one or more transfers on the loopback harness, reported against the
+//! ceiling of the medium.
+
+use std::fmt::Write as _;
+use std::process::ExitCode;
+
+use clap::{Args, ValueEnum};
+use openlcb_can::CanFrame;
+use openlcb_loopback::bus::frame_bits;
+use openlcb_loopback::{FrameCounts, Network, NodeIndex, NodeOptions, Outcome, TransferSpec};
+use openlcb_stream::{Duration, Instant, NodeId};
+
+/// Where the transfer runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum Topology {
+    /// Two nodes on one CAN bus.
+    Can,
+    /// Two nodes on one OpenLCB-TCP link.
+    Tcp,
+}
+
+/// Options of `lcc-stream sim`.
+#[derive(Debug, Args)]
+pub(crate) struct SimArgs {
+    /// CAN bitrate, bits per second.
+    #[arg(long, default_value_t = 125_000)]
+    bitrate: u32,
+    /// Payload bytes per stream.
+    #[arg(long, default_value_t = 262_144)]
+    bytes: u64,
+    /// Window (Max Buffer Size) proposed and granted, 1..=65535.
+    #[arg(long, default_value_t = 2048, value_parser = clap::value_parser!(u16).range(1..))]
+    window: u16,
+    /// The destination sends one Proceed ahead.
+    #[arg(long)]
+    early_proceed: bool,
+    /// Per-node processing latency, milliseconds (fractions allowed).
+    #[arg(long, default_value_t = 1.0)]
+    latency: f64,
+    /// Concurrent transfers between the two nodes.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=255))]
+    streams: u16,
+    /// Network layout.
+    #[arg(long, value_enum, default_value_t = Topology::Can)]
+    topology: Topology,
+    /// OpenLCB-TCP link bandwidth, bytes per second (tcp topology).
+    #[arg(long, default_value_t = 12_500_000)]
+    bandwidth: u64,
+    /// Seed of the simulation.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+/// What a run measured.
+#[derive(Debug)]
+struct Report {
+    payload_bytes: u64,
+    elapsed: Duration,
+    ceiling: Duration,
+    frames: FrameCounts,
+    bus_busy: Duration,
+    tcp_bytes: u64,
+    verified: bool,
+    real_time_s: f64,
+}
+
+/// Node IDs of the simulated pair.
+const SOURCE: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x00]);
+const DESTINATION: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x01]);
+
+/// Transfers start once both nodes have logged in (the alias reservation takes 200 ms).
+const START: Instant = Instant::from_millis(300);
+
+pub(crate) fn run(args: &SimArgs) -> Result<ExitCode, String> {
+    if !(args.latency.is_finite() && (0.0..=10_000.0).contains(&args.latency)) {
+        return Err(format!("--latency {} is not 0..=10000 ms", args.latency));
+    }
+    if args.bitrate == 0 || args.bandwidth == 0 {
+        return Err("--bitrate and --bandwidth must be positive".into());
+    }
+    let report = simulate(args)?;
+    if args.json {
+        println!("{}", json(args, &report));
+    } else {
+        print!("{}", text(args, &report));
+    }
+    Ok(if report.verified { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
+
+fn node_options(args: &SimArgs) -> NodeOptions {
+    let mut options = NodeOptions::default();
+    options.stream.max_window = args.window;
+    options.stream.early_proceed = args.early_proceed;
+    options.stream.max_streams = usize::from(args.streams).max(1);
+    options.stream.max_streams_per_peer = usize::from(args.streams).max(1);
+    options.can.transmit_queue_limit = options.can.transmit_queue_limit.max(usize::from(args.streams) * 4);
+    options.latency = Duration::from_micros((args.latency * 1000.0).round() as u64);
+    options
+}
+
+fn simulate(args: &SimArgs) -> Result<Report, String> {
+    let wall = std::time::Instant::now();
+    let mut net = Network::new(args.seed);
+    let options = node_options(args);
+    let (from, to) = match args.topology {
+        Topology::Can => {
+            let bus = net.add_bus(args.bitrate, 16);
+            let a = net.add_can_node(SOURCE, bus, options.clone());
+            (a, net.add_can_node(DESTINATION, bus, options))
+        }
+        Topology::Tcp => {
+            let link_latency = options.latency;
+            let [a, b] = net.add_tcp_pair([SOURCE, DESTINATION], [options.clone(), options], link_latency, args.bandwidth);
+            (a, b)
+        }
+    };
+    let transfers: Vec<usize> = (0..args.streams)
+        .map(|_| net.add_transfer(TransferSpec::new(from, to, args.bytes, args.window).at(START)))
+        .collect();
+    net.run_until(START, 10_000_000).map_err(|e| e.to_string())?;
+    let before = net.stats();
+    let payload_bytes = args.bytes * u64::from(args.streams);
+    // A generous bound: every payload byte may cost a driver step or two.
+    let max_steps = 1_000_000 + 8 * payload_bytes;
+    net.run(Instant::from_micros(u64::MAX / 2), max_steps).map_err(|e| e.to_string())?;
+    let after = net.stats();
+    let reports = net.transfers();
+    let verified = transfers.iter().all(|t| reports.get(*t).is_some_and(|r| r.outcome == Outcome::Completed));
+    let opened = reports.iter().filter_map(|r| r.opened_at).min().unwrap_or(START);
+    let ended = reports.iter().filter_map(|r| r.ended_at).max().unwrap_or(net.now());
+    let ceiling = match args.topology {
+        Topology::Can => can_ceiling(&net, from, to, &transfers, args),
+        Topology::Tcp => Duration::from_micros(payload_bytes * 1_000_000 / args.bandwidth),
+    };
+    Ok(Report {
+        payload_bytes,
+        elapsed: ended.saturating_duration_since(opened),
+        ceiling,
+        frames: frame_delta(after.frames, before.frames),
+        bus_busy: Duration::from_micros(after.bus_busy.as_micros() - before.bus_busy.as_micros()),
+        tcp_bytes: after.tcp_bytes - before.tcp_bytes,
+        verified,
+        real_time_s: wall.elapsed().as_secs_f64(),
+    })
+}
+
+/// The time the same payload takes as back-to-back full data frames (DID + 7 bytes) carrying
+/// the same bytes between the same aliases: no requests, no Proceeds, no gaps.
+fn can_ceiling(net: &Network, from: NodeIndex, to: NodeIndex, transfers: &[usize], args: &SimArgs) -> Duration {
+    let (Some(src), Some(dst)) = (net.alias(from), net.alias(to)) else { return Duration::ZERO };
+    let id = 0x1F00_0000 | u32::from(dst.as_raw()) << 12 | u32::from(src.as_raw());
+    let mut bits = 0u64;
+    let mut frame = [0u8; 8];
+    for t in transfers {
+        let mut offset = 0;
+        while offset < args.bytes {
+            let n = (args.bytes - offset).min(7);
+            for i in 0..n {
+                frame[1 + i as usize] = net.transfer_byte(*t, offset + i);
+            }
+            if let Some(f) = CanFrame::extended(id, &frame[..=n as usize]) {
+                bits += u64::from(frame_bits(&f));
+            }
+            offset += n;
+        }
+    }
+    Duration::from_micros(bits * 1_000_000 / u64::from(args.bitrate))
+}
+
+fn frame_delta(after: FrameCounts, before: FrameCounts) -> FrameCounts {
+    FrameCounts {
+        stream_data: after.stream_data - before.stream_data,
+        proceed: after.proceed - before.proceed,
+        initiate: after.initiate - before.initiate,
+        complete: after.complete - before.complete,
+        error_report: after.error_report - before.error_report,
+        other_message: after.other_message - before.other_message,
+        control: after.control - before.control,
+    }
+}
+
+fn rate(bytes: u64, time: Duration) -> f64 {
+    if time.as_micros() == 0 { 0.0 } else { bytes as f64 / time.as_secs_f64() }
+}
+
+fn efficiency(r: &Report) -> f64 {
+    if r.elapsed.as_micros() == 0 { 0.0 } else { r.ceiling.as_secs_f64() / r.elapsed.as_secs_f64() }
+}
+
+fn utilisation(r: &Report) -> f64 {
+    if r.elapsed.as_micros() == 0 { 0.0 } else { (r.bus_busy.as_secs_f64() / r.elapsed.as_secs_f64()).min(1.0) }
+}
+
+fn topology_name(t: Topology) -> &'static str {
+    match t {
+        Topology::Can => "can",
+        Topology::Tcp => "tcp",
+    }
+}
+
+fn json(args: &SimArgs, r: &Report) -> String {
+    let f = &r.frames;
+    let mut out = String::new();
+    let _ = write!(
+        out,
+        "{{\"topology\":\"{}\",\"bitrate\":{},\"window\":{},\"early_proceed\":{},\"latency_ms\":{},\"streams\":{},\"seed\":{},\
+         \"payload_bytes\":{},\"elapsed_s\":{:.6},\"goodput_bytes_per_s\":{:.1},\"ceiling_bytes_per_s\":{:.1},\"efficiency\":{:.4},\
+         \"bus_utilisation\":{:.4},\"tcp_bytes\":{},\"frames\":{{\"total\":{},\"stream_data\":{},\"proceed\":{},\"initiate\":{},\
+         \"complete\":{},\"error_report\":{},\"other_message\":{},\"control\":{}}},\"verified\":{},\"real_time_s\":{:.3}}}",
+        topology_name(args.topology),
+        args.bitrate,
+        args.window,
+        args.early_proceed,
+        args.latency,
+        args.streams,
+        args.seed,
+        r.payload_bytes,
+        r.elapsed.as_secs_f64(),
+        rate(r.payload_bytes, r.elapsed),
+        rate(r.payload_bytes, r.ceiling),
+        efficiency(r),
+        utilisation(r),
+        r.tcp_bytes,
+        f.total(),
+        f.stream_data,
+        f.proceed,
+        f.initiate,
+        f.complete,
+        f.error_report,
+        f.other_message,
+        f.control,
+        r.verified,
+        r.real_time_s,
+    );
+    out
+}
+
+fn text(args: &SimArgs, r: &Report) -> String {
+    let f = &r.frames;
+    let mut out = String::new();
+    let medium = match args.topology {
+        Topology::Can => format!("CAN at {} bit/s", args.bitrate),
+        Topology::Tcp => format!("OpenLCB-TCP at {} B/s", args.bandwidth),
+    };
+    let _ = writeln!(
+        out,
+        "{} stream(s) of {} bytes over {medium}, window {}, early Proceed {}, latency {} ms, seed {}",
+        args.streams,
+        args.bytes,
+        args.window,
+        if args.early_proceed { "on" } else { "off" },
+        args.latency,
+        args.seed
+    );
+    let _ = writeln!(out, "  payload        {} bytes, {}", r.payload_bytes, if r.verified { "verified" } else { "NOT VERIFIED" });
+    let _ = writeln!(out, "  elapsed        {:.3} s virtual ({:.3} s real)", r.elapsed.as_secs_f64(), r.real_time_s);
+    let _ = writeln!(out, "  goodput        {:.0} bytes/s", rate(r.payload_bytes, r.elapsed));
+    let _ = writeln!(out, "  ceiling        {:.0} bytes/s", rate(r.payload_bytes, r.ceiling));
+    let _ = writeln!(out, "  efficiency     {:.4}", efficiency(r));
+    if args.topology == Topology::Can {
+        let _ = writeln!(out, "  bus busy       {:.1} %", 100.0 * utilisation(r));
+        let _ = writeln!(
+            out,
+            "  frames         {} total: {} data, {} proceed, {} initiate, {} complete, {} error, {} other, {} control",
+            f.total(),
+            f.stream_data,
+            f.proceed,
+            f.initiate,
+            f.complete,
+            f.error_report,
+            f.other_message,
+            f.control
+        );
+    } else {
+        let _ = writeln!(out, "  tcp bytes      {}", r.tcp_bytes);
+    }
+    out
+}
