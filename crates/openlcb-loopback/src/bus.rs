@@ -321,14 +321,12 @@ mod tests {
     }
 
     #[test]
-    fn crc_of_a_known_frame() {
-        // Stuffing count is checked by hand for a frame of all zero bits: SOF + 11 zero ID
-        // bits + ... A run of zeros gets a stuff bit after every 4 further zeros.
+    fn stuffing_of_known_runs() {
         let mut w = BitWriter::default();
         w.push(0, 10);
         assert_eq!(w.stuffed, 2, "00000 s 0000 s0 -> two stuff bits in ten zeros");
         let mut w = BitWriter::default();
-        w.push(0b1010_1010_10, 10);
+        w.push(0b10_1010_1010, 10);
         assert_eq!((w.stuffed, w.count), (0, 10));
     }
 

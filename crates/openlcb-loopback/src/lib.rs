@@ -21,6 +21,9 @@
 #![warn(missing_docs)]
 
 pub mod bus;
+#[cfg(feature = "fuzzing")]
+#[doc(hidden)]
+pub mod fuzzing;
 mod net;
 mod rng;
 

@@ -230,7 +230,7 @@ enum Inbound {
 #[derive(Debug)]
 enum Port {
     Can { bus: usize, port: usize, link: Box<CanLink> },
-    Tcp { pipe: usize, side: usize, link: TcpLink },
+    Tcp { pipe: usize, side: usize, link: Box<TcpLink> },
 }
 
 #[derive(Debug)]
@@ -337,8 +337,8 @@ impl Network {
     ) -> [NodeIndex; 2] {
         let pipe = self.pipes.len();
         let [oa, ob] = options;
-        let a = self.push_node(ids[0], oa, Port::Tcp { pipe, side: 0, link: TcpLink::new(ids[0]) });
-        let b = self.push_node(ids[1], ob, Port::Tcp { pipe, side: 1, link: TcpLink::new(ids[1]) });
+        let a = self.push_node(ids[0], oa, Port::Tcp { pipe, side: 0, link: Box::new(TcpLink::new(ids[0])) });
+        let b = self.push_node(ids[1], ob, Port::Tcp { pipe, side: 1, link: Box::new(TcpLink::new(ids[1])) });
         self.pipes.push(Pipe { ends: [a, b], latency, bytes_per_sec: bytes_per_sec.max(1), busy_until: [self.now; 2] });
         [a, b]
     }
@@ -548,7 +548,7 @@ impl Network {
                     bus.clear(*port);
                 }
             }
-            Port::Tcp { link, .. } => *link = TcpLink::new(node.id),
+            Port::Tcp { link, .. } => **link = TcpLink::new(node.id),
         }
         let (sending, receiving) = (std::mem::take(&mut node.sending), std::mem::take(&mut node.receiving));
         node.wake = Some(now);
