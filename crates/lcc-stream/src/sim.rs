@@ -113,7 +113,8 @@ fn simulate(args: &SimArgs) -> Result<Report, String> {
         }
         Topology::Tcp => {
             let link_latency = options.latency;
-            let [a, b] = net.add_tcp_pair([SOURCE, DESTINATION], [options.clone(), options], link_latency, args.bandwidth);
+            let [a, b] =
+                net.add_tcp_pair([SOURCE, DESTINATION], [options.clone(), options], link_latency, args.bandwidth);
             (a, b)
         }
     };
@@ -255,7 +256,12 @@ fn text(args: &SimArgs, r: &Report) -> String {
         args.latency,
         args.seed
     );
-    let _ = writeln!(out, "  payload        {} bytes, {}", r.payload_bytes, if r.verified { "verified" } else { "NOT VERIFIED" });
+    let _ = writeln!(
+        out,
+        "  payload        {} bytes, {}",
+        r.payload_bytes,
+        if r.verified { "verified" } else { "NOT VERIFIED" }
+    );
     let _ = writeln!(out, "  elapsed        {:.3} s virtual ({:.3} s real)", r.elapsed.as_secs_f64(), r.real_time_s);
     let _ = writeln!(out, "  goodput        {:.0} bytes/s", rate(r.payload_bytes, r.elapsed));
     let _ = writeln!(out, "  ceiling        {:.0} bytes/s", rate(r.payload_bytes, r.ceiling));

@@ -16,75 +16,136 @@ const ERROR_FRAME_BITS: u32 = 6 + 8 + 3;
 /// contents need, then the 13 fixed tail bits. An extended frame without stuffing is
 /// 67 + 8 x data bytes bits.
 pub fn frame_bits(frame: &CanFrame) -> u32 {
-    let mut bits = BitWriter::default();
+    // SOF to the end of the data, at most 1 + 32 + 3 + 4 + 64 = 104 bits.
+    let mut bits = BitString::default();
     bits.push(0, 1); // SOF
     let id = frame.raw_id();
     if frame.is_extended() {
-        bits.push(u64::from(id >> 18), 11);
-        bits.push(1, 1); // SRR
-        bits.push(1, 1); // IDE
-        bits.push(u64::from(id & 0x3_FFFF), 18);
-        bits.push(u64::from(frame.is_remote_frame()), 1);
+        bits.push(u128::from(id >> 18), 11);
+        bits.push(0b11, 2); // SRR, IDE
+        bits.push(u128::from(id & 0x3_FFFF), 18);
+        bits.push(u128::from(frame.is_remote_frame()), 1);
         bits.push(0, 2); // r1, r0
     } else {
-        bits.push(u64::from(id), 11);
-        bits.push(u64::from(frame.is_remote_frame()), 1);
+        bits.push(u128::from(id), 11);
+        bits.push(u128::from(frame.is_remote_frame()), 1);
         bits.push(0, 2); // IDE, r0
     }
-    bits.push(frame.dlc() as u64, 4);
+    bits.push(frame.dlc() as u128, 4);
     if !frame.is_remote_frame() {
         for byte in frame.payload() {
-            bits.push(u64::from(*byte), 8);
+            bits.push(u128::from(*byte), 8);
         }
     }
-    let crc = bits.crc;
-    bits.push(u64::from(crc), 15);
-    bits.count + bits.stuffed + UNSTUFFED_TAIL_BITS
+    let crc = crc15(&bits);
+    let mut stuffing = Stuffing::default();
+    stuffing.feed(&bits);
+    let mut crc_bits = BitString::default();
+    crc_bits.push(u128::from(crc), 15);
+    stuffing.feed(&crc_bits);
+    bits.len + 15 + stuffing.stuffed + UNSTUFFED_TAIL_BITS
 }
 
-/// Feeds bits MSB first, keeping the CRC-15 of what was fed before the CRC itself and
-/// counting the stuff bits a transmitter inserts after five equal bits.
+/// Up to 128 bits, most significant first.
 #[derive(Default)]
-struct BitWriter {
-    count: u32,
-    stuffed: u32,
-    crc: u16,
-    run_bit: u8,
-    run_len: u32,
+struct BitString {
+    value: u128,
+    len: u32,
 }
 
-impl BitWriter {
-    fn push(&mut self, value: u64, width: u32) {
-        for i in (0..width).rev() {
-            let bit = ((value >> i) & 1) as u8;
-            self.crc_step(bit);
-            self.count += 1;
-            self.stuff_step(bit);
-        }
+impl BitString {
+    fn push(&mut self, value: u128, width: u32) {
+        self.value = (self.value << width) | (value & ((1u128 << width) - 1));
+        self.len += width;
     }
 
-    /// CAN CRC-15, polynomial 0x4599 (ISO 11898-1 §10.4.2.6). Updating it while the CRC
-    /// itself is fed is harmless: the value was read before.
-    fn crc_step(&mut self, bit: u8) {
-        let next = bit ^ ((self.crc >> 14) as u8 & 1);
-        self.crc = (self.crc << 1) & 0x7FFF;
-        if next == 1 {
-            self.crc ^= 0x4599;
-        }
+    /// The bits in order: a leading partial chunk, then whole bytes.
+    fn chunks(&self) -> impl Iterator<Item = (u8, u32)> + '_ {
+        let head = self.len % 8;
+        let head_chunk = (head > 0).then(|| ((self.value >> (self.len - head)) as u8, head));
+        let bytes = (0..self.len / 8).rev().map(move |i| ((self.value >> (8 * i)) as u8, 8));
+        head_chunk.into_iter().chain(bytes)
     }
+}
 
-    fn stuff_step(&mut self, bit: u8) {
-        if self.run_len > 0 && bit == self.run_bit {
-            self.run_len += 1;
+/// CAN CRC-15, polynomial 0x4599 (ISO 11898-1), a byte at a time.
+fn crc15(bits: &BitString) -> u16 {
+    static TABLE: std::sync::OnceLock<[u16; 256]> = std::sync::OnceLock::new();
+    let table = TABLE.get_or_init(|| {
+        core::array::from_fn(|byte| {
+            let mut crc = (byte as u16) << 7;
+            for _ in 0..8 {
+                crc = if crc & 0x4000 != 0 { ((crc << 1) ^ 0x4599) & 0x7FFF } else { (crc << 1) & 0x7FFF };
+            }
+            crc
+        })
+    });
+    let mut crc = 0u16;
+    for (chunk, width) in bits.chunks() {
+        if width == 8 {
+            crc = ((crc << 8) & 0x7FFF) ^ table[usize::from(((crc >> 7) as u8) ^ chunk)];
         } else {
-            self.run_bit = bit;
-            self.run_len = 1;
+            for i in (0..width).rev() {
+                let feedback = u16::from((chunk >> i) & 1) ^ (crc >> 14);
+                crc = ((crc << 1) & 0x7FFF) ^ (0x4599 * feedback);
+            }
         }
-        if self.run_len == 5 {
-            // The stuff bit is the complement and starts a new run of its own.
-            self.stuffed += 1;
-            self.run_bit ^= 1;
-            self.run_len = 1;
+    }
+    crc
+}
+
+/// Counts the stuff bits a transmitter inserts: after five equal bits, one of the other
+/// value, which starts a new run. Bytes go through a table of (run state, byte) -> (run
+/// state, stuff bits).
+#[derive(Default)]
+struct Stuffing {
+    /// 0: nothing sent yet; otherwise run length 1..=4 and the run's bit.
+    state: u8,
+    stuffed: u32,
+}
+
+impl Stuffing {
+    const STATES: usize = 9;
+
+    /// One bit from `state`: the next state and whether a stuff bit follows.
+    fn step(state: u8, bit: u8) -> (u8, bool) {
+        let (run_bit, run_len) = if state == 0 { (2, 0) } else { ((state - 1) / 4, (state - 1) % 4 + 1) };
+        let (run_bit, run_len) = if bit == run_bit { (bit, run_len + 1) } else { (bit, 1) };
+        if run_len == 5 {
+            // The stuff bit is the complement and a run of one.
+            (1 + (1 - run_bit) * 4, true)
+        } else {
+            (1 + run_bit * 4 + (run_len - 1), false)
+        }
+    }
+
+    fn feed(&mut self, bits: &BitString) {
+        static TABLE: std::sync::OnceLock<[[(u8, u8); 256]; Stuffing::STATES]> = std::sync::OnceLock::new();
+        let table = TABLE.get_or_init(|| {
+            core::array::from_fn(|state| {
+                core::array::from_fn(|byte| {
+                    let (mut s, mut n) = (state as u8, 0u8);
+                    for i in (0..8).rev() {
+                        let (next, stuff) = Stuffing::step(s, (byte >> i) as u8 & 1);
+                        s = next;
+                        n += u8::from(stuff);
+                    }
+                    (s, n)
+                })
+            })
+        });
+        for (chunk, width) in bits.chunks() {
+            if width == 8 {
+                let (next, n) = table[usize::from(self.state)][usize::from(chunk)];
+                self.state = next;
+                self.stuffed += u32::from(n);
+            } else {
+                for i in (0..width).rev() {
+                    let (next, stuff) = Stuffing::step(self.state, (chunk >> i) & 1);
+                    self.state = next;
+                    self.stuffed += u32::from(stuff);
+                }
+            }
         }
     }
 }
@@ -122,6 +183,8 @@ pub struct OnWire {
     pub start_ns: u64,
     /// When the bus frees again.
     pub end_ns: u64,
+    /// The frame's bits, stuff bits included (error frame not included).
+    pub bits: u32,
     /// What happens at `end_ns`.
     pub delivery: Delivery,
 }
@@ -236,12 +299,11 @@ impl CanBus {
         if self.on_wire.is_some() || now_ns < self.free_at_ns {
             return None;
         }
-        let port = (0..self.queues.len())
-            .filter_map(|p| Some((arbitration_key(self.queues.get(p)?.front()?), p)))
-            .min()?
-            .1;
+        let port =
+            (0..self.queues.len()).filter_map(|p| Some((arbitration_key(self.queues.get(p)?.front()?), p))).min()?.1;
         let frame = *self.queues.get(port)?.front()?;
-        let bits = u64::from(frame_bits(&frame));
+        let frame_bits = frame_bits(&frame);
+        let bits = u64::from(frame_bits);
         let corrupted = corrupt(&frame);
         // A bit error is seen somewhere in the frame; model it as the whole frame plus an
         // error frame, a conservative bound on the time it wastes.
@@ -252,6 +314,7 @@ impl CanBus {
             frame,
             start_ns: now_ns,
             end_ns,
+            bits: frame_bits,
             delivery: if corrupted { Delivery::Corrupted } else { Delivery::Delivered },
         });
         self.on_wire.as_ref()
@@ -269,7 +332,7 @@ impl CanBus {
                 if let Some(q) = self.queues.get_mut(wire.port) {
                     q.pop_front();
                 }
-                let bits = frame_bits(&wire.frame);
+                let bits = wire.bits;
                 self.stats.frames += 1;
                 self.stats.bits += u64::from(bits);
                 self.stats.stuff_bits += u64::from(bits - unstuffed_bits(&wire.frame));
@@ -322,12 +385,69 @@ mod tests {
 
     #[test]
     fn stuffing_of_known_runs() {
-        let mut w = BitWriter::default();
-        w.push(0, 10);
-        assert_eq!(w.stuffed, 2, "00000 s 0000 s0 -> two stuff bits in ten zeros");
-        let mut w = BitWriter::default();
-        w.push(0b10_1010_1010, 10);
-        assert_eq!((w.stuffed, w.count), (0, 10));
+        let stuff = |value: u128, width: u32| {
+            let mut bits = BitString::default();
+            bits.push(value, width);
+            let mut s = Stuffing::default();
+            s.feed(&bits);
+            s.stuffed
+        };
+        assert_eq!(stuff(0, 10), 2, "00000 s 0000 s0: two stuff bits in ten zeros");
+        assert_eq!(stuff(0, 4), 0);
+        assert_eq!(stuff(0b10_1010_1010, 10), 0);
+        assert_eq!(stuff(0b11111_0000, 9), 2, "11111 s=0 joins the zeros: 0 0000 -> 5 zeros, s");
+        assert_eq!(stuff(u128::MAX >> 8, 120), 24, "a stuff bit (a zero) after every 5 ones");
+    }
+
+    /// A bit-at-a-time reference: the tables must agree with it for any content.
+    fn reference_bits(frame: &CanFrame) -> u32 {
+        let mut seq: Vec<u8> = Vec::new();
+        let mut push = |v: u64, w: u32| (0..w).rev().for_each(|i| seq.push(((v >> i) & 1) as u8));
+        let id = u64::from(frame.raw_id());
+        push(0, 1);
+        push(id >> 18, 11);
+        push(0b11, 2);
+        push(id & 0x3_FFFF, 18);
+        push(0, 3);
+        push(frame.payload().len() as u64, 4);
+        frame.payload().iter().for_each(|b| push(u64::from(*b), 8));
+        let mut crc = 0u16;
+        for bit in &seq {
+            let next = u16::from(*bit) ^ (crc >> 14);
+            crc = (crc << 1) & 0x7FFF;
+            if next == 1 {
+                crc ^= 0x4599;
+            }
+        }
+        (0..15).rev().for_each(|i| seq.push(((crc >> i) & 1) as u8));
+        let (mut stuffed, mut last, mut run) = (0, 2u8, 0);
+        for bit in seq.iter().copied() {
+            if bit == last {
+                run += 1
+            } else {
+                (last, run) = (bit, 1)
+            }
+            if run == 5 {
+                stuffed += 1;
+                (last, run) = (1 - bit, 1);
+            }
+        }
+        seq.len() as u32 + stuffed + 13
+    }
+
+    #[test]
+    fn tables_agree_with_the_bit_at_a_time_reference() {
+        let mut rng = crate::Rng::new(3);
+        for _ in 0..2000 {
+            let id = (rng.next_u64() as u32) & 0x1FFF_FFFF;
+            let len = rng.below(9) as usize;
+            let data: Vec<u8> = (0..len).map(|_| rng.next_u64() as u8).collect();
+            let frame = ext(id, &data);
+            assert_eq!(frame_bits(&frame), reference_bits(&frame), "{frame:?}");
+        }
+        // The CRC of a known frame: all-zero identifier and no data gives CRC 0 and
+        // then stuffing decides the length.
+        assert_eq!(frame_bits(&ext(0, &[])), reference_bits(&ext(0, &[])));
     }
 
     #[test]

@@ -27,7 +27,12 @@ pub fn loopback_ops(seed: u64, window: u16, early_proceed: bool, ops: &[Op]) {
     let bus = net.add_bus(1_000_000, 8);
     let id = |i: u64| NodeId::new(0x0501_0101_2200 + i).unwrap_or_default();
     let mut nodes: Vec<usize> = (0..3).map(|i| net.add_can_node(id(i), bus, options.clone())).collect();
-    nodes.extend(net.add_tcp_pair([id(3), id(4)], [options.clone(), options.clone()], Duration::from_millis(1), 100_000));
+    nodes.extend(net.add_tcp_pair(
+        [id(3), id(4)],
+        [options.clone(), options.clone()],
+        Duration::from_millis(1),
+        100_000,
+    ));
     let pick = |n: u8| nodes[usize::from(n) % nodes.len()];
     let mut lossy = false;
     for op in ops.iter().take(64) {

@@ -28,7 +28,7 @@ mod net;
 mod rng;
 
 pub use net::{
-    FrameCounts, FrameFaults, NetStats, Network, NeverIdle, NodeIndex, NodeOptions, Outcome, ScheduledFault, TransferReport,
-    TransferSpec,
+    FrameCounts, FrameFaults, NetStats, Network, NeverIdle, NodeIndex, NodeOptions, Outcome, ScheduledFault,
+    TransferReport, TransferSpec,
 };
 pub use rng::{Rng, pattern_byte};

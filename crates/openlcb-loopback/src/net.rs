@@ -7,8 +7,7 @@ use bytes::Bytes;
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
 use openlcb_stream::{
-    Config, Duration, Event, Instant, NodeId, OpenOptions, Role, StreamEndpoint, StreamHandle, Termination,
-    TimeoutKind,
+    Config, Duration, Event, Instant, NodeId, OpenOptions, Role, StreamEndpoint, StreamHandle, Termination, TimeoutKind,
 };
 use openlcb_tcp::TcpLink;
 
@@ -34,7 +33,12 @@ pub struct NodeOptions {
 
 impl Default for NodeOptions {
     fn default() -> Self {
-        NodeOptions { stream: Config::default(), can: CanConfig::default(), latency: Duration::from_millis(1), gridconnect: false }
+        NodeOptions {
+            stream: Config::default(),
+            can: CanConfig::default(),
+            latency: Duration::from_millis(1),
+            gridconnect: false,
+        }
     }
 }
 
@@ -387,12 +391,22 @@ impl Network {
 
     /// A transfer of exactly `data` (its length overrides `spec.bytes`), optionally on a
     /// chosen SID; returns its number.
-    pub fn add_transfer_of(&mut self, mut spec: TransferSpec, data: &[u8], sid: Option<openlcb_stream::StreamId>) -> usize {
+    pub fn add_transfer_of(
+        &mut self,
+        mut spec: TransferSpec,
+        data: &[u8],
+        sid: Option<openlcb_stream::StreamId>,
+    ) -> usize {
         spec.bytes = data.len() as u64;
         self.push_transfer(spec, Some(data.into()), sid)
     }
 
-    fn push_transfer(&mut self, spec: TransferSpec, data: Option<std::sync::Arc<[u8]>>, sid: Option<openlcb_stream::StreamId>) -> usize {
+    fn push_transfer(
+        &mut self,
+        spec: TransferSpec,
+        data: Option<std::sync::Arc<[u8]>>,
+        sid: Option<openlcb_stream::StreamId>,
+    ) -> usize {
         let key = self.rng.next_u64();
         self.transfers.push(Transfer {
             report: TransferReport {
@@ -591,7 +605,11 @@ impl Network {
         for bus_index in 0..self.buses.len() {
             let Some(wire) = self.buses.get_mut(bus_index).and_then(|b| b.finish(now_ns)) else { continue };
             let end = Instant::from_micros(wire.end_ns.div_ceil(1000));
-            if let Some(sender) = self.nodes.iter_mut().find(|n| matches!(&n.port, Port::Can { bus, port, .. } if *bus == bus_index && *port == wire.port)) {
+            if let Some(sender) = self
+                .nodes
+                .iter_mut()
+                .find(|n| matches!(&n.port, Port::Can { bus, port, .. } if *bus == bus_index && *port == wire.port))
+            {
                 sender.wake = Some(end);
             }
             if wire.delivery == Delivery::Corrupted {
@@ -695,7 +713,8 @@ impl Network {
         for t in 0..self.transfers.len() {
             let Some(transfer) = self.transfers.get_mut(t) else { continue };
             let spec = transfer.report.spec;
-            if spec.from != index || transfer.report.opened_at.is_some() || transfer.report.outcome != Outcome::Pending {
+            if spec.from != index || transfer.report.opened_at.is_some() || transfer.report.outcome != Outcome::Pending
+            {
                 continue;
             }
             if spec.start > now {
@@ -770,7 +789,9 @@ impl Network {
                     if let Some(t) = self.nodes.get_mut(index).and_then(|n| n.receiving.remove(&handle)) {
                         let outcome = match self.transfers.get(t) {
                             Some(_) if !matched => Outcome::CountMismatch,
-                            Some(tr) if tr.report.verified_prefix == total && total == tr.report.spec.bytes => Outcome::Completed,
+                            Some(tr) if tr.report.verified_prefix == total && total == tr.report.spec.bytes => {
+                                Outcome::Completed
+                            }
                             _ => Outcome::SilentCorruption,
                         };
                         self.decide(t, outcome);
@@ -930,7 +951,9 @@ impl Network {
         let next_start = self
             .transfers
             .iter()
-            .filter(|t| t.report.spec.from == index && t.report.opened_at.is_none() && t.report.outcome == Outcome::Pending)
+            .filter(|t| {
+                t.report.spec.from == index && t.report.opened_at.is_none() && t.report.outcome == Outcome::Pending
+            })
             .map(|t| t.report.spec.start.max(now))
             .min();
         let Some(node) = self.nodes.get_mut(index) else { return };

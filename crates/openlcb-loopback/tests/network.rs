@@ -109,7 +109,12 @@ fn fifty_nodes_each_sending_to_another_on_one_bus() {
 #[test]
 fn transfer_over_an_openlcb_tcp_pipe() {
     let mut net = Network::new(5);
-    let [a, b] = net.add_tcp_pair([node(0), node(1)], [options(2048, true), options(2048, true)], Duration::from_millis(1), 1_000_000);
+    let [a, b] = net.add_tcp_pair(
+        [node(0), node(1)],
+        [options(2048, true), options(2048, true)],
+        Duration::from_millis(1),
+        1_000_000,
+    );
     let t = net.add_transfer(TransferSpec::new(a, b, 1 << 20, 2048));
     net.run(MINUTE, 1_000_000).unwrap();
     let report = net.transfers()[t];
@@ -232,7 +237,8 @@ fn a_rejected_stream_ends_the_transfer() {
     let mut o = options(256, true);
     o.stream = {
         let mut c = Config::default();
-        c.accept_policy = openlcb_stream::AcceptPolicy::RejectAll(openlcb_stream::wire::ReplyCode::SOURCE_NOT_PERMITTED);
+        c.accept_policy =
+            openlcb_stream::AcceptPolicy::RejectAll(openlcb_stream::wire::ReplyCode::SOURCE_NOT_PERMITTED);
         c
     };
     let (mut net, a, b) = can_pair(12, options(256, true), o);
@@ -259,4 +265,3 @@ fn never_idle_is_reported_not_hung() {
     let err = net.run(Instant::from_millis(6_000_000), 50).unwrap_err();
     assert_eq!(err.steps, 51);
 }
-

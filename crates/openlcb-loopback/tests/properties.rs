@@ -52,8 +52,13 @@ fn run(c: &Case) -> Result<(), TestCaseError> {
     let mut net = Network::new(c.seed);
     let id = |i: usize| NodeId::new(0x0501_0101_2200 + i as u64).expect("node id");
     let nodes: Vec<NodeIndex> = if c.tcp {
-        net.add_tcp_pair([id(0), id(1)], [options.clone(), options.clone()], Duration::from_micros(c.latency_us), 1_000_000)
-            .to_vec()
+        net.add_tcp_pair(
+            [id(0), id(1)],
+            [options.clone(), options.clone()],
+            Duration::from_micros(c.latency_us),
+            1_000_000,
+        )
+        .to_vec()
     } else {
         let bus = net.add_bus(c.bitrate, 16);
         (0..c.nodes).map(|i| net.add_can_node(id(i), bus, options.clone())).collect()
