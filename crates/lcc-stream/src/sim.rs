@@ -17,6 +17,8 @@ pub(crate) enum Topology {
     Can,
     /// Two nodes on one OpenLCB-TCP link.
     Tcp,
+    /// A CAN node, a gateway, and a full-format node behind it on an OpenLCB-TCP link.
+    CanGatewayTcp,
 }
 
 /// Options of `lcc-stream sim`.
@@ -70,6 +72,7 @@ struct Report {
 /// Node IDs of the simulated pair.
 const SOURCE: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x00]);
 const DESTINATION: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x01]);
+const GATEWAY: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x10]);
 
 /// Transfers start once both nodes have logged in (the alias reservation takes 200 ms).
 const START: Instant = Instant::from_millis(300);
@@ -117,6 +120,16 @@ fn simulate(args: &SimArgs) -> Result<Report, String> {
                 net.add_tcp_pair([SOURCE, DESTINATION], [options.clone(), options], link_latency, args.bandwidth);
             (a, b)
         }
+        Topology::CanGatewayTcp => {
+            let bus = net.add_bus(args.bitrate, 16);
+            let mut config = openlcb_gateway::GatewayConfig::default();
+            config.max_window = args.window;
+            config.max_streams = usize::from(args.streams).max(config.max_streams);
+            let gateway = net.add_gateway(GATEWAY, bus, config, options.latency);
+            let a = net.add_can_node(SOURCE, bus, options.clone());
+            let link_latency = options.latency;
+            (a, net.add_node_behind(gateway, DESTINATION, options, link_latency, args.bandwidth))
+        }
     };
     let transfers: Vec<usize> = (0..args.streams)
         .map(|_| net.add_transfer(TransferSpec::new(from, to, args.bytes, args.window).at(START)))
@@ -133,7 +146,7 @@ fn simulate(args: &SimArgs) -> Result<Report, String> {
     let opened = reports.iter().filter_map(|r| r.opened_at).min().unwrap_or(START);
     let ended = reports.iter().filter_map(|r| r.ended_at).max().unwrap_or(net.now());
     let ceiling = match args.topology {
-        Topology::Can => can_ceiling(&net, from, to, &transfers, args),
+        Topology::Can | Topology::CanGatewayTcp => can_ceiling(&net, from, to, &transfers, args),
         Topology::Tcp => Duration::from_micros(payload_bytes * 1_000_000 / args.bandwidth),
     };
     Ok(Report {
@@ -151,7 +164,7 @@ fn simulate(args: &SimArgs) -> Result<Report, String> {
 /// The time the same payload takes as back-to-back full data frames (DID + 7 bytes) carrying
 /// the same bytes between the same aliases: no requests, no Proceeds, no gaps.
 fn can_ceiling(net: &Network, from: NodeIndex, to: NodeIndex, transfers: &[usize], args: &SimArgs) -> Duration {
-    let (Some(src), Some(dst)) = (net.alias(from), net.alias(to)) else { return Duration::ZERO };
+    let (Some(src), Some(dst)) = (net.can_alias(from), net.can_alias(to)) else { return Duration::ZERO };
     let id = 0x1F00_0000 | u32::from(dst.as_raw()) << 12 | u32::from(src.as_raw());
     let mut bits = 0u64;
     let mut frame = [0u8; 8];
@@ -199,6 +212,7 @@ fn topology_name(t: Topology) -> &'static str {
     match t {
         Topology::Can => "can",
         Topology::Tcp => "tcp",
+        Topology::CanGatewayTcp => "can-gateway-tcp",
     }
 }
 
@@ -245,6 +259,9 @@ fn text(args: &SimArgs, r: &Report) -> String {
     let medium = match args.topology {
         Topology::Can => format!("CAN at {} bit/s", args.bitrate),
         Topology::Tcp => format!("OpenLCB-TCP at {} B/s", args.bandwidth),
+        Topology::CanGatewayTcp => {
+            format!("CAN at {} bit/s, a gateway, OpenLCB-TCP at {} B/s", args.bitrate, args.bandwidth)
+        }
     };
     let _ = writeln!(
         out,
@@ -266,7 +283,7 @@ fn text(args: &SimArgs, r: &Report) -> String {
     let _ = writeln!(out, "  goodput        {:.0} bytes/s", rate(r.payload_bytes, r.elapsed));
     let _ = writeln!(out, "  ceiling        {:.0} bytes/s", rate(r.payload_bytes, r.ceiling));
     let _ = writeln!(out, "  efficiency     {:.4}", efficiency(r));
-    if args.topology == Topology::Can {
+    if args.topology != Topology::Tcp {
         let _ = writeln!(out, "  bus busy       {:.1} %", 100.0 * utilisation(r));
         let _ = writeln!(
             out,

@@ -9,6 +9,7 @@ use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
 use openlcb_stream::{
     Config, Duration, Event, Instant, NodeId, OpenOptions, Role, StreamEndpoint, StreamHandle, Termination, TimeoutKind,
 };
+use openlcb_gateway::{Gateway, GatewayConfig};
 use openlcb_tcp::TcpLink;
 
 use crate::bus::{CanBus, Delivery};
@@ -254,9 +255,30 @@ struct SimNode {
     wake: Option<Instant>,
 }
 
+/// What sits at the end of a pipe.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Station {
+    Node(NodeIndex),
+    Gateway(usize),
+}
+
+/// A gateway between a CAN bus and one OpenLCB-TCP pipe.
+#[derive(Debug)]
+struct SimGateway {
+    gateway: Box<Gateway>,
+    bus: usize,
+    port: usize,
+    /// Its pipe and side, once a full-format node is attached behind it.
+    pipe: Option<(usize, usize)>,
+    tcp: Box<TcpLink>,
+    inbox: VecDeque<(Instant, Inbound)>,
+    latency: Duration,
+    wake: Option<Instant>,
+}
+
 #[derive(Debug)]
 struct Pipe {
-    ends: [NodeIndex; 2],
+    ends: [Station; 2],
     latency: Duration,
     bytes_per_sec: u64,
     busy_until: [Instant; 2],
@@ -288,6 +310,7 @@ impl Transfer {
 pub struct Network {
     now: Instant,
     nodes: Vec<SimNode>,
+    gateways: Vec<SimGateway>,
     buses: Vec<CanBus>,
     pipes: Vec<Pipe>,
     transfers: Vec<Transfer>,
@@ -305,6 +328,7 @@ impl Network {
         Network {
             now: Instant::ZERO,
             nodes: Vec::new(),
+            gateways: Vec::new(),
             buses: Vec::new(),
             pipes: Vec::new(),
             transfers: Vec::new(),
@@ -343,8 +367,59 @@ impl Network {
         let [oa, ob] = options;
         let a = self.push_node(ids[0], oa, Port::Tcp { pipe, side: 0, link: Box::new(TcpLink::new(ids[0])) });
         let b = self.push_node(ids[1], ob, Port::Tcp { pipe, side: 1, link: Box::new(TcpLink::new(ids[1])) });
-        self.pipes.push(Pipe { ends: [a, b], latency, bytes_per_sec: bytes_per_sec.max(1), busy_until: [self.now; 2] });
+        self.pipes.push(Pipe {
+            ends: [Station::Node(a), Station::Node(b)],
+            latency,
+            bytes_per_sec: bytes_per_sec.max(1),
+            busy_until: [self.now; 2],
+        });
         [a, b]
+    }
+
+    /// Adds a gateway on CAN bus `bus`, with Node ID `id` for its OpenLCB-TCP side, acting
+    /// `latency` after each frame or byte arrives; returns its number.
+    pub fn add_gateway(&mut self, id: NodeId, bus: usize, config: GatewayConfig, latency: Duration) -> usize {
+        let port = self.buses.get_mut(bus).map_or(0, CanBus::attach);
+        self.gateways.push(SimGateway {
+            gateway: Box::new(Gateway::new(self.now, config)),
+            bus,
+            port,
+            pipe: None,
+            tcp: Box::new(TcpLink::new(id)),
+            inbox: VecDeque::new(),
+            latency,
+            wake: Some(self.now),
+        });
+        self.gateways.len() - 1
+    }
+
+    /// Adds a full-format node behind gateway `gateway`, joined to it by an OpenLCB-TCP pipe
+    /// with `latency` and `bytes_per_sec` each way.
+    pub fn add_node_behind(
+        &mut self,
+        gateway: usize,
+        id: NodeId,
+        options: NodeOptions,
+        latency: Duration,
+        bytes_per_sec: u64,
+    ) -> NodeIndex {
+        let pipe = self.pipes.len();
+        let node = self.push_node(id, options, Port::Tcp { pipe, side: 1, link: Box::new(TcpLink::new(id)) });
+        self.pipes.push(Pipe {
+            ends: [Station::Gateway(gateway), Station::Node(node)],
+            latency,
+            bytes_per_sec: bytes_per_sec.max(1),
+            busy_until: [self.now; 2],
+        });
+        if let Some(g) = self.gateways.get_mut(gateway) {
+            g.pipe = Some((pipe, 0));
+        }
+        node
+    }
+
+    /// A gateway's memory in use and its bound, in bytes.
+    pub fn gateway_memory(&self, gateway: usize) -> Option<(usize, usize)> {
+        self.gateways.get(gateway).map(|g| (g.gateway.memory_in_use(), g.gateway.memory_bound()))
     }
 
     fn push_node(&mut self, id: NodeId, options: NodeOptions, port: Port) -> NodeIndex {
@@ -470,6 +545,13 @@ impl Network {
         }
     }
 
+    /// The alias by which CAN knows `node`: its own if it is a CAN node, a gateway's proxy
+    /// alias if it sits behind one.
+    pub fn can_alias(&self, node: NodeIndex) -> Option<NodeAlias> {
+        let id = self.nodes.get(node)?.id;
+        self.alias(node).or_else(|| self.gateways.iter().find_map(|g| g.gateway.proxy_alias(id)))
+    }
+
     /// The first bus's bitrate (for reports).
     pub fn bitrate(&self) -> Option<u32> {
         self.buses.first().map(CanBus::bitrate)
@@ -502,10 +584,16 @@ impl Network {
                     self.turn(index);
                 }
             }
+            for index in 0..self.gateways.len() {
+                if self.gateways.get(index).and_then(|g| g.wake).is_some_and(|w| w <= self.now) {
+                    self.gateway_turn(index);
+                }
+            }
             self.start_frames();
             let settled = self.transfers.iter().all(|t| t.report.outcome != Outcome::Pending)
                 && self.buses.iter().all(|b| b.on_wire().is_none() && b.next_event_ns(self.now_ns()).is_none())
-                && self.nodes.iter().all(|n| n.inbox.is_empty());
+                && self.nodes.iter().all(|n| n.inbox.is_empty())
+                && self.gateways.iter().all(|g| g.inbox.is_empty());
             if settled && stop_when_settled {
                 return Ok(());
             }
@@ -529,8 +617,9 @@ impl Network {
             .map(|ns| Instant::from_micros(ns.div_ceil(1000)))
             .min();
         let nodes = self.nodes.iter().filter(|n| !n.silent).filter_map(|n| n.wake).min();
+        let gateways = self.gateways.iter().filter_map(|g| g.wake).min();
         let fault = self.scheduled.first().map(|(t, _)| *t);
-        [bus, nodes, fault].into_iter().flatten().min()
+        [bus, nodes, gateways, fault].into_iter().flatten().min()
     }
 
     fn apply_scheduled_faults(&mut self) {
@@ -612,6 +701,9 @@ impl Network {
             {
                 sender.wake = Some(end);
             }
+            if let Some(sender) = self.gateways.iter_mut().find(|g| g.bus == bus_index && g.port == wire.port) {
+                sender.wake = Some(end);
+            }
             if wire.delivery == Delivery::Corrupted {
                 continue;
             }
@@ -638,6 +730,14 @@ impl Network {
                     node.inbox.push_back((arrival, Inbound::Frame(wire.frame)));
                 }
                 node.wake = Some(node.wake.map_or(arrival, |w| w.min(arrival)));
+            }
+            for gateway in &mut self.gateways {
+                if gateway.bus != bus_index || gateway.port == wire.port {
+                    continue;
+                }
+                let arrival = end + gateway.latency;
+                gateway.inbox.push_back((arrival, Inbound::Frame(wire.frame)));
+                gateway.wake = Some(gateway.wake.map_or(arrival, |w| w.min(arrival)));
             }
         }
     }
@@ -935,14 +1035,59 @@ impl Network {
         let sent_at = (*busy).max(now) + Duration::from_micros(len * 1_000_000 / p.bytes_per_sec);
         *busy = sent_at;
         let arrival = sent_at + p.latency;
-        let Some(&to) = p.ends.get(1 - side) else { return };
-        if let Some(node) = self.nodes.get_mut(to) {
-            if node.silent {
-                return;
+        let (inbox, wake, latency) = match p.ends.get(1 - side) {
+            Some(Station::Node(to)) => match self.nodes.get_mut(*to) {
+                Some(node) if !node.silent => (&mut node.inbox, &mut node.wake, node.options.latency),
+                _ => return,
+            },
+            Some(Station::Gateway(to)) => match self.gateways.get_mut(*to) {
+                Some(g) => (&mut g.inbox, &mut g.wake, g.latency),
+                None => return,
+            },
+            None => return,
+        };
+        let at = arrival + latency;
+        inbox.push_back((at, Inbound::Bytes(chunk)));
+        *wake = Some(wake.map_or(at, |w| w.min(at)));
+    }
+
+    /// A gateway acts on everything due: frames and bytes in, frames and bytes out.
+    fn gateway_turn(&mut self, index: usize) {
+        let now = self.now;
+        let Some(g) = self.gateways.get_mut(index) else { return };
+        g.gateway.handle_timeout(now);
+        while g.inbox.front().is_some_and(|(t, _)| *t <= now) {
+            let Some((_, inbound)) = g.inbox.pop_front() else { break };
+            match inbound {
+                Inbound::Frame(frame) => g.gateway.handle_can_frame(now, &frame),
+                Inbound::Bytes(bytes) => {
+                    let mut input = &bytes[..];
+                    while let Some(result) = g.tcp.poll_receive(&mut input) {
+                        if let Ok(msg) = result {
+                            g.gateway.handle_message(now, msg);
+                        }
+                    }
+                }
             }
-            let at = arrival + node.options.latency;
-            node.inbox.push_back((at, Inbound::Bytes(chunk)));
-            node.wake = Some(node.wake.map_or(at, |w| w.min(at)));
+        }
+        while g.gateway.poll_event().is_some() {}
+        if let Some(bus) = self.buses.get_mut(g.bus) {
+            while bus.room(g.port) > 0 {
+                let Some(frame) = g.gateway.poll_can_transmit() else { break };
+                bus.submit(g.port, frame);
+            }
+        }
+        while let Some(message) = g.gateway.poll_message() {
+            let _ = g.tcp.send(now, &message);
+        }
+        let pending = g.tcp.transmit_pending();
+        let outgoing = (!pending.is_empty()).then(|| Bytes::copy_from_slice(pending));
+        if let Some(chunk) = &outgoing {
+            g.tcp.advance_transmit(chunk.len());
+        }
+        g.wake = [g.inbox.front().map(|(t, _)| *t), g.gateway.poll_timeout()].into_iter().flatten().min();
+        if let (Some(chunk), Some((pipe, side))) = (outgoing, g.pipe) {
+            self.carry(pipe, side, chunk);
         }
     }
 

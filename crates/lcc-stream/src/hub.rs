@@ -1,0 +1,78 @@
+//! `lcc-stream hub`: a GridConnect TCP hub (and an OpenLCB-TCP one beside it).
+
+use std::process::ExitCode;
+
+use clap::Args;
+use openlcb_tokio::{Hub, HubEvent, HubOptions};
+
+use crate::net::{self, GRIDCONNECT_ADDR, TCP_ADDR};
+
+/// Options of `lcc-stream hub`.
+#[derive(Debug, Args)]
+#[command(after_help = net::EXIT_HELP)]
+pub(crate) struct HubArgs {
+    /// Where GridConnect clients connect.
+    #[arg(long, value_name = "ADDR", default_value = GRIDCONNECT_ADDR)]
+    listen: String,
+    /// Where OpenLCB-TCP clients connect. The two groups are not bridged: GridConnect clients
+    /// talk among themselves, OpenLCB-TCP clients among themselves.
+    #[arg(long, value_name = "ADDR", default_value = TCP_ADDR)]
+    tcp_listen: String,
+    /// Do not listen for OpenLCB-TCP clients.
+    #[arg(long)]
+    no_tcp: bool,
+    /// Print every frame as it passes.
+    #[arg(long)]
+    trace: bool,
+    /// Bytes queued for one client before it is disconnected as too slow.
+    #[arg(long, value_name = "BYTES", default_value_t = 8 * 1024 * 1024)]
+    max_queue: usize,
+}
+
+pub(crate) fn run(args: &HubArgs) -> Result<ExitCode, String> {
+    net::runtime()?.block_on(serve(args))
+}
+
+async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
+    let mut options = HubOptions::default();
+    options.trace = args.trace;
+    options.max_queued_bytes = args.max_queue;
+    let tcp = (!args.no_tcp).then_some(args.tcp_listen.as_str());
+    let mut hub = match Hub::bind(&args.listen, tcp, options).await {
+        Ok(hub) => hub,
+        Err(error) => return Ok(net::fail("hub", &error)),
+    };
+    match hub.tcp_local_addr() {
+        Some(tcp) => eprintln!("lcc-stream hub: GridConnect on {}, OpenLCB-TCP on {tcp}", hub.local_addr()),
+        None => eprintln!("lcc-stream hub: GridConnect on {}", hub.local_addr()),
+    }
+    loop {
+        tokio::select! {
+            event = hub.next_event() => match event {
+                Some(event) => print_event(&event),
+                None => return Ok(ExitCode::SUCCESS),
+            },
+            _ = tokio::signal::ctrl_c() => {
+                let stats = hub.stats();
+                eprintln!(
+                    "lcc-stream hub: stopping; {} clients served, {} frames relayed, {} decode errors, {} slow clients dropped",
+                    stats.clients_accepted, stats.frames, stats.decode_errors, stats.slow_clients
+                );
+                return Ok(ExitCode::SUCCESS);
+            }
+        }
+    }
+}
+
+fn print_event(event: &HubEvent) {
+    match event {
+        HubEvent::Connected { client, peer, protocol } => eprintln!("client {client} connected from {peer} ({protocol:?})"),
+        HubEvent::Disconnected { client, reason } => eprintln!("client {client} left: {reason}"),
+        HubEvent::SlowClient { client, queued } => {
+            eprintln!("client {client} dropped: too slow ({queued} bytes were waiting for it)")
+        }
+        HubEvent::Garbage { client, error } => eprintln!("client {client} sent garbage: {error}"),
+        HubEvent::Frame { client, text } => println!("{client:>3} {text}"),
+        _ => {}
+    }
+}

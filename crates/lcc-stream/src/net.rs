@@ -1,0 +1,183 @@
+//! What `hub`, `send`, `recv` and `demo` share: connection options, exit statuses, number
+//! formatting and a small JSON writer.
+
+use std::fmt::Write as _;
+use std::process::ExitCode;
+
+use clap::{Args, ValueEnum};
+use openlcb_tokio::{Error, Protocol};
+
+/// The GridConnect port of `lcc-stream hub` (the usual port of GridConnect hubs).
+pub(crate) const GRIDCONNECT_ADDR: &str = "127.0.0.1:12021";
+/// The OpenLCB-TCP port of `lcc-stream hub`.
+pub(crate) const TCP_ADDR: &str = "127.0.0.1:12022";
+
+/// Exit statuses, one per kind of failure a person can act on.
+pub(crate) const EXIT_HELP: &str = "\
+Exit status: 0 success; 1 other failure; 2 bad arguments; 3 hub unreachable;
+4 stream rejected; 5 peer timed out or not found; 6 connection to the hub lost;
+7 stream terminated or incomplete; 8 file error; 9 data did not verify (demo).";
+
+/// The exit status for `error`.
+pub(crate) fn exit_status(error: &Error) -> u8 {
+    match error {
+        Error::Connect { .. } | Error::Bind { .. } | Error::Login(_) => 3,
+        Error::Rejected { .. } => 4,
+        Error::TimedOut { .. } | Error::Unreachable(_) => 5,
+        Error::ConnectionLost(_) | Error::Protocol(_) | Error::Closed => 6,
+        Error::Terminated { .. } | Error::CountMismatch { .. } => 7,
+        _ => 1,
+    }
+}
+
+/// A file could not be read or written.
+pub(crate) const EXIT_FILE: u8 = 8;
+/// The demo's data did not arrive intact.
+pub(crate) const EXIT_VERIFY: u8 = 9;
+
+/// A short word for `error` in JSON reports.
+pub(crate) fn result_word(error: &Error) -> &'static str {
+    match exit_status(error) {
+        3 => "unreachable_hub",
+        4 => "rejected",
+        5 => "timed_out",
+        6 => "connection_lost",
+        7 => "terminated",
+        _ => "error",
+    }
+}
+
+/// The framing spoken to the hub.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum ProtocolArg {
+    /// CAN frames as GridConnect text (JMRI and OpenMRN hubs), with CAN alias login.
+    Gridconnect,
+    /// Binary OpenLCB-TCP (full-format messages).
+    Tcp,
+}
+
+impl From<ProtocolArg> for Protocol {
+    fn from(p: ProtocolArg) -> Self {
+        match p {
+            ProtocolArg::Gridconnect => Protocol::GridConnect,
+            ProtocolArg::Tcp => Protocol::Tcp,
+        }
+    }
+}
+
+/// `--connect` and `--protocol`.
+#[derive(Debug, Args)]
+pub(crate) struct ConnectArgs {
+    /// The hub, HOST:PORT [default: 127.0.0.1:12021; 127.0.0.1:12022 with --protocol tcp,
+    /// the two listeners of `lcc-stream hub`].
+    #[arg(long, value_name = "HOST:PORT")]
+    pub(crate) connect: Option<String>,
+    /// The framing spoken to the hub.
+    #[arg(long, value_enum, default_value_t = ProtocolArg::Gridconnect)]
+    pub(crate) protocol: ProtocolArg,
+}
+
+impl ConnectArgs {
+    pub(crate) fn addr(&self) -> &str {
+        match (&self.connect, self.protocol) {
+            (Some(addr), _) => addr,
+            (None, ProtocolArg::Gridconnect) => GRIDCONNECT_ADDR,
+            (None, ProtocolArg::Tcp) => TCP_ADDR,
+        }
+    }
+}
+
+/// A multi-threaded runtime for one subcommand.
+pub(crate) fn runtime() -> Result<tokio::runtime::Runtime, String> {
+    tokio::runtime::Builder::new_multi_thread().enable_all().build().map_err(|e| format!("cannot start tokio: {e}"))
+}
+
+/// Prints `error` for a person and returns its exit status.
+pub(crate) fn fail(context: &str, error: &Error) -> ExitCode {
+    eprintln!("lcc-stream: {context}: {error}");
+    ExitCode::from(exit_status(error))
+}
+
+/// `12.3 MB/s`, decimal units as transfer rates usually are.
+pub(crate) fn rate_text(bytes_per_s: f64) -> String {
+    match bytes_per_s {
+        r if r >= 1e6 => format!("{:.2} MB/s", r / 1e6),
+        r if r >= 1e3 => format!("{:.1} kB/s", r / 1e3),
+        r => format!("{r:.0} B/s"),
+    }
+}
+
+/// Bytes per second, 0 for no time.
+pub(crate) fn rate(bytes: u64, seconds: f64) -> f64 {
+    if seconds > 0.0 { bytes as f64 / seconds } else { 0.0 }
+}
+
+/// Builds one JSON object, field by field.
+#[derive(Debug, Default)]
+pub(crate) struct Json(String);
+
+impl Json {
+    pub(crate) fn str(mut self, key: &str, value: &str) -> Self {
+        self.key(key);
+        self.0.push('"');
+        for c in value.chars() {
+            match c {
+                '"' => self.0.push_str("\\\""),
+                '\\' => self.0.push_str("\\\\"),
+                c if (c as u32) < 0x20 => {
+                    let _ = write!(self.0, "\\u{:04x}", c as u32);
+                }
+                c => self.0.push(c),
+            }
+        }
+        self.0.push('"');
+        self
+    }
+
+    pub(crate) fn num(mut self, key: &str, value: impl std::fmt::Display) -> Self {
+        self.key(key);
+        let _ = write!(self.0, "{value}");
+        self
+    }
+
+    pub(crate) fn float(mut self, key: &str, value: f64) -> Self {
+        self.key(key);
+        if value.is_finite() {
+            let _ = write!(self.0, "{value:.6}");
+        } else {
+            self.0.push_str("null");
+        }
+        self
+    }
+
+    pub(crate) fn bool(mut self, key: &str, value: bool) -> Self {
+        self.key(key);
+        self.0.push_str(if value { "true" } else { "false" });
+        self
+    }
+
+    fn key(&mut self, key: &str) {
+        self.0.push(if self.0.is_empty() { '{' } else { ',' });
+        let _ = write!(self.0, "\"{key}\":");
+    }
+
+    pub(crate) fn finish(mut self) -> String {
+        if self.0.is_empty() {
+            self.0.push('{');
+        }
+        self.0.push('}');
+        self.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn json_escapes_and_closes() {
+        let text = Json::default().str("a", "x\"y\\z\n").num("n", 3).float("f", 0.5).bool("b", true).finish();
+        assert_eq!(text, r#"{"a":"x\"y\\z\u000a","n":3,"f":0.500000,"b":true}"#);
+        assert_eq!(Json::default().finish(), "{}");
+    }
+}

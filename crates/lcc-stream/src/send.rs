@@ -1,0 +1,218 @@
+//! `lcc-stream send`: join the network as a node and send a file as one stream.
+
+use std::io::IsTerminal as _;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use bytes::BytesMut;
+use clap::Args;
+use openlcb_stream::{AcceptPolicy, ContentUid, NodeId, OpenOptions, wire::ReplyCode};
+use openlcb_tokio::{Error, Node, NodeOptions};
+use tokio::io::AsyncReadExt as _;
+
+use crate::net::{self, ConnectArgs, Json};
+
+/// The Node ID `send` uses unless told otherwise (from the range of the examples of this
+/// project; pick your own from a range you own on a real layout).
+pub(crate) const DEFAULT_SENDER: &str = "05.01.01.01.22.F0";
+
+/// Bytes read from the file and handed to the stream at once.
+const CHUNK: usize = 256 * 1024;
+
+/// Options of `lcc-stream send`.
+#[derive(Debug, Args)]
+#[command(after_help = net::EXIT_HELP)]
+pub(crate) struct SendArgs {
+    /// The file to send.
+    file: PathBuf,
+    /// The receiving node, e.g. 05.01.01.01.22.F1 (the default of `lcc-stream recv`).
+    #[arg(long, value_name = "NODE_ID")]
+    to: NodeId,
+    /// This node's Node ID.
+    #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_SENDER)]
+    node_id: NodeId,
+    /// Window (Max Buffer Size) to propose, 1..=65535; the receiver may lower it.
+    #[arg(long, default_value_t = 65535, value_parser = clap::value_parser!(u16).range(1..))]
+    window: u16,
+    /// Stream Content UID to send with the request (six bytes, like a Node ID).
+    #[arg(long, value_name = "UID")]
+    content_uid: Option<ContentUid>,
+    /// Seconds to wait for the receiver's answer and, later, for each grant of credit.
+    #[arg(long, value_name = "SECS", default_value_t = 20)]
+    timeout: u64,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    connect: ConnectArgs,
+}
+
+/// What a transfer came to.
+struct Summary {
+    bytes: u64,
+    elapsed: Duration,
+    window: u16,
+    frames_out: u64,
+    writes: u64,
+}
+
+pub(crate) fn run(args: &SendArgs) -> Result<ExitCode, String> {
+    net::runtime()?.block_on(send(args))
+}
+
+async fn send(args: &SendArgs) -> Result<ExitCode, String> {
+    let mut file = match tokio::fs::File::open(&args.file).await {
+        Ok(file) => file,
+        Err(error) => {
+            eprintln!("lcc-stream send: cannot read {}: {error}", args.file.display());
+            return Ok(ExitCode::from(net::EXIT_FILE));
+        }
+    };
+    let size = file.metadata().await.map(|m| m.len()).ok();
+    let mut options = NodeOptions::new(args.node_id);
+    options.config.accept_policy = AcceptPolicy::RejectAll(ReplyCode::STREAMS_NOT_SUPPORTED);
+    options.config.reply_timeout = Duration::from_secs(args.timeout).into();
+    options.config.proceed_timeout = Duration::from_secs(args.timeout).into();
+    let report_error = |error: &Error, bytes: u64, elapsed: Duration| {
+        if args.json {
+            let json = Json::default()
+                .str("file", &args.file.display().to_string())
+                .str("to", &args.to.to_string())
+                .num("bytes", bytes)
+                .float("elapsed_s", elapsed.as_secs_f64())
+                .float("bytes_per_s", net::rate(bytes, elapsed.as_secs_f64()))
+                .num("window", args.window)
+                .str("result", net::result_word(error))
+                .str("error", &error.to_string());
+            println!("{}", json.finish());
+        }
+        net::fail("send", error)
+    };
+
+    let started = Instant::now();
+    let node = match Node::connect(args.connect.addr(), args.connect.protocol.into(), options).await {
+        Ok(node) => node,
+        Err(error) => return Ok(report_error(&error, 0, started.elapsed())),
+    };
+    let mut open = OpenOptions::new(args.to, args.window);
+    open.content_uid = args.content_uid;
+    let mut stream = match node.open(open).await {
+        Ok(stream) => stream,
+        Err(error) => return Ok(report_error(&error, 0, started.elapsed())),
+    };
+    let window = stream.info().window;
+    let mut progress = Progress::new(size, !args.json && std::io::stderr().is_terminal());
+
+    // Read the next chunk while the previous one goes out.
+    let started = Instant::now();
+    let mut next = read_chunk(&mut file).await;
+    loop {
+        let chunk = match next {
+            Ok(chunk) if chunk.is_empty() => break,
+            Ok(chunk) => chunk.freeze(),
+            Err(error) => {
+                progress.clear();
+                eprintln!("lcc-stream send: cannot read {}: {error}", args.file.display());
+                stream.abort();
+                return Ok(ExitCode::from(net::EXIT_FILE));
+            }
+        };
+        let (written, read) = tokio::join!(stream.write_all(chunk), read_chunk(&mut file));
+        if let Err(error) = written {
+            progress.clear();
+            return Ok(report_error(&error, stream.written(), started.elapsed()));
+        }
+        next = read;
+        progress.update(stream.written(), started.elapsed());
+    }
+    let written = stream.written();
+    let bytes = match stream.finish().await {
+        Ok(bytes) => bytes,
+        Err(error) => {
+            progress.clear();
+            return Ok(report_error(&error, written, started.elapsed()));
+        }
+    };
+    let elapsed = started.elapsed();
+    progress.clear();
+    let stats = node.stats().await.map(|s| s.wire).unwrap_or_default();
+    let summary = Summary { bytes, elapsed, window, frames_out: stats.frames_out, writes: stats.writes };
+    if args.json {
+        let json = Json::default()
+            .str("file", &args.file.display().to_string())
+            .str("to", &args.to.to_string())
+            .num("bytes", summary.bytes)
+            .float("elapsed_s", summary.elapsed.as_secs_f64())
+            .float("bytes_per_s", net::rate(summary.bytes, summary.elapsed.as_secs_f64()))
+            .num("window", summary.window)
+            .num("frames_out", summary.frames_out)
+            .num("writes", summary.writes)
+            .str("result", "ok");
+        println!("{}", json.finish());
+    } else {
+        println!(
+            "sent {} bytes to {} in {:.3} s ({}), window {}, {} frames in {} writes",
+            summary.bytes,
+            args.to,
+            summary.elapsed.as_secs_f64(),
+            net::rate_text(net::rate(summary.bytes, summary.elapsed.as_secs_f64())),
+            summary.window,
+            summary.frames_out,
+            summary.writes
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+async fn read_chunk(file: &mut tokio::fs::File) -> std::io::Result<BytesMut> {
+    let mut chunk = BytesMut::with_capacity(CHUNK);
+    while chunk.len() < CHUNK {
+        if file.read_buf(&mut chunk).await? == 0 {
+            break;
+        }
+    }
+    Ok(chunk)
+}
+
+/// A one-line progress display on stderr: bytes, percentage, rate and time left.
+pub(crate) struct Progress {
+    total: Option<u64>,
+    enabled: bool,
+    last: Option<Instant>,
+    shown: bool,
+}
+
+impl Progress {
+    pub(crate) fn new(total: Option<u64>, enabled: bool) -> Self {
+        Progress { total, enabled, last: None, shown: false }
+    }
+
+    pub(crate) fn update(&mut self, done: u64, elapsed: Duration) {
+        if !self.enabled || self.last.is_some_and(|t| t.elapsed() < Duration::from_millis(100)) {
+            return;
+        }
+        self.last = Some(Instant::now());
+        let rate = net::rate(done, elapsed.as_secs_f64());
+        let mut line = format!("\r{:.1} MiB", done as f64 / 1048576.0);
+        if let Some(total) = self.total.filter(|&t| t > 0) {
+            let left = if rate > 0.0 { total.saturating_sub(done) as f64 / rate } else { f64::NAN };
+            line += &format!(
+                " of {:.1} MiB ({:>3.0}%), ETA {:.0} s",
+                total as f64 / 1048576.0,
+                done as f64 * 100.0 / total as f64,
+                left
+            );
+        }
+        line += &format!(", {}   ", net::rate_text(rate));
+        eprint!("{line}");
+        self.shown = true;
+    }
+
+    pub(crate) fn clear(&mut self) {
+        if self.shown {
+            eprint!("\r{:60}\r", "");
+            self.shown = false;
+        }
+    }
+}
