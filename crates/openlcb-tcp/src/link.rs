@@ -45,7 +45,9 @@ pub struct LinkStats {
 ///   written with [`advance_transmit`](Self::advance_transmit).
 ///
 /// The output buffer is reused: once the socket has taken everything, encoding more
-/// allocates nothing.
+/// allocates nothing. It holds whatever the socket has not taken yet; the endpoint's credit
+/// bounds how much stream data that can be, so stop calling `send_from` while the socket is
+/// blocked and the buffer stops growing too.
 #[derive(Debug)]
 pub struct TcpLink {
     gateway: NodeId,

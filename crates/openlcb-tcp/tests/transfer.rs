@@ -154,35 +154,67 @@ fn worked_example_moves_the_published_bytes_through_two_links() {
     assert_eq!(a.link.stats().bytes_out, 36 + 48 + 36 + 37);
 }
 
-#[test]
-fn a_large_transfer_sends_whole_windows_as_single_messages() {
-    let mut c = Config::default();
-    c.send_initialization_complete = false;
-    c.max_window = 4096;
-    c.early_proceed = false;
-    let mut a = Node { endpoint: StreamEndpoint::new(node(A), c.clone()), link: TcpLink::new(node(A)) };
-    let mut b = Node { endpoint: StreamEndpoint::new(node(B), c), link: TcpLink::new(node(B)) };
+/// Moves `data` from A to B over two links with a window of `window`, B reading everything
+/// as it arrives; `inspect` sees the bytes of every carry from A to B. Returns what B read and
+/// A's link.
+fn transfer(config: Config, window: u16, data: &[u8], mut inspect: impl FnMut(&[u8])) -> (Vec<u8>, TcpLink) {
+    let mut a = Node { endpoint: StreamEndpoint::new(node(A), config.clone()), link: TcpLink::new(node(A)) };
+    let mut b = Node { endpoint: StreamEndpoint::new(node(B), config), link: TcpLink::new(node(B)) };
     let now = Instant::ZERO;
-    let data: Vec<u8> = (0..40_000u32).map(|i| (i * 7) as u8).collect();
-    let stream = a.endpoint.open(now, OpenOptions::new(node(B), 4096)).unwrap();
-    carry(now, &mut a, &mut b);
-    carry(now, &mut b, &mut a);
-    let (mut sent, mut received) = (0, Vec::new());
+    let stream = a.endpoint.open(now, OpenOptions::new(node(B), window)).unwrap();
+    let (mut sent, mut received, mut finished) = (0, Vec::new(), false);
     let mut buf = vec![0u8; 8192];
-    while received.len() < data.len() {
-        let before = a.link.stats().messages_out;
-        sent += a.endpoint.write(now, stream, &data[sent..]).unwrap();
-        let wire = carry(now, &mut a, &mut b);
-        let messages = a.link.stats().messages_out - before;
-        // One Data Send per window: 31 bytes of header, the DID, up to 4096 data bytes.
-        assert!(messages <= 1 && wire.len() <= 31 + 1 + 4096, "{messages} messages, {} bytes", wire.len());
+    for _ in 0..10_000 {
+        if finished {
+            break;
+        }
+        if sent < data.len() {
+            sent += a.endpoint.write(now, stream, &data[sent..]).unwrap_or(0);
+            if sent == data.len() {
+                a.endpoint.finish(now, stream).unwrap();
+            }
+        }
+        inspect(&carry(now, &mut a, &mut b));
+        finished |= b.events().iter().any(|event| matches!(event, Event::Finished { matched: true, .. }));
         for handle in b.endpoint.handles().collect::<Vec<_>>() {
             while let Ok(n @ 1..) = b.endpoint.read(now, handle, &mut buf) {
                 received.extend_from_slice(&buf[..n]);
             }
         }
         carry(now, &mut b, &mut a);
+        a.events();
     }
+    assert!(finished, "the transfer did not finish");
+    (received, a.link)
+}
+
+#[test]
+fn a_large_transfer_sends_whole_windows_as_single_messages() {
+    let mut c = config();
+    c.max_window = 4096;
+    let data: Vec<u8> = (0..40_000u32).map(|i| (i * 7) as u8).collect();
+    let mut data_sends = 0;
+    let (received, a_link) = transfer(c, 4096, &data, |wire| {
+        let mut decoder = openlcb_tcp::Decoder::default();
+        let mut input = wire;
+        while let Some(frame) = decoder.decode(&mut input) {
+            let message = frame.unwrap().message;
+            if message.mti == openlcb_stream::Mti::STREAM_DATA_SEND {
+                // A whole window (the DID and 4096 bytes) in one message, except the tail.
+                assert!(message.payload.len() == 4097 || data_sends == 9, "{} bytes", message.payload.len());
+                data_sends += 1;
+            }
+        }
+    });
     assert_eq!(received, data);
-    assert_eq!(a.link.stats().messages_out, 1 + 10);
+    assert_eq!(data_sends, 10);
+    // Request, 10 Data Sends, Complete.
+    assert_eq!(a_link.stats().messages_out, 12);
+}
+
+#[test]
+fn a_transfer_with_the_default_config_and_early_proceed_completes() {
+    let data: Vec<u8> = (0..100_000u32).map(|i| (i % 251) as u8).collect();
+    let (received, _) = transfer(Config::default(), 2048, &data, |_| {});
+    assert_eq!(received, data);
 }
