@@ -15,11 +15,7 @@ impl NodeAlias {
 
     /// An alias, or `None` for 0 or a value above 12 bits.
     pub const fn new(raw: u16) -> Option<Self> {
-        if raw == 0 || raw > Self::MAX.0 {
-            None
-        } else {
-            Some(NodeAlias(raw))
-        }
+        if raw == 0 || raw > Self::MAX.0 { None } else { Some(NodeAlias(raw)) }
     }
 
     /// The alias in the low 12 bits of `bits` (higher bits are dropped), or `None` if those
@@ -62,16 +58,12 @@ impl AliasGenerator {
 
     /// A generator seeded with `node`, as the Technical Note prefers.
     pub const fn new(node: NodeId) -> Self {
-        AliasGenerator {
-            state: node.as_raw(),
-        }
+        AliasGenerator { state: node.as_raw() }
     }
 
     /// A generator seeded with any 48-bit value (higher bits are dropped).
     pub const fn from_seed(seed: u64) -> Self {
-        AliasGenerator {
-            state: seed & Self::MASK,
-        }
+        AliasGenerator { state: seed & Self::MASK }
     }
 
     /// The 48-bit state.
@@ -88,11 +80,7 @@ impl AliasGenerator {
 
     /// Moves to the next state.
     pub const fn step(&mut self) {
-        self.state = (self
-            .state
-            .wrapping_mul((1 << 9) + 1)
-            .wrapping_add(Self::INCREMENT))
-            & Self::MASK;
+        self.state = (self.state.wrapping_mul((1 << 9) + 1).wrapping_add(Self::INCREMENT)) & Self::MASK;
     }
 
     /// The alias of the current state, skipping states whose alias is zero, then steps past it.
@@ -116,15 +104,9 @@ mod tests {
         assert_eq!(NodeAlias::new(0), None);
         assert_eq!(NodeAlias::new(0x1000), None);
         assert_eq!(NodeAlias::new(0xFFF), Some(NodeAlias::MAX));
-        assert_eq!(
-            NodeAlias::from_low_bits(0x1F45_6123).map(NodeAlias::as_raw),
-            Some(0x123)
-        );
+        assert_eq!(NodeAlias::from_low_bits(0x1F45_6123).map(NodeAlias::as_raw), Some(0x123));
         assert_eq!(NodeAlias::from_low_bits(0x1000), None);
-        assert_eq!(
-            format!("{:?} {}", NodeAlias::MAX, NodeAlias::MAX),
-            "NodeAlias(0xFFF) 0xFFF"
-        );
+        assert_eq!(format!("{:?} {}", NodeAlias::MAX, NodeAlias::MAX), "NodeAlias(0xFFF) 0xFFF");
     }
 
     /// The check table of the CAN Frame Transfer TN appendix (wire-spec §7.5).

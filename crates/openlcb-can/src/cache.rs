@@ -26,11 +26,7 @@ pub struct AliasCache {
 impl AliasCache {
     /// An empty cache holding at most `capacity` mappings (all memory taken up front).
     pub fn new(capacity: usize) -> Self {
-        AliasCache {
-            entries: Vec::with_capacity(capacity),
-            capacity,
-            clock: 0,
-        }
+        AliasCache { entries: Vec::with_capacity(capacity), capacity, clock: 0 }
     }
 
     fn tick(&mut self) -> u64 {
@@ -45,20 +41,11 @@ impl AliasCache {
         self.entries.retain(|e| e.alias != alias && e.node != node);
         let mut evicted = None;
         if self.entries.len() >= self.capacity {
-            let oldest = self
-                .entries
-                .iter()
-                .enumerate()
-                .min_by_key(|(_, e)| e.last_used)
-                .map(|(i, _)| i)?;
+            let oldest = self.entries.iter().enumerate().min_by_key(|(_, e)| e.last_used).map(|(i, _)| i)?;
             let e = self.entries.swap_remove(oldest);
             evicted = Some((e.alias, e.node));
         }
-        self.entries.push(Entry {
-            alias,
-            node,
-            last_used,
-        });
+        self.entries.push(Entry { alias, node, last_used });
         evicted
     }
 
@@ -80,18 +67,12 @@ impl AliasCache {
 
     /// The node holding `alias`, without marking it used.
     pub fn peek_node(&self, alias: NodeAlias) -> Option<NodeId> {
-        self.entries
-            .iter()
-            .find(|e| e.alias == alias)
-            .map(|e| e.node)
+        self.entries.iter().find(|e| e.alias == alias).map(|e| e.node)
     }
 
     /// The alias of `node`, without marking it used.
     pub fn peek_alias(&self, node: NodeId) -> Option<NodeAlias> {
-        self.entries
-            .iter()
-            .find(|e| e.node == node)
-            .map(|e| e.alias)
+        self.entries.iter().find(|e| e.node == node).map(|e| e.alias)
     }
 
     /// Forgets `alias` and returns the node that held it.

@@ -102,12 +102,7 @@ pub struct Fragments<P> {
 impl<P: AsRef<[u8]>> Fragments<P> {
     /// The frames of `mti` from `source` to `destination` (`None` for a global message)
     /// carrying `payload`. For Stream Data Send the payload starts with the DID.
-    pub fn new(
-        mti: Mti,
-        source: NodeAlias,
-        destination: Option<NodeAlias>,
-        payload: P,
-    ) -> Result<Self, EncodeError> {
+    pub fn new(mti: Mti, source: NodeAlias, destination: Option<NodeAlias>, payload: P) -> Result<Self, EncodeError> {
         let len = payload.as_ref().len();
         let (kind, layout) = if mti == Mti::STREAM_DATA_SEND {
             let destination = destination.ok_or(EncodeError::MissingDestination(mti))?;
@@ -119,31 +114,15 @@ impl<P: AsRef<[u8]>> Fragments<P> {
             return Err(EncodeError::Unsupported(mti));
         } else if mti.is_addressed() {
             let destination = destination.ok_or(EncodeError::MissingDestination(mti))?;
-            (
-                FrameKind::Message {
-                    can_mti: mti.as_raw(),
-                },
-                Layout::Addressed { destination },
-            )
+            (FrameKind::Message { can_mti: mti.as_raw() }, Layout::Addressed { destination })
         } else {
             if len > CanFrame::MAX_DATA {
                 return Err(EncodeError::GlobalTooLong(len));
             }
-            (
-                FrameKind::Message {
-                    can_mti: mti.as_raw(),
-                },
-                Layout::Global,
-            )
+            (FrameKind::Message { can_mti: mti.as_raw() }, Layout::Global)
         };
         let id = CanHeader { kind, source }.to_id();
-        Ok(Fragments {
-            id,
-            layout,
-            payload,
-            offset: 0,
-            finished: false,
-        })
+        Ok(Fragments { id, layout, payload, offset: 0, finished: false })
     }
 
     /// Frames still to come.
@@ -154,10 +133,7 @@ impl<P: AsRef<[u8]>> Fragments<P> {
         let len = self.payload.as_ref().len();
         match self.layout {
             Layout::Global => 1,
-            Layout::Addressed { .. } => len
-                .saturating_sub(self.offset)
-                .div_ceil(ADDRESSED_PAYLOAD_PER_FRAME)
-                .max(1),
+            Layout::Addressed { .. } => len.saturating_sub(self.offset).div_ceil(ADDRESSED_PAYLOAD_PER_FRAME).max(1),
             Layout::StreamData => {
                 let body_left = len.saturating_sub(1).saturating_sub(self.offset);
                 body_left.div_ceil(STREAM_PAYLOAD_PER_FRAME).max(1)
@@ -250,12 +226,7 @@ mod tests {
 
     #[test]
     fn position_flags_round_trip() {
-        for p in [
-            FramePosition::Only,
-            FramePosition::First,
-            FramePosition::Middle,
-            FramePosition::Last,
-        ] {
+        for p in [FramePosition::Only, FramePosition::First, FramePosition::Middle, FramePosition::Last] {
             assert_eq!(FramePosition::from_flags(p.flags() | 0x0F), p);
         }
         assert_eq!(FramePosition::from_flags(0x14), FramePosition::First);
@@ -264,24 +235,13 @@ mod tests {
 
     #[test]
     fn addressed_message_without_payload_is_one_two_byte_frame() {
-        assert_eq!(
-            frames(Mti::VERIFY_NODE_ID_ADDRESSED, 0x123, Some(0x456), &[]),
-            [(0x1948_8123, vec![0x04, 0x56])]
-        );
+        assert_eq!(frames(Mti::VERIFY_NODE_ID_ADDRESSED, 0x123, Some(0x456), &[]), [(0x1948_8123, vec![0x04, 0x56])]);
     }
 
     #[test]
     fn addressed_message_of_exactly_six_bytes_is_one_frame() {
-        let out = frames(
-            Mti::STREAM_INITIATE_REPLY,
-            0x456,
-            Some(0x123),
-            &[0, 0x10, 0x80, 0, 4, 7],
-        );
-        assert_eq!(
-            out,
-            [(0x1986_8456, vec![0x01, 0x23, 0, 0x10, 0x80, 0, 4, 7])]
-        );
+        let out = frames(Mti::STREAM_INITIATE_REPLY, 0x456, Some(0x123), &[0, 0x10, 0x80, 0, 4, 7]);
+        assert_eq!(out, [(0x1986_8456, vec![0x01, 0x23, 0, 0x10, 0x80, 0, 4, 7])]);
     }
 
     #[test]
@@ -311,37 +271,25 @@ mod tests {
             ]
         );
         let exact: Vec<u8> = core::iter::once(7).chain(0..7).collect();
-        assert_eq!(
-            frames(Mti::STREAM_DATA_SEND, 0x123, Some(0x456), &exact).len(),
-            1
-        );
+        assert_eq!(frames(Mti::STREAM_DATA_SEND, 0x123, Some(0x456), &exact).len(), 1);
     }
 
     #[test]
     fn stream_flush_is_a_did_only_frame() {
-        assert_eq!(
-            frames(Mti::STREAM_DATA_SEND, 0x123, Some(0x456), &[7]),
-            [(0x1F45_6123, vec![7])]
-        );
+        assert_eq!(frames(Mti::STREAM_DATA_SEND, 0x123, Some(0x456), &[7]), [(0x1F45_6123, vec![7])]);
     }
 
     #[test]
     fn global_message_carries_the_payload_in_the_data() {
         let node = [5, 1, 1, 1, 0x22, 0];
-        assert_eq!(
-            frames(Mti::INITIALIZATION_COMPLETE, 0x123, None, &node),
-            [(0x1910_0123, node.to_vec())]
-        );
+        assert_eq!(frames(Mti::INITIALIZATION_COMPLETE, 0x123, None, &node), [(0x1910_0123, node.to_vec())]);
     }
 
     #[test]
     fn refuses_what_it_cannot_carry() {
         let a = alias(0x123);
         let err = |mti, dst, payload: &[u8]| Fragments::new(mti, a, dst, payload).err();
-        assert_eq!(
-            err(Mti::STREAM_DATA_SEND, Some(a), &[]),
-            Some(EncodeError::EmptyStreamData)
-        );
+        assert_eq!(err(Mti::STREAM_DATA_SEND, Some(a), &[]), Some(EncodeError::EmptyStreamData));
         assert_eq!(
             err(Mti::STREAM_DATA_SEND, None, &[1]),
             Some(EncodeError::MissingDestination(Mti::STREAM_DATA_SEND))
@@ -350,13 +298,7 @@ mod tests {
             err(Mti::STREAM_DATA_PROCEED, None, &[1, 2]),
             Some(EncodeError::MissingDestination(Mti::STREAM_DATA_PROCEED))
         );
-        assert_eq!(
-            err(Mti::DATAGRAM, Some(a), &[1]),
-            Some(EncodeError::Unsupported(Mti::DATAGRAM))
-        );
-        assert_eq!(
-            err(Mti::VERIFY_NODE_ID_GLOBAL, None, &[0; 9]),
-            Some(EncodeError::GlobalTooLong(9))
-        );
+        assert_eq!(err(Mti::DATAGRAM, Some(a), &[1]), Some(EncodeError::Unsupported(Mti::DATAGRAM)));
+        assert_eq!(err(Mti::VERIFY_NODE_ID_GLOBAL, None, &[0; 9]), Some(EncodeError::GlobalTooLong(9)));
     }
 }

@@ -37,12 +37,7 @@ impl CanFrame {
     }
 
     fn with_id(id: Id, data: &[u8]) -> Option<Self> {
-        let mut frame = CanFrame {
-            id,
-            remote: false,
-            len: 0,
-            data: [0; 8],
-        };
+        let mut frame = CanFrame { id, remote: false, len: 0, data: [0; 8] };
         frame.data.get_mut(..data.len())?.copy_from_slice(data);
         frame.len = data.len() as u8;
         Some(frame)
@@ -54,12 +49,7 @@ impl CanFrame {
         let mut data = [0u8; 8];
         let len = fill(&mut data).min(Self::MAX_DATA) as u8;
         let id = ExtendedId::new(id & ExtendedId::MAX.as_raw()).unwrap_or(ExtendedId::ZERO);
-        CanFrame {
-            id: Id::Extended(id),
-            remote: false,
-            len,
-            data,
-        }
+        CanFrame { id: Id::Extended(id), remote: false, len, data }
     }
 
     /// The raw identifier: 29 bits for an extended frame, 11 for a standard one.
@@ -123,12 +113,7 @@ impl embedded_can::Frame for CanFrame {
         if dlc > Self::MAX_DATA {
             return None;
         }
-        Some(CanFrame {
-            id: id.into(),
-            remote: true,
-            len: dlc as u8,
-            data: [0; 8],
-        })
+        Some(CanFrame { id: id.into(), remote: true, len: dlc as u8, data: [0; 8] })
     }
 
     fn is_extended(&self) -> bool {
@@ -167,10 +152,7 @@ mod tests {
         assert_eq!(frame.dlc(), 4);
         assert_eq!(frame.data(), &[0x55, 0x41, 0x42, 0x43]);
         assert_eq!(frame.raw_id(), 0x1F22_522A);
-        assert!(matches!(
-            frame.header().unwrap().kind,
-            FrameKind::StreamData { .. }
-        ));
+        assert!(matches!(frame.header().unwrap().kind, FrameKind::StreamData { .. }));
         assert_eq!(format!("{frame:?}"), "CanFrame(X1F22522A N55414243)");
         assert_eq!(CanFrame::extended(0x1F22_522A, &[0; 9]), None);
     }

@@ -1,13 +1,7 @@
 //! Entry points for the fuzz targets in `fuzz/`. Not a stable API.
 //!
 //! Assertions here are the fuzzers' oracles, so panicking and indexing are the point.
-#![allow(
-    clippy::indexing_slicing,
-    clippy::panic,
-    clippy::expect_used,
-    clippy::unwrap_used,
-    missing_docs
-)]
+#![allow(clippy::indexing_slicing, clippy::panic, clippy::expect_used, clippy::unwrap_used, missing_docs)]
 
 use alloc::vec::Vec;
 
@@ -44,10 +38,7 @@ fn drain_and_check(link: &mut CanLink) {
     let mut frames = 0;
     while let Some(frame) = link.poll_transmit() {
         assert!(frame.dlc() <= 8);
-        assert!(
-            frame.header().is_ok(),
-            "the link sends valid OpenLCB frames only"
-        );
+        assert!(frame.header().is_ok(), "the link sends valid OpenLCB frames only");
         frames += 1;
         assert!(frames < 10_000, "poll_transmit never ends");
     }
@@ -60,13 +51,7 @@ fn drain_and_check(link: &mut CanLink) {
 }
 
 fn check_delivery(max_len: usize) -> impl FnMut(openlcb_stream::MessageRef<'_>) {
-    move |msg| {
-        assert!(
-            msg.payload.len() <= max_len.max(8),
-            "delivered {} bytes",
-            msg.payload.len()
-        )
-    }
+    move |msg| assert!(msg.payload.len() <= max_len.max(8), "delivered {} bytes", msg.payload.len())
 }
 
 /// Any identifier and data: through the typed header (which must round-trip), GridConnect
@@ -80,23 +65,11 @@ pub fn can_frame(data: &[u8]) {
     let payload = &payload[..payload.len().min(8)];
     let frame = match flags % 4 {
         0 | 1 => CanFrame::extended(raw, payload).unwrap(),
-        2 => CanFrame::new(
-            Id::Standard(StandardId::new((raw & 0x7FF) as u16).unwrap()),
-            payload,
-        )
-        .unwrap(),
-        _ => CanFrame::new_remote(
-            Id::Extended(ExtendedId::new(raw & 0x1FFF_FFFF).unwrap()),
-            payload.len(),
-        )
-        .unwrap(),
+        2 => CanFrame::new(Id::Standard(StandardId::new((raw & 0x7FF) as u16).unwrap()), payload).unwrap(),
+        _ => CanFrame::new_remote(Id::Extended(ExtendedId::new(raw & 0x1FFF_FFFF).unwrap()), payload.len()).unwrap(),
     };
     if let Ok(header) = CanHeader::parse(raw & 0x1FFF_FFFF) {
-        assert_eq!(
-            header.to_id() | 0x1000_0000,
-            raw & 0x1FFF_FFFF | 0x1000_0000,
-            "header round trip"
-        );
+        assert_eq!(header.to_id() | 0x1000_0000, raw & 0x1FFF_FFFF | 0x1000_0000, "header round trip");
         assert_eq!(CanHeader::parse(header.to_id()), Ok(header));
     }
     let mut text = [0u8; gridconnect::MAX_ENCODED_LEN];
@@ -125,8 +98,7 @@ pub fn can_reassembly(data: &[u8]) {
     let mut now = Instant::from_millis(300);
     // Two peers known, two not.
     for (alias, node) in [(0x456u32, 0x0501_0101_2201u64), (0x789, 0x0501_0101_2202)] {
-        let amd = CanFrame::extended(0x1070_1000 | alias, &NodeId::new(node).unwrap().to_bytes())
-            .unwrap();
+        let amd = CanFrame::extended(0x1070_1000 | alias, &NodeId::new(node).unwrap().to_bytes()).unwrap();
         link.handle_frame(now, &amd, check_delivery(max_len));
     }
     for op in data.chunks(4) {
@@ -145,19 +117,10 @@ pub fn can_reassembly(data: &[u8]) {
                 0x1900_0000 | u32::from(MTIS[usize::from(selector >> 5)]) << 12 | source,
                 &payload[..len],
             ),
-            4 => CanFrame::extended(
-                0x1F00_0000 | u32::from(destination) << 12 | source,
-                &payload[1..1 + len.min(7)],
-            ),
+            4 => CanFrame::extended(0x1F00_0000 | u32::from(destination) << 12 | source, &payload[1..1 + len.min(7)]),
             5 => {
-                let node = [
-                    0x0501_0101_2201u64,
-                    0x0501_0101_2202,
-                    0x0501_0101_2203,
-                    LOCAL_NODE,
-                ][usize::from(b & 3)];
-                let kind =
-                    [0x1070_1000u32, 0x1070_3000, 0x1070_2000, 0x1917_0000][usize::from(c & 3)];
+                let node = [0x0501_0101_2201u64, 0x0501_0101_2202, 0x0501_0101_2203, LOCAL_NODE][usize::from(b & 3)];
+                let kind = [0x1070_1000u32, 0x1070_3000, 0x1070_2000, 0x1917_0000][usize::from(c & 3)];
                 CanFrame::extended(kind | source, &NodeId::new(node).unwrap().to_bytes())
             }
             6 => {

@@ -31,33 +31,27 @@ pub fn encoded_len(frame: &CanFrame) -> usize {
 /// Writes `frame` as GridConnect text to the front of `buf` and returns the length.
 pub fn encode(frame: &CanFrame, buf: &mut [u8]) -> Result<usize, BufferTooSmall> {
     let needed = encoded_len(frame);
-    let too_small = BufferTooSmall {
-        needed,
-        got: buf.len(),
-    };
+    let too_small = BufferTooSmall { needed, got: buf.len() };
     let out = buf.get_mut(..needed).ok_or(too_small)?;
-    let (kind, id_digits) = if frame.is_extended() {
-        (b'X', 8)
-    } else {
-        (b'S', 3)
+    let (kind, id_digits) = if frame.is_extended() { (b'X', 8) } else { (b'S', 3) };
+    let mut slots = out.iter_mut();
+    let mut put = |byte: u8| {
+        if let Some(slot) = slots.next() {
+            *slot = byte;
+        }
     };
+    put(b':');
+    put(kind);
     let id = frame.raw_id();
-    let data = frame.data();
-    let mut text = [b':', kind].into_iter();
-    let id_text = (0..id_digits).rev().map(|i| hex_digit(id >> (4 * i)));
-    let marker = if frame.is_remote_frame() { b'R' } else { b'N' };
-    let data_text = data
-        .iter()
-        .flat_map(|b| [hex_digit(u32::from(*b >> 4)), hex_digit(u32::from(*b))]);
-    let all = text
-        .by_ref()
-        .chain(id_text)
-        .chain([marker])
-        .chain(data_text)
-        .chain([b';']);
-    for (slot, byte) in out.iter_mut().zip(all) {
-        *slot = byte;
+    for shift in (0..id_digits).rev() {
+        put(hex_digit(id >> (4 * shift)));
     }
+    put(if frame.is_remote_frame() { b'R' } else { b'N' });
+    for byte in frame.data() {
+        put(hex_digit(u32::from(*byte >> 4)));
+        put(hex_digit(u32::from(*byte)));
+    }
+    put(b';');
     Ok(needed)
 }
 
@@ -176,12 +170,7 @@ impl GridConnectDecoder {
             len: 0,
             high_nibble: None,
             frame_chars: 0,
-            stats: DecoderStats {
-                frames: 0,
-                standard_ignored: 0,
-                remote_ignored: 0,
-                errors: 0,
-            },
+            stats: DecoderStats { frames: 0, standard_ignored: 0, remote_ignored: 0, errors: 0 },
         }
     }
 
@@ -213,11 +202,7 @@ impl GridConnectDecoder {
     }
 
     /// Decodes all of `input`, handing every frame and error to `on_result`.
-    pub fn decode_all(
-        &mut self,
-        mut input: &[u8],
-        mut on_result: impl FnMut(Result<CanFrame, GridConnectError>),
-    ) {
+    pub fn decode_all(&mut self, mut input: &[u8], mut on_result: impl FnMut(Result<CanFrame, GridConnectError>)) {
         while let Some(result) = self.decode(&mut input) {
             on_result(result);
         }
@@ -295,9 +280,7 @@ impl GridConnectDecoder {
             return None;
         }
         match byte {
-            b'N' | b'n' | b'R' | b'r' if self.id_digits == 0 => {
-                self.fail(GridConnectError::MissingId)
-            }
+            b'N' | b'n' | b'R' | b'r' if self.id_digits == 0 => self.fail(GridConnectError::MissingId),
             b'N' | b'n' => {
                 self.state = State::Data;
                 None
@@ -360,28 +343,17 @@ mod tests {
 
     #[test]
     fn encodes_extended_frames_with_eight_upper_case_digits() {
-        let frame = CanFrame::extended(
-            0x195B_4576,
-            &[0xF0, 0xF1, 0xF2, 0xF3, 0xF4, 0xF5, 0xF6, 0xF7],
-        )
-        .unwrap();
+        let frame = CanFrame::extended(0x195B_4576, &[0xF0, 0xF1, 0xF2, 0xF3, 0xF4, 0xF5, 0xF6, 0xF7]).unwrap();
         assert_eq!(text(&frame), ":X195B4576NF0F1F2F3F4F5F6F7;");
-        assert_eq!(
-            text(&CanFrame::extended(0x1070_0123, &[]).unwrap()),
-            ":X10700123N;"
-        );
-        assert_eq!(
-            text(&CanFrame::extended(0x0000_0ABC, &[0xab]).unwrap()),
-            ":X00000ABCNAB;"
-        );
+        assert_eq!(text(&CanFrame::extended(0x1070_0123, &[]).unwrap()), ":X10700123N;");
+        assert_eq!(text(&CanFrame::extended(0x0000_0ABC, &[0xab]).unwrap()), ":X00000ABCNAB;");
     }
 
     #[test]
     fn encodes_standard_and_remote_frames() {
         let standard = CanFrame::standard(0x72D, &[0xF0, 0xF1]).unwrap();
         assert_eq!(text(&standard), ":S72DNF0F1;");
-        let remote =
-            CanFrame::new_remote(embedded_can::ExtendedId::new(0x1910_0123).unwrap(), 0).unwrap();
+        let remote = CanFrame::new_remote(embedded_can::ExtendedId::new(0x1910_0123).unwrap(), 0).unwrap();
         assert_eq!(text(&remote), ":X19100123R;");
     }
 
@@ -389,12 +361,6 @@ mod tests {
     fn encode_refuses_a_short_buffer() {
         let frame = CanFrame::extended(0x1070_0123, &[]).unwrap();
         let mut buf = [0u8; 11];
-        assert_eq!(
-            encode(&frame, &mut buf),
-            Err(BufferTooSmall {
-                needed: 12,
-                got: 11
-            })
-        );
+        assert_eq!(encode(&frame, &mut buf), Err(BufferTooSmall { needed: 12, got: 11 }));
     }
 }

@@ -126,12 +126,7 @@ pub enum HeaderError {
 impl CanHeader {
     /// A format 1 header for `mti` (its low 12 bits; the caller checks bits 15-12 are clear).
     pub const fn message(mti: Mti, source: NodeAlias) -> Self {
-        CanHeader {
-            kind: FrameKind::Message {
-                can_mti: mti.as_raw() & 0xFFF,
-            },
-            source,
-        }
+        CanHeader { kind: FrameKind::Message { can_mti: mti.as_raw() & 0xFFF }, source }
     }
 
     /// A control frame header.
@@ -152,36 +147,16 @@ impl CanHeader {
         let kind = if id & field::MESSAGE_BIT != 0 {
             match format {
                 1 => FrameKind::Message { can_mti: variable },
-                2 => FrameKind::Datagram {
-                    frame: DatagramFrame::Only,
-                    destination: destination()?,
-                },
-                3 => FrameKind::Datagram {
-                    frame: DatagramFrame::First,
-                    destination: destination()?,
-                },
-                4 => FrameKind::Datagram {
-                    frame: DatagramFrame::Middle,
-                    destination: destination()?,
-                },
-                5 => FrameKind::Datagram {
-                    frame: DatagramFrame::Final,
-                    destination: destination()?,
-                },
-                7 => FrameKind::StreamData {
-                    destination: destination()?,
-                },
-                format => FrameKind::ReservedFormat {
-                    format,
-                    field: variable,
-                },
+                2 => FrameKind::Datagram { frame: DatagramFrame::Only, destination: destination()? },
+                3 => FrameKind::Datagram { frame: DatagramFrame::First, destination: destination()? },
+                4 => FrameKind::Datagram { frame: DatagramFrame::Middle, destination: destination()? },
+                5 => FrameKind::Datagram { frame: DatagramFrame::Final, destination: destination()? },
+                7 => FrameKind::StreamData { destination: destination()? },
+                format => FrameKind::ReservedFormat { format, field: variable },
             }
         } else {
             match (format, variable) {
-                (4..=7, node_id_bits) => FrameKind::CheckId {
-                    sequence: format,
-                    node_id_bits,
-                },
+                (4..=7, node_id_bits) => FrameKind::CheckId { sequence: format, node_id_bits },
                 (0, control::RESERVE_ID) => FrameKind::ReserveId,
                 (0, control::ALIAS_MAP_DEFINITION) => FrameKind::AliasMapDefinition,
                 (0, control::ALIAS_MAP_ENQUIRY) => FrameKind::AliasMapEnquiry,
@@ -189,9 +164,7 @@ impl CanHeader {
                 (0, n @ control::ERROR_REPORT_FIRST..=control::ERROR_REPORT_LAST) => {
                     FrameKind::ErrorInformationReport((n - control::ERROR_REPORT_FIRST) as u8)
                 }
-                (format, variable) => FrameKind::ReservedControl {
-                    content: u16::from(format) << 12 | variable,
-                },
+                (format, variable) => FrameKind::ReservedControl { content: u16::from(format) << 12 | variable },
             }
         };
         Ok(CanHeader { kind, source })
@@ -212,19 +185,14 @@ impl CanHeader {
             }
             FrameKind::StreamData { destination } => (true, 7, destination.as_raw()),
             FrameKind::ReservedFormat { format, field } => (true, format, field),
-            FrameKind::CheckId {
-                sequence,
-                node_id_bits,
-            } => (false, sequence, node_id_bits),
+            FrameKind::CheckId { sequence, node_id_bits } => (false, sequence, node_id_bits),
             FrameKind::ReserveId => (false, 0, control::RESERVE_ID),
             FrameKind::AliasMapDefinition => (false, 0, control::ALIAS_MAP_DEFINITION),
             FrameKind::AliasMapEnquiry => (false, 0, control::ALIAS_MAP_ENQUIRY),
             FrameKind::AliasMapReset => (false, 0, control::ALIAS_MAP_RESET),
-            FrameKind::ErrorInformationReport(n) => (
-                false,
-                0,
-                control::ERROR_REPORT_FIRST.saturating_add(u16::from(n & 0x3)),
-            ),
+            FrameKind::ErrorInformationReport(n) => {
+                (false, 0, control::ERROR_REPORT_FIRST.saturating_add(u16::from(n & 0x3)))
+            }
             FrameKind::ReservedControl { content } => (false, (content >> 12) as u8, content),
         };
         let message_bit = if message { field::MESSAGE_BIT } else { 0 };
@@ -248,8 +216,7 @@ impl CanHeader {
 
     /// The CAN frame format 0..=7 of a message frame, `None` for a control frame.
     pub fn frame_format(&self) -> Option<u8> {
-        self.is_message()
-            .then(|| ((self.to_id() >> field::FORMAT_SHIFT) & 0x7) as u8)
+        self.is_message().then(|| ((self.to_id() >> field::FORMAT_SHIFT) & 0x7) as u8)
     }
 
     /// The full MTI a message frame stands for: the CAN-MTI for format 1, Datagram (0x1C48)
@@ -266,9 +233,7 @@ impl CanHeader {
     /// The destination alias carried in the identifier (datagram and stream frames).
     pub fn destination(&self) -> Option<NodeAlias> {
         match self.kind {
-            FrameKind::Datagram { destination, .. } | FrameKind::StreamData { destination } => {
-                Some(destination)
-            }
+            FrameKind::Datagram { destination, .. } | FrameKind::StreamData { destination } => Some(destination),
             _ => None,
         }
     }
@@ -285,13 +250,7 @@ mod tests {
     #[test]
     fn parse_format_1() {
         let h = CanHeader::parse(0x19CC_822A).unwrap();
-        assert_eq!(
-            h,
-            CanHeader {
-                kind: FrameKind::Message { can_mti: 0xCC8 },
-                source: alias(0x22A)
-            }
-        );
+        assert_eq!(h, CanHeader { kind: FrameKind::Message { can_mti: 0xCC8 }, source: alias(0x22A) });
         assert_eq!(h.mti(), Some(Mti::STREAM_INITIATE_REQUEST));
         assert_eq!(h.frame_format(), Some(1));
         assert!(h.is_message());
@@ -301,60 +260,25 @@ mod tests {
     #[test]
     fn parse_stream_data_and_datagrams() {
         let h = CanHeader::parse(0x1F22_522A).unwrap();
-        assert_eq!(
-            h.kind,
-            FrameKind::StreamData {
-                destination: alias(0x225)
-            }
-        );
+        assert_eq!(h.kind, FrameKind::StreamData { destination: alias(0x225) });
         assert_eq!(h.mti(), Some(Mti::STREAM_DATA_SEND));
         assert_eq!(h.frame_format(), Some(7));
         let h = CanHeader::parse(0x1A45_6123).unwrap();
-        assert_eq!(
-            h.kind,
-            FrameKind::Datagram {
-                frame: DatagramFrame::Only,
-                destination: alias(0x456)
-            }
-        );
+        assert_eq!(h.kind, FrameKind::Datagram { frame: DatagramFrame::Only, destination: alias(0x456) });
         assert_eq!(h.mti(), Some(Mti::DATAGRAM));
         assert_eq!(
             CanHeader::parse(0x1D45_6123).unwrap().kind,
-            FrameKind::Datagram {
-                frame: DatagramFrame::Final,
-                destination: alias(0x456)
-            }
+            FrameKind::Datagram { frame: DatagramFrame::Final, destination: alias(0x456) }
         );
-        assert_eq!(
-            CanHeader::parse(0x1E45_6123).unwrap().kind,
-            FrameKind::ReservedFormat {
-                format: 6,
-                field: 0x456
-            }
-        );
-        assert_eq!(
-            CanHeader::parse(0x1F00_0123),
-            Err(HeaderError::ZeroDestinationAlias)
-        );
+        assert_eq!(CanHeader::parse(0x1E45_6123).unwrap().kind, FrameKind::ReservedFormat { format: 6, field: 0x456 });
+        assert_eq!(CanHeader::parse(0x1F00_0123), Err(HeaderError::ZeroDestinationAlias));
     }
 
     #[test]
     fn parse_control_frames() {
         let cases = [
-            (
-                0x1702_0555,
-                FrameKind::CheckId {
-                    sequence: 7,
-                    node_id_bits: 0x020,
-                },
-            ),
-            (
-                0x1400_3555,
-                FrameKind::CheckId {
-                    sequence: 4,
-                    node_id_bits: 0x003,
-                },
-            ),
+            (0x1702_0555, FrameKind::CheckId { sequence: 7, node_id_bits: 0x020 }),
+            (0x1400_3555, FrameKind::CheckId { sequence: 4, node_id_bits: 0x003 }),
             (0x1070_0555, FrameKind::ReserveId),
             (0x1070_1555, FrameKind::AliasMapDefinition),
             (0x1070_2555, FrameKind::AliasMapEnquiry),
@@ -382,31 +306,15 @@ mod tests {
 
     #[test]
     fn refuses_wide_ids_and_alias_zero() {
-        assert_eq!(
-            CanHeader::parse(0x2000_0000),
-            Err(HeaderError::TooWide(0x2000_0000))
-        );
-        assert_eq!(
-            CanHeader::parse(0x19CC_8000),
-            Err(HeaderError::ZeroSourceAlias)
-        );
+        assert_eq!(CanHeader::parse(0x2000_0000), Err(HeaderError::TooWide(0x2000_0000)));
+        assert_eq!(CanHeader::parse(0x19CC_8000), Err(HeaderError::ZeroSourceAlias));
     }
 
     #[test]
     fn every_message_header_round_trips() {
-        for id in [
-            0x19CC_822A,
-            0x1F45_6123,
-            0x1B45_6123,
-            0x1C45_6123,
-            0x1845_6123,
-            0x1910_0123,
-        ] {
+        for id in [0x19CC_822A, 0x1F45_6123, 0x1B45_6123, 0x1C45_6123, 0x1845_6123, 0x1910_0123] {
             assert_eq!(CanHeader::parse(id).unwrap().to_id(), id, "{id:08X}");
         }
-        assert_eq!(
-            CanHeader::message(Mti::STREAM_DATA_COMPLETE, alias(0x123)).to_id(),
-            0x198A_8123
-        );
+        assert_eq!(CanHeader::message(Mti::STREAM_DATA_COMPLETE, alias(0x123)).to_id(), 0x198A_8123);
     }
 }

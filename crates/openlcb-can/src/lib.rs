@@ -46,8 +46,10 @@
 //!             _ => {}
 //!         }
 //!     }
-//!     while let Some(msg) = endpoint.poll_transmit() {
-//!         let _ = link.send(now, msg); // a refusal is counted in link.stats()
+//!     // Take from the endpoint only what the link has room for: the rest waits there.
+//!     while link.can_send() {
+//!         let Some(msg) = endpoint.poll_transmit() else { break };
+//!         let _ = link.send(now, msg); // a message with no CAN form is counted and dropped
 //!     }
 //!     while let Some(frame) = link.poll_transmit() {
 //!         bus.push(frame);
@@ -68,10 +70,12 @@
 //!
 //! # Choices where the standards leave room
 //!
-//! - Reassembly errors (0x2041, 0x2042, 0x2011, and 0x2020 when no slot or length is left)
-//!   are counted in [`LinkStats`] and answered with Optional Interaction Rejected quoting
-//!   the MTI ([`CanConfig::reject_reassembly_errors`]): the receiver declines the broken
-//!   interaction; a TDE would end every stream with that peer in the core.
+//! - Reassembly errors are counted in [`LinkStats`]. Those that lose a message (0x2041, 0x2011,
+//!   and 0x2020 when no slot or length is left) are answered with Optional Interaction
+//!   Rejected quoting the MTI ([`CanConfig::reject_reassembly_errors`]): the receiver declines
+//!   the broken interaction (a TDE would end every stream with that peer in the core). 0x2042
+//!   is only counted: the new first frame starts a message that may well complete, and an
+//!   OIR quoting the same MTI would read as a rejection of it.
 //! - A message from an alias not in the cache is held (bounded by
 //!   [`CanConfig::max_held_messages`]) and an addressed Verify Node ID goes to that alias; its
 //!   Verified Node ID (or an AMD) releases the held messages in arrival order. Messages still
@@ -86,15 +90,7 @@
 //!   must filter them out, or they read as an alias collision.
 
 #![cfg_attr(not(test), no_std)]
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic,
-        clippy::indexing_slicing
-    )
-)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
 #![warn(missing_docs)]
 
 extern crate alloc;
@@ -117,9 +113,7 @@ pub use embedded_can;
 
 pub use alias::{AliasGenerator, NodeAlias};
 pub use cache::AliasCache;
-pub use fragment::{
-    ADDRESSED_PAYLOAD_PER_FRAME, EncodeError, Fragments, FramePosition, STREAM_PAYLOAD_PER_FRAME,
-};
+pub use fragment::{ADDRESSED_PAYLOAD_PER_FRAME, EncodeError, Fragments, FramePosition, STREAM_PAYLOAD_PER_FRAME};
 pub use frame::{CanFrame, FrameError};
 pub use gridconnect::{GridConnectDecoder, GridConnectError};
 pub use header::{CanHeader, DatagramFrame, FrameKind, HeaderError};

@@ -36,8 +36,9 @@ pub struct CanConfig {
     pub max_message_len: usize,
     /// How long a multi-frame message may wait for its next frame (0x2011 after that).
     pub reassembly_timeout: Duration,
-    /// Answer reassembly errors (0x2041, 0x2042, 0x2011, and 0x2020 for no room) with
-    /// Optional Interaction Rejected to the sender, quoting the MTI.
+    /// Answer reassembly errors that lose a message (0x2041, 0x2011, and 0x2020 for no room)
+    /// with Optional Interaction Rejected to the sender, quoting the MTI. 0x2042 is only
+    /// counted: the message it starts goes on.
     pub reject_reassembly_errors: bool,
     /// Messages accepted by [`CanLink::send`] and not yet framed (including those waiting
     /// for an alias). More are refused with [`SendError::QueueFull`].
@@ -232,11 +233,7 @@ impl CanLink {
             login,
             announced: false,
             cache: AliasCache::new(config.alias_cache_size),
-            reassembly: Reassembler::new(
-                config.reassembly_slots,
-                config.max_message_len,
-                config.reassembly_timeout,
-            ),
+            reassembly: Reassembler::new(config.reassembly_slots, config.max_message_len, config.reassembly_timeout),
             scratch: Vec::with_capacity(config.max_message_len),
             frames: VecDeque::with_capacity(config.frame_queue_limit),
             messages: VecDeque::with_capacity(config.transmit_queue_limit.saturating_add(1)),
@@ -294,6 +291,13 @@ impl CanLink {
             + usize::from(self.current.as_ref().is_some_and(|c| c.remaining() > 0))
     }
 
+    /// `send` has room for another message. A driver that must not lose stream data polls
+    /// the endpoint only while this holds (the endpoint keeps the rest queued).
+    pub fn can_send(&self) -> bool {
+        self.login.state() != LoginState::Stopped
+            && self.messages.len() + self.unresolved.len() < self.config.transmit_queue_limit
+    }
+
     // ----- commands -----
 
     /// Queues `message` for transmission. Addressed messages go to the cached alias of their
@@ -316,40 +320,21 @@ impl CanLink {
         let destination = if addressed { message.destination } else { None };
         // Check the message has a CAN form now, so that failures reach the caller.
         let placeholder = NodeAlias::MAX;
-        Fragments::new(
-            message.mti,
-            placeholder,
-            destination.map(|_| placeholder),
-            &message.payload[..],
-        )?;
-        if self.messages.len() + self.unresolved.len() >= self.config.transmit_queue_limit {
+        Fragments::new(message.mti, placeholder, destination.map(|_| placeholder), &message.payload[..])?;
+        if !self.can_send() {
             return Err(SendError::QueueFull);
         }
         let Some(node) = destination else {
-            self.messages.push_back(Outgoing {
-                message,
-                destination: None,
-            });
+            self.messages.push_back(Outgoing { message, destination: None });
             return Ok(());
         };
         let waiting = self.unresolved.iter().any(|u| u.node == node);
         match self.cache.alias(node) {
-            Some(alias) if !waiting => self.messages.push_back(Outgoing {
-                message,
-                destination: Some(alias),
-            }),
+            Some(alias) if !waiting => self.messages.push_back(Outgoing { message, destination: Some(alias) }),
             _ => {
                 // A node already being resolved shares the AME out for it and its deadline.
-                let deadline = self
-                    .unresolved
-                    .iter()
-                    .find(|u| u.node == node)
-                    .and_then(|u| u.deadline);
-                self.unresolved.push_back(Unresolved {
-                    message,
-                    node,
-                    deadline,
-                });
+                let deadline = self.unresolved.iter().find(|u| u.node == node).and_then(|u| u.deadline);
+                self.unresolved.push_back(Unresolved { message, node, deadline });
                 self.send_enquiries(now);
             }
         }
@@ -383,10 +368,7 @@ impl CanLink {
                 return Some(frame);
             }
             self.current = None;
-            let Outgoing {
-                message,
-                destination,
-            } = self.messages.pop_front()?;
+            let Outgoing { message, destination } = self.messages.pop_front()?;
             match Fragments::new(message.mti, alias, destination, message.payload) {
                 Ok(fragments) => self.current = Some(fragments),
                 Err(_) => bump(&mut self.stats.send_refused),
@@ -421,24 +403,14 @@ impl CanLink {
         while let Some(key) = self.reassembly.take_expired(now) {
             self.reassembly_error(key.source, key.mti, ReassemblyError::Timeout);
         }
-        while let Some(node) = self
-            .unresolved
-            .iter()
-            .find(|u| u.deadline.is_some_and(|d| d <= now))
-            .map(|u| u.node)
-        {
+        while let Some(node) = self.unresolved.iter().find(|u| u.deadline.is_some_and(|d| d <= now)).map(|u| u.node) {
             let before = self.unresolved.len();
             self.unresolved.retain(|u| u.node != node);
             let dropped = before - self.unresolved.len();
-            self.stats.unresolved_dropped =
-                self.stats.unresolved_dropped.saturating_add(dropped as u64);
+            self.stats.unresolved_dropped = self.stats.unresolved_dropped.saturating_add(dropped as u64);
             self.event(LinkEvent::Unreachable { node, dropped });
         }
-        for held in self
-            .held
-            .iter_mut()
-            .filter(|h| h.in_use && h.deadline <= now)
-        {
+        for held in self.held.iter_mut().filter(|h| h.in_use && h.deadline <= now) {
             held.in_use = false;
             bump(&mut self.stats.unknown_source_dropped);
         }
@@ -448,12 +420,7 @@ impl CanLink {
     /// to `deliver`, borrowing its payload from `frame` (single frames, stream data) or from
     /// the link's reassembly buffer: nothing is allocated. Usually
     /// `|msg| endpoint.handle_message(now, msg)`.
-    pub fn handle_frame(
-        &mut self,
-        now: Instant,
-        frame: &CanFrame,
-        mut deliver: impl FnMut(MessageRef<'_>),
-    ) {
+    pub fn handle_frame(&mut self, now: Instant, frame: &CanFrame, mut deliver: impl FnMut(MessageRef<'_>)) {
         bump(&mut self.stats.frames_in);
         let header = match frame.header() {
             Ok(header) => header,
@@ -476,9 +443,7 @@ impl CanLink {
             FrameKind::AliasMapReset => self.forget(header.source, NodeId::from_slice(data)),
             // CFT §6.2.3: a global AME drops every cached mapping; the AMDs it causes refill it.
             FrameKind::AliasMapEnquiry if data.is_empty() => self.cache.clear(),
-            FrameKind::Message { can_mti } => {
-                self.on_message(now, header.source, Mti(can_mti), data, &mut deliver)
-            }
+            FrameKind::Message { can_mti } => self.on_message(now, header.source, Mti(can_mti), data, &mut deliver),
             FrameKind::StreamData { destination } => {
                 if Some(destination) != self.login.alias() {
                     return bump(&mut self.stats.not_for_us);
@@ -487,18 +452,9 @@ impl CanLink {
                     // Wire-spec §7.3: DLC 0 is invalid (no DID).
                     return bump(&mut self.stats.invalid_frames);
                 }
-                self.deliver_or_hold(
-                    now,
-                    header.source,
-                    Mti::STREAM_DATA_SEND,
-                    true,
-                    data,
-                    &mut deliver,
-                );
+                self.deliver_or_hold(now, header.source, Mti::STREAM_DATA_SEND, true, data, &mut deliver);
             }
-            FrameKind::Datagram { .. } | FrameKind::ReservedFormat { .. } => {
-                bump(&mut self.stats.unsupported_ignored)
-            }
+            FrameKind::Datagram { .. } | FrameKind::ReservedFormat { .. } => bump(&mut self.stats.unsupported_ignored),
             _ => {}
         }
     }
@@ -532,15 +488,13 @@ impl CanLink {
         let Some(ours) = self.login.alias().filter(|ours| destination == Some(*ours)) else {
             return bump(&mut self.stats.not_for_us);
         };
-        let key = ReassemblyKey {
-            source,
-            destination: ours,
-            mti,
-        };
-        match self
-            .reassembly
-            .push(now, key, FramePosition::from_flags(*flags_and_high), body)
-        {
+        let position = FramePosition::from_flags(*flags_and_high);
+        if position == FramePosition::Only {
+            // The usual case: the payload is handed over straight from the frame.
+            return self.deliver_or_hold(now, source, mti, true, body, deliver);
+        }
+        let key = ReassemblyKey { source, destination: ours, mti };
+        match self.reassembly.push(now, key, position, body) {
             Ok(None) => {}
             Ok(Some(whole)) => {
                 // Copied once into a buffer of the link so the reassembler is free again;
@@ -566,12 +520,7 @@ impl CanLink {
     ) {
         let destination = addressed.then_some(self.node);
         if let Some(node) = self.cache.node(source) {
-            return deliver(MessageRef {
-                mti,
-                source: node,
-                destination,
-                payload,
-            });
+            return deliver(MessageRef { mti, source: node, destination, payload });
         }
         // The sender's Node ID is unknown: hold the message and ask it (addressed Verify Node
         // ID; its Verified Node ID, or any AMD, releases what is held, in arrival order).
@@ -592,10 +541,9 @@ impl CanLink {
         bump(&mut self.stats.held_inbound);
         if first_from_source {
             if let Some(ours) = self.login.alias() {
-                let verify =
-                    Fragments::new(Mti::VERIFY_NODE_ID_ADDRESSED, ours, Some(source), [0u8; 0])
-                        .ok()
-                        .and_then(|mut f| f.next());
+                let verify = Fragments::new(Mti::VERIFY_NODE_ID_ADDRESSED, ours, Some(source), [0u8; 0])
+                    .ok()
+                    .and_then(|mut f| f.next());
                 self.queue_frame(verify);
             }
         }
@@ -609,20 +557,11 @@ impl CanLink {
         }
         self.cache.insert(alias, node);
         let local = self.node;
-        while let Some(held) = self
-            .held
-            .iter_mut()
-            .filter(|h| h.in_use && h.source == alias)
-            .min_by_key(|h| h.arrival)
+        while let Some(held) = self.held.iter_mut().filter(|h| h.in_use && h.source == alias).min_by_key(|h| h.arrival)
         {
             held.in_use = false;
             let destination = held.addressed.then_some(local);
-            deliver(MessageRef {
-                mti: held.mti,
-                source: node,
-                destination,
-                payload: &held.payload,
-            });
+            deliver(MessageRef { mti: held.mti, source: node, destination, payload: &held.payload });
         }
         let mut index = 0;
         while let Some(waiting) = self.unresolved.get(index) {
@@ -631,10 +570,7 @@ impl CanLink {
                 continue;
             }
             if let Some(Unresolved { message, .. }) = self.unresolved.remove(index) {
-                self.messages.push_back(Outgoing {
-                    message,
-                    destination: Some(alias),
-                });
+                self.messages.push_back(Outgoing { message, destination: Some(alias) });
             }
         }
     }
@@ -644,20 +580,13 @@ impl CanLink {
     /// the node that collided with it.
     fn forget(&mut self, alias: NodeAlias, released: Option<NodeId>) {
         self.reassembly.forget_source(alias);
-        for held in self
-            .held
-            .iter_mut()
-            .filter(|h| h.in_use && h.source == alias)
-        {
+        for held in self.held.iter_mut().filter(|h| h.in_use && h.source == alias) {
             held.in_use = false;
             bump(&mut self.stats.unknown_source_dropped);
         }
         let before = self.messages.len();
         self.messages.retain(|m| m.destination != Some(alias));
-        self.stats.messages_dropped = self
-            .stats
-            .messages_dropped
-            .saturating_add((before - self.messages.len()) as u64);
+        self.stats.messages_dropped = self.stats.messages_dropped.saturating_add((before - self.messages.len()) as u64);
         let cached = self.cache.remove_alias(alias);
         if let Some(node) = released.filter(|n| *n != self.node).or(cached) {
             self.event(LinkEvent::PeerLost { node, alias });
@@ -672,29 +601,19 @@ impl CanLink {
             _ => &mut self.stats.reassembly_overflows,
         };
         bump(counter);
-        let Some(ours) = self
-            .login
-            .alias()
-            .filter(|_| self.config.reject_reassembly_errors)
-        else {
+        let answer = self.config.reject_reassembly_errors && error != ReassemblyError::FirstBeforeLastEnded;
+        let Some(ours) = self.login.alias().filter(|_| answer) else {
             return;
         };
         let mut payload = [0u8; 4];
-        let report = ErrorReport {
-            code: error.code(),
-            mti: Some(mti),
-        };
+        let report = ErrorReport { code: error.code(), mti: Some(mti) };
         let Ok(len) = report.emit(&mut payload) else {
             return;
         };
-        let oir = Fragments::new(
-            Mti::OPTIONAL_INTERACTION_REJECTED,
-            ours,
-            Some(source),
-            payload.get(..len).unwrap_or(&[]),
-        )
-        .ok()
-        .and_then(|mut f| f.next());
+        let oir =
+            Fragments::new(Mti::OPTIONAL_INTERACTION_REJECTED, ours, Some(source), payload.get(..len).unwrap_or(&[]))
+                .ok()
+                .and_then(|mut f| f.next());
         self.queue_frame(oir);
     }
 
@@ -706,10 +625,8 @@ impl CanLink {
                 LoginEvent::Permitted { alias } => {
                     if self.announced {
                         // After a re-login the endpoint will not announce the node again.
-                        let announce = Outgoing {
-                            message: node::initialization_complete(self.node),
-                            destination: None,
-                        };
+                        let announce =
+                            Outgoing { message: node::initialization_complete(self.node), destination: None };
                         self.messages.push_front(announce);
                     }
                     self.announced = true;
@@ -731,8 +648,7 @@ impl CanLink {
 
     /// Everything tied to the old alias goes: queued messages, partial messages, held frames.
     fn drop_traffic(&mut self) {
-        let queued =
-            self.messages.len() + self.unresolved.len() + usize::from(self.current.is_some());
+        let queued = self.messages.len() + self.unresolved.len() + usize::from(self.current.is_some());
         self.stats.messages_dropped = self.stats.messages_dropped.saturating_add(queued as u64);
         self.messages.clear();
         self.unresolved.clear();
@@ -750,28 +666,19 @@ impl CanLink {
             return;
         };
         let deadline = now + self.config.resolve_timeout;
-        while let Some(node) = self
-            .unresolved
-            .iter()
-            .find(|u| u.deadline.is_none())
-            .map(|u| u.node)
-        {
+        while let Some(node) = self.unresolved.iter().find(|u| u.deadline.is_none()).map(|u| u.node) {
             for waiting in self.unresolved.iter_mut().filter(|u| u.node == node) {
                 waiting.deadline = Some(deadline);
             }
-            let enquiry = CanFrame::from_header(
-                &CanHeader::control(FrameKind::AliasMapEnquiry, ours),
-                &node.to_bytes(),
-            );
+            let enquiry =
+                CanFrame::from_header(&CanHeader::control(FrameKind::AliasMapEnquiry, ours), &node.to_bytes());
             self.queue_frame(enquiry);
         }
     }
 
     fn queue_frame(&mut self, frame: Option<CanFrame>) {
         match frame {
-            Some(frame) if self.frames.len() < self.config.frame_queue_limit => {
-                self.frames.push_back(frame)
-            }
+            Some(frame) if self.frames.len() < self.config.frame_queue_limit => self.frames.push_back(frame),
             _ => bump(&mut self.stats.queue_overflows),
         }
     }

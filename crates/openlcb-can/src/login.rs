@@ -105,22 +105,14 @@ impl AliasLogin {
     /// Starts the login of `node` at `now`: the CID frames of the first alias are queued.
     /// The first alias is `first_alias` if given, else the generator's (seeded with `node`);
     /// later aliases always come from the generator.
-    pub fn new(
-        now: Instant,
-        node: NodeId,
-        first_alias: Option<NodeAlias>,
-        reserve_wait: Duration,
-    ) -> Self {
+    pub fn new(now: Instant, node: NodeId, first_alias: Option<NodeAlias>, reserve_wait: Duration) -> Self {
         let mut generator = AliasGenerator::new(node);
         let alias = first_alias.unwrap_or_else(|| generator.next_alias());
         let mut login = AliasLogin {
             node,
             generator,
             reserve_wait,
-            state: LoginState::Checking {
-                alias,
-                deadline: now,
-            },
+            state: LoginState::Checking { alias, deadline: now },
             transmits: VecDeque::with_capacity(QUEUE_BOUND),
             events: VecDeque::with_capacity(EVENT_BOUND),
             stats: LoginStats::default(),
@@ -181,10 +173,7 @@ impl AliasLogin {
         if let LoginState::Checking { alias, deadline } = self.state {
             if now >= deadline {
                 self.queue(CanHeader::control(FrameKind::ReserveId, alias), &[]);
-                self.queue(
-                    CanHeader::control(FrameKind::AliasMapDefinition, alias),
-                    &self.node.to_bytes(),
-                );
+                self.queue(CanHeader::control(FrameKind::AliasMapDefinition, alias), &self.node.to_bytes());
                 self.state = LoginState::Permitted { alias };
                 self.event(LoginEvent::Permitted { alias });
             }
@@ -214,22 +203,15 @@ impl AliasLogin {
                         && !self.has_queued(FrameKind::AliasMapDefinition)
                     {
                         self.stats.enquiry_answers = self.stats.enquiry_answers.saturating_add(1);
-                        self.queue(
-                            CanHeader::control(FrameKind::AliasMapDefinition, alias),
-                            &self.node.to_bytes(),
-                        );
+                        self.queue(CanHeader::control(FrameKind::AliasMapDefinition, alias), &self.node.to_bytes());
                     }
                 }
             }
-            FrameKind::AliasMapDefinition
-                if claimed == Some(self.node) && !self.holds(header.source) =>
-            {
+            FrameKind::AliasMapDefinition if claimed == Some(self.node) && !self.holds(header.source) => {
                 // CFT §6.2.5: another node announced our Node ID. Send nothing more.
                 self.state = LoginState::Stopped;
                 self.transmits.clear();
-                self.event(LoginEvent::DuplicateNodeId {
-                    other: header.source,
-                });
+                self.event(LoginEvent::DuplicateNodeId { other: header.source });
                 return false;
             }
             _ => {}
@@ -253,10 +235,7 @@ impl AliasLogin {
             (LoginState::Permitted { alias }, _) => {
                 self.stats.losses = self.stats.losses.saturating_add(1);
                 self.transmits.clear();
-                self.queue(
-                    CanHeader::control(FrameKind::AliasMapReset, alias),
-                    &self.node.to_bytes(),
-                );
+                self.queue(CanHeader::control(FrameKind::AliasMapReset, alias), &self.node.to_bytes());
                 self.event(LoginEvent::Lost { alias });
                 let next = self.generator.next_alias();
                 self.check(now, next);
@@ -271,20 +250,14 @@ impl AliasLogin {
     /// The alias is ours: permitted, or being checked.
     fn holds(&self, alias: NodeAlias) -> bool {
         match self.state {
-            LoginState::Checking { alias: ours, .. } | LoginState::Permitted { alias: ours } => {
-                ours == alias
-            }
+            LoginState::Checking { alias: ours, .. } | LoginState::Permitted { alias: ours } => ours == alias,
             LoginState::Stopped => false,
         }
     }
 
     /// Queues CID 7..4 for `alias` (dropping frames of an abandoned alias) and starts the wait.
     fn check(&mut self, now: Instant, alias: NodeAlias) {
-        let kept_amr = self
-            .transmits
-            .iter()
-            .copied()
-            .find(|f| is_kind(f, FrameKind::AliasMapReset));
+        let kept_amr = self.transmits.iter().copied().find(|f| is_kind(f, FrameKind::AliasMapReset));
         self.transmits.clear();
         if let Some(amr) = kept_amr {
             self.transmits.push_back(amr);
@@ -293,21 +266,9 @@ impl AliasLogin {
         for sequence in (4u8..=7).rev() {
             let shift = 12 * u32::from(sequence - 4);
             let node_id_bits = ((id >> shift) & 0xFFF) as u16;
-            self.queue(
-                CanHeader::control(
-                    FrameKind::CheckId {
-                        sequence,
-                        node_id_bits,
-                    },
-                    alias,
-                ),
-                &[],
-            );
+            self.queue(CanHeader::control(FrameKind::CheckId { sequence, node_id_bits }, alias), &[]);
         }
-        self.state = LoginState::Checking {
-            alias,
-            deadline: now + self.reserve_wait,
-        };
+        self.state = LoginState::Checking { alias, deadline: now + self.reserve_wait };
     }
 
     fn has_queued(&self, kind: FrameKind) -> bool {
@@ -343,9 +304,7 @@ mod tests {
     }
 
     fn ids(login: &mut AliasLogin) -> Vec<u32> {
-        core::iter::from_fn(|| login.poll_transmit())
-            .map(|f| f.raw_id())
-            .collect()
+        core::iter::from_fn(|| login.poll_transmit()).map(|f| f.raw_id()).collect()
     }
 
     fn frame(id: u32, data: &[u8]) -> CanFrame {
@@ -355,33 +314,20 @@ mod tests {
     const NODE: u64 = 0x0201_0D00_0003;
 
     fn login() -> AliasLogin {
-        AliasLogin::new(
-            Instant::ZERO,
-            NodeId::new(NODE).unwrap(),
-            Some(alias(0x555)),
-            Duration::from_millis(200),
-        )
+        AliasLogin::new(Instant::ZERO, NodeId::new(NODE).unwrap(), Some(alias(0x555)), Duration::from_millis(200))
     }
 
     #[test]
     fn checking_cids_then_rid_and_amd_after_the_wait() {
         let mut l = login();
-        assert_eq!(
-            ids(&mut l),
-            [0x1702_0555, 0x1610_D555, 0x1500_0555, 0x1400_3555]
-        );
+        assert_eq!(ids(&mut l), [0x1702_0555, 0x1610_D555, 0x1500_0555, 0x1400_3555]);
         assert_eq!(l.poll_timeout(), Some(Instant::from_millis(200)));
         l.handle_timeout(Instant::from_millis(199));
         assert_eq!(l.alias(), None);
         assert!(ids(&mut l).is_empty());
         l.handle_timeout(Instant::from_millis(200));
         assert_eq!(ids(&mut l), [0x1070_0555, 0x1070_1555]);
-        assert_eq!(
-            l.poll_event(),
-            Some(LoginEvent::Permitted {
-                alias: alias(0x555)
-            })
-        );
+        assert_eq!(l.poll_event(), Some(LoginEvent::Permitted { alias: alias(0x555) }));
         assert_eq!(l.alias(), Some(alias(0x555)));
         assert_eq!(l.poll_timeout(), None);
     }
@@ -390,23 +336,9 @@ mod tests {
     fn checking_frame_from_our_alias_picks_the_next_alias() {
         let mut l = login();
         ids(&mut l);
-        assert!(l.handle_frame(
-            Instant::from_millis(50),
-            &frame(0x1910_0555, &[1, 2, 3, 4, 5, 6])
-        ));
-        assert_eq!(
-            l.poll_event(),
-            Some(LoginEvent::Conflict {
-                alias: alias(0x555)
-            })
-        );
-        let LoginState::Checking {
-            alias: next,
-            deadline,
-        } = l.state()
-        else {
-            panic!()
-        };
+        assert!(l.handle_frame(Instant::from_millis(50), &frame(0x1910_0555, &[1, 2, 3, 4, 5, 6])));
+        assert_eq!(l.poll_event(), Some(LoginEvent::Conflict { alias: alias(0x555) }));
+        let LoginState::Checking { alias: next, deadline } = l.state() else { panic!() };
         assert_ne!(next, alias(0x555));
         assert_eq!(deadline, Instant::from_millis(250));
         let expected = AliasGenerator::new(NodeId::new(NODE).unwrap()).next_alias();
@@ -433,22 +365,10 @@ mod tests {
         l.handle_timeout(Instant::from_millis(200));
         ids(&mut l);
         l.poll_event();
-        assert!(l.handle_frame(
-            Instant::from_millis(300),
-            &frame(0x1070_1555, &[9, 9, 9, 9, 9, 9])
-        ));
-        assert_eq!(
-            l.poll_event(),
-            Some(LoginEvent::Lost {
-                alias: alias(0x555)
-            })
-        );
+        assert!(l.handle_frame(Instant::from_millis(300), &frame(0x1070_1555, &[9, 9, 9, 9, 9, 9])));
+        assert_eq!(l.poll_event(), Some(LoginEvent::Lost { alias: alias(0x555) }));
         let sent = ids(&mut l);
-        assert_eq!(
-            sent.first(),
-            Some(&0x1070_3555),
-            "AMR of the old alias first"
-        );
+        assert_eq!(sent.first(), Some(&0x1070_3555), "AMR of the old alias first");
         assert_eq!(sent.len(), 5);
         assert!(matches!(l.state(), LoginState::Checking { .. }));
     }
@@ -463,15 +383,9 @@ mod tests {
         ids(&mut l);
         l.handle_frame(Instant::from_millis(300), &frame(0x1070_2777, &[]));
         assert_eq!(ids(&mut l), [0x1070_1555]);
-        l.handle_frame(
-            Instant::from_millis(300),
-            &frame(0x1070_2777, &NodeId::new(NODE).unwrap().to_bytes()),
-        );
+        l.handle_frame(Instant::from_millis(300), &frame(0x1070_2777, &NodeId::new(NODE).unwrap().to_bytes()));
         assert_eq!(ids(&mut l), [0x1070_1555]);
-        l.handle_frame(
-            Instant::from_millis(300),
-            &frame(0x1070_2777, &[5, 1, 1, 1, 0x22, 1]),
-        );
+        l.handle_frame(Instant::from_millis(300), &frame(0x1070_2777, &[5, 1, 1, 1, 0x22, 1]));
         assert!(ids(&mut l).is_empty(), "AME for another node");
         assert_eq!(l.stats().enquiry_answers, 2);
     }
@@ -482,16 +396,8 @@ mod tests {
         l.handle_timeout(Instant::from_millis(200));
         ids(&mut l);
         l.poll_event();
-        l.handle_frame(
-            Instant::from_millis(300),
-            &frame(0x1070_1777, &NodeId::new(NODE).unwrap().to_bytes()),
-        );
-        assert_eq!(
-            l.poll_event(),
-            Some(LoginEvent::DuplicateNodeId {
-                other: alias(0x777)
-            })
-        );
+        l.handle_frame(Instant::from_millis(300), &frame(0x1070_1777, &NodeId::new(NODE).unwrap().to_bytes()));
+        assert_eq!(l.poll_event(), Some(LoginEvent::DuplicateNodeId { other: alias(0x777) }));
         assert_eq!(l.state(), LoginState::Stopped);
         l.handle_frame(Instant::from_millis(300), &frame(0x1070_2777, &[]));
         l.handle_timeout(Instant::from_millis(9000));

@@ -73,17 +73,9 @@ impl Reassembler {
     /// `slots` slots of `max_len` bytes each.
     pub fn new(slots: usize, max_len: usize, timeout: Duration) -> Self {
         let slots = (0..slots)
-            .map(|_| Slot {
-                key: None,
-                buffer: Vec::with_capacity(max_len),
-                deadline: Instant::ZERO,
-            })
+            .map(|_| Slot { key: None, buffer: Vec::with_capacity(max_len), deadline: Instant::ZERO })
             .collect();
-        Reassembler {
-            slots,
-            max_len,
-            timeout,
-        }
+        Reassembler { slots, max_len, timeout }
     }
 
     /// Adds one frame's payload (data bytes 2..). Returns the whole payload when `position`
@@ -105,28 +97,16 @@ impl Reassembler {
                     Some(index) => index,
                     None => return Err(ReassemblyError::NoFreeSlot),
                 };
-                let slot = self
-                    .slots
-                    .get_mut(index)
-                    .ok_or(ReassemblyError::NoFreeSlot)?;
+                let slot = self.slots.get_mut(index).ok_or(ReassemblyError::NoFreeSlot)?;
                 slot.key = Some(key);
                 slot.deadline = deadline;
                 slot.buffer.clear();
                 append(slot, data, max_len)?;
-                if open.is_some() {
-                    Err(ReassemblyError::FirstBeforeLastEnded)
-                } else {
-                    Ok(None)
-                }
+                if open.is_some() { Err(ReassemblyError::FirstBeforeLastEnded) } else { Ok(None) }
             }
-            (FramePosition::Middle | FramePosition::Last, None) => {
-                Err(ReassemblyError::MiddleWithoutFirst)
-            }
+            (FramePosition::Middle | FramePosition::Last, None) => Err(ReassemblyError::MiddleWithoutFirst),
             (FramePosition::Middle | FramePosition::Last, Some(index)) => {
-                let slot = self
-                    .slots
-                    .get_mut(index)
-                    .ok_or(ReassemblyError::MiddleWithoutFirst)?;
+                let slot = self.slots.get_mut(index).ok_or(ReassemblyError::MiddleWithoutFirst)?;
                 slot.deadline = deadline;
                 append(slot, data, max_len)?;
                 if position == FramePosition::Last {
@@ -142,20 +122,13 @@ impl Reassembler {
     /// The key of one message whose wait ran out at `now` (it is dropped), if any. Call until
     /// `None`.
     pub fn take_expired(&mut self, now: Instant) -> Option<ReassemblyKey> {
-        let slot = self
-            .slots
-            .iter_mut()
-            .find(|s| s.key.is_some() && s.deadline <= now)?;
+        let slot = self.slots.iter_mut().find(|s| s.key.is_some() && s.deadline <= now)?;
         slot.key.take()
     }
 
     /// When the next open message times out.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        self.slots
-            .iter()
-            .filter(|s| s.key.is_some())
-            .map(|s| s.deadline)
-            .min()
+        self.slots.iter().filter(|s| s.key.is_some()).map(|s| s.deadline).min()
     }
 
     /// Drops every open message from `source` (its alias was released).
@@ -210,20 +183,10 @@ mod tests {
     #[test]
     fn first_middle_last_gives_the_whole_payload() {
         let mut r = reassembler();
-        assert_eq!(
-            r.push(T0, key(0xA08), FramePosition::First, &[1, 2, 3, 4, 5, 6]),
-            Ok(None)
-        );
-        assert_eq!(
-            r.push(T0, key(0xA08), FramePosition::Middle, &[7, 8]),
-            Ok(None)
-        );
+        assert_eq!(r.push(T0, key(0xA08), FramePosition::First, &[1, 2, 3, 4, 5, 6]), Ok(None));
+        assert_eq!(r.push(T0, key(0xA08), FramePosition::Middle, &[7, 8]), Ok(None));
         assert_eq!(r.open_count(), 1);
-        let whole = r
-            .push(T0, key(0xA08), FramePosition::Last, &[9])
-            .unwrap()
-            .unwrap()
-            .to_vec();
+        let whole = r.push(T0, key(0xA08), FramePosition::Last, &[9]).unwrap().unwrap().to_vec();
         assert_eq!(whole, [1, 2, 3, 4, 5, 6, 7, 8, 9]);
         assert_eq!(r.open_count(), 0);
         assert_eq!(r.poll_timeout(), None);
@@ -234,49 +197,25 @@ mod tests {
         let mut r = reassembler();
         r.push(T0, key(0xA08), FramePosition::First, &[1]).unwrap();
         r.push(T0, key(0xCC8), FramePosition::First, &[2]).unwrap();
-        assert_eq!(
-            r.push(T0, key(0xCC8), FramePosition::Last, &[3]).unwrap(),
-            Some(&[2, 3][..])
-        );
-        assert_eq!(
-            r.push(T0, key(0xA08), FramePosition::Last, &[4]).unwrap(),
-            Some(&[1, 4][..])
-        );
+        assert_eq!(r.push(T0, key(0xCC8), FramePosition::Last, &[3]).unwrap(), Some(&[2, 3][..]));
+        assert_eq!(r.push(T0, key(0xA08), FramePosition::Last, &[4]).unwrap(), Some(&[1, 4][..]));
     }
 
     #[test]
     fn middle_or_last_without_first_is_0x2041() {
         let mut r = reassembler();
-        assert_eq!(
-            r.push(T0, key(0xA08), FramePosition::Middle, &[1]),
-            Err(ReassemblyError::MiddleWithoutFirst)
-        );
-        assert_eq!(
-            r.push(T0, key(0xA08), FramePosition::Last, &[1]),
-            Err(ReassemblyError::MiddleWithoutFirst)
-        );
-        assert_eq!(
-            ReassemblyError::MiddleWithoutFirst.code(),
-            ErrorCode(0x2041)
-        );
+        assert_eq!(r.push(T0, key(0xA08), FramePosition::Middle, &[1]), Err(ReassemblyError::MiddleWithoutFirst));
+        assert_eq!(r.push(T0, key(0xA08), FramePosition::Last, &[1]), Err(ReassemblyError::MiddleWithoutFirst));
+        assert_eq!(ReassemblyError::MiddleWithoutFirst.code(), ErrorCode(0x2041));
     }
 
     #[test]
     fn second_first_is_0x2042_and_restarts() {
         let mut r = reassembler();
         r.push(T0, key(0xA08), FramePosition::First, &[1]).unwrap();
-        assert_eq!(
-            r.push(T0, key(0xA08), FramePosition::First, &[2]),
-            Err(ReassemblyError::FirstBeforeLastEnded)
-        );
-        assert_eq!(
-            r.push(T0, key(0xA08), FramePosition::Last, &[3]).unwrap(),
-            Some(&[2, 3][..])
-        );
-        assert_eq!(
-            ReassemblyError::FirstBeforeLastEnded.code(),
-            ErrorCode(0x2042)
-        );
+        assert_eq!(r.push(T0, key(0xA08), FramePosition::First, &[2]), Err(ReassemblyError::FirstBeforeLastEnded));
+        assert_eq!(r.push(T0, key(0xA08), FramePosition::Last, &[3]).unwrap(), Some(&[2, 3][..]));
+        assert_eq!(ReassemblyError::FirstBeforeLastEnded.code(), ErrorCode(0x2042));
     }
 
     #[test]
@@ -288,10 +227,7 @@ mod tests {
         assert_eq!(r.take_expired(Instant::from_millis(2999)), None);
         assert_eq!(r.take_expired(deadline), Some(key(0xA08)));
         assert_eq!(r.take_expired(deadline), None);
-        assert_eq!(
-            r.push(T0, key(0xA08), FramePosition::Last, &[1]),
-            Err(ReassemblyError::MiddleWithoutFirst)
-        );
+        assert_eq!(r.push(T0, key(0xA08), FramePosition::Last, &[1]), Err(ReassemblyError::MiddleWithoutFirst));
         assert_eq!(ReassemblyError::Timeout.code(), ErrorCode(0x2011));
     }
 
@@ -300,26 +236,17 @@ mod tests {
         let mut r = reassembler();
         r.push(T0, key(1), FramePosition::First, &[1]).unwrap();
         r.push(T0, key(2), FramePosition::First, &[1]).unwrap();
-        assert_eq!(
-            r.push(T0, key(3), FramePosition::First, &[1]),
-            Err(ReassemblyError::NoFreeSlot)
-        );
+        assert_eq!(r.push(T0, key(3), FramePosition::First, &[1]), Err(ReassemblyError::NoFreeSlot));
         r.forget_source(key(1).source);
         assert_eq!(r.open_count(), 0);
         r.push(T0, key(1), FramePosition::First, &[0; 10]).unwrap();
-        assert_eq!(
-            r.push(T0, key(1), FramePosition::Middle, &[0; 7]),
-            Err(ReassemblyError::TooLong)
-        );
+        assert_eq!(r.push(T0, key(1), FramePosition::Middle, &[0; 7]), Err(ReassemblyError::TooLong));
         assert_eq!(r.open_count(), 0);
     }
 
     #[test]
     fn only_frame_passes_through() {
         let mut r = reassembler();
-        assert_eq!(
-            r.push(T0, key(1), FramePosition::Only, &[9]).unwrap(),
-            Some(&[9][..])
-        );
+        assert_eq!(r.push(T0, key(1), FramePosition::Only, &[9]).unwrap(), Some(&[9][..]));
     }
 }

@@ -95,14 +95,7 @@ fn deliver(now: Instant, from: &mut Node, to: &mut Node, tally: &mut Tally) {
 }
 
 /// Writes `total` bytes from A to B, reading at B, until B has all of them.
-fn transfer(
-    now: Instant,
-    a: &mut Node,
-    b: &mut Node,
-    stream: StreamHandle,
-    total: usize,
-    tally: &mut Tally,
-) {
+fn transfer(now: Instant, a: &mut Node, b: &mut Node, stream: StreamHandle, total: usize, tally: &mut Tally) {
     static DATA: [u8; 4096] = [0xA5; 4096];
     let mut buf = [0u8; 4096];
     let (mut written, mut read) = (0, 0);
@@ -138,10 +131,7 @@ fn no_allocation_per_stream_frame_in_the_links() {
     ]);
     bus.advance_to(Instant::from_millis(200));
     let now = bus.now;
-    let stream = bus.nodes[0]
-        .endpoint
-        .open(now, OpenOptions::new(common::node_id(B_ID), 2048))
-        .unwrap();
+    let stream = bus.nodes[0].endpoint.open(now, OpenOptions::new(common::node_id(B_ID), 2048)).unwrap();
     bus.pump();
     let mut nodes = bus.nodes.into_iter();
     let (mut a, mut b) = (nodes.next().unwrap(), nodes.next().unwrap());
@@ -149,30 +139,15 @@ fn no_allocation_per_stream_frame_in_the_links() {
     b.reading = false;
 
     // Warm up: queues and receive buffers reach their working size.
-    transfer(
-        now,
-        &mut a,
-        &mut b,
-        stream,
-        64 * 1024,
-        &mut Tally::default(),
-    );
+    transfer(now, &mut a, &mut b, stream, 64 * 1024, &mut Tally::default());
 
     let mut tally = Tally::default();
     let total = 256 * 1024;
     transfer(now, &mut a, &mut b, stream, total, &mut tally);
     println!("{tally:?}");
 
-    assert!(
-        tally.stream_frames >= (total / 7) as u64,
-        "{} frames for {total} bytes",
-        tally.stream_frames
-    );
-    assert_eq!(
-        tally.link, 0,
-        "allocations in the links over {} stream frames",
-        tally.stream_frames
-    );
+    assert!(tally.stream_frames >= (total / 7) as u64, "{} frames for {total} bytes", tally.stream_frames);
+    assert_eq!(tally.link, 0, "allocations in the links over {} stream frames", tally.stream_frames);
     // The core: one `Bytes` per Data Send message and per Proceed, nothing per frame.
     assert!(
         tally.core <= tally.data_send_messages + tally.proceeds,

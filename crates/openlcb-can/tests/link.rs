@@ -17,10 +17,7 @@ struct Solo {
 
 impl Solo {
     fn new(can: CanConfig) -> Self {
-        Solo {
-            now: Instant::ZERO,
-            node: Node::new(Instant::ZERO, A_ID, core_config(), can),
-        }
+        Solo { now: Instant::ZERO, node: Node::new(Instant::ZERO, A_ID, core_config(), can) }
     }
 
     /// Logged in as 0x123, the login frames drained.
@@ -56,49 +53,18 @@ impl Solo {
 #[test]
 fn login_clean_holds_messages_until_permitted() {
     let mut solo = Solo::new(can_config(0x123));
-    assert_eq!(
-        solo.sent(),
-        [
-            ":X17050123N;",
-            ":X16101123N;",
-            ":X15012123N;",
-            ":X14200123N;"
-        ]
-    );
-    assert_eq!(
-        solo.node.link.poll_timeout(),
-        Some(Instant::from_millis(200))
-    );
-    assert_eq!(
-        solo.advance_ms(199),
-        Vec::<String>::new(),
-        "the core's Initialization Complete waits"
-    );
-    assert_eq!(
-        solo.advance_ms(1),
-        [
-            ":X10700123N;",
-            ":X10701123N050101012200;",
-            ":X19100123N050101012200;"
-        ]
-    );
-    assert_eq!(
-        solo.node.link_events,
-        [LinkEvent::Permitted {
-            alias: alias(0x123)
-        }]
-    );
+    assert_eq!(solo.sent(), [":X17050123N;", ":X16101123N;", ":X15012123N;", ":X14200123N;"]);
+    assert_eq!(solo.node.link.poll_timeout(), Some(Instant::from_millis(200)));
+    assert_eq!(solo.advance_ms(199), Vec::<String>::new(), "the core's Initialization Complete waits");
+    assert_eq!(solo.advance_ms(1), [":X10700123N;", ":X10701123N050101012200;", ":X19100123N050101012200;"]);
+    assert_eq!(solo.node.link_events, [LinkEvent::Permitted { alias: alias(0x123) }]);
     assert_eq!(solo.node.link.poll_timeout(), None);
 }
 
 #[test]
 fn login_without_a_fixed_alias_uses_the_generator() {
     let mut solo = Solo::new(CanConfig::default());
-    assert_eq!(
-        solo.sent()[0],
-        ":X17050343N;",
-        "0x343 is the generator's alias for 05.01.01.01.22.00"
-    );
+    assert_eq!(solo.sent()[0], ":X17050343N;", "0x343 is the generator's alias for 05.01.01.01.22.00");
 }
 
 #[test]
@@ -108,29 +74,10 @@ fn checking_collision_picks_a_new_alias_and_waits_again() {
     solo.advance_ms(100);
     // Another node sends from 0x123 while we check it.
     let sent = solo.inject(&[":X19100123N050101012209;"]);
-    assert_eq!(
-        sent,
-        [
-            ":X17050343N;",
-            ":X16101343N;",
-            ":X15012343N;",
-            ":X14200343N;"
-        ]
-    );
+    assert_eq!(sent, [":X17050343N;", ":X16101343N;", ":X15012343N;", ":X14200343N;"]);
     assert_eq!(solo.node.link.login().stats().conflicts, 1);
-    assert_eq!(
-        solo.advance_ms(199),
-        Vec::<String>::new(),
-        "a full wait for the new alias"
-    );
-    assert_eq!(
-        solo.advance_ms(1),
-        [
-            ":X10700343N;",
-            ":X10701343N050101012200;",
-            ":X19100343N050101012200;"
-        ]
-    );
+    assert_eq!(solo.advance_ms(199), Vec::<String>::new(), "a full wait for the new alias");
+    assert_eq!(solo.advance_ms(1), [":X10700343N;", ":X10701343N050101012200;", ":X19100343N050101012200;"]);
     assert_eq!(solo.node.link.alias(), Some(alias(0x343)));
 }
 
@@ -146,49 +93,19 @@ fn permitted_cid_with_our_alias_is_answered_with_rid() {
 fn permitted_collision_sends_amr_logs_in_again_and_announces() {
     let mut solo = Solo::permitted();
     let sent = solo.inject(&[":X19170123N050101012209;"]);
-    assert_eq!(
-        sent,
-        [
-            ":X10703123N050101012200;",
-            ":X17050343N;",
-            ":X16101343N;",
-            ":X15012343N;",
-            ":X14200343N;"
-        ]
-    );
-    assert_eq!(
-        solo.node.link_events,
-        [LinkEvent::AliasLost {
-            alias: alias(0x123)
-        }]
-    );
-    assert!(matches!(
-        solo.node.link.login().state(),
-        LoginState::Checking { .. }
-    ));
+    assert_eq!(sent, [":X10703123N050101012200;", ":X17050343N;", ":X16101343N;", ":X15012343N;", ":X14200343N;"]);
+    assert_eq!(solo.node.link_events, [LinkEvent::AliasLost { alias: alias(0x123) }]);
+    assert!(matches!(solo.node.link.login().state(), LoginState::Checking { .. }));
     // The link announces the node itself after the new login.
-    assert_eq!(
-        solo.advance_ms(200),
-        [
-            ":X10700343N;",
-            ":X10701343N050101012200;",
-            ":X19100343N050101012200;"
-        ]
-    );
+    assert_eq!(solo.advance_ms(200), [":X10700343N;", ":X10701343N050101012200;", ":X19100343N050101012200;"]);
 }
 
 #[test]
 fn ame_global_and_for_us_are_answered_ame_for_others_not() {
     let mut solo = Solo::permitted();
     assert_eq!(solo.inject(&[":X10702456N;"]), [":X10701123N050101012200;"]);
-    assert_eq!(
-        solo.inject(&[":X10702456N050101012200;"]),
-        [":X10701123N050101012200;"]
-    );
-    assert_eq!(
-        solo.inject(&[":X10702456N050101012201;"]),
-        Vec::<String>::new()
-    );
+    assert_eq!(solo.inject(&[":X10702456N050101012200;"]), [":X10701123N050101012200;"]);
+    assert_eq!(solo.inject(&[":X10702456N050101012201;"]), Vec::<String>::new());
 }
 
 #[test]
@@ -198,39 +115,20 @@ fn global_ame_drops_the_cache_and_the_next_send_asks_again() {
     assert_eq!(solo.node.link.alias_of(node_id(B_ID)), Some(alias(0x456)));
     solo.inject(&[":X10702777N;"]);
     assert_eq!(solo.node.link.alias_of(node_id(B_ID)), None);
-    let verify = Message::addressed(
-        Mti::VERIFY_NODE_ID_ADDRESSED,
-        node_id(A_ID),
-        node_id(B_ID),
-        Vec::new(),
-    );
+    let verify = Message::addressed(Mti::VERIFY_NODE_ID_ADDRESSED, node_id(A_ID), node_id(B_ID), Vec::new());
     solo.node.link.send(solo.now, verify).unwrap();
     assert_eq!(solo.sent(), [":X10702123N050101012201;"], "AME for B");
-    assert_eq!(
-        solo.inject(&[":X10701456N050101012201;"]),
-        [":X19488123N0456;"]
-    );
+    assert_eq!(solo.inject(&[":X10701456N050101012201;"]), [":X19488123N0456;"]);
 }
 
 #[test]
 fn duplicate_node_id_stops_the_link() {
     let mut solo = Solo::permitted();
-    assert_eq!(
-        solo.inject(&[":X10701777N050101012200;"]),
-        Vec::<String>::new()
-    );
-    assert_eq!(
-        solo.node.link_events,
-        [LinkEvent::DuplicateNodeId {
-            other: alias(0x777)
-        }]
-    );
+    assert_eq!(solo.inject(&[":X10701777N050101012200;"]), Vec::<String>::new());
+    assert_eq!(solo.node.link_events, [LinkEvent::DuplicateNodeId { other: alias(0x777) }]);
     let msg = Message::global(Mti::VERIFY_NODE_ID_GLOBAL, node_id(A_ID), Vec::new());
     assert_eq!(solo.node.link.send(solo.now, msg), Err(SendError::Stopped));
-    assert_eq!(
-        solo.inject(&[":X10702777N;", ":X17999123N;"]),
-        Vec::<String>::new()
-    );
+    assert_eq!(solo.inject(&[":X10702777N;", ":X17999123N;"]), Vec::<String>::new());
     assert_eq!(solo.advance_ms(5000), Vec::<String>::new());
 }
 
@@ -239,50 +137,24 @@ fn duplicate_node_id_stops_the_link() {
 #[test]
 fn unknown_destination_is_resolved_with_ame() {
     let mut solo = Solo::permitted();
-    let msg = Message::addressed(
-        Mti::VERIFY_NODE_ID_ADDRESSED,
-        node_id(A_ID),
-        node_id(C_ID),
-        Vec::new(),
-    );
+    let msg = Message::addressed(Mti::VERIFY_NODE_ID_ADDRESSED, node_id(A_ID), node_id(C_ID), Vec::new());
     solo.node.link.send(solo.now, msg.clone()).unwrap();
     solo.node.link.send(solo.now, msg).unwrap();
-    assert_eq!(
-        solo.sent(),
-        [":X10702123N050101012202;"],
-        "one AME for two messages"
-    );
-    assert_eq!(
-        solo.inject(&[":X10701789N050101012202;"]),
-        [":X19488123N0789;", ":X19488123N0789;"]
-    );
+    assert_eq!(solo.sent(), [":X10702123N050101012202;"], "one AME for two messages");
+    assert_eq!(solo.inject(&[":X10701789N050101012202;"]), [":X19488123N0789;", ":X19488123N0789;"]);
 }
 
 #[test]
 fn unknown_destination_times_out_as_unreachable() {
     let mut solo = Solo::permitted();
-    let msg = Message::addressed(
-        Mti::VERIFY_NODE_ID_ADDRESSED,
-        node_id(A_ID),
-        node_id(C_ID),
-        Vec::new(),
-    );
+    let msg = Message::addressed(Mti::VERIFY_NODE_ID_ADDRESSED, node_id(A_ID), node_id(C_ID), Vec::new());
     solo.node.link.send(solo.now, msg).unwrap();
     solo.sent();
-    assert_eq!(
-        solo.node.link.poll_timeout(),
-        Some(solo.now + Duration::from_secs(1))
-    );
+    assert_eq!(solo.node.link.poll_timeout(), Some(solo.now + Duration::from_secs(1)));
     solo.advance_ms(999);
     assert!(solo.node.link_events.is_empty());
     solo.advance_ms(1);
-    assert_eq!(
-        solo.node.link_events,
-        [LinkEvent::Unreachable {
-            node: node_id(C_ID),
-            dropped: 1
-        }]
-    );
+    assert_eq!(solo.node.link_events, [LinkEvent::Unreachable { node: node_id(C_ID), dropped: 1 }]);
     assert_eq!(solo.node.link.stats().unresolved_dropped, 1);
     assert_eq!(solo.node.link.poll_timeout(), None);
 }
@@ -292,23 +164,13 @@ fn message_from_unknown_alias_is_held_until_verified() {
     let mut solo = Solo::permitted();
     // A Stream Initiate Request from 0x789, which we have never heard of.
     let sent = solo.inject(&[":X19CC8789N01230010000004;"]);
-    assert_eq!(
-        sent,
-        [":X19488123N0789;"],
-        "addressed Verify Node ID to the unknown alias"
-    );
+    assert_eq!(sent, [":X19488123N0789;"], "addressed Verify Node ID to the unknown alias");
     assert_eq!(solo.node.link.stats().held_inbound, 1);
-    assert!(
-        solo.node.events.is_empty(),
-        "nothing reached the endpoint yet"
-    );
+    assert!(solo.node.events.is_empty(), "nothing reached the endpoint yet");
     // Its Verified Node ID releases the request; the endpoint's Reply goes to 0x789.
     let sent = solo.inject(&[":X19170789N050101012202;"]);
     assert_eq!(sent, [":X19868123N0789001080000400;"]);
-    assert!(matches!(
-        solo.node.events.as_slice(),
-        [Event::Opened { .. }]
-    ));
+    assert!(matches!(solo.node.events.as_slice(), [Event::Opened { .. }]));
 }
 
 #[test]
@@ -317,10 +179,7 @@ fn message_from_unknown_alias_is_dropped_after_the_timeout() {
     solo.inject(&[":X19CC8789N01230010000004;"]);
     solo.advance_ms(1000);
     assert_eq!(solo.node.link.stats().unknown_source_dropped, 1);
-    assert_eq!(
-        solo.inject(&[":X19170789N050101012202;"]),
-        Vec::<String>::new()
-    );
+    assert_eq!(solo.inject(&[":X19170789N050101012202;"]), Vec::<String>::new());
     assert!(solo.node.events.is_empty());
 }
 
@@ -331,47 +190,24 @@ fn reassembly_errors_are_counted_and_rejected_with_oir() {
     let mut solo = Solo::permitted();
     solo.inject(&[":X10701789N050101012202;"]);
     // 0x2041: last frame without a first.
-    assert_eq!(
-        solo.inject(&[":X19CC8789N2123FF;"]),
-        [":X19068123N078920410CC8;"]
-    );
-    // 0x2042: a second first frame (the new message continues and completes).
+    assert_eq!(solo.inject(&[":X19CC8789N2123FF;"]), [":X19068123N078920410CC8;"]);
+    // 0x2042: a second first frame. Only counted: the new message continues and completes.
     solo.inject(&[":X19CC8789N1123001000000407;"]);
-    let sent = solo.inject(&[
-        ":X19CC8789N1123001000000407;",
-        ":X19CC8789N2123050101012202;",
-    ]);
-    assert_eq!(sent[0], ":X19068123N078920420CC8;");
-    assert_eq!(
-        sent[1], ":X19868123N0789001080000407;",
-        "the restarted request was delivered"
-    );
+    let sent = solo.inject(&[":X19CC8789N1123001000000407;", ":X19CC8789N2123050101012202;"]);
+    assert_eq!(sent, [":X19868123N0789001080000407;"], "the restarted request was delivered");
     // 0x2011: no last frame within 3 s.
     solo.inject(&[":X19A08789N1123010203040506;"]);
-    assert_eq!(
-        solo.node.link.poll_timeout(),
-        Some(solo.now + Duration::from_secs(3))
-    );
+    assert_eq!(solo.node.link.poll_timeout(), Some(solo.now + Duration::from_secs(3)));
     assert_eq!(solo.advance_ms(3000), [":X19068123N078920110A08;"]);
     let stats = solo.node.link.stats();
-    assert_eq!(
-        (
-            stats.middle_without_first,
-            stats.first_before_last_ended,
-            stats.reassembly_timeouts
-        ),
-        (1, 1, 1)
-    );
+    assert_eq!((stats.middle_without_first, stats.first_before_last_ended, stats.reassembly_timeouts), (1, 1, 1));
 }
 
 #[test]
 fn frames_for_other_nodes_and_odd_frames_are_counted() {
     let mut solo = Solo::permitted();
     solo.inject(&[":X10701789N050101012202;"]);
-    assert_eq!(
-        solo.inject(&[":X19CC8789N04560010000004;", ":X1F456789N0700;"]),
-        Vec::<String>::new()
-    );
+    assert_eq!(solo.inject(&[":X19CC8789N04560010000004;", ":X1F456789N0700;"]), Vec::<String>::new());
     assert_eq!(solo.node.link.stats().not_for_us, 2);
     solo.inject(&[":X1F123789N;", ":X19CC8789N01;"]);
     assert_eq!(solo.node.link.stats().invalid_frames, 2);
@@ -390,18 +226,9 @@ fn streaming_pair() -> (Bus, openlcb_stream::StreamHandle) {
     bus.advance_to(Instant::from_millis(200));
     bus.nodes[1].reading = false; // B's buffer fills: the stream stays open mid-transfer
     let now = bus.now;
-    let stream = bus.nodes[0]
-        .endpoint
-        .open(now, OpenOptions::new(node_id(B_ID), 16))
-        .unwrap();
+    let stream = bus.nodes[0].endpoint.open(now, OpenOptions::new(node_id(B_ID), 16)).unwrap();
     bus.pump();
-    assert_eq!(
-        bus.nodes[0]
-            .endpoint
-            .write(now, stream, &[0x55; 40])
-            .unwrap(),
-        16
-    );
+    assert_eq!(bus.nodes[0].endpoint.write(now, stream, &[0x55; 40]).unwrap(), 16);
     bus.pump();
     assert_eq!(bus.nodes[1].endpoint.stream_count(), 1);
     (bus, stream)
@@ -423,10 +250,7 @@ fn peer_amr_mid_stream_ends_the_stream_with_peer_lost() {
     // B's alias is released (as seen by A only: B itself is not told).
     bus.nodes[0].receive(bus.now, &frame(":X10703456N050101012201;"));
     bus.pump();
-    assert!(bus.nodes[0].link_events.contains(&LinkEvent::PeerLost {
-        node: node_id(B_ID),
-        alias: alias(0x456)
-    }));
+    assert!(bus.nodes[0].link_events.contains(&LinkEvent::PeerLost { node: node_id(B_ID), alias: alias(0x456) }));
     assert_eq!(terminations(&bus.nodes[0]), [Termination::PeerLost]);
     assert_eq!(bus.nodes[0].endpoint.stream_count(), 0);
     assert_eq!(bus.nodes[0].link.alias_of(node_id(B_ID)), None);
@@ -438,22 +262,14 @@ fn alias_taken_mid_stream_ends_both_sides_without_a_hang() {
     // A third node uses A's alias: A sends AMR and logs in again; B hears the AMR.
     bus.broadcast(None, &frame(":X19170123N050101012209;"));
     bus.pump();
-    assert!(bus.nodes[0].link_events.contains(&LinkEvent::AliasLost {
-        alias: alias(0x123)
-    }));
+    assert!(bus.nodes[0].link_events.contains(&LinkEvent::AliasLost { alias: alias(0x123) }));
     assert_eq!(terminations(&bus.nodes[0]), [Termination::LinkLost]);
-    assert!(bus.nodes[1].link_events.contains(&LinkEvent::PeerLost {
-        node: node_id(A_ID),
-        alias: alias(0x123)
-    }));
+    assert!(bus.nodes[1].link_events.contains(&LinkEvent::PeerLost { node: node_id(A_ID), alias: alias(0x123) }));
     assert_eq!(terminations(&bus.nodes[1]), [Termination::PeerLost]);
     // Time runs on: A comes back with a new alias and B learns it; nothing is left waiting.
     bus.run_until(Instant::from_millis(120_000));
     assert_eq!(bus.nodes[0].link.alias(), Some(alias(0x343)));
-    assert_eq!(
-        bus.nodes[1].link.alias_of(node_id(A_ID)),
-        Some(alias(0x343))
-    );
+    assert_eq!(bus.nodes[1].link.alias_of(node_id(A_ID)), Some(alias(0x343)));
     assert_eq!(bus.nodes[0].endpoint.stream_count(), 0);
     assert_eq!(bus.nodes[0].link.queued_messages(), 0);
     assert_eq!(bus.next_timeout(), None, "no timer left: no hang");
@@ -466,15 +282,29 @@ fn send_refuses_messages_without_a_can_form_and_beyond_the_queue_bound() {
     let mut solo = Solo::new(can);
     let a = node_id(A_ID);
     let long = Message::global(Mti::VERIFY_NODE_ID_GLOBAL, a, vec![0u8; 9]);
-    assert_eq!(
-        solo.node.link.send(solo.now, long),
-        Err(SendError::Encode(openlcb_can::EncodeError::GlobalTooLong(9)))
-    );
+    assert_eq!(solo.node.link.send(solo.now, long), Err(SendError::Encode(openlcb_can::EncodeError::GlobalTooLong(9))));
     // Not yet permitted: messages wait, up to the bound.
     let verify = Message::global(Mti::VERIFY_NODE_ID_GLOBAL, a, Vec::new());
     solo.node.link.send(solo.now, verify.clone()).unwrap();
+    assert!(solo.node.link.can_send());
     solo.node.link.send(solo.now, verify.clone()).unwrap();
+    assert!(!solo.node.link.can_send());
     assert_eq!(solo.node.link.send(solo.now, verify), Err(SendError::QueueFull));
     assert_eq!(solo.node.link.stats().send_refused, 2);
     assert_eq!(solo.node.link.queued_messages(), 2);
+}
+
+#[test]
+fn message_network_basics_pass_through_the_link() {
+    let mut solo = Solo::permitted();
+    solo.inject(&[":X10701456N050101012201;"]);
+    // Verify Node ID, global and addressed: Verified Node ID (global, 6 bytes).
+    assert_eq!(solo.inject(&[":X19490456N;"]), [":X19170123N050101012200;"]);
+    assert_eq!(solo.inject(&[":X19490456N050101012200;"]), [":X19170123N050101012200;"]);
+    assert_eq!(solo.inject(&[":X19490456N050101012209;"]), Vec::<String>::new(), "asks for another node");
+    assert_eq!(solo.inject(&[":X19488456N0123;"]), [":X19170123N050101012200;"]);
+    // Protocol Support Inquiry: the reply carries the Stream bit, addressed to 0x456.
+    assert_eq!(solo.inject(&[":X19828456N0123;"]), [":X19668123N0456200000000000;"]);
+    // An unknown addressed MTI gets OIR 0x1043 quoting it.
+    assert_eq!(solo.inject(&[":X19C48456N0123;"]), [":X19068123N045610430C48;"]);
 }

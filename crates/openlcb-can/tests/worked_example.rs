@@ -18,68 +18,24 @@ fn two_nodes() -> Bus {
 }
 
 fn opened(node: &Node, handle: StreamHandle) -> bool {
-    node.events
-        .iter()
-        .any(|e| matches!(e, Event::Opened { handle: h, .. } if *h == handle))
+    node.events.iter().any(|e| matches!(e, Event::Opened { handle: h, .. } if *h == handle))
 }
 
 #[test]
 fn login_frames_of_a_and_b() {
     let mut bus = two_nodes();
     bus.pump();
-    assert_eq!(
-        bus.sent_by(A),
-        [
-            ":X17050123N;",
-            ":X16101123N;",
-            ":X15012123N;",
-            ":X14200123N;"
-        ]
-    );
-    assert_eq!(
-        bus.sent_by(B),
-        [
-            ":X17050456N;",
-            ":X16101456N;",
-            ":X15012456N;",
-            ":X14201456N;"
-        ]
-    );
+    assert_eq!(bus.sent_by(A), [":X17050123N;", ":X16101123N;", ":X15012123N;", ":X14200123N;"]);
+    assert_eq!(bus.sent_by(B), [":X17050456N;", ":X16101456N;", ":X15012456N;", ":X14201456N;"]);
     // Nothing more before the 200 ms are up.
     bus.advance_to(Instant::from_millis(199));
     assert_eq!(bus.trace.len(), 8);
     bus.advance_to(Instant::from_millis(200));
-    assert_eq!(
-        bus.sent_by(A)[4..],
-        [
-            ":X10700123N;",
-            ":X10701123N050101012200;",
-            ":X19100123N050101012200;"
-        ]
-    );
-    assert_eq!(
-        bus.sent_by(B)[4..],
-        [
-            ":X10700456N;",
-            ":X10701456N050101012201;",
-            ":X19100456N050101012201;"
-        ]
-    );
+    assert_eq!(bus.sent_by(A)[4..], [":X10700123N;", ":X10701123N050101012200;", ":X19100123N050101012200;"]);
+    assert_eq!(bus.sent_by(B)[4..], [":X10700456N;", ":X10701456N050101012201;", ":X19100456N050101012201;"]);
     // Each learnt the other's alias from its AMD / Initialization Complete.
-    assert_eq!(
-        bus.nodes[A]
-            .link
-            .alias_of(node_id(B_ID))
-            .map(|a| a.as_raw()),
-        Some(0x456)
-    );
-    assert_eq!(
-        bus.nodes[B]
-            .link
-            .alias_of(node_id(A_ID))
-            .map(|a| a.as_raw()),
-        Some(0x123)
-    );
+    assert_eq!(bus.nodes[A].link.alias_of(node_id(B_ID)).map(|a| a.as_raw()), Some(0x456));
+    assert_eq!(bus.nodes[B].link.alias_of(node_id(A_ID)).map(|a| a.as_raw()), Some(0x123));
 }
 
 #[test]
@@ -92,10 +48,7 @@ fn twenty_bytes_from_a_to_b_frame_for_frame() {
     // of the example gets DID 7 as published.
     for _ in 0..7 {
         let now = bus.now;
-        let handle = bus.nodes[A]
-            .endpoint
-            .open(now, OpenOptions::new(b, 16))
-            .unwrap();
+        let handle = bus.nodes[A].endpoint.open(now, OpenOptions::new(b, 16)).unwrap();
         bus.pump();
         assert!(opened(&bus.nodes[A], handle));
         bus.nodes[A].endpoint.finish(now, handle).unwrap();
@@ -114,10 +67,7 @@ fn twenty_bytes_from_a_to_b_frame_for_frame() {
     let sent = bus.nodes[A].endpoint.write(now, stream, &data).unwrap();
     assert_eq!(sent, 16, "one window of credit");
     bus.pump();
-    let rest = bus.nodes[A]
-        .endpoint
-        .write(now, stream, &data[sent..])
-        .unwrap();
+    let rest = bus.nodes[A].endpoint.write(now, stream, &data[sent..]).unwrap();
     assert_eq!(rest, 4, "credit back after the Proceed");
     bus.nodes[A].endpoint.finish(now, stream).unwrap();
     bus.pump();

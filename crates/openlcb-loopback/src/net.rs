@@ -993,8 +993,8 @@ impl Network {
         let mut moved = false;
         match &mut node.port {
             Port::Can { bus, port, link } => {
-                let limit = link.config().transmit_queue_limit;
-                while link.queued_messages() < limit {
+                // Take from the endpoint only what the link can queue: a refused message is lost.
+                while link.can_send() {
                     let Some(message) = node.endpoint.poll_transmit() else { break };
                     let _ = link.send(now, message);
                     moved = true;

@@ -31,10 +31,7 @@ pub fn text(frame: &CanFrame) -> String {
 pub fn frame(text: &str) -> CanFrame {
     let mut decoder = GridConnectDecoder::new();
     let mut input = text.as_bytes();
-    let frame = decoder
-        .decode(&mut input)
-        .expect("a whole frame")
-        .expect("a valid frame");
+    let frame = decoder.decode(&mut input).expect("a whole frame").expect("a valid frame");
     assert!(input.is_empty(), "one frame only: {text}");
     frame
 }
@@ -78,8 +75,7 @@ impl Node {
     /// Feeds one frame from the bus.
     pub fn receive(&mut self, now: Instant, frame: &CanFrame) {
         let endpoint = &mut self.endpoint;
-        self.link
-            .handle_frame(now, frame, |msg| endpoint.handle_message(now, msg));
+        self.link.handle_frame(now, frame, |msg| endpoint.handle_message(now, msg));
     }
 
     /// Link events to the endpoint, endpoint messages to the link, data read. Returns the
@@ -88,9 +84,7 @@ impl Node {
         while let Some(event) = self.link.poll_event() {
             match event {
                 LinkEvent::AliasLost { .. } => self.endpoint.link_lost(),
-                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => {
-                    self.endpoint.peer_lost(node)
-                }
+                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.endpoint.peer_lost(node),
                 _ => {}
             }
             self.link_events.push(event);
@@ -107,18 +101,13 @@ impl Node {
             self.events.push(event);
         }
         while let Some(msg) = self.endpoint.poll_transmit() {
-            self.link
-                .send(now, msg)
-                .expect("the link takes the message");
+            self.link.send(now, msg).expect("the link takes the message");
         }
         core::iter::from_fn(|| self.link.poll_transmit()).collect()
     }
 
     pub fn poll_timeout(&self) -> Option<Instant> {
-        [self.link.poll_timeout(), self.endpoint.poll_timeout()]
-            .into_iter()
-            .flatten()
-            .min()
+        [self.link.poll_timeout(), self.endpoint.poll_timeout()].into_iter().flatten().min()
     }
 }
 
@@ -131,11 +120,7 @@ pub struct Bus {
 
 impl Bus {
     pub fn new(nodes: Vec<Node>) -> Self {
-        Bus {
-            now: Instant::ZERO,
-            nodes,
-            trace: Vec::new(),
-        }
+        Bus { now: Instant::ZERO, nodes, trace: Vec::new() }
     }
 
     /// Moves frames between the nodes until no one has anything to send.
@@ -199,11 +184,7 @@ impl Bus {
 
     /// The trace of one sender as text.
     pub fn sent_by(&self, sender: usize) -> Vec<&str> {
-        self.trace
-            .iter()
-            .filter(|(s, _)| *s == sender)
-            .map(|(_, t)| t.as_str())
-            .collect()
+        self.trace.iter().filter(|(s, _)| *s == sender).map(|(_, t)| t.as_str()).collect()
     }
 
     /// Forgets the trace so far.

@@ -11,20 +11,8 @@ pub struct Vector {
     pub payload: &'static [u8],
 }
 
-const fn v(
-    text: &'static str,
-    mti: Mti,
-    source: u16,
-    destination: u16,
-    payload: &'static [u8],
-) -> Vector {
-    Vector {
-        text,
-        mti,
-        source,
-        destination,
-        payload,
-    }
+const fn v(text: &'static str, mti: Mti, source: u16, destination: u16, payload: &'static [u8]) -> Vector {
+    Vector { text, mti, source, destination, payload }
 }
 
 pub const REQ: Mti = Mti::STREAM_INITIATE_REQUEST;
@@ -36,192 +24,36 @@ pub const COMPLETE: Mti = Mti::STREAM_DATA_COMPLETE;
 /// §9.1 (a)-(d), every complete frame (the elided `:X1F4AA321N5A…` of (c) has no bytes).
 pub const STREAM_TRACES: &[Vector] = &[
     // (a) OpenMRN StreamSender.cxxtest
-    v(
-        ":X19CC822AN0225FFFF0000AAFF;",
-        REQ,
-        0x22A,
-        0x225,
-        &[0xFF, 0xFF, 0, 0, 0xAA, 0xFF],
-    ),
-    v(
-        ":X19CC822AN0225EF320000AAFF;",
-        REQ,
-        0x22A,
-        0x225,
-        &[0xEF, 0x32, 0, 0, 0xAA, 0xFF],
-    ),
-    v(
-        ":X19868225N022A00088000AA55;",
-        REPLY,
-        0x225,
-        0x22A,
-        &[0, 8, 0x80, 0, 0xAA, 0x55],
-    ),
-    v(
-        ":X19868225N022A00001234AA55;",
-        REPLY,
-        0x225,
-        0x22A,
-        &[0, 0, 0x12, 0x34, 0xAA, 0x55],
-    ),
-    v(
-        ":X1F22522AN55414243;",
-        DATA,
-        0x22A,
-        0x225,
-        &[0x55, 0x41, 0x42, 0x43],
-    ),
-    v(
-        ":X1F22522AN554445464748494A;",
-        DATA,
-        0x22A,
-        0x225,
-        &[0x55, 0x44, 0x45, 0x46, 0x47, 0x48, 0x49, 0x4A],
-    ),
-    v(
-        ":X1F22522AN554B4C;",
-        DATA,
-        0x22A,
-        0x225,
-        &[0x55, 0x4B, 0x4C],
-    ),
+    v(":X19CC822AN0225FFFF0000AAFF;", REQ, 0x22A, 0x225, &[0xFF, 0xFF, 0, 0, 0xAA, 0xFF]),
+    v(":X19CC822AN0225EF320000AAFF;", REQ, 0x22A, 0x225, &[0xEF, 0x32, 0, 0, 0xAA, 0xFF]),
+    v(":X19868225N022A00088000AA55;", REPLY, 0x225, 0x22A, &[0, 8, 0x80, 0, 0xAA, 0x55]),
+    v(":X19868225N022A00001234AA55;", REPLY, 0x225, 0x22A, &[0, 0, 0x12, 0x34, 0xAA, 0x55]),
+    v(":X1F22522AN55414243;", DATA, 0x22A, 0x225, &[0x55, 0x41, 0x42, 0x43]),
+    v(":X1F22522AN554445464748494A;", DATA, 0x22A, 0x225, &[0x55, 0x44, 0x45, 0x46, 0x47, 0x48, 0x49, 0x4A]),
+    v(":X1F22522AN554B4C;", DATA, 0x22A, 0x225, &[0x55, 0x4B, 0x4C]),
     v(":X19888225N022AAA55;", PROCEED, 0x225, 0x22A, &[0xAA, 0x55]),
-    v(
-        ":X1F22522AN554D4E4F5051;",
-        DATA,
-        0x22A,
-        0x225,
-        &[0x55, 0x4D, 0x4E, 0x4F, 0x50, 0x51],
-    ),
-    v(
-        ":X198A822AN0225AA5500000000;",
-        COMPLETE,
-        0x22A,
-        0x225,
-        &[0xAA, 0x55, 0, 0, 0, 0],
-    ),
-    v(
-        ":X198A822AN0225AA5500000004;",
-        COMPLETE,
-        0x22A,
-        0x225,
-        &[0xAA, 0x55, 0, 0, 0, 4],
-    ),
+    v(":X1F22522AN554D4E4F5051;", DATA, 0x22A, 0x225, &[0x55, 0x4D, 0x4E, 0x4F, 0x50, 0x51]),
+    v(":X198A822AN0225AA5500000000;", COMPLETE, 0x22A, 0x225, &[0xAA, 0x55, 0, 0, 0, 0]),
+    v(":X198A822AN0225AA5500000004;", COMPLETE, 0x22A, 0x225, &[0xAA, 0x55, 0, 0, 0, 4]),
     // (b) OpenMRN MemoryConfigStream.cxxtest
-    v(
-        ":X19CC822AN077CFFFF00000237;",
-        REQ,
-        0x22A,
-        0x77C,
-        &[0xFF, 0xFF, 0, 0, 0x02, 0x37],
-    ),
-    v(
-        ":X1986877CN022A00F080000237;",
-        REPLY,
-        0x77C,
-        0x22A,
-        &[0, 0xF0, 0x80, 0, 0x02, 0x37],
-    ),
-    v(
-        ":X1F77C22AN3702030405060708;",
-        DATA,
-        0x22A,
-        0x77C,
-        &[0x37, 2, 3, 4, 5, 6, 7, 8],
-    ),
-    v(
-        ":X1F77C22AN37090A0B0C0D0E;",
-        DATA,
-        0x22A,
-        0x77C,
-        &[0x37, 9, 10, 11, 12, 13, 14],
-    ),
-    v(
-        ":X198A822AN077C02370000000D;",
-        COMPLETE,
-        0x22A,
-        0x77C,
-        &[0x02, 0x37, 0, 0, 0, 0x0D],
-    ),
-    v(
-        ":X1986877CN022A00F021230237;",
-        REPLY,
-        0x77C,
-        0x22A,
-        &[0, 0xF0, 0x21, 0x23, 0x02, 0x37],
-    ),
+    v(":X19CC822AN077CFFFF00000237;", REQ, 0x22A, 0x77C, &[0xFF, 0xFF, 0, 0, 0x02, 0x37]),
+    v(":X1986877CN022A00F080000237;", REPLY, 0x77C, 0x22A, &[0, 0xF0, 0x80, 0, 0x02, 0x37]),
+    v(":X1F77C22AN3702030405060708;", DATA, 0x22A, 0x77C, &[0x37, 2, 3, 4, 5, 6, 7, 8]),
+    v(":X1F77C22AN37090A0B0C0D0E;", DATA, 0x22A, 0x77C, &[0x37, 9, 10, 11, 12, 13, 14]),
+    v(":X198A822AN077C02370000000D;", COMPLETE, 0x22A, 0x77C, &[0x02, 0x37, 0, 0, 0, 0x0D]),
+    v(":X1986877CN022A00F021230237;", REPLY, 0x77C, 0x22A, &[0, 0xF0, 0x21, 0x23, 0x02, 0x37]),
     // (c) OpenMRN Bootloader.cxxtest
-    v(
-        ":X19CC8321N04AA008000001A;",
-        REQ,
-        0x321,
-        0x4AA,
-        &[0, 0x80, 0, 0, 0x1A],
-    ),
-    v(
-        ":X198684AAN0321008080001A5A;",
-        REPLY,
-        0x4AA,
-        0x321,
-        &[0, 0x80, 0x80, 0, 0x1A, 0x5A],
-    ),
-    v(
-        ":X198884AAN03211A5A0000;",
-        PROCEED,
-        0x4AA,
-        0x321,
-        &[0x1A, 0x5A, 0, 0],
-    ),
-    v(
-        ":X198A8321N04AA1A5A0000;",
-        COMPLETE,
-        0x321,
-        0x4AA,
-        &[0x1A, 0x5A, 0, 0],
-    ),
-    v(
-        ":X198684AAN0321000042201A5A;",
-        REPLY,
-        0x4AA,
-        0x321,
-        &[0, 0, 0x42, 0x20, 0x1A, 0x5A],
-    ),
+    v(":X19CC8321N04AA008000001A;", REQ, 0x321, 0x4AA, &[0, 0x80, 0, 0, 0x1A]),
+    v(":X198684AAN0321008080001A5A;", REPLY, 0x4AA, 0x321, &[0, 0x80, 0x80, 0, 0x1A, 0x5A]),
+    v(":X198884AAN03211A5A0000;", PROCEED, 0x4AA, 0x321, &[0x1A, 0x5A, 0, 0]),
+    v(":X198A8321N04AA1A5A0000;", COMPLETE, 0x321, 0x4AA, &[0x1A, 0x5A, 0, 0]),
+    v(":X198684AAN0321000042201A5A;", REPLY, 0x4AA, 0x321, &[0, 0, 0x42, 0x20, 0x1A, 0x5A]),
     // (d) Firmware Upgrade TN §4
-    v(
-        ":X19CC83CCN04AAFFFF000055;",
-        REQ,
-        0x3CC,
-        0x4AA,
-        &[0xFF, 0xFF, 0, 0, 0x55],
-    ),
-    v(
-        ":X198684AAN03CC01008000555A;",
-        REPLY,
-        0x4AA,
-        0x3CC,
-        &[0x01, 0, 0x80, 0, 0x55, 0x5A],
-    ),
-    v(
-        ":X1F4AA3CCN5AA5456112B50B99;",
-        DATA,
-        0x3CC,
-        0x4AA,
-        &[0x5A, 0xA5, 0x45, 0x61, 0x12, 0xB5, 0x0B, 0x99],
-    ),
-    v(
-        ":X198884AAN03CC555A0000;",
-        PROCEED,
-        0x4AA,
-        0x3CC,
-        &[0x55, 0x5A, 0, 0],
-    ),
-    v(
-        ":X198A83CCN04AA555A;",
-        COMPLETE,
-        0x3CC,
-        0x4AA,
-        &[0x55, 0x5A],
-    ),
+    v(":X19CC83CCN04AAFFFF000055;", REQ, 0x3CC, 0x4AA, &[0xFF, 0xFF, 0, 0, 0x55]),
+    v(":X198684AAN03CC01008000555A;", REPLY, 0x4AA, 0x3CC, &[0x01, 0, 0x80, 0, 0x55, 0x5A]),
+    v(":X1F4AA3CCN5AA5456112B50B99;", DATA, 0x3CC, 0x4AA, &[0x5A, 0xA5, 0x45, 0x61, 0x12, 0xB5, 0x0B, 0x99]),
+    v(":X198884AAN03CC555A0000;", PROCEED, 0x4AA, 0x3CC, &[0x55, 0x5A, 0, 0]),
+    v(":X198A83CCN04AA555A;", COMPLETE, 0x3CC, 0x4AA, &[0x55, 0x5A]),
 ];
 
 /// Every other published frame text: the CID sequences of §7.5, the worked example of §9.2
@@ -281,8 +113,5 @@ pub const OTHER_FRAMES: &[&str] = &[
 
 /// Every published extended frame text.
 pub fn all_frames() -> impl Iterator<Item = &'static str> {
-    STREAM_TRACES
-        .iter()
-        .map(|v| v.text)
-        .chain(OTHER_FRAMES.iter().copied())
+    STREAM_TRACES.iter().map(|v| v.text).chain(OTHER_FRAMES.iter().copied())
 }
