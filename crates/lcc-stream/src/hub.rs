@@ -1,8 +1,10 @@
-//! `lcc-stream hub`: a GridConnect TCP hub (and an OpenLCB-TCP one beside it).
+//! `lcc-stream hub`: a GridConnect TCP hub, and an OpenLCB-TCP one beside it, bridged by a
+//! gateway.
 
 use std::process::ExitCode;
 
 use clap::Args;
+use openlcb_stream::NodeId;
 use openlcb_tokio::{Hub, HubEvent, HubOptions};
 
 use crate::net::{self, GRIDCONNECT_ADDR, TCP_ADDR};
@@ -14,13 +16,20 @@ pub(crate) struct HubArgs {
     /// Where GridConnect clients connect.
     #[arg(long, value_name = "ADDR", default_value = GRIDCONNECT_ADDR)]
     listen: String,
-    /// Where OpenLCB-TCP clients connect. The two groups are not bridged: GridConnect clients
-    /// talk among themselves, OpenLCB-TCP clients among themselves.
+    /// Where OpenLCB-TCP clients connect. A gateway bridges them with the GridConnect clients
+    /// (CAN nodes and OpenLCB-TCP nodes see each other, streams included).
     #[arg(long, value_name = "ADDR", default_value = TCP_ADDR)]
     tcp_listen: String,
     /// Do not listen for OpenLCB-TCP clients.
     #[arg(long)]
     no_tcp: bool,
+    /// Keep the two groups apart: GridConnect clients talk among themselves, OpenLCB-TCP
+    /// clients among themselves.
+    #[arg(long)]
+    no_bridge: bool,
+    /// The gateway's Node ID (it is the originating node of what it forwards to OpenLCB-TCP).
+    #[arg(long, value_name = "NODE_ID", default_value = "05.01.01.01.22.FE")]
+    gateway_node_id: NodeId,
     /// Print every frame as it passes.
     #[arg(long)]
     trace: bool,
@@ -37,13 +46,19 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
     let mut options = HubOptions::default();
     options.trace = args.trace;
     options.max_queued_bytes = args.max_queue;
+    options.bridge = !args.no_bridge;
+    options.gateway_node_id = args.gateway_node_id;
     let tcp = (!args.no_tcp).then_some(args.tcp_listen.as_str());
     let mut hub = match Hub::bind(&args.listen, tcp, options).await {
         Ok(hub) => hub,
         Err(error) => return Ok(net::fail("hub", &error)),
     };
     match hub.tcp_local_addr() {
-        Some(tcp) => eprintln!("lcc-stream hub: GridConnect on {}, OpenLCB-TCP on {tcp}", hub.local_addr()),
+        Some(tcp) => eprintln!(
+            "lcc-stream hub: GridConnect on {}, OpenLCB-TCP on {tcp} ({})",
+            hub.local_addr(),
+            if args.no_bridge { "not bridged" } else { "bridged" }
+        ),
         None => eprintln!("lcc-stream hub: GridConnect on {}", hub.local_addr()),
     }
     loop {
@@ -66,7 +81,9 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
 
 fn print_event(event: &HubEvent) {
     match event {
-        HubEvent::Connected { client, peer, protocol } => eprintln!("client {client} connected from {peer} ({protocol:?})"),
+        HubEvent::Connected { client, peer, protocol } => {
+            eprintln!("client {client} connected from {peer} ({protocol:?})")
+        }
         HubEvent::Disconnected { client, reason } => eprintln!("client {client} left: {reason}"),
         HubEvent::SlowClient { client, queued } => {
             eprintln!("client {client} dropped: too slow ({queued} bytes were waiting for it)")

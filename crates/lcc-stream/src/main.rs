@@ -1,5 +1,10 @@
 //! `lcc-stream`: OpenLCB streams from the command line.
 
+mod demo;
+mod hub;
+mod net;
+mod recv;
+mod send;
 mod sim;
 
 use std::process::ExitCode;
@@ -18,12 +23,24 @@ struct Cli {
 enum Command {
     /// Run transfers on a simulated network (virtual time, bit-timed CAN bus) and report.
     Sim(sim::SimArgs),
+    /// Run a GridConnect TCP hub (and an OpenLCB-TCP one) that relays every frame to every other client.
+    Hub(hub::HubArgs),
+    /// Join the network as a node and send a file as one stream.
+    Send(send::SendArgs),
+    /// Join the network as a node and write every incoming stream to a file.
+    Recv(recv::RecvArgs),
+    /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
+    Demo(demo::DemoArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Sim(args) => sim::run(&args),
+        Command::Hub(args) => hub::run(&args),
+        Command::Send(args) => send::run(&args),
+        Command::Recv(args) => recv::run(&args),
+        Command::Demo(args) => demo::run(&args),
     };
     match result {
         Ok(code) => code,

@@ -150,12 +150,6 @@ impl Json {
         self
     }
 
-    pub(crate) fn bool(mut self, key: &str, value: bool) -> Self {
-        self.key(key);
-        self.0.push_str(if value { "true" } else { "false" });
-        self
-    }
-
     fn key(&mut self, key: &str) {
         self.0.push(if self.0.is_empty() { '{' } else { ',' });
         let _ = write!(self.0, "\"{key}\":");
@@ -176,8 +170,8 @@ mod tests {
 
     #[test]
     fn json_escapes_and_closes() {
-        let text = Json::default().str("a", "x\"y\\z\n").num("n", 3).float("f", 0.5).bool("b", true).finish();
-        assert_eq!(text, r#"{"a":"x\"y\\z\u000a","n":3,"f":0.500000,"b":true}"#);
+        let text = Json::default().str("a", "x\"y\\z\n").num("n", 3).float("f", 0.5).finish();
+        assert_eq!(text, r#"{"a":"x\"y\\z\u000a","n":3,"f":0.500000}"#);
         assert_eq!(Json::default().finish(), "{}");
     }
 }

@@ -67,9 +67,8 @@ async fn receive(args: &RecvArgs) -> Result<ExitCode, String> {
         Ok(node) => node,
         Err(error) => return Ok(net::fail("recv", &error)),
     };
-    if !args.json {
-        eprintln!("lcc-stream recv: node {} listening on {}", args.node_id, args.connect.addr());
-    }
+    // On stderr even with --json: scripts can wait for this line before starting a sender.
+    eprintln!("lcc-stream recv: node {} listening on {}", args.node_id, args.connect.addr());
     let counter = Arc::new(AtomicU64::new(0));
     let mut transfers = tokio::task::JoinSet::new();
     loop {
@@ -125,10 +124,17 @@ async fn save(mut stream: RecvStream, path: PathBuf, json: bool) -> u8 {
     let outcome = async {
         let file = tokio::fs::File::create(&part).await.map_err(Failure::File)?;
         let mut file = tokio::io::BufWriter::with_capacity(1 << 20, file);
-        while let Some(chunk) = stream.read().await.map_err(Failure::Stream)? {
-            file.write_all(&chunk).await.map_err(Failure::File)?;
+        let received = async {
+            while let Some(chunk) = stream.read().await.map_err(Failure::Stream)? {
+                file.write_all(&chunk).await.map_err(Failure::File)?;
+            }
+            Ok(())
         }
-        file.flush().await.map_err(Failure::File)?;
+        .await;
+        // Whatever arrived is in the `.part` file, also after a failure.
+        let flushed = file.flush().await.map_err(Failure::File);
+        received?;
+        flushed?;
         file.into_inner().sync_all().await.map_err(Failure::File)?;
         tokio::fs::rename(&part, &path).await.map_err(Failure::File)
     }

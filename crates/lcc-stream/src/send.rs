@@ -18,7 +18,7 @@ use crate::net::{self, ConnectArgs, Json};
 pub(crate) const DEFAULT_SENDER: &str = "05.01.01.01.22.F0";
 
 /// Bytes read from the file and handed to the stream at once.
-const CHUNK: usize = 256 * 1024;
+const CHUNK: usize = 64 * 1024;
 
 /// Options of `lcc-stream send`.
 #[derive(Debug, Args)]

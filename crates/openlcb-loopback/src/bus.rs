@@ -395,7 +395,7 @@ mod tests {
         assert_eq!(stuff(0, 10), 2, "00000 s 0000 s0: two stuff bits in ten zeros");
         assert_eq!(stuff(0, 4), 0);
         assert_eq!(stuff(0b10_1010_1010, 10), 0);
-        assert_eq!(stuff(0b11111_0000, 9), 2, "11111 s=0 joins the zeros: 0 0000 -> 5 zeros, s");
+        assert_eq!(stuff(0b1_1111_0000, 9), 2, "11111 s=0 joins the zeros: 0 0000 -> 5 zeros, s");
         assert_eq!(stuff(u128::MAX >> 8, 120), 24, "a stuff bit (a zero) after every 5 ones");
     }
 

@@ -1,0 +1,327 @@
+//! The built `lcc-stream` binary end to end: `hub`, `send`, `recv` and `demo` as separate
+//! processes on 127.0.0.1 (ephemeral ports). Every wait is bounded; children are killed when
+//! a test ends.
+
+use std::future::Future;
+use std::path::{Path, PathBuf};
+use std::process::{ExitStatus, Stdio};
+use std::time::Duration;
+
+use openlcb_stream::wire::ReplyCode;
+use openlcb_stream::{AcceptPolicy, NodeId, OpenOptions};
+use openlcb_tokio::{Hub, HubEvent, HubOptions, Node, NodeOptions, Protocol};
+use tokio::io::{AsyncBufReadExt, BufReader};
+use tokio::process::{Child, ChildStderr, Command};
+
+const LIMIT: Duration = Duration::from_secs(120);
+const BIN: &str = env!("CARGO_BIN_EXE_lcc-stream");
+const RECEIVER: &str = "05.01.01.01.22.F1";
+
+async fn bounded<T>(what: &str, future: impl Future<Output = T>) -> T {
+    match tokio::time::timeout(LIMIT, future).await {
+        Ok(value) => value,
+        Err(_) => panic!("{what} did not finish within {LIMIT:?}"),
+    }
+}
+
+/// A fresh, empty directory for one test.
+fn scratch(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lcc-stream-cli-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn data(len: usize) -> Vec<u8> {
+    (0..len).map(|i| (i as u32).wrapping_mul(2_654_435_761).rotate_right(11) as u8).collect()
+}
+
+fn spawn(args: &[&str]) -> Child {
+    Command::new(BIN)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()
+        .unwrap()
+}
+
+/// Reads `child`'s stderr until a line contains `needle`; returns that line. The rest of
+/// stderr is drained in the background so the child never blocks on it.
+async fn wait_for_line(child: &mut Child, needle: &str) -> String {
+    let stderr: ChildStderr = child.stderr.take().unwrap();
+    let mut lines = BufReader::new(stderr).lines();
+    let line = bounded(needle, async {
+        while let Some(line) = lines.next_line().await.unwrap() {
+            if line.contains(needle) {
+                return line;
+            }
+        }
+        panic!("stderr ended before a line with {needle:?}");
+    })
+    .await;
+    tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
+    line
+}
+
+/// Waits for `child` to exit; returns its status, stdout and stderr.
+async fn finish(child: Child) -> (ExitStatus, String, String) {
+    let output = bounded("a child process", child.wait_with_output()).await.unwrap();
+    let text = |bytes: Vec<u8>| String::from_utf8_lossy(&bytes).into_owned();
+    (output.status, text(output.stdout), text(output.stderr))
+}
+
+/// The value of `"key":` in a one-line JSON object, as text.
+fn field<'a>(json: &'a str, key: &str) -> &'a str {
+    let start = json.find(&format!("\"{key}\":")).unwrap_or_else(|| panic!("no {key} in {json}")) + key.len() + 3;
+    let rest = &json[start..];
+    let end = if let Some(quoted) = rest.strip_prefix('"') {
+        quoted.find('"').unwrap() + 2
+    } else {
+        rest.find([',', '}']).unwrap()
+    };
+    rest[..end].trim_matches('"')
+}
+
+/// Starts `lcc-stream hub` on ephemeral ports; returns it with its GridConnect and
+/// OpenLCB-TCP addresses.
+async fn start_hub_binary() -> (Child, String, String) {
+    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0", "--tcp-listen", "127.0.0.1:0"]);
+    let line = wait_for_line(&mut hub, "GridConnect on").await;
+    // "lcc-stream hub: GridConnect on A, OpenLCB-TCP on B"
+    let words: Vec<&str> = line.split_whitespace().collect();
+    let gridconnect = words[4].trim_end_matches(',').to_string();
+    let tcp = words[7].to_string();
+    (hub, gridconnect, tcp)
+}
+
+/// `send` (speaking `from`) to `recv` (speaking `to`) through `lcc-stream hub`.
+async fn send_file_through_the_hub_binary(from: &str, to: &str, window: &str, len: usize) {
+    let dir = scratch(&format!("send-{from}-{to}-{window}-{len}"));
+    let input = dir.join("input.bin");
+    let output = dir.join("output.bin");
+    let payload = data(len);
+    std::fs::write(&input, &payload).unwrap();
+    let (_hub, gridconnect, tcp) = start_hub_binary().await;
+    let addr_of = |protocol: &str| if protocol == "tcp" { tcp.clone() } else { gridconnect.clone() };
+
+    let out = output.to_str().unwrap();
+    let recv_addr = addr_of(to);
+    let mut recv = spawn(&["recv", "--connect", &recv_addr, "--protocol", to, "--once", "--json", "--out", out]);
+    wait_for_line(&mut recv, "listening").await;
+    let input_arg = input.to_str().unwrap();
+    let send = spawn(&[
+        "send",
+        input_arg,
+        "--to",
+        RECEIVER,
+        "--connect",
+        &addr_of(from),
+        "--protocol",
+        from,
+        "--window",
+        window,
+        "--json",
+    ]);
+    let (status, stdout, stderr) = finish(send).await;
+    assert!(status.success(), "send failed: {status} {stderr}");
+    assert_eq!(field(&stdout, "result"), "ok", "{stdout}");
+    assert_eq!(field(&stdout, "bytes"), len.to_string());
+    assert_eq!(field(&stdout, "window"), window);
+    assert!(field(&stdout, "bytes_per_s").parse::<f64>().is_ok());
+    assert!(field(&stdout, "elapsed_s").parse::<f64>().is_ok());
+
+    let (status, stdout, _) = finish(recv).await;
+    assert!(status.success(), "recv failed: {status} {stdout}");
+    assert_eq!(field(&stdout, "result"), "ok", "{stdout}");
+    assert_eq!(field(&stdout, "bytes"), len.to_string());
+    assert!(std::fs::read(&output).unwrap() == payload, "the received file differs");
+    assert!(!part(&output).exists());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+fn part(path: &Path) -> PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(".part");
+    PathBuf::from(name)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn send_and_recv_move_a_file_through_the_hub_over_gridconnect() {
+    send_file_through_the_hub_binary("gridconnect", "gridconnect", "2048", 300_001).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn send_and_recv_move_a_file_through_the_hub_over_openlcb_tcp() {
+    send_file_through_the_hub_binary("tcp", "tcp", "65535", 1_000_000).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_hub_bridges_an_openlcb_tcp_sender_to_a_gridconnect_receiver() {
+    send_file_through_the_hub_binary("tcp", "gridconnect", "65535", 200_000).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_empty_file_is_a_stream_of_zero_bytes() {
+    send_file_through_the_hub_binary("gridconnect", "gridconnect", "65535", 0).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_killed_receiver_makes_the_sender_exit_non_zero() {
+    let dir = scratch("killed");
+    let input = dir.join("input.bin");
+    let output = dir.join("output.bin");
+    std::fs::write(&input, data(8 * 1024 * 1024)).unwrap();
+    let mut options = HubOptions::default();
+    options.trace = true;
+    let mut hub = Hub::bind("127.0.0.1:0", None, options).await.unwrap();
+    let addr = hub.local_addr().to_string();
+
+    let mut recv = spawn(&["recv", "--connect", &addr, "--once", "--out", output.to_str().unwrap()]);
+    wait_for_line(&mut recv, "listening").await;
+    let send = spawn(&[
+        "send",
+        input.to_str().unwrap(),
+        "--to",
+        RECEIVER,
+        "--connect",
+        &addr,
+        "--window",
+        "2048",
+        "--timeout",
+        "2",
+    ]);
+    // Kill the receiver once stream data (CAN frame type 7, `:X1F...`) is passing.
+    bounded("stream data at the hub", async {
+        loop {
+            match hub.next_event().await {
+                Some(HubEvent::Frame { text, .. }) if text.starts_with(":X1F") => break,
+                Some(_) => {}
+                None => panic!("the hub stopped"),
+            }
+        }
+    })
+    .await;
+    recv.kill().await.unwrap();
+
+    let (status, _, stderr) = finish(send).await;
+    assert_eq!(status.code(), Some(5), "{stderr}");
+    assert!(stderr.contains("05.01.01.01.22.F1") && stderr.contains("credit"), "{stderr}");
+    assert!(!output.exists(), "a killed receiver left a file under the final name");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_terminated_stream_stays_part_and_recv_says_how_much_arrived() {
+    let dir = scratch("terminated");
+    let output = dir.join("output.bin");
+    let hub = Hub::bind("127.0.0.1:0", None, HubOptions::default()).await.unwrap();
+    let addr = hub.local_addr().to_string();
+    let mut recv = spawn(&["recv", "--connect", &addr, "--once", "--json", "--out", output.to_str().unwrap()]);
+    wait_for_line(&mut recv, "listening").await;
+
+    let sender = bounded(
+        "join",
+        Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(NodeId::new(0x0501_0101_22A0).unwrap())),
+    )
+    .await
+    .unwrap();
+    let mut stream = bounded("open", sender.open(OpenOptions::new(RECEIVER.parse().unwrap(), 2048))).await.unwrap();
+    bounded("write", stream.write_all(data(5000))).await.unwrap();
+    stream.abort();
+
+    let (status, stdout, _) = finish(recv).await;
+    assert_eq!(status.code(), Some(7), "{stdout}");
+    assert_eq!(field(&stdout, "result"), "terminated", "{stdout}");
+    let arrived: u64 = field(&stdout, "bytes").parse().unwrap();
+    assert!(arrived <= 5000);
+    assert!(!output.exists(), "a terminated stream was renamed to the final name");
+    assert_eq!(std::fs::metadata(part(&output)).unwrap().len(), arrived);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_rejected_stream_exits_4_with_the_meaning() {
+    let dir = scratch("rejected");
+    let input = dir.join("input.bin");
+    std::fs::write(&input, data(100)).unwrap();
+    let hub = Hub::bind("127.0.0.1:0", None, HubOptions::default()).await.unwrap();
+    let addr = hub.local_addr().to_string();
+    let mut options = NodeOptions::new(RECEIVER.parse().unwrap());
+    options.config.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
+    let _busy = bounded("join", Node::connect(&addr, Protocol::GridConnect, options)).await.unwrap();
+
+    let send = spawn(&["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &addr]);
+    let (status, _, stderr) = finish(send).await;
+    assert_eq!(status.code(), Some(4), "{stderr}");
+    assert!(stderr.contains("0x2020") && stderr.contains("buffer unavailable"), "{stderr}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unreachable_hub_exits_3() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let addr = format!("127.0.0.1:{port}");
+    let dir = scratch("unreachable");
+    let input = dir.join("input.bin");
+    std::fs::write(&input, data(10)).unwrap();
+    let send = spawn(&["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &addr, "--json"]);
+    let (status, stdout, stderr) = finish(send).await;
+    assert_eq!(status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains("cannot reach the hub") && stderr.contains(&addr), "{stderr}");
+    assert_eq!(field(&stdout, "result"), "unreachable_hub");
+    let recv = spawn(&["recv", "--connect", &addr]);
+    assert_eq!(finish(recv).await.0.code(), Some(3));
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_demo_verifies_its_transfer() {
+    for protocol in ["gridconnect", "tcp"] {
+        let demo = spawn(&["demo", "--bytes", "200000", "--protocol", protocol]);
+        let (status, stdout, stderr) = finish(demo).await;
+        assert!(status.success(), "{stdout}{stderr}");
+        assert!(stdout.contains("verified: every byte arrived"), "{stdout}");
+        assert!(stdout.contains("moved 200000 bytes"), "{stdout}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hub_that_goes_away_mid_transfer_makes_send_exit_6() {
+    let dir = scratch("hub-gone");
+    let input = dir.join("input.bin");
+    std::fs::write(&input, data(8 * 1024 * 1024)).unwrap();
+    let mut options = HubOptions::default();
+    options.trace = true;
+    let mut hub = Hub::bind("127.0.0.1:0", None, options).await.unwrap();
+    let addr = hub.local_addr().to_string();
+    let mut receiver =
+        bounded("join", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(RECEIVER.parse().unwrap())))
+            .await
+            .unwrap();
+    // Reads whatever comes until the connection goes.
+    tokio::spawn(async move {
+        if let Ok(mut stream) = receiver.accept().await {
+            while let Ok(Some(_)) = stream.read().await {}
+        }
+    });
+
+    let send = spawn(&["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &addr, "--window", "2048"]);
+    bounded("stream data at the hub", async {
+        loop {
+            match hub.next_event().await {
+                Some(HubEvent::Frame { text, .. }) if text.starts_with(":X1F") => break,
+                Some(_) => {}
+                None => panic!("the hub stopped"),
+            }
+        }
+    })
+    .await;
+    drop(hub);
+
+    let (status, _, stderr) = finish(send).await;
+    assert_eq!(status.code(), Some(6), "{stderr}");
+    assert!(stderr.contains("connection to the hub lost"), "{stderr}");
+    let _ = std::fs::remove_dir_all(dir);
+}

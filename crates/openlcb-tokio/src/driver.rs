@@ -1,0 +1,468 @@
+//! The driver task of a [`Node`](crate::Node): it owns the socket, the stream endpoint and the
+//! link, and runs the sans-IO drive loop (handle input, drain outputs, arm the timer) between
+//! the socket, the clock and the handles' commands.
+
+use std::collections::HashMap;
+
+use bytes::{Bytes, BytesMut};
+use openlcb_stream::wire::ErrorCode;
+use openlcb_stream::{Event, Instant, NodeId, Role, StreamEndpoint, StreamError, StreamHandle, StreamInfo};
+use tokio::net::TcpStream;
+use tokio::sync::{mpsc, oneshot};
+
+use crate::node::{Command, Control, NodeStats, Shared};
+use crate::wire::{Wire, WireStats};
+use crate::{Error, NodeOptions, Protocol, RecvStream};
+
+/// Bytes read from the socket at once.
+const READ_CHUNK: usize = 64 * 1024;
+/// Received stream data the driver holds per stream for a reader that has not asked yet.
+/// Taking data out of the endpoint frees its buffer, which sends the next Proceed; past this
+/// bound the driver stops taking, and a slow reader slows the source.
+const STAGING_LIMIT: usize = 256 * 1024;
+/// Rounds of the inner loop per wake-up, so that reading the socket and the commands is not
+/// starved while data moves.
+const ROUNDS: usize = 8;
+
+type OpenReply = oneshot::Sender<Result<(StreamHandle, StreamInfo), Error>>;
+type DoneReply = oneshot::Sender<Result<(), Error>>;
+type ReadReply = oneshot::Sender<Result<Option<Bytes>, Error>>;
+
+/// A stream this node opened.
+struct Sending {
+    peer: NodeId,
+    /// Waiting for Opened or Rejected.
+    opening: Option<OpenReply>,
+    /// Data the endpoint has not taken yet, from the offset, and who waits for it.
+    write: Option<(Bytes, DoneReply)>,
+    /// The stream ended early; the next command on it gets this.
+    failed: Option<Error>,
+}
+
+/// A stream another node opened to this one.
+struct Receiving {
+    peer: NodeId,
+    /// Data taken from the endpoint, not yet handed to the reader.
+    staging: BytesMut,
+    /// A reader waiting for data.
+    reader: Option<ReadReply>,
+    /// How the stream ended, once it has.
+    end: Option<Result<(), Error>>,
+}
+
+pub(crate) struct Driver {
+    socket: TcpStream,
+    start: tokio::time::Instant,
+    endpoint: StreamEndpoint,
+    wire: Wire,
+    stats: WireStats,
+    commands: mpsc::Receiver<Command>,
+    /// To give accepted streams a way back without keeping the driver alive.
+    weak_commands: mpsc::WeakSender<Command>,
+    incoming: mpsc::Sender<RecvStream>,
+    shared: Shared,
+    sends: HashMap<StreamHandle, Sending>,
+    recvs: HashMap<StreamHandle, Receiving>,
+    /// `finish` calls waiting until everything has been written to the socket.
+    flush_waiters: Vec<DoneReply>,
+    read_buf: Vec<u8>,
+    scratch: Vec<u8>,
+}
+
+impl Driver {
+    pub(crate) fn new(
+        socket: TcpStream,
+        protocol: Protocol,
+        options: NodeOptions,
+        commands: mpsc::Receiver<Command>,
+        weak_commands: mpsc::WeakSender<Command>,
+        incoming: mpsc::Sender<RecvStream>,
+        shared: Shared,
+    ) -> Self {
+        let NodeOptions { node_id, config, can, .. } = options;
+        Driver {
+            socket,
+            start: tokio::time::Instant::now(),
+            endpoint: StreamEndpoint::new(node_id, config),
+            wire: Wire::new(protocol, Instant::ZERO, node_id, can),
+            stats: WireStats::default(),
+            commands,
+            weak_commands,
+            incoming,
+            shared,
+            sends: HashMap::new(),
+            recvs: HashMap::new(),
+            flush_waiters: Vec::new(),
+            read_buf: vec![0; READ_CHUNK],
+            scratch: vec![0; READ_CHUNK],
+        }
+    }
+
+    /// Runs until the connection is lost or every handle is gone. `up` is told once the node
+    /// may talk (alias permitted). Everyone still waiting then gets the error.
+    pub(crate) async fn run(mut self, up: oneshot::Sender<()>) {
+        let error = self.drive(up).await;
+        // Handles that find their channel closed read this; the states dropped with `self`
+        // close the channels of everyone still waiting.
+        self.shared.set(error);
+    }
+
+    /// Microseconds since the driver started: the core's clock.
+    fn now(&self) -> Instant {
+        Instant::from_micros(u64::try_from(self.start.elapsed().as_micros()).unwrap_or(u64::MAX))
+    }
+
+    async fn drive(&mut self, up: oneshot::Sender<()>) -> Error {
+        let mut up = Some(up);
+        let sleep = tokio::time::sleep_until(self.start);
+        tokio::pin!(sleep);
+        loop {
+            let busy = match self.step() {
+                Ok(busy) => busy,
+                Err(error) => return error,
+            };
+            if self.wire.is_up() {
+                if let Some(up) = up.take() {
+                    let _ = up.send(());
+                }
+            }
+            let deadline = [self.wire.poll_timeout(), self.endpoint.poll_timeout()].into_iter().flatten().min();
+            if let Some(at) = deadline {
+                sleep.as_mut().reset(self.start + std::time::Duration::from_micros(at.as_micros()));
+            }
+            let want_write = !self.wire.pending().is_empty();
+            tokio::select! {
+                ready = self.socket.readable() => {
+                    if let Err(error) = ready.map_err(Error::lost).and_then(|()| self.read_socket()) {
+                        return error;
+                    }
+                }
+                ready = self.socket.writable(), if want_write => {
+                    if let Err(error) = ready.map_err(Error::lost).and_then(|()| self.write_socket()) {
+                        return error;
+                    }
+                }
+                command = self.commands.recv() => match command {
+                    Some(command) => self.command(command),
+                    None => {
+                        // Every handle is gone: write what is left, then stop.
+                        let _ = tokio::time::timeout(std::time::Duration::from_secs(1), self.flush()).await;
+                        return Error::Closed;
+                    }
+                },
+                () = &mut sleep, if deadline.is_some() => {}
+                // More work was left at once: come back after letting other tasks run.
+                () = tokio::task::yield_now(), if busy => {}
+            }
+        }
+    }
+
+    /// The drive loop's work at one instant: timers, events, application data in and out,
+    /// framing, writing. Repeats while data moves, at most [`ROUNDS`] times; returns `true`
+    /// if there may be more to do at once (the caller comes back without waiting).
+    fn step(&mut self) -> Result<bool, Error> {
+        let now = self.now();
+        let deadline = [self.wire.poll_timeout(), self.endpoint.poll_timeout()].into_iter().flatten().min();
+        if deadline.is_some_and(|at| at <= now) {
+            self.wire.handle_timeout(now);
+            self.endpoint.handle_timeout(now);
+        }
+        let mut busy = false;
+        for _ in 0..ROUNDS {
+            self.wire.poll_events(&mut self.endpoint)?;
+            self.endpoint_events(now);
+            let moved = self.feed_writes(now) + self.fill_reads(now);
+            self.endpoint_events(now);
+            self.deliver_reads();
+            let written = self.write_out(now)?;
+            busy = moved > 0 || written > 0;
+            if !busy {
+                break;
+            }
+        }
+        if self.wire.is_flushed() {
+            for waiter in self.flush_waiters.drain(..) {
+                let _ = waiter.send(Ok(()));
+            }
+        }
+        Ok(busy)
+    }
+
+    /// Frames what the endpoint has queued and writes it, framing more while the socket takes
+    /// everything (a window's frames may not fit under the high-water mark at once). Returns
+    /// the bytes written; a full socket stops it (`writable` wakes the loop again).
+    fn write_out(&mut self, now: Instant) -> Result<usize, Error> {
+        let mut written = 0;
+        loop {
+            self.wire.pump(now, &mut self.endpoint, &mut self.stats);
+            let pending = self.wire.pending().len();
+            if pending == 0 {
+                return Ok(written);
+            }
+            self.write_socket()?;
+            let left = self.wire.pending().len();
+            written += pending - left;
+            if left > 0 {
+                return Ok(written);
+            }
+        }
+    }
+
+    fn read_socket(&mut self) -> Result<(), Error> {
+        match self.socket.try_read(&mut self.read_buf) {
+            Ok(0) => Err(Error::closed_by_hub()),
+            Ok(n) => {
+                let now = self.now();
+                let bytes = self.read_buf.get(..n).unwrap_or_default();
+                self.wire.receive(now, bytes, &mut self.endpoint, &mut self.stats)
+            }
+            Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => Ok(()),
+            Err(error) => Err(Error::lost(error)),
+        }
+    }
+
+    /// Writes everything pending in one call (the socket may take less).
+    fn write_socket(&mut self) -> Result<(), Error> {
+        let pending = self.wire.pending();
+        if pending.is_empty() {
+            return Ok(());
+        }
+        match self.socket.try_write(pending) {
+            Ok(n) => {
+                self.wire.advance(n, &mut self.stats);
+                Ok(())
+            }
+            Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => Ok(()),
+            Err(error) => Err(Error::lost(error)),
+        }
+    }
+
+    /// Writes until every framed byte is out.
+    async fn flush(&mut self) -> Result<(), Error> {
+        loop {
+            self.wire.pump(self.now(), &mut self.endpoint, &mut self.stats);
+            if self.wire.pending().is_empty() {
+                return Ok(());
+            }
+            self.socket.writable().await.map_err(Error::lost)?;
+            self.write_socket()?;
+        }
+    }
+
+    // ----- commands from the handles -----
+
+    fn command(&mut self, command: Command) {
+        let now = self.now();
+        match command {
+            Command::Open { options, reply } => match self.endpoint.open(now, options) {
+                Ok(handle) => {
+                    let sending =
+                        Sending { peer: options.destination, opening: Some(reply), write: None, failed: None };
+                    self.sends.insert(handle, sending);
+                }
+                Err(error) => {
+                    let _ = reply.send(Err(error.into()));
+                }
+            },
+            Command::Write { handle, data, reply } => match self.sends.get_mut(&handle) {
+                Some(Sending { failed: Some(error), .. }) => {
+                    let _ = reply.send(Err(error.clone()));
+                    self.sends.remove(&handle);
+                }
+                Some(sending) if sending.write.is_none() => sending.write = Some((data, reply)),
+                _ => {
+                    let _ = reply.send(Err(StreamError::NotOpen.into()));
+                }
+            },
+            Command::Finish { handle, reply } => match self.sends.remove(&handle) {
+                Some(Sending { failed: Some(error), .. }) => {
+                    let _ = reply.send(Err(error));
+                }
+                Some(_) => match self.endpoint.finish(now, handle) {
+                    Ok(()) => self.flush_waiters.push(reply),
+                    Err(error) => {
+                        let _ = reply.send(Err(error.into()));
+                    }
+                },
+                None => {
+                    let _ = reply.send(Err(StreamError::UnknownStream.into()));
+                }
+            },
+            Command::Abort { handle, code } => {
+                self.sends.remove(&handle);
+                self.recvs.remove(&handle);
+                let _ = self.endpoint.abort(now, handle, code);
+            }
+            Command::Read { handle, reply } => match self.recvs.get_mut(&handle) {
+                Some(receiving) => receiving.reader = Some(reply),
+                None => {
+                    let _ = reply.send(Err(StreamError::UnknownStream.into()));
+                }
+            },
+            Command::Stats { reply } => {
+                let _ = reply.send(NodeStats { wire: self.stats, endpoint: self.endpoint.stats() });
+            }
+        }
+    }
+
+    // ----- the endpoint's events -----
+
+    fn endpoint_events(&mut self, now: Instant) {
+        while let Some(event) = self.endpoint.poll_event() {
+            match event {
+                Event::Opened { handle, info } if info.role == Role::Source => {
+                    if let Some(reply) = self.sends.get_mut(&handle).and_then(|s| s.opening.take()) {
+                        let _ = reply.send(Ok((handle, info)));
+                    }
+                }
+                Event::Opened { handle, info } => self.incoming_stream(now, handle, info),
+                Event::Rejected { handle, code, .. } => {
+                    if let Some(sending) = self.sends.remove(&handle) {
+                        if let Some(reply) = sending.opening {
+                            let _ = reply.send(Err(Error::Rejected { peer: sending.peer, code }));
+                        }
+                    }
+                }
+                Event::Finished { handle, total, stated, matched } => {
+                    if let Some(receiving) = self.recvs.get_mut(&handle) {
+                        receiving.end = Some(if matched {
+                            Ok(())
+                        } else {
+                            Err(Error::CountMismatch { received: total, stated: stated.unwrap_or(0) })
+                        });
+                    }
+                }
+                Event::Terminated { handle, cause } => {
+                    let opening = self.sends.get(&handle).is_some_and(|s| s.opening.is_some());
+                    self.fail(handle, |peer| match cause {
+                        openlcb_stream::Termination::PeerLost if opening => Error::Unreachable(peer),
+                        cause => Error::Terminated { peer, cause },
+                    });
+                }
+                Event::TimedOut { handle, kind } => self.fail(handle, |peer| Error::TimedOut { peer, kind }),
+                _ => {}
+            }
+        }
+    }
+
+    /// The stream ended early: whoever waits on it learns why, now or at the next command.
+    fn fail(&mut self, handle: StreamHandle, error: impl FnOnce(NodeId) -> Error) {
+        if let Some(sending) = self.sends.get_mut(&handle) {
+            let error = error(sending.peer);
+            if let Some(reply) = sending.opening.take() {
+                let _ = reply.send(Err(error));
+                self.sends.remove(&handle);
+            } else if let Some((_, reply)) = sending.write.take() {
+                let _ = reply.send(Err(error));
+                self.sends.remove(&handle);
+            } else {
+                sending.failed = Some(error);
+            }
+        } else if let Some(receiving) = self.recvs.get_mut(&handle) {
+            receiving.end = Some(Err(error(receiving.peer)));
+        }
+    }
+
+    /// A stream to this node was accepted: hand it to [`Node::accept`](crate::Node::accept),
+    /// or terminate it if nobody can take it.
+    fn incoming_stream(&mut self, now: Instant, handle: StreamHandle, info: StreamInfo) {
+        let Some(commands) = self.weak_commands.upgrade() else {
+            let _ = self.endpoint.abort(now, handle, ErrorCode::BUFFER_UNAVAILABLE);
+            return;
+        };
+        let control = Control { commands, shared: self.shared.clone() };
+        match self.incoming.try_send(RecvStream::new(handle, info, control)) {
+            Ok(()) => {
+                let receiving = Receiving { peer: info.peer, staging: BytesMut::new(), reader: None, end: None };
+                self.recvs.insert(handle, receiving);
+            }
+            Err(refused) => {
+                refused.into_inner().forget();
+                let _ = self.endpoint.abort(now, handle, ErrorCode::BUFFER_UNAVAILABLE);
+            }
+        }
+    }
+
+    // ----- data -----
+
+    /// Gives pending application data to the endpoint while the output has room; returns the
+    /// bytes taken. Completed writes are answered, which lets the application send more.
+    fn feed_writes(&mut self, now: Instant) -> usize {
+        let mut taken = 0;
+        for (&handle, sending) in &mut self.sends {
+            if !self.wire.has_room() {
+                break;
+            }
+            let Some((data, _)) = &mut sending.write else { continue };
+            match self.endpoint.write(now, handle, data) {
+                Ok(n) => {
+                    taken += n;
+                    bytes::Buf::advance(data, n);
+                    if data.is_empty() {
+                        if let Some((_, reply)) = sending.write.take() {
+                            let _ = reply.send(Ok(()));
+                        }
+                    }
+                }
+                Err(StreamError::NotOpen) => {}
+                Err(error) => {
+                    if let Some((_, reply)) = sending.write.take() {
+                        let _ = reply.send(Err(error.into()));
+                    }
+                }
+            }
+            // Put the new Data Sends into the output now, so `has_room` sees them.
+            self.wire.pump(now, &mut self.endpoint, &mut self.stats);
+        }
+        taken
+    }
+
+    /// Takes received data out of the endpoint into each stream's staging buffer, up to the
+    /// limit; returns the bytes taken.
+    fn fill_reads(&mut self, now: Instant) -> usize {
+        let mut taken = 0;
+        for (&handle, receiving) in &mut self.recvs {
+            while receiving.staging.len() < STAGING_LIMIT {
+                let room = (STAGING_LIMIT - receiving.staging.len()).min(self.scratch.len());
+                let Some(buf) = self.scratch.get_mut(..room) else { break };
+                match self.endpoint.read(now, handle, buf) {
+                    Ok(n @ 1..) => {
+                        receiving.staging.extend_from_slice(buf.get(..n).unwrap_or_default());
+                        taken += n;
+                    }
+                    _ => break,
+                }
+            }
+        }
+        taken
+    }
+
+    /// Answers waiting readers with staged data, or with the end once everything was read.
+    fn deliver_reads(&mut self) {
+        let endpoint = &self.endpoint;
+        self.recvs.retain(|&handle, receiving| {
+            if receiving.reader.is_none() {
+                return true;
+            }
+            if !receiving.staging.is_empty() {
+                if let Some(reply) = receiving.reader.take() {
+                    let _ = reply.send(Ok(Some(receiving.staging.split().freeze())));
+                }
+                return true;
+            }
+            let drained = endpoint.buffered(handle).unwrap_or(0) == 0;
+            match receiving.end.take() {
+                Some(end) if drained => {
+                    if let Some(reply) = receiving.reader.take() {
+                        let _ = reply.send(end.map(|()| None));
+                    }
+                    false
+                }
+                end => {
+                    receiving.end = end;
+                    true
+                }
+            }
+        });
+    }
+}

@@ -1,0 +1,128 @@
+//! [`Error`]: everything a node, a stream or a hub can fail with, worded for a person.
+
+use std::io;
+use std::sync::Arc;
+
+use openlcb_stream::wire::{ReplyClass, ReplyCode};
+use openlcb_stream::{NodeId, StreamError, Termination, TimeoutKind};
+
+/// Why a node, a stream or a hub failed. Cheap to clone: the driver hands the same error to
+/// every stream that was waiting when the connection went.
+#[derive(Debug, Clone, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// The hub could not be reached (refused, no route, bad address, or no answer in time).
+    #[error("cannot reach the hub at {addr}: {source}")]
+    Connect {
+        /// The address as given.
+        addr: String,
+        /// What the operating system said.
+        #[source]
+        source: Arc<io::Error>,
+    },
+    /// A listening socket could not be opened.
+    #[error("cannot listen on {addr}: {source}")]
+    Bind {
+        /// The address as given.
+        addr: String,
+        /// What the operating system said.
+        #[source]
+        source: Arc<io::Error>,
+    },
+    /// The connection to the hub broke or was closed by the hub.
+    #[error("connection to the hub lost: {0}")]
+    ConnectionLost(#[source] Arc<io::Error>),
+    /// The hub sent bytes that cannot be framed (an OpenLCB-TCP length that cannot be trusted).
+    #[error("the hub sent undecodable data: {0}")]
+    Protocol(String),
+    /// The CAN alias could not be used: another node has this Node ID, or the login stalled.
+    #[error("CAN alias login failed: {0}")]
+    Login(&'static str),
+    /// The destination refused the stream.
+    #[error("node {peer} rejected the stream with code {code}{}", if code.class() == ReplyClass::Temporary { "; it may accept later" } else { "" })]
+    Rejected {
+        /// The destination.
+        peer: NodeId,
+        /// The raw code; [`ReplyCode::meaning`] explains it.
+        code: ReplyCode,
+    },
+    /// No node with this Node ID answered on the network.
+    #[error("node {0} is not on the network (nobody answered for that Node ID)")]
+    Unreachable(NodeId),
+    /// A wait ran out and the stream ended.
+    #[error("{}", timeout_text(*.peer, *.kind))]
+    TimedOut {
+        /// The other end.
+        peer: NodeId,
+        /// Which wait.
+        kind: TimeoutKind,
+    },
+    /// The stream ended early.
+    #[error("{}", termination_text(*.peer, *.cause))]
+    Terminated {
+        /// The other end.
+        peer: NodeId,
+        /// Why.
+        cause: Termination,
+    },
+    /// The source's Complete stated another byte count than the bytes that arrived.
+    #[error("the stream ended with {received} bytes but the source said it sent {stated}")]
+    CountMismatch {
+        /// Bytes received.
+        received: u64,
+        /// Bytes the source stated.
+        stated: u64,
+    },
+    /// The stream engine refused a command.
+    #[error("stream command refused: {0}")]
+    Stream(#[from] StreamError),
+    /// The node was shut down (every handle to it dropped, or its driver ended).
+    #[error("the node has shut down")]
+    Closed,
+}
+
+impl Error {
+    /// An error from the operating system while talking to the hub.
+    pub(crate) fn lost(error: io::Error) -> Self {
+        Error::ConnectionLost(Arc::new(error))
+    }
+
+    /// The hub closed its end of the connection.
+    pub(crate) fn closed_by_hub() -> Self {
+        Error::lost(io::Error::new(io::ErrorKind::UnexpectedEof, "the hub closed the connection"))
+    }
+
+    /// `true` when retrying the same thing later may help (temporary rejections, lost
+    /// connections, timeouts).
+    pub fn is_temporary(&self) -> bool {
+        match self {
+            Error::Rejected { code, .. } => code.class() == ReplyClass::Temporary,
+            Error::Connect { .. } | Error::ConnectionLost(_) | Error::TimedOut { .. } | Error::Terminated { .. } => {
+                true
+            }
+            _ => false,
+        }
+    }
+}
+
+fn timeout_text(peer: NodeId, kind: TimeoutKind) -> String {
+    match kind {
+        TimeoutKind::Reply => format!("node {peer} did not answer the stream request in time"),
+        TimeoutKind::Proceed => format!("node {peer} stopped granting credit (no Data Proceed in time)"),
+        TimeoutKind::Idle => format!("node {peer} went silent in the middle of the stream"),
+        TimeoutKind::Decision => format!("the request from node {peer} was not decided on in time"),
+        _ => format!("a wait for node {peer} ran out"),
+    }
+}
+
+fn termination_text(peer: NodeId, cause: Termination) -> String {
+    match cause {
+        Termination::ByPeer(code) => format!("node {peer} terminated the stream with error {code}"),
+        Termination::WindowOverrun => format!("node {peer} sent more than the window allows"),
+        Termination::Superseded => format!("node {peer} started a new stream in place of this one"),
+        Termination::PeerLost => format!("node {peer} left the network"),
+        Termination::PeerRestarted => format!("node {peer} restarted"),
+        Termination::LinkLost => "this node lost its CAN alias".to_string(),
+        _ => format!("the stream with node {peer} ended early"),
+    }
+}

@@ -1,0 +1,470 @@
+//! [`Hub`]: a TCP hub that relays every frame from one client to every other client.
+//!
+//! GridConnect clients (JMRI, OpenMRN, [`Node`](crate::Node)s with
+//! [`Protocol::GridConnect`]) share one virtual CAN segment; OpenLCB-TCP clients, on their own
+//! listener, share one full-format link. Each frame is decoded and encoded again, so garbage
+//! from one client never reaches the others (the decoder resynchronises and counts it).
+//! With both listeners and [`HubOptions::bridge`], an [`openlcb_gateway::Gateway`] joins the
+//! two groups as one more client of each: CAN nodes and OpenLCB-TCP nodes see each other,
+//! streams included.
+//!
+//! Every client has its own queue, bounded in bytes. A client that falls that far behind is
+//! disconnected (with a [`HubEvent::SlowClient`]): one slow client never stalls the rest.
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
+use bytes::{Bytes, BytesMut};
+use openlcb_can::{GridConnectDecoder, gridconnect};
+use openlcb_tcp::Decoder;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::mpsc;
+use tokio::task::{AbortHandle, JoinSet};
+
+use crate::{Error, Protocol};
+use openlcb_stream::NodeId;
+
+/// A connected client, numbered from 1 in order of arrival.
+pub type ClientId = u64;
+
+/// Bounds and switches of a [`Hub`].
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub struct HubOptions {
+    /// Bytes queued for one client before it counts as too slow and is disconnected.
+    pub max_queued_bytes: usize,
+    /// Report every relayed frame as a [`HubEvent::Frame`].
+    pub trace: bool,
+    /// Events held for [`Hub::next_event`]; more are dropped and counted.
+    pub event_capacity: usize,
+    /// With both listeners, bridge GridConnect and OpenLCB-TCP clients through a gateway.
+    pub bridge: bool,
+    /// The gateway's Node ID: written as the originating node of every OpenLCB-TCP message it
+    /// forwards. Default 05.01.01.01.22.FE.
+    pub gateway_node_id: NodeId,
+    /// The largest stream window the gateway lets through (a request's Max Buffer Size is
+    /// lowered to it), 1..=65535.
+    pub gateway_max_window: u16,
+}
+
+impl Default for HubOptions {
+    fn default() -> Self {
+        HubOptions {
+            max_queued_bytes: 8 * 1024 * 1024,
+            trace: false,
+            event_capacity: 4096,
+            bridge: true,
+            gateway_node_id: NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0xFE]),
+            gateway_max_window: 65535,
+        }
+    }
+}
+
+/// Something that happened at the hub.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum HubEvent {
+    /// A client connected.
+    Connected {
+        /// Its number.
+        client: ClientId,
+        /// Its address.
+        peer: SocketAddr,
+        /// The listener it came through.
+        protocol: Protocol,
+    },
+    /// A client left or its connection failed.
+    Disconnected {
+        /// Its number.
+        client: ClientId,
+        /// Why.
+        reason: String,
+    },
+    /// A client fell too far behind and was disconnected.
+    SlowClient {
+        /// Its number.
+        client: ClientId,
+        /// Bytes it had queued.
+        queued: usize,
+    },
+    /// A client sent something that is not a frame (reported once per run of errors).
+    Garbage {
+        /// Its number.
+        client: ClientId,
+        /// What was wrong.
+        error: String,
+    },
+    /// A frame was relayed (only with [`HubOptions::trace`]).
+    Frame {
+        /// Who sent it.
+        client: ClientId,
+        /// The frame as text (GridConnect) or described (OpenLCB-TCP).
+        text: String,
+    },
+}
+
+/// Counters of a hub.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct HubStats {
+    /// Clients accepted so far.
+    pub clients_accepted: u64,
+    /// Clients connected now.
+    pub clients_connected: usize,
+    /// Frames received from clients and relayed.
+    pub frames: u64,
+    /// Undecodable input from clients.
+    pub decode_errors: u64,
+    /// Clients disconnected for being too slow.
+    pub slow_clients: u64,
+    /// Events dropped because nobody read them.
+    pub events_dropped: u64,
+}
+
+pub(crate) struct Client {
+    protocol: Protocol,
+    /// The bridge: never dropped for being slow (it is in-process and bounded by the gateway).
+    bridge: bool,
+    queue: mpsc::UnboundedSender<Bytes>,
+    queued: Arc<AtomicUsize>,
+    tasks: Vec<AbortHandle>,
+}
+
+pub(crate) struct State {
+    options: HubOptions,
+    clients: Mutex<HashMap<ClientId, Client>>,
+    events: mpsc::Sender<HubEvent>,
+    next_id: AtomicU64,
+    accepted: AtomicU64,
+    frames: AtomicU64,
+    decode_errors: AtomicU64,
+    slow_clients: AtomicU64,
+    events_dropped: AtomicU64,
+}
+
+impl State {
+    pub(crate) fn event(&self, event: HubEvent) {
+        if self.events.try_send(event).is_err() {
+            self.events_dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Registers the bridge as a client of `protocol`'s group: its id and its queue.
+    fn add_bridge_client(&self, protocol: Protocol) -> (ClientId, mpsc::UnboundedReceiver<Bytes>) {
+        // Numbered from the top, so that real clients count from 1.
+        let id = match protocol {
+            Protocol::GridConnect => ClientId::MAX,
+            Protocol::Tcp => ClientId::MAX - 1,
+        };
+        let (queue, rx) = mpsc::unbounded_channel();
+        let client = Client { protocol, bridge: true, queue, queued: Arc::default(), tasks: Vec::new() };
+        if let Ok(mut clients) = self.clients.lock() {
+            clients.insert(id, client);
+        }
+        (id, rx)
+    }
+
+    /// Counts relayed frames and undecodable input.
+    pub(crate) fn count(&self, frames: u64, errors: u64) {
+        self.frames.fetch_add(frames, Ordering::Relaxed);
+        self.decode_errors.fetch_add(errors, Ordering::Relaxed);
+    }
+
+    pub(crate) fn options(&self) -> &HubOptions {
+        &self.options
+    }
+
+    /// Removes a client and stops its tasks; `true` if it was still there.
+    fn remove(&self, client: ClientId) -> bool {
+        let removed = self.clients.lock().ok().and_then(|mut clients| clients.remove(&client));
+        match removed {
+            Some(entry) => {
+                entry.tasks.iter().for_each(AbortHandle::abort);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Queues `chunk` for every other client of the same protocol; drops those too far behind.
+    pub(crate) fn relay(&self, from: ClientId, protocol: Protocol, chunk: &Bytes) {
+        let mut slow = Vec::new();
+        if let Ok(clients) = self.clients.lock() {
+            for (&id, client) in clients.iter() {
+                if id == from || client.protocol != protocol {
+                    continue;
+                }
+                if !client.bridge {
+                    let queued = client.queued.load(Ordering::Relaxed);
+                    if queued + chunk.len() > self.options.max_queued_bytes {
+                        slow.push((id, queued));
+                        continue;
+                    }
+                    client.queued.fetch_add(chunk.len(), Ordering::Relaxed);
+                }
+                let _ = client.queue.send(chunk.clone());
+            }
+        }
+        for (client, queued) in slow {
+            if self.remove(client) {
+                self.slow_clients.fetch_add(1, Ordering::Relaxed);
+                self.event(HubEvent::SlowClient { client, queued });
+            }
+        }
+    }
+}
+
+/// A running hub. Dropping it closes the listeners and every client connection.
+#[derive(Debug)]
+pub struct Hub {
+    addr: SocketAddr,
+    tcp_addr: Option<SocketAddr>,
+    state: Arc<State>,
+    events: mpsc::Receiver<HubEvent>,
+    _listeners: JoinSet<()>,
+}
+
+impl std::fmt::Debug for State {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("State").field("options", &self.options).finish_non_exhaustive()
+    }
+}
+
+impl Hub {
+    /// Listens for GridConnect clients on `listen` (`host:port`; port 0 picks a free one) and,
+    /// with `tcp_listen`, for OpenLCB-TCP clients, and starts relaying.
+    pub async fn bind(listen: &str, tcp_listen: Option<&str>, options: HubOptions) -> Result<Hub, Error> {
+        let bind = |addr: &str| {
+            let addr = addr.to_string();
+            async move { TcpListener::bind(&addr).await.map_err(|source| Error::Bind { addr, source: Arc::new(source) }) }
+        };
+        let listener = bind(listen).await?;
+        let tcp_listener = match tcp_listen {
+            Some(addr) => Some(bind(addr).await?),
+            None => None,
+        };
+        let local = |listener: &TcpListener, addr: &str| {
+            listener.local_addr().map_err(|source| Error::Bind { addr: addr.to_string(), source: Arc::new(source) })
+        };
+        let addr = local(&listener, listen)?;
+        let tcp_addr = match (&tcp_listener, tcp_listen) {
+            (Some(listener), Some(name)) => Some(local(listener, name)?),
+            _ => None,
+        };
+        let (events_tx, events) = mpsc::channel(options.event_capacity.max(1));
+        let state = Arc::new(State {
+            options,
+            clients: Mutex::new(HashMap::new()),
+            events: events_tx,
+            next_id: AtomicU64::new(1),
+            accepted: AtomicU64::new(0),
+            frames: AtomicU64::new(0),
+            decode_errors: AtomicU64::new(0),
+            slow_clients: AtomicU64::new(0),
+            events_dropped: AtomicU64::new(0),
+        });
+        let mut listeners = JoinSet::new();
+        listeners.spawn(accept_loop(listener, Protocol::GridConnect, state.clone()));
+        if let Some(listener) = tcp_listener {
+            listeners.spawn(accept_loop(listener, Protocol::Tcp, state.clone()));
+            if state.options.bridge {
+                let [can, tcp] =
+                    [Protocol::GridConnect, Protocol::Tcp].map(|protocol| state.add_bridge_client(protocol));
+                listeners.spawn(crate::bridge::run(can, tcp, state.clone()));
+            }
+        }
+        Ok(Hub { addr, tcp_addr, state, events, _listeners: listeners })
+    }
+
+    /// The GridConnect listener's address.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// The OpenLCB-TCP listener's address, if there is one.
+    pub fn tcp_local_addr(&self) -> Option<SocketAddr> {
+        self.tcp_addr
+    }
+
+    /// The counters now.
+    pub fn stats(&self) -> HubStats {
+        let state = &self.state;
+        HubStats {
+            clients_accepted: state.accepted.load(Ordering::Relaxed),
+            clients_connected: state.clients.lock().map(|c| c.values().filter(|c| !c.bridge).count()).unwrap_or(0),
+            frames: state.frames.load(Ordering::Relaxed),
+            decode_errors: state.decode_errors.load(Ordering::Relaxed),
+            slow_clients: state.slow_clients.load(Ordering::Relaxed),
+            events_dropped: state.events_dropped.load(Ordering::Relaxed),
+        }
+    }
+
+    /// The next event (connections, slow clients, garbage, traced frames).
+    pub async fn next_event(&mut self) -> Option<HubEvent> {
+        self.events.recv().await
+    }
+}
+
+async fn accept_loop(listener: TcpListener, protocol: Protocol, state: Arc<State>) {
+    // Client tasks live here: when the hub is dropped, this task is aborted and they go too.
+    let mut clients = JoinSet::new();
+    loop {
+        tokio::select! {
+            accepted = listener.accept() => match accepted {
+                Ok((socket, peer)) => start_client(&mut clients, socket, peer, protocol, &state),
+                // Out of file descriptors and the like: keep serving the clients there are.
+                Err(_) => tokio::time::sleep(std::time::Duration::from_millis(50)).await,
+            },
+            Some(_) = clients.join_next() => {}
+        }
+    }
+}
+
+fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, protocol: Protocol, state: &Arc<State>) {
+    let _ = socket.set_nodelay(true);
+    let id = state.next_id.fetch_add(1, Ordering::Relaxed);
+    state.accepted.fetch_add(1, Ordering::Relaxed);
+    let (queue, rx) = mpsc::unbounded_channel();
+    let queued = Arc::new(AtomicUsize::new(0));
+    let client = Client { protocol, bridge: false, queue, queued: queued.clone(), tasks: Vec::new() };
+    if let Ok(mut clients) = state.clients.lock() {
+        clients.insert(id, client);
+    }
+    state.event(HubEvent::Connected { client: id, peer, protocol });
+    let (reader, writer) = socket.into_split();
+    let handles = [
+        tasks.spawn(read_client(id, reader, protocol, state.clone())),
+        tasks.spawn(write_client(id, writer, rx, queued, state.clone())),
+    ];
+    let registered = state
+        .clients
+        .lock()
+        .ok()
+        .and_then(|mut clients| clients.get_mut(&id).map(|client| client.tasks.extend(handles.iter().cloned())));
+    if registered.is_none() {
+        // It left before its tasks were registered.
+        handles.iter().for_each(AbortHandle::abort);
+    }
+}
+
+/// Reads a client's frames, encodes each again and relays them in one chunk per read.
+async fn read_client(id: ClientId, mut reader: OwnedReadHalf, protocol: Protocol, state: Arc<State>) {
+    let mut buf = vec![0u8; 16 * 1024];
+    let mut gridconnect_decoder = GridConnectDecoder::default();
+    let mut tcp_decoder = Decoder::default();
+    let mut chunk = BytesMut::new();
+    let reason = loop {
+        let n = match reader.read(&mut buf).await {
+            Ok(0) => break "closed the connection".to_string(),
+            Ok(n) => n,
+            Err(error) => break error.to_string(),
+        };
+        let input = buf.get(..n).unwrap_or_default();
+        let (frames, errors) = match protocol {
+            Protocol::GridConnect => relay_gridconnect(id, input, &mut gridconnect_decoder, &mut chunk, &state),
+            Protocol::Tcp => relay_tcp(id, input, &mut tcp_decoder, &mut chunk, &state),
+        };
+        state.frames.fetch_add(frames, Ordering::Relaxed);
+        state.decode_errors.fetch_add(errors, Ordering::Relaxed);
+        if !chunk.is_empty() {
+            state.relay(id, protocol, &chunk.split().freeze());
+        }
+        if let Some(failure) = tcp_decoder.failure() {
+            break format!("sent an OpenLCB-TCP length that cannot be trusted ({failure})");
+        }
+    };
+    if state.remove(id) {
+        state.event(HubEvent::Disconnected { client: id, reason });
+    }
+}
+
+fn relay_gridconnect(
+    id: ClientId,
+    input: &[u8],
+    decoder: &mut GridConnectDecoder,
+    chunk: &mut BytesMut,
+    state: &State,
+) -> (u64, u64) {
+    let (mut frames, mut errors) = (0, 0);
+    let mut text = [0u8; gridconnect::MAX_ENCODED_LEN];
+    decoder.decode_all(input, |decoded| match decoded {
+        Ok(frame) => {
+            if let Ok(len) = gridconnect::encode(&frame, &mut text) {
+                let text = text.get(..len).unwrap_or_default();
+                chunk.extend_from_slice(text);
+                chunk.extend_from_slice(b"\n");
+                frames += 1;
+                if state.options.trace {
+                    state.event(HubEvent::Frame { client: id, text: String::from_utf8_lossy(text).into_owned() });
+                }
+            }
+        }
+        Err(error) => {
+            errors += 1;
+            state.event(HubEvent::Garbage { client: id, error: error.to_string() });
+        }
+    });
+    (frames, errors)
+}
+
+fn relay_tcp(id: ClientId, mut input: &[u8], decoder: &mut Decoder, chunk: &mut BytesMut, state: &State) -> (u64, u64) {
+    let (mut frames, mut errors) = (0, 0);
+    while let Some(decoded) = decoder.decode(&mut input) {
+        match decoded {
+            Ok(frame) => {
+                if frame.encode_to(chunk).is_ok() {
+                    frames += 1;
+                    if state.options.trace {
+                        let message = frame.message;
+                        let mut text = format!("MTI 0x{:04X} {}", message.mti.0, message.source);
+                        if let Some(destination) = message.destination {
+                            let _ = write!(text, " -> {destination}");
+                        }
+                        let _ = write!(text, ", {} bytes", message.payload.len());
+                        state.event(HubEvent::Frame { client: id, text });
+                    }
+                }
+            }
+            Err(error) => {
+                errors += 1;
+                state.event(HubEvent::Garbage { client: id, error: error.to_string() });
+            }
+        }
+    }
+    (frames, errors)
+}
+
+/// Writes a client's queue, many chunks per `write` call.
+async fn write_client(
+    id: ClientId,
+    mut writer: OwnedWriteHalf,
+    mut queue: mpsc::UnboundedReceiver<Bytes>,
+    queued: Arc<AtomicUsize>,
+    state: Arc<State>,
+) {
+    const BATCH: usize = 256 * 1024;
+    let mut batch = Vec::with_capacity(BATCH);
+    let reason = loop {
+        let Some(first) = queue.recv().await else { break None };
+        batch.extend_from_slice(&first);
+        while batch.len() < BATCH {
+            let Ok(more) = queue.try_recv() else { break };
+            batch.extend_from_slice(&more);
+        }
+        // Every byte here was added to `queued` before it was queued.
+        queued.fetch_sub(batch.len(), Ordering::Relaxed);
+        if let Err(error) = writer.write_all(&batch).await {
+            break Some(error.to_string());
+        }
+        batch.clear();
+    };
+    if state.remove(id) {
+        let reason = reason.unwrap_or_else(|| "queue closed".to_string());
+        state.event(HubEvent::Disconnected { client: id, reason });
+    }
+}

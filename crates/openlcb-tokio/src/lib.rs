@@ -1,0 +1,83 @@
+//! Async drivers that run the sans-IO OpenLCB stream stack against real TCP sockets.
+//!
+//! - [`Node`]: one OpenLCB node connected to a hub, speaking GridConnect text (a
+//!   [`CanLink`](openlcb_can::CanLink) with alias login under the stream endpoint) or the
+//!   binary OpenLCB-TCP framing (a [`TcpLink`](openlcb_tcp::TcpLink)). [`Node::open`] gives a
+//!   [`SendStream`], [`Node::accept`] a [`RecvStream`].
+//! - [`Hub`]: a hub that relays every frame from a client to every other client, with bounded
+//!   per-client queues.
+//!
+//! # What the driver does
+//!
+//! Each node has one driver task that owns the socket, the
+//! [`StreamEndpoint`](openlcb_stream::StreamEndpoint) and the link, and runs the drive loop
+//! of the sans-IO crates: feed what the socket delivered, drain every output, arm one timer
+//! for the earliest `poll_timeout` of link and endpoint. Its clock is microseconds since the
+//! driver started. The handles talk to it through channels.
+//!
+//! - **Batched writes**: frames are encoded into one buffer; each turn of the loop hands the
+//!   whole buffer to one `write` call ([`WireStats::writes`] counts them).
+//! - **Back-pressure**: while the encoded output is above a high-water mark (the socket is not
+//!   taking it), the driver stops taking application data; [`SendStream::write_all`] waits.
+//!   On the receiving side, data not yet read by the application is bounded too, and no
+//!   credit is granted past it, so a slow reader slows the source.
+//! - **A lost connection** ends the driver with [`Error::ConnectionLost`], which every waiting
+//!   call and every later call returns.
+//!
+//! The sockets are driven with `readable`/`try_read` and `writable`/`try_write` rather than
+//! `tokio-util` codecs: the GridConnect and OpenLCB-TCP decoders are already resumable over
+//! byte slices and hand out messages borrowed from their own buffers, which a codec's owned
+//! items would copy once more.
+//!
+//! # Example
+//!
+//! A hub, a receiver and a sender, all on 127.0.0.1:
+//!
+//! ```
+//! use openlcb_stream::{NodeId, OpenOptions};
+//! use openlcb_tokio::{Hub, HubOptions, Node, NodeOptions, Protocol};
+//!
+//! # #[tokio::main(flavor = "current_thread")]
+//! # async fn main() -> Result<(), openlcb_tokio::Error> {
+//! let hub = Hub::bind("127.0.0.1:0", None, HubOptions::default()).await?;
+//! let addr = hub.local_addr().to_string();
+//!
+//! let receiver_id: NodeId = "05.01.01.01.22.F1".parse().unwrap();
+//! let mut receiver = Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(receiver_id)).await?;
+//! let sender_id: NodeId = "05.01.01.01.22.F0".parse().unwrap();
+//! let sender = Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(sender_id)).await?;
+//!
+//! let send = async {
+//!     let mut stream = sender.open(OpenOptions::new(receiver_id, 2048)).await?;
+//!     stream.write_all(vec![7u8; 10_000]).await?;
+//!     stream.finish().await
+//! };
+//! let receive = async {
+//!     let mut stream = receiver.accept().await?;
+//!     let mut data = Vec::new();
+//!     while let Some(chunk) = stream.read().await? {
+//!         data.extend_from_slice(&chunk);
+//!     }
+//!     Ok::<_, openlcb_tokio::Error>(data)
+//! };
+//! let (sent, received) = tokio::try_join!(send, receive)?;
+//! assert_eq!(sent, 10_000);
+//! assert_eq!(received, vec![7u8; 10_000]);
+//! # Ok(()) }
+//! ```
+
+#![forbid(unsafe_code)]
+#![deny(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing)]
+#![warn(missing_docs)]
+
+mod bridge;
+mod driver;
+mod error;
+pub mod hub;
+mod node;
+mod wire;
+
+pub use error::Error;
+pub use hub::{Hub, HubEvent, HubOptions, HubStats};
+pub use node::{Node, NodeOptions, NodeStats, RecvStream, SendStream};
+pub use wire::{Protocol, WireStats};

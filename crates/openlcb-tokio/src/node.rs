@@ -1,0 +1,340 @@
+//! [`Node`]: one OpenLCB node on a hub, with [`SendStream`]s and [`RecvStream`]s.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use bytes::Bytes;
+use openlcb_can::CanConfig;
+use openlcb_stream::wire::ErrorCode;
+use openlcb_stream::{Config, NodeId, OpenOptions, Stats, StreamHandle, StreamInfo};
+use tokio::net::{TcpStream, lookup_host};
+use tokio::sync::{mpsc, oneshot};
+use tokio::task::JoinHandle;
+
+use crate::driver::Driver;
+use crate::{Error, Protocol, WireStats};
+
+/// How a [`Node`] joins the network.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub struct NodeOptions {
+    /// This node's 48-bit Node ID. It must be unique on the network.
+    pub node_id: NodeId,
+    /// The stream engine's bounds, window and timers. Its `accept_policy` decides incoming
+    /// requests (`AcceptAll` by default: every accepted stream comes out of [`Node::accept`]).
+    pub config: Config,
+    /// The CAN link's bounds and timers (GridConnect only).
+    pub can: CanConfig,
+    /// How long to wait for the TCP connection and the alias login.
+    pub connect_timeout: Duration,
+}
+
+impl NodeOptions {
+    /// Defaults for the node `node_id`.
+    pub fn new(node_id: NodeId) -> Self {
+        NodeOptions {
+            node_id,
+            config: Config::default(),
+            can: CanConfig::default(),
+            connect_timeout: Duration::from_secs(5),
+        }
+    }
+}
+
+/// What a node has done so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct NodeStats {
+    /// Frames and bytes on the connection.
+    pub wire: WireStats,
+    /// The stream engine's counters of handled and refused input.
+    pub endpoint: Stats,
+}
+
+/// Requests from the handles to the driver task.
+pub(crate) enum Command {
+    Open { options: OpenOptions, reply: oneshot::Sender<Result<(StreamHandle, StreamInfo), Error>> },
+    Write { handle: StreamHandle, data: Bytes, reply: oneshot::Sender<Result<(), Error>> },
+    Finish { handle: StreamHandle, reply: oneshot::Sender<Result<(), Error>> },
+    Abort { handle: StreamHandle, code: ErrorCode },
+    Read { handle: StreamHandle, reply: oneshot::Sender<Result<Option<Bytes>, Error>> },
+    Stats { reply: oneshot::Sender<NodeStats> },
+}
+
+/// Where the driver leaves the error it stopped with, for every handle to find.
+#[derive(Debug, Default, Clone)]
+pub(crate) struct Shared(Arc<Mutex<Option<Error>>>);
+
+impl Shared {
+    pub(crate) fn set(&self, error: Error) {
+        if let Ok(mut slot) = self.0.lock() {
+            slot.get_or_insert(error);
+        }
+    }
+
+    /// The driver's final error, or [`Error::Closed`] if it stopped without one.
+    pub(crate) fn error(&self) -> Error {
+        self.0.lock().ok().and_then(|slot| slot.clone()).unwrap_or(Error::Closed)
+    }
+}
+
+/// The link from a handle to the driver task.
+#[derive(Debug, Clone)]
+pub(crate) struct Control {
+    pub(crate) commands: mpsc::Sender<Command>,
+    pub(crate) shared: Shared,
+}
+
+impl Control {
+    /// Sends a command and waits for its answer; a gone driver yields its final error.
+    async fn call<T>(&self, command: impl FnOnce(oneshot::Sender<T>) -> Command) -> Result<T, Error> {
+        let (reply, answer) = oneshot::channel();
+        if self.commands.send(command(reply)).await.is_err() {
+            return Err(self.shared.error());
+        }
+        answer.await.map_err(|_| self.shared.error())
+    }
+}
+
+/// One OpenLCB node connected to a hub. A driver task runs its stack; this handle and its
+/// streams talk to it through channels. The node keeps answering the network (Verify Node ID,
+/// Protocol Support Inquiry, alias enquiries) as long as the handle or any stream lives.
+///
+/// ```no_run
+/// use openlcb_stream::{NodeId, OpenOptions};
+/// use openlcb_tokio::{Node, NodeOptions, Protocol};
+///
+/// # async fn run() -> Result<(), openlcb_tokio::Error> {
+/// let me: NodeId = "05.01.01.01.22.F0".parse().unwrap();
+/// let peer: NodeId = "05.01.01.01.22.F1".parse().unwrap();
+/// let node = Node::connect("127.0.0.1:12021", Protocol::GridConnect, NodeOptions::new(me)).await?;
+/// let mut stream = node.open(OpenOptions::new(peer, 2048)).await?; // Opened, or Rejected with its meaning
+/// stream.write_all(&b"hello"[..]).await?;
+/// stream.finish().await?;
+/// # Ok(()) }
+/// ```
+#[derive(Debug)]
+pub struct Node {
+    node_id: NodeId,
+    control: Control,
+    incoming: mpsc::Receiver<RecvStream>,
+    driver: JoinHandle<()>,
+}
+
+impl Node {
+    /// Connects to the hub at `addr` (`host:port`), logs in (on GridConnect: CAN alias
+    /// reservation, about 200 ms) and sends Initialization Complete. Fails if the hub cannot be
+    /// reached or the login does not finish within [`NodeOptions::connect_timeout`].
+    pub async fn connect(addr: &str, protocol: Protocol, options: NodeOptions) -> Result<Node, Error> {
+        let connect_error =
+            |source: std::io::Error| Error::Connect { addr: addr.to_string(), source: Arc::new(source) };
+        let timeout = options.connect_timeout;
+        let socket = tokio::time::timeout(timeout, async {
+            let mut last = std::io::Error::new(std::io::ErrorKind::NotFound, "the name resolves to no address");
+            for address in lookup_host(addr).await? {
+                match TcpStream::connect(address).await {
+                    Ok(socket) => return Ok(socket),
+                    Err(error) => last = error,
+                }
+            }
+            Err(last)
+        })
+        .await
+        .map_err(|_| connect_error(std::io::Error::new(std::io::ErrorKind::TimedOut, "no answer in time")))?
+        .map_err(connect_error)?;
+        // Small frames must not wait for Nagle's algorithm: the batching is done here.
+        socket.set_nodelay(true).map_err(connect_error)?;
+
+        let node_id = options.node_id;
+        let shared = Shared::default();
+        let (commands, command_rx) = mpsc::channel(64);
+        let (incoming_tx, incoming) = mpsc::channel(options.config.max_streams.max(1));
+        let (up_tx, up) = oneshot::channel();
+        let driver =
+            Driver::new(socket, protocol, options, command_rx, commands.downgrade(), incoming_tx, shared.clone());
+        let driver = tokio::spawn(driver.run(up_tx));
+        let control = Control { commands, shared };
+        match tokio::time::timeout(timeout, up).await {
+            Ok(Ok(())) => Ok(Node { node_id, control, incoming, driver }),
+            Ok(Err(_)) => Err(control.shared.error()),
+            Err(_) => {
+                driver.abort();
+                Err(Error::Login("the alias login did not finish in time"))
+            }
+        }
+    }
+
+    /// This node's Node ID.
+    pub fn node_id(&self) -> NodeId {
+        self.node_id
+    }
+
+    /// Asks `options.destination` for a stream and waits for its answer: the open stream, or
+    /// [`Error::Rejected`] with the code (and its meaning), [`Error::Unreachable`],
+    /// [`Error::TimedOut`].
+    pub async fn open(&self, options: OpenOptions) -> Result<SendStream, Error> {
+        let (handle, info) = self.control.call(|reply| Command::Open { options, reply }).await??;
+        Ok(SendStream { handle, info, control: self.control.clone(), written: 0, done: false })
+    }
+
+    /// The next stream another node opened to this one. Fails once the connection is gone
+    /// (with the reason).
+    pub async fn accept(&mut self) -> Result<RecvStream, Error> {
+        self.incoming.recv().await.ok_or_else(|| self.control.shared.error())
+    }
+
+    /// Frame and stream counters.
+    pub async fn stats(&self) -> Result<NodeStats, Error> {
+        self.control.call(|reply| Command::Stats { reply }).await
+    }
+
+    /// Stops the node at once: the connection closes without a word to anyone, as if the
+    /// program had crashed. Its streams fail with [`Error::Closed`]; peers find out by their
+    /// own timeouts. (A node that is simply dropped stops once its last stream is done.)
+    pub fn abort(self) {
+        self.driver.abort();
+    }
+
+    /// Waits until the driver stops (the connection was lost) and returns why.
+    pub async fn closed(&mut self) -> Error {
+        let _ = (&mut self.driver).await;
+        self.control.shared.error()
+    }
+}
+
+impl Drop for Node {
+    fn drop(&mut self) {
+        // Streams still open keep their own channel; the driver stops when the last one goes.
+        self.incoming.close();
+    }
+}
+
+/// The sending end of a stream this node opened.
+#[derive(Debug)]
+pub struct SendStream {
+    handle: StreamHandle,
+    info: StreamInfo,
+    control: Control,
+    written: u64,
+    done: bool,
+}
+
+impl SendStream {
+    /// The negotiated parameters (destination, window, stream IDs, content UID).
+    pub fn info(&self) -> &StreamInfo {
+        &self.info
+    }
+
+    /// Bytes written so far.
+    pub fn written(&self) -> u64 {
+        self.written
+    }
+
+    /// Sends `data`, waiting while the window is used up or the socket is busy (so a slow
+    /// receiver or a slow hub slows the caller). Returns once the driver has taken every byte.
+    pub async fn write_all(&mut self, data: impl Into<Bytes>) -> Result<(), Error> {
+        let data = data.into();
+        let len = data.len() as u64;
+        if len == 0 {
+            return Ok(());
+        }
+        let handle = self.handle;
+        let result = self.control.call(|reply| Command::Write { handle, data, reply }).await.and_then(|r| r);
+        if result.is_err() {
+            self.done = true;
+        } else {
+            self.written += len;
+        }
+        result
+    }
+
+    /// Sends Stream Data Complete with the byte count and waits until everything has been
+    /// written to the socket. Returns the number of bytes sent.
+    pub async fn finish(mut self) -> Result<u64, Error> {
+        self.done = true;
+        let handle = self.handle;
+        self.control.call(|reply| Command::Finish { handle, reply }).await??;
+        Ok(self.written)
+    }
+
+    /// Ends the stream at once with Terminate Due To Error 0x2000 (temporary error).
+    pub fn abort(mut self) {
+        self.send_abort();
+    }
+
+    fn send_abort(&mut self) {
+        if !self.done {
+            self.done = true;
+            let _ = self.control.commands.try_send(Command::Abort { handle: self.handle, code: ErrorCode::TEMPORARY });
+        }
+    }
+}
+
+impl Drop for SendStream {
+    /// A stream dropped before `finish` is aborted.
+    fn drop(&mut self) {
+        self.send_abort();
+    }
+}
+
+/// The receiving end of a stream another node opened to this one.
+#[derive(Debug)]
+pub struct RecvStream {
+    handle: StreamHandle,
+    info: StreamInfo,
+    control: Control,
+    received: u64,
+    done: bool,
+}
+
+impl RecvStream {
+    pub(crate) fn new(handle: StreamHandle, info: StreamInfo, control: Control) -> Self {
+        RecvStream { handle, info, control, received: 0, done: false }
+    }
+
+    /// Drops the handle without terminating the stream (the driver has already ended it).
+    pub(crate) fn forget(mut self) {
+        self.done = true;
+    }
+
+    /// Who sends, with the negotiated window and the content UID of the request.
+    pub fn info(&self) -> &StreamInfo {
+        &self.info
+    }
+
+    /// Bytes read so far.
+    pub fn received(&self) -> u64 {
+        self.received
+    }
+
+    /// The next piece of data; `Ok(None)` once the source has finished and every byte it
+    /// counted has been read. Fails if the stream was terminated, timed out, its count did not
+    /// match, or the connection was lost. Not reading slows the source down (no credit).
+    pub async fn read(&mut self) -> Result<Option<Bytes>, Error> {
+        if self.done {
+            return Ok(None);
+        }
+        let handle = self.handle;
+        let result = self.control.call(|reply| Command::Read { handle, reply }).await.and_then(|r| r);
+        match &result {
+            Ok(Some(data)) => self.received += data.len() as u64,
+            Ok(None) | Err(_) => self.done = true,
+        }
+        result
+    }
+
+    /// Refuses the rest of the stream: Terminate Due To Error with `code` (0x2000 if unsure).
+    pub fn abort(mut self, code: ErrorCode) {
+        self.done = true;
+        let _ = self.control.commands.try_send(Command::Abort { handle: self.handle, code });
+    }
+}
+
+impl Drop for RecvStream {
+    /// A stream dropped before its end is terminated (0x2000), so the source does not wait.
+    fn drop(&mut self) {
+        if !self.done {
+            let _ = self.control.commands.try_send(Command::Abort { handle: self.handle, code: ErrorCode::TEMPORARY });
+        }
+    }
+}

@@ -1,0 +1,244 @@
+//! The transport under a node: a [`CanLink`] spoken as GridConnect text, or a [`TcpLink`]
+//! spoken as OpenLCB-TCP binary. Both turn socket bytes into messages for the endpoint and
+//! the endpoint's messages into one growing output buffer that the driver writes in batches.
+
+use std::collections::VecDeque;
+
+use openlcb_can::{CanConfig, CanLink, GridConnectDecoder, LinkEvent, gridconnect};
+use openlcb_stream::{Instant, Message, NodeId, StreamEndpoint};
+use openlcb_tcp::TcpLink;
+
+use crate::Error;
+
+/// Which framing a node speaks to its hub.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Protocol {
+    /// CAN frames as GridConnect text (`:X19CC8123N...;`), the protocol of JMRI and OpenMRN
+    /// hubs (port 12021 by convention). The node logs in with a CAN alias.
+    GridConnect,
+    /// Full-format messages in the binary OpenLCB-TCP framing.
+    Tcp,
+}
+
+/// Frames and bytes that crossed a node's connection.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct WireStats {
+    /// CAN frames (GridConnect) or OpenLCB-TCP messages received.
+    pub frames_in: u64,
+    /// CAN frames (GridConnect) or OpenLCB-TCP messages sent.
+    pub frames_out: u64,
+    /// Bytes read from the socket.
+    pub bytes_in: u64,
+    /// Bytes written to the socket.
+    pub bytes_out: u64,
+    /// `write` calls that took bytes: one per batch, not one per frame.
+    pub writes: u64,
+    /// Undecodable input (GridConnect syntax errors, refused OpenLCB-TCP messages).
+    pub decode_errors: u64,
+}
+
+/// Encoded output beyond this many bytes stops the framing of more messages (and so the
+/// taking of more application data) until the socket has taken some.
+pub(crate) const HIGH_WATER: usize = 256 * 1024;
+
+/// Messages handed to the CAN link at once; the rest wait in the driver's own queue (which
+/// the endpoint's credit bounds), so that nothing is ever refused for a full link queue.
+const CAN_LINK_QUEUE: usize = 16;
+
+pub(crate) enum Wire {
+    GridConnect {
+        link: Box<CanLink>,
+        decoder: GridConnectDecoder,
+        /// Messages from the endpoint not yet handed to the link.
+        waiting: VecDeque<Message>,
+        /// Encoded text; bytes before `taken` are written.
+        out: Vec<u8>,
+        taken: usize,
+        /// Set once the alias is permitted.
+        permitted: bool,
+    },
+    Tcp {
+        link: TcpLink,
+    },
+}
+
+impl Wire {
+    pub(crate) fn new(protocol: Protocol, now: Instant, node: NodeId, can: CanConfig) -> Self {
+        match protocol {
+            Protocol::GridConnect => Wire::GridConnect {
+                link: Box::new(CanLink::new(now, node, can)),
+                decoder: GridConnectDecoder::default(),
+                waiting: VecDeque::new(),
+                out: Vec::with_capacity(HIGH_WATER + 4096),
+                taken: 0,
+                permitted: false,
+            },
+            Protocol::Tcp => Wire::Tcp { link: TcpLink::new(node) },
+        }
+    }
+
+    /// The node may talk: its alias is permitted (always true on OpenLCB-TCP).
+    pub(crate) fn is_up(&self) -> bool {
+        match self {
+            Wire::GridConnect { permitted, .. } => *permitted,
+            Wire::Tcp { .. } => true,
+        }
+    }
+
+    /// Feeds bytes read from the socket; every message goes to `endpoint`. An `Err` means the
+    /// connection must be closed.
+    pub(crate) fn receive(
+        &mut self,
+        now: Instant,
+        bytes: &[u8],
+        endpoint: &mut StreamEndpoint,
+        stats: &mut WireStats,
+    ) -> Result<(), Error> {
+        stats.bytes_in += bytes.len() as u64;
+        match self {
+            Wire::GridConnect { link, decoder, .. } => {
+                decoder.decode_all(bytes, |decoded| match decoded {
+                    Ok(frame) => {
+                        stats.frames_in += 1;
+                        link.handle_frame(now, &frame, |msg| endpoint.handle_message(now, msg));
+                    }
+                    Err(_) => stats.decode_errors += 1,
+                });
+                Ok(())
+            }
+            Wire::Tcp { link } => {
+                let mut input = bytes;
+                while let Some(decoded) = link.poll_receive(&mut input) {
+                    match decoded {
+                        Ok(msg) => {
+                            stats.frames_in += 1;
+                            endpoint.handle_message(now, msg);
+                        }
+                        Err(_) => stats.decode_errors += 1,
+                    }
+                }
+                match link.failure() {
+                    Some(failure) => Err(Error::Protocol(failure.to_string())),
+                    None => Ok(()),
+                }
+            }
+        }
+    }
+
+    /// Runs the link's timers.
+    pub(crate) fn handle_timeout(&mut self, now: Instant) {
+        if let Wire::GridConnect { link, .. } = self {
+            link.handle_timeout(now);
+        }
+    }
+
+    pub(crate) fn poll_timeout(&self) -> Option<Instant> {
+        match self {
+            Wire::GridConnect { link, .. } => link.poll_timeout(),
+            Wire::Tcp { .. } => None,
+        }
+    }
+
+    /// The link's events, for the endpoint. Returns an error the node cannot recover from.
+    pub(crate) fn poll_events(&mut self, endpoint: &mut StreamEndpoint) -> Result<(), Error> {
+        let Wire::GridConnect { link, permitted, .. } = self else { return Ok(()) };
+        while let Some(event) = link.poll_event() {
+            match event {
+                LinkEvent::Permitted { .. } => *permitted = true,
+                LinkEvent::AliasLost { .. } => {
+                    *permitted = false;
+                    endpoint.link_lost();
+                }
+                LinkEvent::DuplicateNodeId { .. } => {
+                    endpoint.link_lost();
+                    return Err(Error::Login("another node on the network has this Node ID"));
+                }
+                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// There is room to frame more application data.
+    pub(crate) fn has_room(&self) -> bool {
+        match self {
+            Wire::GridConnect { waiting, out, taken, .. } => waiting.is_empty() && out.len() - taken < HIGH_WATER,
+            Wire::Tcp { link } => link.transmit_pending().len() < HIGH_WATER,
+        }
+    }
+
+    /// Moves the endpoint's messages down through the link into the output buffer, as far as
+    /// the high-water mark allows.
+    pub(crate) fn pump(&mut self, now: Instant, endpoint: &mut StreamEndpoint, stats: &mut WireStats) {
+        match self {
+            Wire::GridConnect { link, waiting, out, taken, .. } => {
+                waiting.extend(std::iter::from_fn(|| endpoint.poll_transmit()));
+                while link.queued_messages() < CAN_LINK_QUEUE {
+                    let Some(message) = waiting.pop_front() else { break };
+                    // A refusal (no CAN form, link stopped) is counted in the link's stats.
+                    let _ = link.send(now, message);
+                }
+                let mut text = [0u8; gridconnect::MAX_ENCODED_LEN];
+                while out.len() - *taken < HIGH_WATER {
+                    let Some(frame) = link.poll_transmit() else { break };
+                    if let Ok(len) = gridconnect::encode(&frame, &mut text) {
+                        out.extend_from_slice(text.get(..len).unwrap_or_default());
+                        out.push(b'\n');
+                        stats.frames_out += 1;
+                    }
+                    // Refill the link from the driver's queue as it drains.
+                    if link.queued_messages() < CAN_LINK_QUEUE {
+                        if let Some(message) = waiting.pop_front() {
+                            let _ = link.send(now, message);
+                        }
+                    }
+                }
+            }
+            Wire::Tcp { link } => {
+                let before = link.stats().messages_out;
+                // Encoding fails only for messages the core never builds.
+                let _ = link.send_from(now, endpoint);
+                stats.frames_out += link.stats().messages_out - before;
+            }
+        }
+    }
+
+    /// Encoded bytes not yet written.
+    pub(crate) fn pending(&self) -> &[u8] {
+        match self {
+            Wire::GridConnect { out, taken, .. } => out.get(*taken..).unwrap_or_default(),
+            Wire::Tcp { link } => link.transmit_pending(),
+        }
+    }
+
+    /// The socket took `n` bytes of [`pending`](Self::pending).
+    pub(crate) fn advance(&mut self, n: usize, stats: &mut WireStats) {
+        stats.bytes_out += n as u64;
+        stats.writes += 1;
+        match self {
+            Wire::GridConnect { out, taken, .. } => {
+                *taken = (*taken + n).min(out.len());
+                if *taken == out.len() {
+                    out.clear();
+                    *taken = 0;
+                } else if *taken > HIGH_WATER {
+                    out.drain(..*taken);
+                    *taken = 0;
+                }
+            }
+            Wire::Tcp { link } => link.advance_transmit(n),
+        }
+    }
+
+    /// Nothing is queued anywhere below the endpoint.
+    pub(crate) fn is_flushed(&self) -> bool {
+        match self {
+            Wire::GridConnect { link, waiting, out, taken, .. } => {
+                waiting.is_empty() && link.queued_messages() == 0 && out.len() == *taken
+            }
+            Wire::Tcp { link } => link.transmit_pending().is_empty(),
+        }
+    }
+}
