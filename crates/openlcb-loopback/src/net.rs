@@ -6,10 +6,10 @@ use std::collections::{HashMap, VecDeque};
 use bytes::Bytes;
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
+use openlcb_gateway::{Gateway, GatewayConfig};
 use openlcb_stream::{
     Config, Duration, Event, Instant, NodeId, OpenOptions, Role, StreamEndpoint, StreamHandle, Termination, TimeoutKind,
 };
-use openlcb_gateway::{Gateway, GatewayConfig};
 use openlcb_tcp::TcpLink;
 
 use crate::bus::{CanBus, Delivery};
