@@ -7,20 +7,44 @@ pub const NODE_A: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x0
 /// Node B, the destination in every bench.
 pub const NODE_B: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x01]);
 
-/// Moves `bytes` from A to B through two endpoints wired back to back (no transport), with
-/// early Proceed and the given window; returns the bytes B read.
-pub fn transfer_back_to_back(bytes: usize, window: u16) -> usize {
+/// The transport under test: moves what one endpoint has queued into the other.
+pub trait Wire {
+    /// Delivers everything `from` has to send to `to`; `a_to_b` tells the direction.
+    fn carry(&mut self, now: Instant, from: &mut StreamEndpoint, to: &mut StreamEndpoint, a_to_b: bool);
+}
+
+/// No transport: the endpoints wired back to back.
+pub struct BackToBack;
+
+impl Wire for BackToBack {
+    fn carry(&mut self, now: Instant, from: &mut StreamEndpoint, to: &mut StreamEndpoint, _a_to_b: bool) {
+        while let Some(msg) = from.poll_transmit() {
+            to.handle_message(now, msg.as_ref());
+        }
+    }
+}
+
+/// Two endpoints (A and B) with early Proceed and `window` as their largest window.
+pub fn endpoints(window: u16) -> (StreamEndpoint, StreamEndpoint) {
     let mut config = Config::default();
     config.max_window = window;
     config.early_proceed = true;
-    let mut a = StreamEndpoint::new(NODE_A, config.clone());
-    let mut b = StreamEndpoint::new(NODE_B, config);
-    let now = Instant::ZERO;
+    (StreamEndpoint::new(NODE_A, config.clone()), StreamEndpoint::new(NODE_B, config))
+}
+
+/// Moves `bytes` from `a` to `b` over `wire` with a stream proposing `window`, reading as fast
+/// as data arrives; returns the bytes B read.
+pub fn transfer(
+    now: Instant,
+    (a, b): (&mut StreamEndpoint, &mut StreamEndpoint),
+    wire: &mut impl Wire,
+    bytes: usize,
+    window: u16,
+) -> usize {
     let data = vec![0x5Au8; 64 * 1024];
     let mut buf = vec![0u8; 128 * 1024];
-    let stream = a.open(now, OpenOptions::new(NODE_B, window)).expect("open");
-    let (mut sent, mut received, mut dest) = (0usize, 0usize, None);
-    let mut finished = false;
+    let stream = a.open(now, OpenOptions::new(b.node_id(), window)).expect("open");
+    let (mut sent, mut received, mut destination, mut finished) = (0usize, 0usize, None, false);
     while !finished {
         if sent < bytes {
             sent += a.write(now, stream, &data[..(bytes - sent).min(data.len())]).unwrap_or(0);
@@ -28,25 +52,28 @@ pub fn transfer_back_to_back(bytes: usize, window: u16) -> usize {
                 a.finish(now, stream).expect("finish");
             }
         }
-        while let Some(msg) = a.poll_transmit() {
-            b.handle_message(now, msg.as_ref());
-        }
+        wire.carry(now, a, b, true);
         while let Some(event) = b.poll_event() {
             match event {
-                Event::Opened { handle, .. } => dest = Some(handle),
+                Event::Opened { handle, .. } => destination = Some(handle),
                 Event::Finished { .. } => finished = true,
+                Event::Terminated { .. } | Event::TimedOut { .. } => panic!("transfer failed: {event:?}"),
                 _ => {}
             }
         }
-        if let Some(h) = dest {
-            while let Ok(n @ 1..) = b.read(now, h, &mut buf) {
+        if let Some(handle) = destination {
+            while let Ok(n @ 1..) = b.read(now, handle, &mut buf) {
                 received += n;
             }
         }
-        while let Some(msg) = b.poll_transmit() {
-            a.handle_message(now, msg.as_ref());
-        }
+        wire.carry(now, b, a, false);
         while a.poll_event().is_some() {}
     }
     received
+}
+
+/// Moves `bytes` from A to B through two endpoints wired back to back.
+pub fn transfer_back_to_back(bytes: usize, window: u16) -> usize {
+    let (mut a, mut b) = endpoints(window);
+    transfer(Instant::ZERO, (&mut a, &mut b), &mut BackToBack, bytes, window)
 }

@@ -5,10 +5,10 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use openlcb_benches::{NODE_A, NODE_B};
+use openlcb_benches::{NODE_A, NODE_B, Wire, endpoints};
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanHeader, CanLink, Fragments, NodeAlias};
-use openlcb_stream::{Config, Event, Instant, Mti, OpenOptions, StreamEndpoint};
+use openlcb_stream::{Instant, Mti, StreamEndpoint};
 
 const FRAMES: usize = 1024;
 
@@ -83,74 +83,44 @@ fn frames(c: &mut Criterion) {
     group.finish();
 }
 
-/// One node: link and endpoint.
-struct Node {
-    link: CanLink,
-    endpoint: StreamEndpoint,
+/// Two CAN links, one per endpoint, on a bus that delivers every frame at once.
+struct CanWire {
+    a: CanLink,
+    b: CanLink,
 }
 
-impl Node {
-    fn new(id: openlcb_stream::NodeId, first_alias: u16, window: u16) -> Self {
-        let mut core = Config::default();
-        core.max_window = window;
-        let mut can = CanConfig::default();
-        can.first_alias = Some(alias(first_alias));
-        Node { link: CanLink::new(Instant::ZERO, id, can), endpoint: StreamEndpoint::new(id, core) }
+impl Wire for CanWire {
+    fn carry(&mut self, now: Instant, from: &mut StreamEndpoint, to: &mut StreamEndpoint, a_to_b: bool) {
+        let (sender, receiver) = if a_to_b { (&mut self.a, &mut self.b) } else { (&mut self.b, &mut self.a) };
+        while let Some(msg) = from.poll_transmit() {
+            sender.send(now, msg).expect("queue");
+        }
+        while let Some(frame) = sender.poll_transmit() {
+            receiver.handle_frame(now, &frame, |msg| to.handle_message(now, msg));
+        }
     }
 }
 
-/// Everything `from` has to send, framed, onto `to`. Returns the frames moved.
-fn deliver(now: Instant, from: &mut Node, to: &mut Node) -> usize {
-    while let Some(msg) = from.endpoint.poll_transmit() {
-        from.link.send(now, msg).expect("queue");
-    }
-    let mut moved = 0;
-    while let Some(frame) = from.link.poll_transmit() {
-        let endpoint = &mut to.endpoint;
-        to.link.handle_frame(now, &frame, |msg| endpoint.handle_message(now, msg));
-        moved += 1;
-    }
-    moved
+fn link(id: openlcb_stream::NodeId, first_alias: u16) -> CanLink {
+    let mut can = CanConfig::default();
+    can.first_alias = Some(alias(first_alias));
+    CanLink::new(Instant::ZERO, id, can)
 }
 
 /// Logs in two nodes and moves `bytes` from A to B through their links.
 fn transfer_over_can(bytes: usize, window: u16) -> usize {
-    let (mut a, mut b) = (Node::new(NODE_A, 0x123, window), Node::new(NODE_B, 0x456, window));
+    let (mut a, mut b) = endpoints(window);
+    let mut wire = CanWire { a: link(NODE_A, 0x123), b: link(NODE_B, 0x456) };
     let login = Instant::from_millis(200);
     for now in [Instant::ZERO, login] {
-        a.link.handle_timeout(now);
-        b.link.handle_timeout(now);
-        while deliver(now, &mut a, &mut b) + deliver(now, &mut b, &mut a) > 0 {}
+        wire.a.handle_timeout(now);
+        wire.b.handle_timeout(now);
+        for _ in 0..4 {
+            wire.carry(now, &mut a, &mut b, true);
+            wire.carry(now, &mut b, &mut a, false);
+        }
     }
-    let now = login;
-    let stream = a.endpoint.open(now, OpenOptions::new(NODE_B, window)).expect("open");
-    let data = vec![0x5Au8; 64 * 1024];
-    let mut buf = vec![0u8; 128 * 1024];
-    let (mut sent, mut received, mut dest, mut finished) = (0usize, 0usize, None, false);
-    while !finished {
-        if sent < bytes {
-            sent += a.endpoint.write(now, stream, &data[..(bytes - sent).min(data.len())]).unwrap_or(0);
-            if sent == bytes {
-                a.endpoint.finish(now, stream).expect("finish");
-            }
-        }
-        deliver(now, &mut a, &mut b);
-        while let Some(event) = b.endpoint.poll_event() {
-            match event {
-                Event::Opened { handle, .. } => dest = Some(handle),
-                Event::Finished { .. } => finished = true,
-                _ => {}
-            }
-        }
-        if let Some(h) = dest {
-            while let Ok(n @ 1..) = b.endpoint.read(now, h, &mut buf) {
-                received += n;
-            }
-        }
-        deliver(now, &mut b, &mut a);
-        while a.endpoint.poll_event().is_some() {}
-    }
-    received
+    openlcb_benches::transfer(login, (&mut a, &mut b), &mut wire, bytes, window)
 }
 
 fn transfer(c: &mut Criterion) {

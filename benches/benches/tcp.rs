@@ -2,8 +2,8 @@
 //! bytes per second), and the decoder and encoder alone (link bytes per second).
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use openlcb_benches::{NODE_A, NODE_B};
-use openlcb_stream::{Config, Event, Instant, Message, Mti, OpenOptions, StreamEndpoint};
+use openlcb_benches::{NODE_A, NODE_B, Wire, endpoints};
+use openlcb_stream::{Instant, Message, Mti, StreamEndpoint};
 use openlcb_tcp::{CaptureTime, Decoder, LinkPrefix, TcpFrame, TcpLink};
 
 /// How many bytes one socket read hands to the link.
@@ -23,46 +23,25 @@ fn carry(now: Instant, from: &mut TcpLink, to: &mut TcpLink, endpoint: &mut Stre
     from.advance_transmit(written);
 }
 
-/// Moves `bytes` from A to B through two endpoints and two links, with early Proceed and the
-/// given window; returns the bytes B read.
-fn transfer_over_links(bytes: usize, window: u16) -> usize {
-    let mut config = Config::default();
-    config.max_window = window;
-    let mut a = StreamEndpoint::new(NODE_A, config.clone());
-    let mut b = StreamEndpoint::new(NODE_B, config);
-    let (mut a_link, mut b_link) = (TcpLink::new(NODE_A), TcpLink::new(NODE_B));
-    let now = Instant::ZERO;
-    let data = vec![0x5Au8; 64 * 1024];
-    let mut buf = vec![0u8; 128 * 1024];
-    let stream = a.open(now, OpenOptions::new(NODE_B, window)).expect("open");
-    let (mut sent, mut received, mut destination) = (0usize, 0usize, None);
-    let mut finished = false;
-    while !finished {
-        if sent < bytes {
-            sent += a.write(now, stream, &data[..(bytes - sent).min(data.len())]).unwrap_or(0);
-            if sent == bytes {
-                a.finish(now, stream).expect("finish");
-            }
-        }
-        a_link.send_from(now, &mut a).expect("encode");
-        carry(now, &mut a_link, &mut b_link, &mut b);
-        while let Some(event) = b.poll_event() {
-            match event {
-                Event::Opened { handle, .. } => destination = Some(handle),
-                Event::Finished { .. } => finished = true,
-                _ => {}
-            }
-        }
-        if let Some(handle) = destination {
-            while let Ok(n @ 1..) = b.read(now, handle, &mut buf) {
-                received += n;
-            }
-        }
-        b_link.send_from(now, &mut b).expect("encode");
-        carry(now, &mut b_link, &mut a_link, &mut a);
-        while a.poll_event().is_some() {}
+/// Two OpenLCB-TCP links, one per endpoint, joined by a byte pipe.
+struct TcpWire {
+    a: TcpLink,
+    b: TcpLink,
+}
+
+impl Wire for TcpWire {
+    fn carry(&mut self, now: Instant, from: &mut StreamEndpoint, to: &mut StreamEndpoint, a_to_b: bool) {
+        let (sender, receiver) = if a_to_b { (&mut self.a, &mut self.b) } else { (&mut self.b, &mut self.a) };
+        sender.send_from(now, from).expect("encode");
+        carry(now, sender, receiver, to);
     }
-    received
+}
+
+/// Moves `bytes` from A to B through two endpoints and two links.
+fn transfer_over_links(bytes: usize, window: u16) -> usize {
+    let (mut a, mut b) = endpoints(window);
+    let mut wire = TcpWire { a: TcpLink::new(NODE_A), b: TcpLink::new(NODE_B) };
+    openlcb_benches::transfer(Instant::ZERO, (&mut a, &mut b), &mut wire, bytes, window)
 }
 
 fn transfer(c: &mut Criterion) {

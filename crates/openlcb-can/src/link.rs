@@ -470,7 +470,7 @@ impl CanLink {
         deliver: &mut impl FnMut(MessageRef<'_>),
     ) {
         if !mti.is_addressed() {
-            if teaches_mapping(mti) {
+            if mti.announces_sender() {
                 match NodeId::from_slice(data) {
                     Some(node) if node == self.node => {
                         return bump(&mut self.stats.own_node_claims);
@@ -690,17 +690,6 @@ impl CanLink {
             bump(&mut self.stats.queue_overflows);
         }
     }
-}
-
-/// Global messages whose payload is the sender's Node ID (MN §3.3.1-3.3.2).
-fn teaches_mapping(mti: Mti) -> bool {
-    matches!(
-        mti,
-        Mti::INITIALIZATION_COMPLETE
-            | Mti::INITIALIZATION_COMPLETE_SIMPLE
-            | Mti::VERIFIED_NODE_ID
-            | Mti::VERIFIED_NODE_ID_SIMPLE
-    )
 }
 
 fn bump(counter: &mut u64) {

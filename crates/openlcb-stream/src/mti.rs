@@ -80,6 +80,12 @@ impl Mti {
         matches!(self.0, 0x0CC8 | 0x0868 | 0x1F88 | 0x0888 | 0x08A8)
     }
 
+    /// A global message whose payload is the sender's own Node ID (Initialization Complete,
+    /// Verified Node ID; MN §3.3.1-3.3.2): it teaches a transport the sender's address.
+    pub const fn announces_sender(self) -> bool {
+        matches!(self.0, 0x0100 | 0x0101 | 0x0170 | 0x0171)
+    }
+
     /// A well-known name, or `None` for values this crate has no constant for.
     pub const fn name(self) -> Option<&'static str> {
         Some(match self.0 {

@@ -330,7 +330,7 @@ impl Gateway {
 
     fn can_message(&mut self, now: Instant, source: NodeAlias, mti: Mti, data: &[u8]) {
         if !mti.is_addressed() {
-            if teaches_mapping(mti) {
+            if mti.announces_sender() {
                 if let Some(node) = NodeId::from_slice(data) {
                     self.learn(now, source, node);
                 }
@@ -395,17 +395,6 @@ fn other(side: Side) -> Side {
         Side::Can => Side::Full,
         Side::Full => Side::Can,
     }
-}
-
-/// Global messages whose payload is the sender's Node ID (MN §3.3.1-3.3.2).
-fn teaches_mapping(mti: Mti) -> bool {
-    matches!(
-        mti,
-        Mti::INITIALIZATION_COMPLETE
-            | Mti::INITIALIZATION_COMPLETE_SIMPLE
-            | Mti::VERIFIED_NODE_ID
-            | Mti::VERIFIED_NODE_ID_SIMPLE
-    )
 }
 
 fn bump(counter: &mut u64) {
