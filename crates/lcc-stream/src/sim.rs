@@ -153,7 +153,7 @@ fn simulate(args: &SimArgs) -> Result<Report, String> {
         payload_bytes,
         elapsed: ended.saturating_duration_since(opened),
         ceiling,
-        frames: frame_delta(after.frames, before.frames),
+        frames: after.frames.since(&before.frames),
         bus_busy: Duration::from_micros(after.bus_busy.as_micros() - before.bus_busy.as_micros()),
         tcp_bytes: after.tcp_bytes - before.tcp_bytes,
         verified,
@@ -184,18 +184,6 @@ fn can_ceiling(net: &Network, from: NodeIndex, to: NodeIndex, transfers: &[usize
     Duration::from_micros(bits * 1_000_000 / u64::from(args.bitrate))
 }
 
-fn frame_delta(after: FrameCounts, before: FrameCounts) -> FrameCounts {
-    FrameCounts {
-        stream_data: after.stream_data - before.stream_data,
-        proceed: after.proceed - before.proceed,
-        initiate: after.initiate - before.initiate,
-        complete: after.complete - before.complete,
-        error_report: after.error_report - before.error_report,
-        other_message: after.other_message - before.other_message,
-        control: after.control - before.control,
-    }
-}
-
 fn rate(bytes: u64, time: Duration) -> f64 {
     if time.as_micros() == 0 { 0.0 } else { bytes as f64 / time.as_secs_f64() }
 }
@@ -217,14 +205,14 @@ fn topology_name(t: Topology) -> &'static str {
 }
 
 fn json(args: &SimArgs, r: &Report) -> String {
-    let f = &r.frames;
-    let mut out = String::new();
-    let _ = write!(
-        out,
+    let mut frames = format!("\"total\":{}", r.frames.total());
+    for (kind, count) in r.frames.by_kind() {
+        let _ = write!(frames, ",\"{kind}\":{count}");
+    }
+    format!(
         "{{\"topology\":\"{}\",\"bitrate\":{},\"window\":{},\"early_proceed\":{},\"latency_ms\":{},\"streams\":{},\"seed\":{},\
          \"payload_bytes\":{},\"elapsed_s\":{:.6},\"goodput_bytes_per_s\":{:.1},\"ceiling_bytes_per_s\":{:.1},\"efficiency\":{:.4},\
-         \"bus_utilisation\":{:.4},\"tcp_bytes\":{},\"frames\":{{\"total\":{},\"stream_data\":{},\"proceed\":{},\"initiate\":{},\
-         \"complete\":{},\"error_report\":{},\"other_message\":{},\"control\":{}}},\"verified\":{},\"real_time_s\":{:.3}}}",
+         \"bus_utilisation\":{:.4},\"tcp_bytes\":{},\"frames\":{{{frames}}},\"verified\":{},\"real_time_s\":{:.3}}}",
         topology_name(args.topology),
         args.bitrate,
         args.window,
@@ -239,22 +227,12 @@ fn json(args: &SimArgs, r: &Report) -> String {
         efficiency(r),
         utilisation(r),
         r.tcp_bytes,
-        f.total(),
-        f.stream_data,
-        f.proceed,
-        f.initiate,
-        f.complete,
-        f.error_report,
-        f.other_message,
-        f.control,
         r.verified,
         r.real_time_s,
-    );
-    out
+    )
 }
 
 fn text(args: &SimArgs, r: &Report) -> String {
-    let f = &r.frames;
     let mut out = String::new();
     let medium = match args.topology {
         Topology::Can => format!("CAN at {} bit/s", args.bitrate),
@@ -285,18 +263,8 @@ fn text(args: &SimArgs, r: &Report) -> String {
     let _ = writeln!(out, "  efficiency     {:.4}", efficiency(r));
     if args.topology != Topology::Tcp {
         let _ = writeln!(out, "  bus busy       {:.1} %", 100.0 * utilisation(r));
-        let _ = writeln!(
-            out,
-            "  frames         {} total: {} data, {} proceed, {} initiate, {} complete, {} error, {} other, {} control",
-            f.total(),
-            f.stream_data,
-            f.proceed,
-            f.initiate,
-            f.complete,
-            f.error_report,
-            f.other_message,
-            f.control
-        );
+        let kinds: Vec<String> = r.frames.by_kind().iter().map(|(kind, n)| format!("{n} {kind}")).collect();
+        let _ = writeln!(out, "  frames         {} total: {}", r.frames.total(), kinds.join(", "));
     } else {
         let _ = writeln!(out, "  tcp bytes      {}", r.tcp_bytes);
     }

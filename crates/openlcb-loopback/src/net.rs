@@ -172,15 +172,35 @@ impl FrameCounts {
         *counter += 1;
     }
 
+    /// Each kind with its name, in a fixed order (for reports).
+    pub fn by_kind(&self) -> [(&'static str, u64); 7] {
+        [
+            ("stream_data", self.stream_data),
+            ("proceed", self.proceed),
+            ("initiate", self.initiate),
+            ("complete", self.complete),
+            ("error_report", self.error_report),
+            ("other_message", self.other_message),
+            ("control", self.control),
+        ]
+    }
+
     /// All of them.
     pub fn total(&self) -> u64 {
-        self.stream_data
-            + self.proceed
-            + self.initiate
-            + self.complete
-            + self.error_report
-            + self.other_message
-            + self.control
+        self.by_kind().iter().map(|(_, n)| n).sum()
+    }
+
+    /// The frames counted since `earlier` was taken.
+    pub fn since(&self, earlier: &FrameCounts) -> FrameCounts {
+        FrameCounts {
+            stream_data: self.stream_data - earlier.stream_data,
+            proceed: self.proceed - earlier.proceed,
+            initiate: self.initiate - earlier.initiate,
+            complete: self.complete - earlier.complete,
+            error_report: self.error_report - earlier.error_report,
+            other_message: self.other_message - earlier.other_message,
+            control: self.control - earlier.control,
+        }
     }
 }
 
