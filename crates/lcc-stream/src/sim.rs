@@ -95,10 +95,10 @@ pub(crate) fn run(args: &SimArgs) -> Result<ExitCode, String> {
 
 fn node_options(args: &SimArgs) -> NodeOptions {
     let mut options = NodeOptions::default();
-    options.stream.max_window = args.window;
-    options.stream.early_proceed = args.early_proceed;
-    options.stream.max_streams = usize::from(args.streams).max(1);
-    options.stream.max_streams_per_peer = usize::from(args.streams).max(1);
+    options.node.stream.max_window = args.window;
+    options.node.stream.early_proceed = args.early_proceed;
+    options.node.stream.max_streams = usize::from(args.streams).max(1);
+    options.node.stream.max_streams_per_peer = usize::from(args.streams).max(1);
     options.can.transmit_queue_limit = options.can.transmit_queue_limit.max(usize::from(args.streams) * 4);
     options.latency = Duration::from_micros((args.latency * 1000.0).round() as u64);
     options

@@ -25,10 +25,11 @@
 //!
 //! ```
 //! use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent};
-//! use openlcb_stream::{Config, Instant, NodeId, StreamEndpoint};
+//! use openlcb_node::{Node, NodeConfig};
+//! use openlcb_stream::{Instant, NodeId};
 //!
 //! let node = NodeId::new(0x05_01_01_01_22_00).unwrap();
-//! let mut endpoint = StreamEndpoint::new(node, Config::default());
+//! let mut endpoint = Node::new(node, NodeConfig::default());
 //! let mut link = CanLink::new(Instant::ZERO, node, CanConfig::default());
 //! let mut bus: Vec<CanFrame> = Vec::new(); // stands in for the CAN driver
 //!
@@ -58,7 +59,7 @@
 //!     [link.poll_timeout(), endpoint.poll_timeout()].into_iter().flatten().min()
 //! };
 //!
-//! // CID 7..4 go out at once; the core's Initialization Complete waits for the alias.
+//! // CID 7..4 go out at once; the node's Initialization Complete waits for the alias.
 //! let wake = turn(Instant::ZERO, &[], &mut bus);
 //! assert_eq!(bus.len(), 4);
 //! assert_eq!(wake, Some(Instant::from_millis(200)));

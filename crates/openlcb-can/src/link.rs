@@ -5,7 +5,7 @@ use alloc::vec::Vec;
 
 use bytes::Bytes;
 use openlcb_stream::wire::{Emit, ErrorReport};
-use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId, node};
+use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::NodeAlias;
 use crate::cache::AliasCache;
@@ -626,7 +626,7 @@ impl CanLink {
                     if self.announced {
                         // After a re-login the endpoint will not announce the node again.
                         let announce =
-                            Outgoing { message: node::initialization_complete(self.node), destination: None };
+                            Outgoing { message: Message::initialization_complete(self.node), destination: None };
                         self.messages.push_front(announce);
                     }
                     self.announced = true;

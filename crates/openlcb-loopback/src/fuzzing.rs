@@ -19,10 +19,10 @@ pub enum Op {
 
 pub fn loopback_ops(seed: u64, window: u16, early_proceed: bool, ops: &[Op]) {
     let mut options = NodeOptions::default();
-    options.stream.max_window = window.max(1);
-    options.stream.early_proceed = early_proceed;
-    options.stream.max_streams = 8;
-    options.stream.max_streams_per_peer = 8;
+    options.node.stream.max_window = window.max(1);
+    options.node.stream.early_proceed = early_proceed;
+    options.node.stream.max_streams = 8;
+    options.node.stream.max_streams_per_peer = 8;
     let mut net = Network::new(seed);
     let bus = net.add_bus(1_000_000, 8);
     let id = |i: u64| NodeId::new(0x0501_0101_2200 + i).unwrap_or_default();

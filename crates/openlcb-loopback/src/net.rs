@@ -7,8 +7,9 @@ use bytes::Bytes;
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
 use openlcb_gateway::{Gateway, GatewayConfig};
+use openlcb_node::{Node, NodeConfig, NodeEvent};
 use openlcb_stream::{
-    Config, Duration, Event, Instant, NodeId, OpenOptions, Role, StreamEndpoint, StreamHandle, Termination, TimeoutKind,
+    Duration, Event, Instant, NodeId, OpenOptions, Role, StreamEndpoint, StreamHandle, Termination, TimeoutKind,
 };
 use openlcb_tcp::TcpLink;
 
@@ -21,8 +22,8 @@ pub type NodeIndex = usize;
 /// How a node is built.
 #[derive(Debug, Clone)]
 pub struct NodeOptions {
-    /// The stream endpoint's configuration.
-    pub stream: Config,
+    /// The node's configuration, its stream endpoint's included.
+    pub node: NodeConfig,
     /// The CAN link's configuration (CAN nodes only).
     pub can: CanConfig,
     /// Time from a frame or byte arriving to the node acting on it.
@@ -35,7 +36,7 @@ pub struct NodeOptions {
 impl Default for NodeOptions {
     fn default() -> Self {
         NodeOptions {
-            stream: Config::default(),
+            node: NodeConfig::default(),
             can: CanConfig::default(),
             latency: Duration::from_millis(1),
             gridconnect: false,
@@ -58,7 +59,7 @@ pub struct FrameFaults {
 /// A fault at a chosen moment.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ScheduledFault {
-    /// The node restarts: new endpoint and link, a new alias, its streams forgotten.
+    /// The node restarts: new node and link, a new alias, its streams forgotten.
     Reset(NodeIndex),
     /// The node stops receiving and sending, for good.
     Silence(NodeIndex),
@@ -262,7 +263,7 @@ enum Port {
 struct SimNode {
     id: NodeId,
     options: NodeOptions,
-    endpoint: StreamEndpoint,
+    stack: Node,
     port: Port,
     inbox: VecDeque<(Instant, Inbound)>,
     gridconnect: GridConnectDecoder,
@@ -445,7 +446,7 @@ impl Network {
     fn push_node(&mut self, id: NodeId, options: NodeOptions, port: Port) -> NodeIndex {
         self.nodes.push(SimNode {
             id,
-            endpoint: StreamEndpoint::new(id, options.stream.clone()),
+            stack: Node::new(id, options.node.clone()),
             options,
             port,
             inbox: VecDeque::new(),
@@ -552,9 +553,14 @@ impl Network {
         stats
     }
 
-    /// A node's endpoint, to script it directly.
+    /// A node's stream endpoint, to script it directly.
     pub fn endpoint(&mut self, node: NodeIndex) -> Option<&mut StreamEndpoint> {
-        self.nodes.get_mut(node).map(|n| &mut n.endpoint)
+        self.nodes.get_mut(node).map(|n| n.stack.streams_mut())
+    }
+
+    /// A node, to script it directly (datagrams, SNIP).
+    pub fn node(&mut self, node: NodeIndex) -> Option<&mut Node> {
+        self.nodes.get_mut(node).map(|n| &mut n.stack)
     }
 
     /// A CAN node's current alias.
@@ -661,7 +667,7 @@ impl Network {
         let fresh_alias = 1 + self.rng.below(0xFFE) as u16;
         let Some(node) = self.nodes.get_mut(index) else { return };
         node.inbox.clear();
-        node.endpoint = StreamEndpoint::new(node.id, node.options.stream.clone());
+        node.stack = Node::new(node.id, node.options.node.clone());
         match &mut node.port {
             Port::Can { bus, port, link } => {
                 let mut can = node.options.can.clone();
@@ -779,12 +785,12 @@ impl Network {
             node.wake = None;
             return;
         }
-        let SimNode { endpoint, port, inbox, gridconnect: gc, options, .. } = node;
+        let SimNode { stack, port, inbox, gridconnect: gc, options, .. } = node;
         match port {
             Port::Can { link, .. } => link.handle_timeout(now),
             Port::Tcp { .. } => {}
         }
-        endpoint.handle_timeout(now);
+        stack.handle_timeout(now);
         while inbox.front().is_some_and(|(t, _)| *t <= now) {
             let Some((_, inbound)) = inbox.pop_front() else { break };
             match (inbound, &mut *port) {
@@ -795,17 +801,17 @@ impl Network {
                         let mut decoded = None;
                         gc.decode_all(text.get(..n).unwrap_or_default(), |r| decoded = r.ok());
                         if let Some(frame) = decoded {
-                            link.handle_frame(now, &frame, |msg| endpoint.handle_message(now, msg));
+                            link.handle_frame(now, &frame, |msg| stack.handle_message(now, msg));
                         }
                     } else {
-                        link.handle_frame(now, &frame, |msg| endpoint.handle_message(now, msg));
+                        link.handle_frame(now, &frame, |msg| stack.handle_message(now, msg));
                     }
                 }
                 (Inbound::Bytes(bytes), Port::Tcp { link, .. }) => {
                     let mut input = &bytes[..];
                     while let Some(result) = link.poll_receive(&mut input) {
                         if let Ok(msg) = result {
-                            endpoint.handle_message(now, msg);
+                            stack.handle_message(now, msg);
                         }
                     }
                 }
@@ -844,10 +850,11 @@ impl Network {
             let Some(node) = self.nodes.get_mut(index) else { continue };
             let mut options = OpenOptions::new(to, spec.window);
             options.source_stream = transfer.chosen_source_stream;
-            match node.endpoint.open(now, options) {
+            match node.stack.streams_mut().open(now, options) {
                 Ok(handle) => {
                     transfer.report.opened_at = Some(now);
-                    transfer.source_stream = node.endpoint.stream_info(handle).map(|i| i.source_stream.as_raw());
+                    transfer.source_stream =
+                        node.stack.streams_mut().stream_info(handle).map(|i| i.source_stream.as_raw());
                     node.sending.push((handle, t));
                 }
                 Err(_) => {
@@ -879,17 +886,18 @@ impl Network {
             let Some(event) = event else { break };
             any = true;
             match event {
-                LinkEvent::AliasLost { .. } => node.endpoint.link_lost(),
+                LinkEvent::AliasLost { .. } => node.stack.link_lost(),
                 LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => {
-                    node.endpoint.peer_lost(peer)
+                    node.stack.peer_lost(peer)
                 }
                 _ => {}
             }
         }
         loop {
             let Some(node) = self.nodes.get_mut(index) else { return any };
-            let Some(event) = node.endpoint.poll_event() else { break };
+            let Some(event) = node.stack.poll_event() else { break };
             any = true;
+            let NodeEvent::Stream(event) = event else { continue };
             match event {
                 Event::Opened { handle, info } if info.role == Role::Destination => {
                     let found = self.transfers.iter().position(|t| {
@@ -960,9 +968,9 @@ impl Network {
         let Some(transfer) = self.transfers.get_mut(t) else { return };
         loop {
             let left = transfer.report.spec.bytes - transfer.report.sent;
-            let credit = u64::from(node.endpoint.credit(handle).unwrap_or(0));
+            let credit = u64::from(node.stack.streams_mut().credit(handle).unwrap_or(0));
             if left == 0 {
-                if node.endpoint.finish(now, handle).is_ok() {
+                if node.stack.streams_mut().finish(now, handle).is_ok() {
                     node.sending.retain(|(h, _)| *h != handle);
                 }
                 return;
@@ -973,7 +981,7 @@ impl Network {
             for (i, byte) in self.scratch.iter_mut().take(n).enumerate() {
                 *byte = transfer.byte(start + i as u64);
             }
-            match node.endpoint.write(now, handle, self.scratch.get(..n).unwrap_or_default()) {
+            match node.stack.streams_mut().write(now, handle, self.scratch.get(..n).unwrap_or_default()) {
                 Ok(written) if written > 0 => transfer.report.sent += written as u64,
                 _ => return,
             }
@@ -986,7 +994,7 @@ impl Network {
         let Some(node) = self.nodes.get_mut(index) else { return };
         let transfer = node.receiving.get(&handle).and_then(|t| self.transfers.get_mut(*t));
         let mut sink = transfer;
-        while let Ok(n @ 1..) = node.endpoint.read(now, handle, &mut self.scratch) {
+        while let Ok(n @ 1..) = node.stack.streams_mut().read(now, handle, &mut self.scratch) {
             self.stats.payload_delivered += n as u64;
             if let Some(t) = sink.as_deref_mut() {
                 let base = t.report.delivered;
@@ -1013,9 +1021,9 @@ impl Network {
         let mut moved = false;
         match &mut node.port {
             Port::Can { bus, port, link } => {
-                // Take from the endpoint only what the link can queue: a refused message is lost.
+                // Take from the node only what the link can queue: a refused message is lost.
                 while link.can_send() {
-                    let Some(message) = node.endpoint.poll_transmit() else { break };
+                    let Some(message) = node.stack.poll_transmit() else { break };
                     let _ = link.send(now, message);
                     moved = true;
                 }
@@ -1027,7 +1035,7 @@ impl Network {
                 }
             }
             Port::Tcp { pipe, side, link } => {
-                while let Some(message) = node.endpoint.poll_transmit() {
+                while let Some(message) = node.stack.poll_transmit() {
                     let _ = link.send(now, &message);
                     moved = true;
                 }
@@ -1128,7 +1136,7 @@ impl Network {
         };
         // A transfer waiting for its CAN alias is woken by the link's own timers.
         let waiting_start = next_start.filter(|t| *t > now);
-        node.wake = [node.inbox.front().map(|(t, _)| *t), node.endpoint.poll_timeout(), link_timeout, waiting_start]
+        node.wake = [node.inbox.front().map(|(t, _)| *t), node.stack.poll_timeout(), link_timeout, waiting_start]
             .into_iter()
             .flatten()
             .min();

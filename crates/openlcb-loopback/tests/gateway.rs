@@ -10,7 +10,7 @@ fn node(n: u64) -> NodeId {
 
 fn options(window: u16) -> NodeOptions {
     let mut o = NodeOptions::default();
-    o.stream.max_window = window;
+    o.node.stream.max_window = window;
     o
 }
 

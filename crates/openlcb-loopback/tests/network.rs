@@ -12,8 +12,8 @@ fn node(n: u64) -> NodeId {
 
 fn options(window: u16, early_proceed: bool) -> NodeOptions {
     let mut o = NodeOptions::default();
-    o.stream.max_window = window;
-    o.stream.early_proceed = early_proceed;
+    o.node.stream.max_window = window;
+    o.node.stream.early_proceed = early_proceed;
     o
 }
 
@@ -80,8 +80,8 @@ fn worked_example_through_gridconnect_text() {
 #[test]
 fn two_hundred_fifty_five_concurrent_streams_between_one_pair() {
     let mut o = options(64, true);
-    o.stream.max_streams = 255;
-    o.stream.max_streams_per_peer = 255;
+    o.node.stream.max_streams = 255;
+    o.node.stream.max_streams_per_peer = 255;
     let (mut net, a, b) = can_pair(3, o.clone(), o);
     let transfers: Vec<usize> = (0..255).map(|_| net.add_transfer(TransferSpec::new(a, b, 100, 64))).collect();
     net.run(Instant::from_millis(600_000), 10_000_000).unwrap();
@@ -235,7 +235,7 @@ fn bit_errors_cost_time_not_data() {
 #[test]
 fn a_rejected_stream_ends_the_transfer() {
     let mut o = options(256, true);
-    o.stream = {
+    o.node.stream = {
         let mut c = Config::default();
         c.accept_policy =
             openlcb_stream::AcceptPolicy::RejectAll(openlcb_stream::wire::ReplyCode::SOURCE_NOT_PERMITTED);

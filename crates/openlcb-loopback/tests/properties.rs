@@ -45,8 +45,8 @@ fn case() -> impl Strategy<Value = Case> {
 
 fn run(c: &Case) -> Result<(), TestCaseError> {
     let mut options = NodeOptions::default();
-    options.stream.max_window = c.window;
-    options.stream.early_proceed = c.early_proceed;
+    options.node.stream.max_window = c.window;
+    options.node.stream.early_proceed = c.early_proceed;
     options.latency = Duration::from_micros(c.latency_us);
     options.gridconnect = c.gridconnect;
     let mut net = Network::new(c.seed);

@@ -53,18 +53,6 @@ pub struct Config {
     /// With [`AcceptPolicy::Ask`], how long a request may wait for the application's decision.
     /// Default 500 ms, inside the 750 ms the message network standard allows for a response.
     pub decision_timeout: Duration,
-    /// Replies to node-level queries (Verify Node ID, Protocol Support Inquiry, OIR for unknown
-    /// MTIs) are dropped and counted once this many messages wait to be transmitted. Stream
-    /// traffic is never dropped; it is bounded by credit instead.
-    pub transmit_queue_limit: usize,
-    /// Queue Initialization Complete as the first message (message network standard §3.2).
-    /// Turn off when the application announces the node itself.
-    pub send_initialization_complete: bool,
-    /// Protocol bits OR-ed into the Protocol Support Reply besides Stream (0x2000_0000_0000).
-    pub extra_protocols: u64,
-    /// Answer addressed messages this endpoint does not handle with OIR 0x1043. Turn off when
-    /// the application handles other protocols (and answers those it does not know itself).
-    pub reject_unknown_mti: bool,
 }
 
 impl Default for Config {
@@ -80,10 +68,6 @@ impl Default for Config {
             keepalive_interval: Some(Duration::from_secs(15)),
             idle_timeout: Some(Duration::from_secs(60)),
             decision_timeout: Duration::from_millis(500),
-            transmit_queue_limit: 256,
-            send_initialization_complete: true,
-            extra_protocols: 0,
-            reject_unknown_mti: true,
         }
     }
 }

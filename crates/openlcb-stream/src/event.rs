@@ -12,6 +12,16 @@ pub enum Role {
     Destination,
 }
 
+impl Role {
+    /// The role at the other end of the stream.
+    pub const fn other(self) -> Role {
+        match self {
+            Role::Source => Role::Destination,
+            Role::Destination => Role::Source,
+        }
+    }
+}
+
 /// What is known about a stream.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct StreamInfo {

@@ -100,7 +100,6 @@ mod event;
 mod ids;
 mod message;
 mod mti;
-pub mod node;
 mod time;
 pub mod wire;
 
@@ -109,7 +108,7 @@ pub mod wire;
 pub mod fuzzing;
 
 pub use config::{AcceptPolicy, Config};
-pub use endpoint::{OpenOptions, Stats, StreamEndpoint, StreamError, StreamHandle};
+pub use endpoint::{AcceptOptions, OpenOptions, Stats, StreamEndpoint, StreamError, StreamHandle};
 pub use event::{Event, Role, StreamInfo, Termination, TimeoutKind};
 pub use ids::{ContentUid, NodeId, ParseNodeIdError, StreamId};
 pub use message::{Message, MessageRef};

@@ -44,6 +44,16 @@ impl Message {
         Message { mti, source, destination: Some(destination), payload: payload.into() }
     }
 
+    /// Initialization Complete for `node` (MN §3.3.1): the first message a node sends.
+    pub fn initialization_complete(node: NodeId) -> Self {
+        Message::global(Mti::INITIALIZATION_COMPLETE, node, Bytes::copy_from_slice(&node.to_bytes()))
+    }
+
+    /// Verified Node ID for `node` (MN §3.3.2): the answer to Verify Node ID.
+    pub fn verified_node_id(node: NodeId) -> Self {
+        Message::global(Mti::VERIFIED_NODE_ID, node, Bytes::copy_from_slice(&node.to_bytes()))
+    }
+
     /// A view of this message as if it had just been received.
     pub fn as_ref(&self) -> MessageRef<'_> {
         MessageRef { mti: self.mti, source: self.source, destination: self.destination, payload: &self.payload }

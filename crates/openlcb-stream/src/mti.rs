@@ -34,6 +34,10 @@ impl Mti {
     pub const DATAGRAM_RECEIVED_OK: Mti = Mti(0x0A28);
     /// Datagram Rejected.
     pub const DATAGRAM_REJECTED: Mti = Mti(0x0A48);
+    /// Simple Node Information Request.
+    pub const SIMPLE_NODE_INFO_REQUEST: Mti = Mti(0x0DE8);
+    /// Simple Node Information Reply.
+    pub const SIMPLE_NODE_INFO_REPLY: Mti = Mti(0x0A08);
     /// Stream Initiate Request.
     pub const STREAM_INITIATE_REQUEST: Mti = Mti(0x0CC8);
     /// Stream Initiate Reply.
@@ -99,6 +103,8 @@ impl Mti {
             0x1C48 => "Datagram",
             0x0A28 => "Datagram Received OK",
             0x0A48 => "Datagram Rejected",
+            0x0DE8 => "Simple Node Information Request",
+            0x0A08 => "Simple Node Information Reply",
             0x0CC8 => "Stream Initiate Request",
             0x0868 => "Stream Initiate Reply",
             0x1F88 => "Stream Data Send",

@@ -14,9 +14,21 @@ struct Counting;
 
 static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
 
+thread_local! {
+    /// Set on the test's own thread: allocations of the test harness's other threads (output
+    /// capture, timers) are not the stack's and are not counted.
+    static COUNTED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+fn count_one() {
+    if COUNTED.try_with(std::cell::Cell::get).unwrap_or(false) {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        count_one();
         unsafe { System.alloc(layout) }
     }
 
@@ -25,7 +37,7 @@ unsafe impl GlobalAlloc for Counting {
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        count_one();
         unsafe { System.realloc(ptr, layout, new_size) }
     }
 }
@@ -37,6 +49,7 @@ static GLOBAL: Counting = Counting;
 fn one_allocation_per_data_send_and_per_proceed() {
     const TOTAL: usize = 1 << 20;
     const WARM_UP: usize = 64 << 10;
+    COUNTED.set(true);
     let a_id = NodeId::new(0x0501_0101_2200).unwrap();
     let b_id = NodeId::new(0x0501_0101_2201).unwrap();
     let mut config = Config::default();

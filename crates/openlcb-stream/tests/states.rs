@@ -1,11 +1,11 @@
 //! State tests, named `<state>_<event>`, one per row of wire-spec tables 6.2 (source),
-//! 6.3 (destination) and 6.4 (unexpected messages), plus the node basics. Each drives one
+//! 6.3 (destination) and 6.4 (unexpected messages), plus error reports. Each drives one
 //! endpoint with hand-made messages from a scripted peer and checks what it sends back.
 
 use openlcb_stream::wire::{CompleteCount, DataComplete, Emit, ErrorCode, ReplyClass, ReplyCode};
 use openlcb_stream::{
-    AcceptPolicy, Config, Duration, Event, Instant, Message, MessageRef, Mti, NodeId, OpenOptions, StreamEndpoint,
-    StreamHandle, StreamId, Termination, TimeoutKind,
+    AcceptOptions, AcceptPolicy, Config, Duration, Event, Instant, Message, MessageRef, Mti, NodeId, OpenOptions,
+    StreamEndpoint, StreamHandle, StreamId, Termination, TimeoutKind,
 };
 
 const LOCAL: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x00]);
@@ -24,7 +24,6 @@ fn sid(raw: u8) -> StreamId {
 
 fn config() -> Config {
     let mut c = Config::default();
-    c.send_initialization_complete = false;
     c.max_window = 16;
     c.early_proceed = false;
     c
@@ -671,6 +670,65 @@ fn open_tde_with_several_streams_ends_that_role() {
 }
 
 #[test]
+fn open_tde_naming_data_send_from_our_source_ends_that_stream_at_once() {
+    // Real sources terminate their own stream naming Data Send (0x1F88), the MTI the draft
+    // gives the destination: with no source stream to that peer, it is about our destination.
+    let mut b = Bench::new(config());
+    let (h, did) = b.open_destination();
+    b.peer(Mti::STREAM_DATA_SEND, &data(did, b"ab"));
+    b.events();
+    b.peer(Mti::TERMINATE_DUE_TO_ERROR, &[0x20, 0x00, 0x1F, 0x88]);
+    assert_eq!(b.events(), [Event::Terminated { handle: h, cause: Termination::ByPeer(ErrorCode(0x2000)) }]);
+    assert_eq!(read_all(&mut b, h), b"ab");
+    assert_eq!(b.ep.stream_count(), 0, "the slot is free at once");
+    // The same peer's next request is accepted, not refused with 0x2020.
+    let (_, _) = b.open_destination();
+}
+
+#[test]
+fn open_tde_or_oir_naming_another_protocol_leaves_streams_open() {
+    let mut b = Bench::new(config());
+    let s = b.open_source(16);
+    let (d, _) = b.open_destination();
+    b.peer(Mti::TERMINATE_DUE_TO_ERROR, &[0x10, 0x00, 0x0D, 0xE8]); // names the SNIP request
+    b.peer(Mti::OPTIONAL_INTERACTION_REJECTED, &[0x10, 0x43, 0x1C, 0x48]); // names Datagram
+    assert!(b.events().is_empty());
+    assert!(b.ep.stream_info(s).is_some() && b.ep.stream_info(d).is_some());
+    assert_eq!(b.ep.stats().stray_error_reports, 2);
+}
+
+#[test]
+fn awaiting_decision_accept_with_chooses_window_and_early_proceed_per_stream() {
+    let mut c = config();
+    c.accept_policy = AcceptPolicy::Ask;
+    c.max_window = 16;
+    let mut b = Bench::new(c);
+    // First stream: early Proceed on, on an endpoint configured without it: the window is
+    // halved so that two windows fit the per-stream buffer bound.
+    b.peer(Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 4]);
+    let Event::IncomingRequest { handle, .. } = b.events()[0] else { panic!("no request") };
+    b.ep.accept_with(b.now, handle, AcceptOptions::new(None, true)).unwrap();
+    let reply = b.sent();
+    assert_eq!(&reply[0].1[..5], &[0, 8, 0x80, 0, 4]);
+    let did = reply[0].1[5];
+    assert_eq!(b.ep.buffer_capacity(handle), Some(16));
+    b.events();
+    // With early Proceed, the first byte of the window already draws a Proceed.
+    b.peer(Mti::STREAM_DATA_SEND, &data(did, b"a"));
+    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did])]);
+    b.events();
+    // Second stream: a window of 4, no early Proceed.
+    b.peer(Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 5]);
+    let Event::IncomingRequest { handle: second, .. } = b.events()[0] else { panic!("no request") };
+    b.ep.accept_with(b.now, second, AcceptOptions::new(Some(4), false)).unwrap();
+    let reply = b.sent();
+    assert_eq!(&reply[0].1[..5], &[0, 4, 0x80, 0, 5]);
+    let did2 = reply[0].1[5];
+    b.peer(Mti::STREAM_DATA_SEND, &data(did2, b"abc"));
+    assert!(b.sent().is_empty(), "no Proceed before the window is full");
+}
+
+#[test]
 fn open_request_reusing_a_live_sid_supersedes() {
     let mut b = Bench::new(config());
     let (h, did) = b.open_destination();
@@ -737,42 +795,6 @@ fn any_message_for_another_node_is_ignored() {
     );
     assert!(b.sent().is_empty());
     assert_eq!(b.ep.stats().not_for_us, 1);
-}
-
-// ===== Node basics =====
-
-#[test]
-fn node_verify_node_id_global_and_addressed() {
-    let mut b = Bench::new(config());
-    b.peer(Mti::VERIFY_NODE_ID_GLOBAL, &[]);
-    b.peer(Mti::VERIFY_NODE_ID_GLOBAL, &OTHER.to_bytes()); // asks for someone else
-    b.peer(Mti::VERIFY_NODE_ID_GLOBAL, &LOCAL.to_bytes());
-    b.peer(Mti::VERIFY_NODE_ID_ADDRESSED, &[]);
-    let verified = (Mti::VERIFIED_NODE_ID, LOCAL.to_bytes().to_vec());
-    assert_eq!(b.sent(), [verified.clone(), verified.clone(), verified]);
-}
-
-#[test]
-fn node_protocol_support_has_stream_bit() {
-    let mut b = Bench::new(config());
-    b.peer(Mti::PROTOCOL_SUPPORT_INQUIRY, &[]);
-    assert_eq!(b.sent(), [(Mti::PROTOCOL_SUPPORT_REPLY, vec![0x20, 0, 0, 0, 0, 0])]);
-}
-
-#[test]
-fn node_unknown_addressed_mti_gets_oir() {
-    let mut b = Bench::new(config());
-    b.peer(Mti(0x0A08), b"hi");
-    b.peer(Mti::OPTIONAL_INTERACTION_REJECTED, &[0x10, 0x43, 0x0A, 0x08]); // never answered
-    b.peer(Mti(0x05B4), &[0; 8]); // global: never answered
-    assert_eq!(b.sent(), [(Mti::OPTIONAL_INTERACTION_REJECTED, vec![0x10, 0x43, 0x0A, 0x08])]);
-}
-
-#[test]
-fn node_announces_itself_first() {
-    let mut ep = StreamEndpoint::new(LOCAL, Config::default());
-    let first = ep.poll_transmit().unwrap();
-    assert_eq!((first.mti, &first.payload[..]), (Mti::INITIALIZATION_COMPLETE, &LOCAL.to_bytes()[..]));
 }
 
 #[test]

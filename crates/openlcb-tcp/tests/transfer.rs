@@ -10,7 +10,6 @@ use openlcb_tcp::TcpLink;
 /// The configuration of §9.2: window 16, no early Proceed, no Initialization Complete.
 fn config() -> Config {
     let mut c = Config::default();
-    c.send_initialization_complete = false;
     c.max_window = 16;
     c.early_proceed = false;
     c

@@ -7,7 +7,7 @@ pub mod published;
 
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
-use openlcb_stream::{Config, Event, Instant, NodeId, StreamEndpoint};
+use openlcb_stream::{Config, Event, Instant, Message, NodeId, StreamEndpoint};
 
 pub const A_ID: u64 = 0x0501_0101_2200;
 pub const B_ID: u64 = 0x0501_0101_2201;
@@ -61,9 +61,13 @@ pub struct Node {
 }
 
 impl Node {
+    /// A node that announces itself (Initialization Complete, the node layer's first message)
+    /// once its alias is permitted.
     pub fn new(now: Instant, id: u64, core: Config, can: CanConfig) -> Self {
+        let mut link = CanLink::new(now, node_id(id), can);
+        link.send(now, Message::initialization_complete(node_id(id))).expect("an empty queue takes it");
         Node {
-            link: CanLink::new(now, node_id(id), can),
+            link,
             endpoint: StreamEndpoint::new(node_id(id), core),
             link_events: Vec::new(),
             events: Vec::new(),

@@ -109,13 +109,19 @@ pub fn core_config(window: u16) -> Config {
 }
 
 impl Net {
+    /// Both nodes announce themselves (Initialization Complete, the node layer's first
+    /// message) as soon as their links can carry it.
     pub fn new(gateway: GatewayConfig, can_core: Config, full_core: Config) -> Self {
         let now = Instant::ZERO;
+        let mut can_link = CanLink::new(now, node_id(CAN_NODE), CanConfig::default());
+        can_link.send(now, Message::initialization_complete(node_id(CAN_NODE))).unwrap();
+        let mut full_link = TcpLink::new(node_id(FULL_NODE));
+        full_link.send(now, &Message::initialization_complete(node_id(FULL_NODE))).unwrap();
         Net {
             now,
-            can_link: CanLink::new(now, node_id(CAN_NODE), CanConfig::default()),
+            can_link,
             can: Peer::new(CAN_NODE, can_core),
-            full_link: TcpLink::new(node_id(FULL_NODE)),
+            full_link,
             full: Peer::new(FULL_NODE, full_core),
             gateway: Gateway::new(now, gateway),
             gateway_link: TcpLink::new(node_id(GATEWAY_NODE)),

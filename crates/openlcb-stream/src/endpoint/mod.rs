@@ -5,6 +5,7 @@
 //! `poll_event` and `poll_timeout`. After any input or command, drain `poll_transmit` and
 //! `poll_event` until `None`, then arm a timer for `poll_timeout`.
 
+mod rename;
 mod stream;
 mod timer;
 
@@ -21,7 +22,7 @@ use crate::wire::{
     CompleteCount, DataComplete, DataProceed, DataSend, Emit, ErrorCode, ErrorReport, InitiateReply, InitiateRequest,
     ReplyClass, ReplyCode,
 };
-use crate::{ContentUid, Duration, Instant, Message, MessageRef, Mti, NodeId, StreamId, node};
+use crate::{ContentUid, Duration, Instant, Message, MessageRef, Mti, NodeId, StreamId};
 
 /// Names one stream of one endpoint. A handle outlives its stream safely: once the stream is
 /// gone, commands on it return [`StreamError::UnknownStream`], even if the slot is reused.
@@ -109,6 +110,24 @@ impl OpenOptions {
     }
 }
 
+/// How [`StreamEndpoint::accept_with`] accepts one stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct AcceptOptions {
+    /// The most this node grants; `None` for [`Config::max_window`]. The reply carries the
+    /// smaller of this and what the source proposed.
+    pub window: Option<u16>,
+    /// Send one Proceed ahead for this stream (see [`Config::early_proceed`]).
+    pub early_proceed: bool,
+}
+
+impl AcceptOptions {
+    /// Accept with `window` (or the endpoint's largest) and early Proceed as chosen.
+    pub fn new(window: Option<u16>, early_proceed: bool) -> Self {
+        AcceptOptions { window, early_proceed }
+    }
+}
+
 /// Inputs that were ignored or refused, by cause. Nothing here is ever a panic.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
@@ -139,8 +158,9 @@ pub struct Stats {
     pub oversized_windows: u64,
     /// Incoming requests refused (any code).
     pub requests_refused: u64,
-    /// Node-level replies dropped because the transmit queue was at its limit.
-    pub replies_dropped: u64,
+    /// Messages of other protocols (neither a stream message, nor a TDE/OIR, nor
+    /// Initialization Complete): the node routes those elsewhere.
+    pub not_stream: u64,
     /// Messages claiming to come from this node's own ID.
     pub own_echoes: u64,
 }
@@ -199,13 +219,10 @@ pub struct StreamEndpoint {
 }
 
 impl StreamEndpoint {
-    /// An endpoint for the local node `node`. With
-    /// [`Config::send_initialization_complete`] the first transmit is Initialization Complete.
+    /// An endpoint for the local node `node`. It sends only stream messages: announcing the
+    /// node and answering the message-network basics is the node's job (`openlcb-node`).
     pub fn new(node: NodeId, config: Config) -> Self {
-        let mut out = Outputs { node, transmits: VecDeque::new(), events: VecDeque::new(), stats: Stats::default() };
-        if config.send_initialization_complete {
-            out.transmits.push_back(node::initialization_complete(node));
-        }
+        let out = Outputs { node, transmits: VecDeque::new(), events: VecDeque::new(), stats: Stats::default() };
         StreamEndpoint {
             config,
             slots: Vec::new(),
@@ -325,16 +342,7 @@ impl StreamEndpoint {
                 self.on_error_report(msg.mti, peer, ErrorReport::parse(msg.payload));
             }
             Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => self.peer_restarted(peer),
-            _ => {
-                if let Some(reply) = node::answer(self.out.node, &self.config, msg) {
-                    if self.out.transmits.len() >= self.config.transmit_queue_limit {
-                        self.out.stats.replies_dropped = self.out.stats.replies_dropped.saturating_add(1);
-                    } else {
-                        self.out.stats.messages_out = self.out.stats.messages_out.saturating_add(1);
-                        self.out.transmits.push_back(reply);
-                    }
-                }
-            }
+            _ => self.out.stats.not_stream = self.out.stats.not_stream.saturating_add(1),
         }
     }
 
@@ -483,14 +491,32 @@ impl StreamEndpoint {
     /// Accepts a request raised by `IncomingRequest`, granting `min(proposed, window,
     /// Config::max_window)` (`window: None` means `Config::max_window`).
     pub fn accept(&mut self, now: Instant, handle: StreamHandle, window: Option<u16>) -> Result<(), StreamError> {
-        let local = window.unwrap_or(self.config.max_window).min(self.config.max_window);
+        let early_proceed = self.config.early_proceed;
+        self.accept_with(now, handle, AcceptOptions { window, early_proceed })
+    }
+
+    /// Accepts a request raised by `IncomingRequest` with this stream's own window and early
+    /// Proceed choice. The receive buffer of a stream never exceeds the per-stream bound of
+    /// [`Config`] (`max_window`, doubled when [`Config::early_proceed`] is on): early Proceed
+    /// on an endpoint configured without it halves the window so that two fit.
+    pub fn accept_with(
+        &mut self,
+        now: Instant,
+        handle: StreamHandle,
+        options: AcceptOptions,
+    ) -> Result<(), StreamError> {
         let slot = self.slot_index(handle).ok_or(StreamError::UnknownStream)?;
         match &self.stream(handle).ok_or(StreamError::UnknownStream)?.half {
             Half::Destination(d) if d.state == DestinationState::AwaitingDecision => {}
             Half::Destination(_) => return Err(StreamError::NotOpen),
             Half::Source(_) => return Err(StreamError::WrongRole),
         }
-        self.accept_slot(now, slot, local);
+        let mut most = self.config.max_window;
+        if options.early_proceed && !self.config.early_proceed {
+            most = (most / 2).max(1);
+        }
+        let local = options.window.unwrap_or(most).min(most);
+        self.accept_slot(now, slot, local, options.early_proceed);
         Ok(())
     }
 
@@ -634,7 +660,7 @@ impl StreamEndpoint {
             }
             _ => {
                 let max_window = self.config.max_window;
-                self.accept_slot(now, usize::from(handle.slot), max_window);
+                self.accept_slot(now, usize::from(handle.slot), max_window, self.config.early_proceed);
             }
         }
     }
@@ -799,29 +825,37 @@ impl StreamEndpoint {
             return;
         }
         // A TDE (or OIR) names the last MTI of the interaction, which tells which end the peer
-        // is; it does not say which stream (wire-spec Q5): end every stream with that peer in
-        // that role, or in both roles when the MTI is missing or unknown.
+        // is; it does not say which stream (wire-spec Q5). The draft (§7.4) has the destination
+        // name Data Send and the source name Proceed, but real sources terminate their own
+        // stream naming Data Send too: so the streams in the role the MTI implies end, or, when
+        // there is none, the streams in the other role. With no MTI, every stream with that
+        // peer ends. One naming another protocol's MTI is not about streams at all.
         let peer_is = match report.mti {
             Some(Mti::STREAM_DATA_SEND | Mti::STREAM_INITIATE_REQUEST | Mti::STREAM_DATA_COMPLETE) => {
                 Some(Role::Destination)
             }
             Some(Mti::STREAM_DATA_PROCEED | Mti::STREAM_INITIATE_REPLY) => Some(Role::Source),
-            Some(_) if mti == Mti::OPTIONAL_INTERACTION_REJECTED => {
-                return self.count(|s| &mut s.stray_error_reports);
-            }
-            _ => None,
+            Some(_) => return self.count(|s| &mut s.stray_error_reports),
+            None => None,
         };
-        let affected: Vec<StreamHandle> = self
-            .handles()
-            .filter(|h| {
-                self.stream(*h).is_some_and(|s| {
-                    let our_role = s.role();
-                    s.peer == peer
-                        && peer_is.is_none_or(|peer_role| peer_role != our_role)
-                        && !matches!(&s.half, Half::Destination(d) if d.state == DestinationState::Closed)
+        let live_with = |ep: &Self, role: Option<Role>| -> Vec<StreamHandle> {
+            ep.handles()
+                .filter(|h| {
+                    ep.stream(*h).is_some_and(|s| {
+                        s.peer == peer
+                            && role.is_none_or(|ours| ours == s.role())
+                            && !matches!(&s.half, Half::Destination(d) if d.state == DestinationState::Closed)
+                    })
                 })
-            })
-            .collect();
+                .collect()
+        };
+        let our_role = peer_is.map(Role::other);
+        let mut affected = live_with(self, our_role);
+        if affected.is_empty() {
+            if let Some(role) = peer_is {
+                affected = live_with(self, Some(role));
+            }
+        }
         if affected.is_empty() {
             return self.count(|s| &mut s.stray_error_reports);
         }
@@ -859,8 +893,7 @@ impl StreamEndpoint {
 
     // ----- helpers -----
 
-    fn accept_slot(&mut self, now: Instant, slot: usize, local_window: u16) {
-        let early = self.config.early_proceed;
+    fn accept_slot(&mut self, now: Instant, slot: usize, local_window: u16, early: bool) {
         let idle = self.config.idle_timeout;
         let Some(s) = self.slots.get_mut(slot) else { return };
         let handle = StreamHandle { slot: slot as u16, generation: s.generation };

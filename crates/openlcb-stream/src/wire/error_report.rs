@@ -10,6 +10,16 @@ use crate::Mti;
 pub struct ErrorCode(pub u16);
 
 impl ErrorCode {
+    /// Permanent error, no detail.
+    pub const PERMANENT: ErrorCode = ErrorCode(0x1000);
+    /// Permanent error: this source is not permitted.
+    pub const SOURCE_NOT_PERMITTED: ErrorCode = ErrorCode(0x1020);
+    /// Permanent error: not implemented.
+    pub const NOT_IMPLEMENTED: ErrorCode = ErrorCode(0x1040);
+    /// Permanent error: not implemented, subcommand unknown.
+    pub const NOT_IMPLEMENTED_SUBCOMMAND: ErrorCode = ErrorCode(0x1041);
+    /// Permanent error: not implemented, datagram type (content ID) unknown.
+    pub const NOT_IMPLEMENTED_DATAGRAM_TYPE: ErrorCode = ErrorCode(0x1042);
     /// Permanent error: not implemented, unknown MTI or transport protocol not supported.
     pub const NOT_IMPLEMENTED_MTI: ErrorCode = ErrorCode(0x1043);
     /// Permanent error: invalid arguments.
@@ -22,6 +32,29 @@ impl ErrorCode {
     pub const OUT_OF_ORDER: ErrorCode = ErrorCode(0x2040);
     /// Temporary error, no detail: what this crate sends when the application aborts.
     pub const TEMPORARY: ErrorCode = ErrorCode(0x2000);
+
+    /// What the code means, from the Message Network standard's table (MN §3.5.5); a code it
+    /// does not list is described by its class.
+    pub const fn meaning(self) -> &'static str {
+        match self.0 {
+            0x1000 => "permanent error",
+            0x1020 => "source not permitted",
+            0x1040 => "not implemented",
+            0x1041 => "not implemented: unknown subcommand",
+            0x1042 => "not implemented: unknown datagram type",
+            0x1043 => "not implemented: unknown MTI or transport",
+            0x1080..=0x108F => "invalid arguments",
+            0x2000 => "temporary error",
+            0x2010 => "timeout",
+            0x2011 => "timeout waiting for the end frame",
+            0x2020 => "buffer unavailable (busy)",
+            0x2040 => "out of order",
+            0x2041 => "out of order: middle or last frame without a first",
+            0x2042 => "out of order: first frame before the last one ended",
+            _ if self.0 & 0x2000 != 0 => "temporary error",
+            _ => "permanent error",
+        }
+    }
 
     /// The permanent bit (0x1000) is set.
     pub const fn is_permanent(self) -> bool {

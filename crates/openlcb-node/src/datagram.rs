@@ -1,0 +1,498 @@
+//! Datagram Transport (node-protocols.md §2): one datagram outstanding per destination, with
+//! Received OK, Rejected (resent on temporary codes, bounded), and timeouts; incoming
+//! datagrams go to the application by content ID, and every other one is rejected at once.
+
+use alloc::collections::VecDeque;
+use alloc::vec::Vec;
+use core::fmt;
+
+use bytes::Bytes;
+use openlcb_stream::wire::ErrorCode;
+use openlcb_stream::{Duration, Instant, Message, Mti, NodeId};
+
+use crate::node::{NodeEvent, Outputs};
+
+/// The longest datagram (DG §4.1).
+pub const MAX_DATAGRAM_LEN: usize = 72;
+
+/// Bounds and timers of the datagram service.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct DatagramConfig {
+    /// Content IDs (byte 0) the application handles: a datagram starting with one of these
+    /// raises [`NodeEvent::DatagramReceived`]. Every other datagram is rejected at once with
+    /// 0x1042 (datagram type unknown, DG-TN §2.4.3.1).
+    pub claimed: Vec<u8>,
+    /// How long a sent datagram waits for Received OK or Rejected. MN §3.7 forbids less than
+    /// 3 s; OpenMRN and OpenLcbCLib wait 3 s.
+    pub timeout: Duration,
+    /// How often a datagram rejected with a temporary code (0x2xxx) is sent again.
+    pub max_retries: u8,
+    /// The wait before the first resend; it doubles with each one.
+    pub retry_delay: Duration,
+    /// Datagrams accepted by `send_datagram` and not yet delivered or failed, all
+    /// destinations together.
+    pub max_outgoing: usize,
+    /// Received datagrams waiting for the application's answer, all sources together. More
+    /// are rejected with 0x2020 (buffer unavailable: the sender resends).
+    pub max_awaiting_answer: usize,
+    /// How long a received datagram may wait for `answer_datagram`; then it is rejected with
+    /// 0x2020. Default 500 ms, inside the 750 ms MN §3.7 allows for a response.
+    pub answer_timeout: Duration,
+}
+
+impl Default for DatagramConfig {
+    fn default() -> Self {
+        DatagramConfig {
+            claimed: Vec::new(),
+            timeout: Duration::from_secs(3),
+            max_retries: 3,
+            retry_delay: Duration::from_millis(200),
+            max_outgoing: 16,
+            max_awaiting_answer: 8,
+            answer_timeout: Duration::from_millis(500),
+        }
+    }
+}
+
+/// A received datagram, held inline (no allocation).
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct Datagram {
+    len: u8,
+    bytes: [u8; MAX_DATAGRAM_LEN],
+}
+
+impl Datagram {
+    /// A datagram holding `payload`, or `None` when it is longer than 72 bytes.
+    pub fn new(payload: &[u8]) -> Option<Self> {
+        let mut bytes = [0; MAX_DATAGRAM_LEN];
+        bytes.get_mut(..payload.len())?.copy_from_slice(payload);
+        Some(Datagram { len: payload.len() as u8, bytes })
+    }
+
+    /// The datagram's bytes; byte 0 is the content ID.
+    pub fn as_slice(&self) -> &[u8] {
+        self.bytes.get(..usize::from(self.len)).unwrap_or(&[])
+    }
+
+    /// The content ID (byte 0), if the datagram is not empty.
+    pub fn content_id(&self) -> Option<u8> {
+        self.as_slice().first().copied()
+    }
+}
+
+impl fmt::Debug for Datagram {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "Datagram(")?;
+        for byte in self.as_slice() {
+            write!(f, "{byte:02X}")?;
+        }
+        write!(f, ")")
+    }
+}
+
+/// Names one datagram sent with [`Node::send_datagram`](crate::Node::send_datagram).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct DatagramId(pub u32);
+
+/// The flags byte of Datagram Received OK (DG §4.2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct OkFlags {
+    /// A reply datagram will follow (its meaning belongs to the higher protocol).
+    pub reply_pending: bool,
+    /// 0: no time given; 1..=15: the reply comes within 2^N seconds.
+    pub timeout_exponent: u8,
+}
+
+impl OkFlags {
+    /// Reads the flags byte (absent = 0; reserved bits ignored).
+    pub fn from_byte(byte: u8) -> Self {
+        OkFlags { reply_pending: byte & 0x80 != 0, timeout_exponent: byte & 0x0F }
+    }
+
+    /// The flags byte.
+    pub fn to_byte(self) -> u8 {
+        (if self.reply_pending { 0x80 } else { 0 }) | (self.timeout_exponent & 0x0F)
+    }
+}
+
+/// The application's answer to a received datagram.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DatagramAnswer {
+    /// Datagram Received OK with these flags.
+    Ok(OkFlags),
+    /// Datagram Rejected with this code (0x1xxx permanent, 0x2xxx resend).
+    Rejected(ErrorCode),
+}
+
+/// Why a datagram this node sent was not delivered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum DatagramFailure {
+    /// Rejected with a permanent code, or with a temporary one too often.
+    Rejected(ErrorCode),
+    /// Neither OK nor Rejected within [`DatagramConfig::timeout`].
+    TimedOut,
+    /// The destination sent Initialization Complete while the datagram waited: it restarted
+    /// (a Freeze for a firmware upgrade ends this way).
+    PeerRestarted,
+    /// The transport lost the destination or our own link.
+    PeerLost,
+}
+
+/// Why a datagram command was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DatagramError {
+    /// More than 72 bytes.
+    #[error("a datagram holds at most 72 bytes")]
+    TooLong,
+    /// [`DatagramConfig::max_outgoing`] datagrams are waiting.
+    #[error("too many datagrams are waiting to be delivered")]
+    QueueFull,
+    /// The destination is this node.
+    #[error("a node cannot send a datagram to itself")]
+    SelfAddressed,
+    /// No datagram from that node waits for an answer.
+    #[error("no datagram from that node waits for an answer")]
+    NotAwaitingAnswer,
+}
+
+/// Counters of the datagram service.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct DatagramStats {
+    /// Datagrams handed to the application.
+    pub received: u64,
+    /// Received datagrams rejected at once: empty, or a content ID nobody claimed (0x1042).
+    pub rejected_unclaimed: u64,
+    /// Received datagrams rejected because the answer table was full or the source already
+    /// had one waiting (0x2020).
+    pub rejected_busy: u64,
+    /// Received datagrams the application did not answer in time (rejected with 0x2020).
+    pub answer_timeouts: u64,
+    /// Datagrams sent, resends included.
+    pub sent: u64,
+    /// Resends after a temporary rejection.
+    pub resent: u64,
+    /// Datagrams answered with Received OK.
+    pub delivered: u64,
+    /// Datagrams that failed.
+    pub failed: u64,
+    /// OK or Rejected from a node we were not waiting for.
+    pub stray_answers: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SendState {
+    /// Behind another datagram to the same destination.
+    Queued,
+    /// Sent; waiting for OK or Rejected until the deadline.
+    InFlight { deadline: Instant },
+    /// Rejected with a temporary code; sent again at this time.
+    Backoff { until: Instant },
+}
+
+#[derive(Debug)]
+struct Outgoing {
+    id: DatagramId,
+    to: NodeId,
+    payload: Bytes,
+    state: SendState,
+    resends: u8,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Awaiting {
+    from: NodeId,
+    deadline: Instant,
+}
+
+/// Both directions of Datagram Transport for one node.
+#[derive(Debug)]
+pub(crate) struct DatagramService {
+    config: DatagramConfig,
+    claimed: [u64; 4],
+    outgoing: VecDeque<Outgoing>,
+    awaiting: Vec<Awaiting>,
+    next_id: u32,
+    pub(crate) stats: DatagramStats,
+}
+
+impl DatagramService {
+    pub(crate) fn new(config: DatagramConfig) -> Self {
+        let mut claimed = [0u64; 4];
+        for &content in &config.claimed {
+            if let Some(word) = claimed.get_mut(usize::from(content / 64)) {
+                *word |= 1 << (content % 64);
+            }
+        }
+        DatagramService {
+            outgoing: VecDeque::with_capacity(config.max_outgoing),
+            awaiting: Vec::with_capacity(config.max_awaiting_answer),
+            claimed,
+            next_id: 0,
+            stats: DatagramStats::default(),
+            config,
+        }
+    }
+
+    fn is_claimed(&self, content: u8) -> bool {
+        self.claimed.get(usize::from(content / 64)).is_some_and(|word| word & (1 << (content % 64)) != 0)
+    }
+
+    pub(crate) fn poll_timeout(&self) -> Option<Instant> {
+        let sends = self.outgoing.iter().filter_map(|o| match o.state {
+            SendState::InFlight { deadline } => Some(deadline),
+            SendState::Backoff { until } => Some(until),
+            SendState::Queued => None,
+        });
+        sends.chain(self.awaiting.iter().map(|a| a.deadline)).min()
+    }
+
+    // ----- sending -----
+
+    pub(crate) fn send(
+        &mut self,
+        now: Instant,
+        out: &mut Outputs,
+        to: NodeId,
+        payload: &[u8],
+    ) -> Result<DatagramId, DatagramError> {
+        if payload.len() > MAX_DATAGRAM_LEN {
+            return Err(DatagramError::TooLong);
+        }
+        if to == out.node {
+            return Err(DatagramError::SelfAddressed);
+        }
+        if self.outgoing.len() >= self.config.max_outgoing {
+            return Err(DatagramError::QueueFull);
+        }
+        let id = DatagramId(self.next_id);
+        self.next_id = self.next_id.wrapping_add(1);
+        let busy = self.outgoing.iter().any(|o| o.to == to);
+        self.outgoing.push_back(Outgoing {
+            id,
+            to,
+            payload: Bytes::copy_from_slice(payload),
+            state: SendState::Queued,
+            resends: 0,
+        });
+        if !busy {
+            self.start_next(now, out, to);
+        }
+        Ok(id)
+    }
+
+    /// Sends the first queued datagram to `to`, if any (one outstanding per destination).
+    fn start_next(&mut self, now: Instant, out: &mut Outputs, to: NodeId) {
+        let deadline = now + self.config.timeout;
+        if let Some(next) = self.outgoing.iter_mut().find(|o| o.to == to) {
+            if next.state == SendState::Queued {
+                next.state = SendState::InFlight { deadline };
+                self.stats.sent += 1;
+                out.transmit(Message::addressed(Mti::DATAGRAM, out.node, to, next.payload.clone()));
+            }
+        }
+    }
+
+    /// A datagram to `peer` waits for its OK or Rejected (or for its resend).
+    pub(crate) fn is_waiting_for(&self, peer: NodeId) -> bool {
+        self.active(peer).is_some()
+    }
+
+    /// The datagram in flight to `to` (or waiting to be resent), if any.
+    fn active(&self, to: NodeId) -> Option<usize> {
+        self.outgoing.iter().position(|o| o.to == to && o.state != SendState::Queued)
+    }
+
+    fn finish(&mut self, now: Instant, out: &mut Outputs, index: usize, result: Result<OkFlags, DatagramFailure>) {
+        let Some(done) = self.outgoing.remove(index) else { return };
+        match result {
+            Ok(flags) => {
+                self.stats.delivered += 1;
+                out.event(NodeEvent::DatagramDelivered { id: done.id, to: done.to, flags });
+            }
+            Err(failure) => {
+                self.stats.failed += 1;
+                out.event(NodeEvent::DatagramFailed { id: done.id, to: done.to, failure });
+            }
+        }
+        self.start_next(now, out, done.to);
+    }
+
+    pub(crate) fn on_received_ok(&mut self, now: Instant, out: &mut Outputs, from: NodeId, payload: &[u8]) {
+        let Some(index) = self.active(from) else {
+            self.stats.stray_answers += 1;
+            return;
+        };
+        let flags = OkFlags::from_byte(payload.first().copied().unwrap_or(0));
+        self.finish(now, out, index, Ok(flags));
+    }
+
+    /// Datagram Rejected, or an OIR/TDE naming Datagram (or nothing), from `from`.
+    pub(crate) fn on_rejected(&mut self, now: Instant, out: &mut Outputs, from: NodeId, code: ErrorCode) {
+        let Some(index) = self.active(from) else {
+            self.stats.stray_answers += 1;
+            return;
+        };
+        let retries = self.config.max_retries;
+        let delay = self.config.retry_delay;
+        let Some(entry) = self.outgoing.get_mut(index) else { return };
+        // DG §6.2: only a temporary code allows the same datagram again.
+        if code.is_temporary() && entry.resends < retries {
+            let backoff = Duration::from_micros(delay.as_micros().saturating_mul(1 << entry.resends.min(16)));
+            entry.resends += 1;
+            entry.state = SendState::Backoff { until: now + backoff };
+            return;
+        }
+        self.finish(now, out, index, Err(DatagramFailure::Rejected(code)));
+    }
+
+    /// `peer` sent Initialization Complete: a datagram it had not answered is lost.
+    pub(crate) fn peer_restarted(&mut self, now: Instant, out: &mut Outputs, peer: NodeId) {
+        if let Some(index) = self.active(peer) {
+            self.finish(now, out, index, Err(DatagramFailure::PeerRestarted));
+        }
+        self.awaiting.retain(|a| a.from != peer);
+    }
+
+    /// Every datagram to `peer` fails (`None`: to every node), and what it sent us is forgotten.
+    pub(crate) fn peer_lost(&mut self, out: &mut Outputs, peer: Option<NodeId>) {
+        let lost = |to: NodeId| peer.is_none_or(|p| p == to);
+        let mut index = 0;
+        while let Some(o) = self.outgoing.get(index) {
+            if !lost(o.to) {
+                index += 1;
+                continue;
+            }
+            if let Some(done) = self.outgoing.remove(index) {
+                self.stats.failed += 1;
+                out.event(NodeEvent::DatagramFailed { id: done.id, to: done.to, failure: DatagramFailure::PeerLost });
+            }
+        }
+        self.awaiting.retain(|a| !lost(a.from));
+    }
+
+    pub(crate) fn rename_peer(&mut self, from: NodeId, to: NodeId) {
+        for o in self.outgoing.iter_mut().filter(|o| o.to == from) {
+            o.to = to;
+        }
+        for a in self.awaiting.iter_mut().filter(|a| a.from == from) {
+            a.from = to;
+        }
+    }
+
+    pub(crate) fn handle_timeout(&mut self, now: Instant, out: &mut Outputs) {
+        while let Some(index) =
+            self.outgoing.iter().position(|o| matches!(o.state, SendState::InFlight { deadline } if deadline <= now))
+        {
+            self.finish(now, out, index, Err(DatagramFailure::TimedOut));
+        }
+        let deadline = now + self.config.timeout;
+        for o in self.outgoing.iter_mut() {
+            if matches!(o.state, SendState::Backoff { until } if until <= now) {
+                o.state = SendState::InFlight { deadline };
+                self.stats.sent += 1;
+                self.stats.resent += 1;
+                out.transmit(Message::addressed(Mti::DATAGRAM, out.node, o.to, o.payload.clone()));
+            }
+        }
+        while let Some(index) = self.awaiting.iter().position(|a| a.deadline <= now) {
+            let expired = self.awaiting.swap_remove(index);
+            self.stats.answer_timeouts += 1;
+            out.reply(rejected(out.node, expired.from, ErrorCode::BUFFER_UNAVAILABLE));
+        }
+    }
+
+    // ----- receiving -----
+
+    pub(crate) fn on_datagram(&mut self, now: Instant, out: &mut Outputs, from: NodeId, payload: &[u8]) {
+        let claimed = payload.first().is_some_and(|&c| self.is_claimed(c));
+        let Some(datagram) = Datagram::new(payload).filter(|_| claimed) else {
+            self.stats.rejected_unclaimed += 1;
+            return out.reply(rejected(out.node, from, ErrorCode::NOT_IMPLEMENTED_DATAGRAM_TYPE));
+        };
+        let busy =
+            self.awaiting.len() >= self.config.max_awaiting_answer || self.awaiting.iter().any(|a| a.from == from);
+        if busy {
+            self.stats.rejected_busy += 1;
+            return out.reply(rejected(out.node, from, ErrorCode::BUFFER_UNAVAILABLE));
+        }
+        self.awaiting.push(Awaiting { from, deadline: now + self.config.answer_timeout });
+        self.stats.received += 1;
+        out.event(NodeEvent::DatagramReceived { from, datagram });
+    }
+
+    pub(crate) fn answer(
+        &mut self,
+        out: &mut Outputs,
+        from: NodeId,
+        answer: DatagramAnswer,
+    ) -> Result<(), DatagramError> {
+        let index = self.awaiting.iter().position(|a| a.from == from).ok_or(DatagramError::NotAwaitingAnswer)?;
+        self.awaiting.swap_remove(index);
+        let message = match answer {
+            DatagramAnswer::Ok(flags) => Message::addressed(
+                Mti::DATAGRAM_RECEIVED_OK,
+                out.node,
+                from,
+                Bytes::copy_from_slice(&[flags.to_byte()]),
+            ),
+            DatagramAnswer::Rejected(code) => rejected(out.node, from, code),
+        };
+        out.transmit(message);
+        Ok(())
+    }
+}
+
+fn rejected(local: NodeId, to: NodeId, code: ErrorCode) -> Message {
+    Message::addressed(Mti::DATAGRAM_REJECTED, local, to, Bytes::copy_from_slice(&code.0.to_be_bytes()))
+}
+
+/// The error code of a Datagram Rejected payload, read liberally (node-protocols.md §2.3,
+/// §2.5): missing bits are 0; OpenLcbCLib's CAN layer puts the code in bytes 2-3 (after an
+/// alias), so a code with neither class bit followed by one with a class bit is read from
+/// there; a code with no class bit at all counts as permanent.
+pub fn rejection_code(payload: &[u8]) -> ErrorCode {
+    let word = |at: usize| match payload.get(at..) {
+        Some([high, low, ..]) => u16::from_be_bytes([*high, *low]),
+        Some([high]) => u16::from(*high) << 8,
+        _ => 0,
+    };
+    let code = word(0);
+    if code & 0x3000 == 0 && word(2) & 0x3000 != 0 && payload.len() >= 4 {
+        return ErrorCode(word(2));
+    }
+    ErrorCode(code)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rejection_codes_are_read_liberally() {
+        assert_eq!(rejection_code(&[0x20, 0x20]), ErrorCode(0x2020));
+        assert_eq!(rejection_code(&[0x10]), ErrorCode(0x1000), "missing bits are 0");
+        assert_eq!(rejection_code(&[]), ErrorCode(0));
+        // OpenLcbCLib's CAN-layer form: alias 0x0123, then the code.
+        assert_eq!(rejection_code(&[0x01, 0x23, 0x20, 0x41]), ErrorCode(0x2041));
+        assert_eq!(rejection_code(&[0x10, 0x42, 0x00, 0x00]), ErrorCode(0x1042));
+    }
+
+    #[test]
+    fn ok_flags_round_trip() {
+        let flags = OkFlags::from_byte(0x83);
+        assert_eq!(flags, OkFlags { reply_pending: true, timeout_exponent: 3 });
+        assert_eq!(flags.to_byte(), 0x83);
+        assert_eq!(OkFlags::from_byte(0x70), OkFlags::default(), "reserved bits are ignored");
+    }
+
+    #[test]
+    fn datagram_holds_at_most_72_bytes() {
+        assert_eq!(Datagram::new(&[0x20; 72]).map(|d| d.as_slice().len()), Some(72));
+        assert!(Datagram::new(&[0; 73]).is_none());
+        assert_eq!(Datagram::new(&[]).and_then(|d| d.content_id()), None);
+    }
+}

@@ -1,0 +1,104 @@
+//! One local OpenLCB (LCC) node, sans-IO.
+//!
+//! A real device speaks several protocols at once, and streams are mostly reached through
+//! them. [`Node`] routes each received message to the protocol it belongs to: the stream
+//! endpoint of [`openlcb_stream`], the datagram service, Simple Node Information (SNIP), and
+//! the message-network basics it answers itself (Verify Node ID, Protocol Support Inquiry, and
+//! Optional Interaction Rejected for addressed messages of protocols it lacks). Each
+//! Optional Interaction Rejected or Terminate Due To Error goes to the protocol its MTI names,
+//! so a rejected SNIP request never touches a stream. Its Protocol Support Reply announces
+//! exactly what it implements.
+//!
+//! # The drive loop
+//!
+//! The shape is the stream core's: inputs ([`handle_message`](Node::handle_message),
+//! [`handle_timeout`](Node::handle_timeout), and from the transport
+//! [`rename_peer`](Node::rename_peer), [`peer_lost`](Node::peer_lost),
+//! [`link_lost`](Node::link_lost)); commands ([`send_datagram`](Node::send_datagram),
+//! [`answer_datagram`](Node::answer_datagram), [`request_snip`](Node::request_snip), and the
+//! stream commands on [`streams_mut`](Node::streams_mut)); outputs
+//! ([`poll_transmit`](Node::poll_transmit), [`poll_event`](Node::poll_event),
+//! [`poll_timeout`](Node::poll_timeout)). After any input or command, drain `poll_transmit`
+//! and `poll_event` until `None`, then arm a timer for `poll_timeout`.
+//!
+//! Two nodes back to back (a real program puts a transport in between): A asks B for its
+//! SNIP, sends it a datagram B's application claims, and B answers it.
+//!
+//! ```
+//! use openlcb_node::{DatagramAnswer, Node, NodeConfig, NodeEvent, OkFlags, SnipInfo};
+//! use openlcb_stream::{Instant, NodeId};
+//!
+//! let a_id = NodeId::new(0x05_01_01_01_22_00).unwrap();
+//! let b_id = NodeId::new(0x05_01_01_01_22_01).unwrap();
+//! let mut b_config = NodeConfig::default();
+//! b_config.snip = SnipInfo { manufacturer: "Acme".into(), model: "Widget".into(), ..SnipInfo::default() };
+//! b_config.datagrams.claimed = vec![0x21];
+//! let mut a = Node::new(a_id, NodeConfig::default());
+//! let mut b = Node::new(b_id, b_config);
+//! let now = Instant::ZERO;
+//!
+//! fn pump(now: Instant, a: &mut Node, b: &mut Node) {
+//!     loop {
+//!         let mut moved = false;
+//!         while let Some(msg) = a.poll_transmit() { b.handle_message(now, msg.as_ref()); moved = true; }
+//!         while let Some(msg) = b.poll_transmit() { a.handle_message(now, msg.as_ref()); moved = true; }
+//!         if !moved { break; }
+//!     }
+//! }
+//!
+//! pump(now, &mut a, &mut b); // both announce themselves (Initialization Complete)
+//! a.request_snip(now, b_id).unwrap();
+//! let sent = a.send_datagram(now, b_id, &[0x21, 1, 2, 3]).unwrap();
+//! pump(now, &mut a, &mut b);
+//! // B's application gets the datagram and answers it.
+//! while let Some(event) = b.poll_event() {
+//!     if let NodeEvent::DatagramReceived { from, datagram } = event {
+//!         assert_eq!(datagram.as_slice(), [0x21, 1, 2, 3]);
+//!         b.answer_datagram(from, DatagramAnswer::Ok(OkFlags::default())).unwrap();
+//!     }
+//! }
+//! pump(now, &mut a, &mut b);
+//! let events: Vec<NodeEvent> = std::iter::from_fn(|| a.poll_event()).collect();
+//! assert!(events.iter().any(|e| matches!(e, NodeEvent::SnipReceived { info, .. } if info.model == "Widget")));
+//! assert!(events.iter().any(|e| matches!(e, NodeEvent::DatagramDelivered { id, .. } if *id == sent)));
+//! ```
+//!
+//! # Peers known by their CAN alias
+//!
+//! On CAN a peer may be known only by its alias; the CAN link then names it with a
+//! provisional Node ID and tells the node when the name changes. [`Node::rename_peer`] moves
+//! everything open with the old name (streams, datagrams, SNIP requests) to the new one, so
+//! nothing is lost when a Node ID is learnt or a mapping forgotten.
+//!
+//! # Bounds
+//!
+//! Every table is sized by [`NodeConfig`]: answers beyond
+//! [`transmit_queue_limit`](NodeConfig::transmit_queue_limit) are dropped and counted;
+//! datagrams waiting, datagrams awaiting the application's answer and SNIP requests each have
+//! their own bound. Nothing on the receive path panics.
+
+#![cfg_attr(not(test), no_std)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+extern crate alloc;
+#[cfg(feature = "fuzzing")]
+extern crate std;
+
+mod config;
+mod datagram;
+mod node;
+mod snip;
+
+#[cfg(feature = "fuzzing")]
+#[doc(hidden)]
+pub mod fuzzing;
+
+pub use config::{NodeConfig, Protocols};
+pub use datagram::{
+    Datagram, DatagramAnswer, DatagramConfig, DatagramError, DatagramFailure, DatagramId, DatagramStats,
+    MAX_DATAGRAM_LEN, OkFlags, rejection_code,
+};
+pub use node::{Node, NodeEvent, NodeStats};
+pub use snip::{MAX_REPLY_LEN, SnipFailure, SnipField, SnipInfo, SnipRequestError, SnipTooLong};

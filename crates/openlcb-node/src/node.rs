@@ -1,0 +1,442 @@
+//! [`Node`]: one local node. It routes every message to the protocol it belongs to, answers
+//! the message-network basics itself, and drains its protocols in one drive loop.
+
+use alloc::collections::VecDeque;
+use alloc::vec::Vec;
+
+use bytes::Bytes;
+use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport};
+use openlcb_stream::{Event, Instant, Message, MessageRef, Mti, NodeId, StreamEndpoint};
+
+use crate::datagram::{Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramService, OkFlags};
+use crate::snip::{PendingSnip, SnipFailure, SnipInfo, SnipRequestError};
+use crate::{DatagramStats, NodeConfig, Protocols};
+
+/// Something the application must know. Drain with [`Node::poll_event`] after every call.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum NodeEvent {
+    /// An event of the stream endpoint.
+    Stream(Event),
+    /// A datagram with a claimed content ID arrived; answer it with
+    /// [`Node::answer_datagram`] within [`DatagramConfig::answer_timeout`](crate::DatagramConfig::answer_timeout).
+    DatagramReceived {
+        /// The sender.
+        from: NodeId,
+        /// Its bytes.
+        datagram: Datagram,
+    },
+    /// A datagram this node sent was answered with Received OK.
+    DatagramDelivered {
+        /// The datagram.
+        id: DatagramId,
+        /// Its destination.
+        to: NodeId,
+        /// The flags of the OK (reply pending, timeout exponent).
+        flags: OkFlags,
+    },
+    /// A datagram this node sent was not delivered.
+    DatagramFailed {
+        /// The datagram.
+        id: DatagramId,
+        /// Its destination.
+        to: NodeId,
+        /// Why.
+        failure: DatagramFailure,
+    },
+    /// A node answered Verify Node ID (see [`Node::verify_all`]).
+    Verified {
+        /// The node, as its Verified Node ID message names it.
+        node: NodeId,
+    },
+    /// A Protocol Support Reply arrived (see [`Node::request_protocols`]).
+    ProtocolsReceived {
+        /// The node that answered.
+        peer: NodeId,
+        /// What it supports.
+        protocols: Protocols,
+    },
+    /// The answer to [`Node::request_snip`].
+    SnipReceived {
+        /// The node asked.
+        peer: NodeId,
+        /// Its strings.
+        info: SnipInfo,
+    },
+    /// A SNIP request got no usable answer.
+    SnipFailed {
+        /// The node asked.
+        peer: NodeId,
+        /// Why.
+        failure: SnipFailure,
+    },
+}
+
+/// Counters of the node's own routing; each protocol has its own too.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct NodeStats {
+    /// Messages handled.
+    pub messages_in: u64,
+    /// Messages claiming to come from this node's own ID.
+    pub own_echoes: u64,
+    /// Addressed to another node.
+    pub not_for_us: u64,
+    /// Addressed messages of a protocol this node lacks, answered with OIR 0x1043.
+    pub unknown_mti_rejected: u64,
+    /// Answers (Verified Node ID, PIP, SNIP, OIR, datagram OK/Rejected) dropped because
+    /// [`NodeConfig::transmit_queue_limit`] messages were waiting.
+    pub answers_dropped: u64,
+    /// OIR or TDE naming no protocol of this node, or one with nothing waiting.
+    pub stray_error_reports: u64,
+    /// SNIP requests answered.
+    pub snip_answered: u64,
+    /// SNIP replies nobody here asked for.
+    pub stray_snip_replies: u64,
+    /// The datagram service's counters.
+    pub datagrams: DatagramStats,
+}
+
+/// The node's own output queues, lent to each protocol.
+#[derive(Debug)]
+pub(crate) struct Outputs {
+    pub(crate) node: NodeId,
+    limit: usize,
+    transmits: VecDeque<Message>,
+    events: VecDeque<NodeEvent>,
+    answers_dropped: u64,
+}
+
+impl Outputs {
+    /// Queues a message the node must send (a datagram, a request).
+    pub(crate) fn transmit(&mut self, message: Message) {
+        self.transmits.push_back(message);
+    }
+
+    /// Queues an answer, or drops and counts it when the queue is at its limit: a peer that
+    /// floods queries must not grow it without bound.
+    pub(crate) fn reply(&mut self, message: Message) {
+        if self.transmits.len() >= self.limit {
+            self.answers_dropped += 1;
+        } else {
+            self.transmits.push_back(message);
+        }
+    }
+
+    pub(crate) fn event(&mut self, event: NodeEvent) {
+        self.events.push_back(event);
+    }
+}
+
+/// One local OpenLCB node: the stream endpoint, the datagram service, SNIP and the
+/// message-network basics, in the handle / command / poll shape of the stream core. See the
+/// crate documentation for the drive loop.
+#[derive(Debug)]
+pub struct Node {
+    config: NodeConfig,
+    protocols: Protocols,
+    streams: StreamEndpoint,
+    datagrams: DatagramService,
+    snip_reply: Bytes,
+    snip_requests: Vec<PendingSnip>,
+    out: Outputs,
+    stats: NodeStats,
+}
+
+impl Node {
+    /// A node with Node ID `id`. With [`NodeConfig::send_initialization_complete`] its first
+    /// transmit is Initialization Complete.
+    pub fn new(id: NodeId, config: NodeConfig) -> Self {
+        let mut out = Outputs {
+            node: id,
+            limit: config.transmit_queue_limit,
+            transmits: VecDeque::new(),
+            events: VecDeque::new(),
+            answers_dropped: 0,
+        };
+        if config.send_initialization_complete {
+            out.transmit(Message::initialization_complete(id));
+        }
+        let mut protocols = Protocols::DATAGRAM | Protocols::SIMPLE_NODE_INFORMATION | config.extra_protocols;
+        if config.streams_enabled {
+            protocols = protocols | Protocols::STREAM;
+        }
+        Node {
+            protocols,
+            streams: StreamEndpoint::new(id, config.stream.clone()),
+            datagrams: DatagramService::new(config.datagrams.clone()),
+            snip_reply: config.snip.to_payload(),
+            snip_requests: Vec::with_capacity(config.max_snip_requests),
+            out,
+            stats: NodeStats::default(),
+            config,
+        }
+    }
+
+    // ----- getters -----
+
+    /// The local Node ID.
+    pub fn node_id(&self) -> NodeId {
+        self.out.node
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &NodeConfig {
+        &self.config
+    }
+
+    /// The protocols this node announces in its Protocol Support Reply: exactly what it
+    /// implements.
+    pub fn protocols(&self) -> Protocols {
+        self.protocols
+    }
+
+    /// The stream endpoint, for its getters.
+    pub fn streams(&self) -> &StreamEndpoint {
+        &self.streams
+    }
+
+    /// The stream endpoint, for its commands (`open`, `write`, `read`, `accept`, ...). Its
+    /// messages and events come out of the node's `poll_transmit` and `poll_event`.
+    pub fn streams_mut(&mut self) -> &mut StreamEndpoint {
+        &mut self.streams
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> NodeStats {
+        NodeStats { answers_dropped: self.out.answers_dropped, datagrams: self.datagrams.stats, ..self.stats }
+    }
+
+    // ----- outputs -----
+
+    /// The next message to send: the node's own (answers, datagrams, requests) first, then
+    /// the streams'.
+    pub fn poll_transmit(&mut self) -> Option<Message> {
+        self.out.transmits.pop_front().or_else(|| self.streams.poll_transmit())
+    }
+
+    /// The next event.
+    pub fn poll_event(&mut self) -> Option<NodeEvent> {
+        self.out.events.pop_front().or_else(|| self.streams.poll_event().map(NodeEvent::Stream))
+    }
+
+    /// When to call `handle_timeout` next.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        let snip = self.snip_requests.iter().map(|p| p.deadline).min();
+        [self.streams.poll_timeout(), self.datagrams.poll_timeout(), snip].into_iter().flatten().min()
+    }
+
+    // ----- inputs -----
+
+    /// Feeds one received message; it goes to the protocol it belongs to.
+    pub fn handle_message(&mut self, now: Instant, msg: MessageRef<'_>) {
+        self.stats.messages_in += 1;
+        if msg.source == self.out.node {
+            self.stats.own_echoes += 1;
+            return;
+        }
+        match msg.destination {
+            Some(destination) if destination != self.out.node => {
+                self.stats.not_for_us += 1;
+                return;
+            }
+            None if msg.mti.is_addressed() => {
+                self.stats.not_for_us += 1;
+                return;
+            }
+            _ => {}
+        }
+        let peer = msg.source;
+        let out = &mut self.out;
+        match msg.mti {
+            mti if mti.is_stream() && self.config.streams_enabled => self.streams.handle_message(now, msg),
+            Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => {
+                self.streams.handle_message(now, msg);
+                self.datagrams.peer_restarted(now, out, peer);
+            }
+            Mti::OPTIONAL_INTERACTION_REJECTED | Mti::TERMINATE_DUE_TO_ERROR => self.on_error_report(now, msg),
+            Mti::DATAGRAM => self.datagrams.on_datagram(now, out, peer, msg.payload),
+            Mti::DATAGRAM_RECEIVED_OK => self.datagrams.on_received_ok(now, out, peer, msg.payload),
+            Mti::DATAGRAM_REJECTED => {
+                self.datagrams.on_rejected(now, out, peer, crate::datagram::rejection_code(msg.payload));
+            }
+            Mti::SIMPLE_NODE_INFO_REQUEST => {
+                self.stats.snip_answered += 1;
+                out.reply(Message::addressed(Mti::SIMPLE_NODE_INFO_REPLY, out.node, peer, self.snip_reply.clone()));
+            }
+            Mti::SIMPLE_NODE_INFO_REPLY => self.on_snip_reply(peer, msg.payload),
+            Mti::PROTOCOL_SUPPORT_REPLY => {
+                out.event(NodeEvent::ProtocolsReceived { peer, protocols: Protocols::from_payload(msg.payload) });
+            }
+            Mti::VERIFIED_NODE_ID | Mti::VERIFIED_NODE_ID_SIMPLE => {
+                // The payload names the node; on CAN the source may be a provisional name.
+                let node = NodeId::from_slice(msg.payload).unwrap_or(peer);
+                out.event(NodeEvent::Verified { node });
+            }
+            // MN §3.3.2: a global Verify is answered when it names no node, or this one.
+            Mti::VERIFY_NODE_ID_GLOBAL
+                if msg.payload.len() < 6 || NodeId::from_slice(msg.payload) == Some(out.node) =>
+            {
+                out.reply(Message::verified_node_id(out.node));
+            }
+            Mti::VERIFY_NODE_ID_ADDRESSED => out.reply(Message::verified_node_id(out.node)),
+            Mti::PROTOCOL_SUPPORT_INQUIRY => {
+                let flags = Bytes::copy_from_slice(&self.protocols.to_bytes());
+                out.reply(Message::addressed(Mti::PROTOCOL_SUPPORT_REPLY, out.node, peer, flags));
+            }
+            mti if mti.is_addressed() && !is_answer(mti) => {
+                // MN §3.5.2: an addressed message of a protocol this node lacks.
+                self.stats.unknown_mti_rejected += 1;
+                let oir = ErrorReport { code: ErrorCode::NOT_IMPLEMENTED_MTI, mti: Some(mti) };
+                out.reply(Message::addressed(Mti::OPTIONAL_INTERACTION_REJECTED, out.node, peer, oir.to_bytes()));
+            }
+            _ => {}
+        }
+    }
+
+    /// An OIR or TDE goes to the protocol whose MTI it names; one naming nothing goes to every
+    /// protocol with something open with that peer (node-protocols.md C-13).
+    fn on_error_report(&mut self, now: Instant, msg: MessageRef<'_>) {
+        let report = ErrorReport::parse(msg.payload);
+        let peer = msg.source;
+        let to_streams = report.mti.is_none_or(Mti::is_stream) && self.config.streams_enabled;
+        let to_datagrams = matches!(report.mti, None | Some(Mti::DATAGRAM));
+        let to_snip = matches!(report.mti, None | Some(Mti::SIMPLE_NODE_INFO_REQUEST));
+        let before = self.streams.stats().stray_error_reports;
+        let mut handled = false;
+        if to_streams {
+            self.streams.handle_message(now, msg);
+            handled |= self.streams.stats().stray_error_reports == before;
+        }
+        if to_datagrams && self.datagrams.is_waiting_for(peer) {
+            // OpenMRN reads an OIR or TDE naming Datagram, or nothing, as a rejection.
+            self.datagrams.on_rejected(now, &mut self.out, peer, report.code);
+            handled = true;
+        }
+        if to_snip {
+            if let Some(index) = self.snip_requests.iter().position(|p| p.peer == peer) {
+                self.snip_requests.swap_remove(index);
+                self.out.event(NodeEvent::SnipFailed { peer, failure: SnipFailure::Rejected(report.code) });
+                handled = true;
+            }
+        }
+        if !handled {
+            self.stats.stray_error_reports += 1;
+        }
+    }
+
+    fn on_snip_reply(&mut self, peer: NodeId, payload: &[u8]) {
+        let Some(index) = self.snip_requests.iter().position(|p| p.peer == peer) else {
+            self.stats.stray_snip_replies += 1;
+            return;
+        };
+        let whole = self.snip_requests.get_mut(index).is_some_and(|p| p.push(payload));
+        if whole {
+            let done = self.snip_requests.swap_remove(index);
+            self.out.event(NodeEvent::SnipReceived { peer, info: SnipInfo::parse(&done.reply) });
+        }
+    }
+
+    /// Runs every timer due at `now`. Early or repeated calls are harmless.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        self.streams.handle_timeout(now);
+        self.datagrams.handle_timeout(now, &mut self.out);
+        while let Some(index) = self.snip_requests.iter().position(|p| p.deadline <= now) {
+            let expired = self.snip_requests.swap_remove(index);
+            // A partial reply is still worth having (SNIP-TN §2.6: be liberal).
+            let event = if expired.reply.is_empty() {
+                NodeEvent::SnipFailed { peer: expired.peer, failure: SnipFailure::TimedOut }
+            } else {
+                NodeEvent::SnipReceived { peer: expired.peer, info: SnipInfo::parse(&expired.reply) }
+            };
+            self.out.event(event);
+        }
+    }
+
+    /// The transport now names a peer differently (on CAN: its Node ID was learnt, or its
+    /// mapping forgotten, and it is named by its alias). Everything open with `from` goes on
+    /// with `to`.
+    pub fn rename_peer(&mut self, from: NodeId, to: NodeId) {
+        self.streams.rename_peer(from, to);
+        self.datagrams.rename_peer(from, to);
+        for pending in self.snip_requests.iter_mut().filter(|p| p.peer == from) {
+            pending.peer = to;
+        }
+    }
+
+    /// The transport reports `peer` gone: its streams end, datagrams to it fail, SNIP requests
+    /// to it fail.
+    pub fn peer_lost(&mut self, peer: NodeId) {
+        self.streams.peer_lost(peer);
+        self.datagrams.peer_lost(&mut self.out, Some(peer));
+        self.fail_snip(Some(peer));
+    }
+
+    /// The transport lost its link (e.g. this node's CAN alias): everything open ends.
+    pub fn link_lost(&mut self) {
+        self.streams.link_lost();
+        self.datagrams.peer_lost(&mut self.out, None);
+        self.fail_snip(None);
+    }
+
+    fn fail_snip(&mut self, peer: Option<NodeId>) {
+        while let Some(index) = self.snip_requests.iter().position(|p| peer.is_none_or(|n| n == p.peer)) {
+            let lost = self.snip_requests.swap_remove(index);
+            self.out.event(NodeEvent::SnipFailed { peer: lost.peer, failure: SnipFailure::PeerLost });
+        }
+    }
+
+    // ----- commands -----
+
+    /// Sends a datagram of at most 72 bytes to `to`. Datagrams to one node go one at a time
+    /// (DG §6.1); later ones wait their turn. `DatagramDelivered` or `DatagramFailed` follows.
+    pub fn send_datagram(&mut self, now: Instant, to: NodeId, payload: &[u8]) -> Result<DatagramId, DatagramError> {
+        self.datagrams.send(now, &mut self.out, to, payload)
+    }
+
+    /// Answers the datagram `from` sent (raised by `DatagramReceived`).
+    pub fn answer_datagram(&mut self, from: NodeId, answer: DatagramAnswer) -> Result<(), DatagramError> {
+        self.datagrams.answer(&mut self.out, from, answer)
+    }
+
+    /// Asks `peer` for its Simple Node Information. `SnipReceived` or `SnipFailed` follows.
+    pub fn request_snip(&mut self, now: Instant, peer: NodeId) -> Result<(), SnipRequestError> {
+        if peer == self.out.node {
+            return Err(SnipRequestError::SelfAddressed);
+        }
+        if self.snip_requests.iter().any(|p| p.peer == peer) {
+            return Err(SnipRequestError::AlreadyPending);
+        }
+        if self.snip_requests.len() >= self.config.max_snip_requests {
+            return Err(SnipRequestError::TooMany);
+        }
+        let deadline = now + self.config.snip_timeout;
+        self.snip_requests.push(PendingSnip { peer, deadline, reply: Vec::new() });
+        self.out.transmit(Message::addressed(Mti::SIMPLE_NODE_INFO_REQUEST, self.out.node, peer, Bytes::new()));
+        Ok(())
+    }
+
+    /// Sends a global Verify Node ID: every node on the network answers with Verified Node
+    /// ID (how a tool finds who is there).
+    pub fn verify_all(&mut self) {
+        self.out.transmit(Message::global(Mti::VERIFY_NODE_ID_GLOBAL, self.out.node, Bytes::new()));
+    }
+
+    /// Asks `peer` which protocols it supports; `ProtocolsReceived` follows if it answers.
+    pub fn request_protocols(&mut self, peer: NodeId) {
+        self.out.transmit(Message::addressed(Mti::PROTOCOL_SUPPORT_INQUIRY, self.out.node, peer, Bytes::new()));
+    }
+}
+
+/// Messages that answer something: rejecting them would start a loop of rejections.
+fn is_answer(mti: Mti) -> bool {
+    matches!(
+        mti,
+        Mti::OPTIONAL_INTERACTION_REJECTED
+            | Mti::TERMINATE_DUE_TO_ERROR
+            | Mti::PROTOCOL_SUPPORT_REPLY
+            | Mti::DATAGRAM_RECEIVED_OK
+            | Mti::DATAGRAM_REJECTED
+            | Mti::SIMPLE_NODE_INFO_REPLY
+    )
+}

@@ -1,0 +1,348 @@
+//! Simple Node Information (SNIP, node-protocols.md §5): the strings a node tells about
+//! itself, their wire form, and the requests this node makes for other nodes' strings.
+
+use alloc::string::String;
+use alloc::vec::Vec;
+use core::fmt;
+
+use bytes::Bytes;
+use openlcb_stream::{Instant, NodeId};
+
+/// The most bytes a SNIP reply can carry (SNIP-TN §2.5.1).
+pub const MAX_REPLY_LEN: usize = 253;
+
+/// A field of [`SnipInfo`], with the standard's byte limit (SNIP §5.1, without the NUL).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SnipField {
+    /// Manufacturer name, at most 40 bytes.
+    Manufacturer,
+    /// Model name, at most 40 bytes.
+    Model,
+    /// Hardware version, at most 20 bytes.
+    HardwareVersion,
+    /// Software version, at most 20 bytes.
+    SoftwareVersion,
+    /// User-provided node name, at most 62 bytes.
+    UserName,
+    /// User-provided node description, at most 63 bytes.
+    UserDescription,
+}
+
+impl SnipField {
+    /// Every field, in wire order.
+    pub const ALL: [SnipField; 6] = [
+        SnipField::Manufacturer,
+        SnipField::Model,
+        SnipField::HardwareVersion,
+        SnipField::SoftwareVersion,
+        SnipField::UserName,
+        SnipField::UserDescription,
+    ];
+
+    /// The longest value in bytes, without the terminating NUL.
+    pub const fn max_len(self) -> usize {
+        match self {
+            SnipField::Manufacturer | SnipField::Model => 40,
+            SnipField::HardwareVersion | SnipField::SoftwareVersion => 20,
+            SnipField::UserName => 62,
+            SnipField::UserDescription => 63,
+        }
+    }
+
+    /// A name for messages.
+    pub const fn name(self) -> &'static str {
+        match self {
+            SnipField::Manufacturer => "manufacturer",
+            SnipField::Model => "model",
+            SnipField::HardwareVersion => "hardware version",
+            SnipField::SoftwareVersion => "software version",
+            SnipField::UserName => "user name",
+            SnipField::UserDescription => "user description",
+        }
+    }
+}
+
+/// A SNIP string longer than its field allows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the {} is {len} bytes long; SNIP allows at most {}", field.name(), field.max_len())]
+pub struct SnipTooLong {
+    /// The field.
+    pub field: SnipField,
+    /// Its length in bytes.
+    pub len: usize,
+}
+
+/// The six strings of Simple Node Information.
+///
+/// The reply is built with the standard's version bytes (4 and 2) and each string cut at its
+/// limit on a character boundary; [`SnipInfo::check`] tells the caller beforehand which string
+/// is too long. [`SnipInfo::parse`] is liberal: any version byte (extra strings skipped, as the
+/// version is the number of strings in its section), missing strings empty, over-long strings
+/// kept, bytes that are not UTF-8 replaced.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct SnipInfo {
+    /// Manufacturer name.
+    pub manufacturer: String,
+    /// Model name.
+    pub model: String,
+    /// Hardware version.
+    pub hardware_version: String,
+    /// Software version.
+    pub software_version: String,
+    /// User-provided node name.
+    pub user_name: String,
+    /// User-provided node description.
+    pub user_description: String,
+}
+
+impl SnipInfo {
+    /// The value of `field`.
+    pub fn get(&self, field: SnipField) -> &str {
+        match field {
+            SnipField::Manufacturer => &self.manufacturer,
+            SnipField::Model => &self.model,
+            SnipField::HardwareVersion => &self.hardware_version,
+            SnipField::SoftwareVersion => &self.software_version,
+            SnipField::UserName => &self.user_name,
+            SnipField::UserDescription => &self.user_description,
+        }
+    }
+
+    fn get_mut(&mut self, field: SnipField) -> &mut String {
+        match field {
+            SnipField::Manufacturer => &mut self.manufacturer,
+            SnipField::Model => &mut self.model,
+            SnipField::HardwareVersion => &mut self.hardware_version,
+            SnipField::SoftwareVersion => &mut self.software_version,
+            SnipField::UserName => &mut self.user_name,
+            SnipField::UserDescription => &mut self.user_description,
+        }
+    }
+
+    /// The first string longer than its field allows (or that holds a NUL, which would end it
+    /// early on the wire: its length is then where the NUL is).
+    pub fn check(&self) -> Result<(), SnipTooLong> {
+        for field in SnipField::ALL {
+            let value = self.get(field);
+            let len = value.find('\0').unwrap_or(value.len());
+            if value.len() > field.max_len() || len < value.len() {
+                return Err(SnipTooLong { field, len: value.len() });
+            }
+        }
+        Ok(())
+    }
+
+    /// The reply payload (SNIP §5.1): `04`, four NUL-terminated strings, `02`, two more.
+    pub fn to_payload(&self) -> Bytes {
+        let mut out = Vec::with_capacity(MAX_REPLY_LEN);
+        for field in SnipField::ALL {
+            match field {
+                SnipField::Manufacturer => out.push(4),
+                SnipField::UserName => out.push(2),
+                _ => {}
+            }
+            let value = self.get(field);
+            let value = value.split('\0').next().unwrap_or("");
+            out.extend_from_slice(truncate(value, field.max_len()).as_bytes());
+            out.push(0);
+        }
+        Bytes::from(out)
+    }
+
+    /// Reads a reply payload (or several concatenated), liberally.
+    pub fn parse(payload: &[u8]) -> SnipInfo {
+        let mut info = SnipInfo::default();
+        let mut rest = payload;
+        let mut fields = SnipField::ALL.iter();
+        for section_len in [4usize, 2] {
+            let Some((&version, tail)) = rest.split_first() else { break };
+            rest = tail;
+            // Version 1 means the section's standard count (SNIP §5.2); higher versions carry
+            // extra strings, which are skipped.
+            let strings = if version <= 1 { section_len } else { usize::from(version) };
+            for index in 0..strings {
+                let (value, tail) = next_string(rest);
+                rest = tail;
+                if index < section_len {
+                    if let Some(field) = fields.next() {
+                        *info.get_mut(*field) = String::from_utf8_lossy(value).into_owned();
+                    }
+                }
+            }
+        }
+        info
+    }
+
+    /// Whether `payload` holds both sections with all the strings their versions announce:
+    /// how a reply sent as many one-frame messages (older nodes, SNIP-TN §2.6) is known to be
+    /// whole.
+    pub fn is_complete(payload: &[u8]) -> bool {
+        let mut rest = payload;
+        for section_len in [4usize, 2] {
+            let Some((&version, tail)) = rest.split_first() else { return false };
+            rest = tail;
+            let strings = if version <= 1 { section_len } else { usize::from(version) };
+            for _ in 0..strings {
+                let Some(end) = rest.iter().position(|&b| b == 0) else { return false };
+                rest = rest.get(end + 1..).unwrap_or(&[]);
+            }
+        }
+        true
+    }
+}
+
+impl fmt::Display for SnipInfo {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} {} (hw {}, sw {})", self.manufacturer, self.model, self.hardware_version, self.software_version)?;
+        if !self.user_name.is_empty() {
+            write!(f, " \"{}\"", self.user_name)?;
+        }
+        if !self.user_description.is_empty() {
+            write!(f, " {}", self.user_description)?;
+        }
+        Ok(())
+    }
+}
+
+/// The longest prefix of `value` of at most `max` bytes that ends on a character boundary.
+fn truncate(value: &str, max: usize) -> &str {
+    let mut end = value.len().min(max);
+    while !value.is_char_boundary(end) {
+        end -= 1;
+    }
+    value.get(..end).unwrap_or("")
+}
+
+/// The bytes up to the next NUL (or the end), and what follows the NUL.
+fn next_string(bytes: &[u8]) -> (&[u8], &[u8]) {
+    match bytes.iter().position(|&b| b == 0) {
+        Some(end) => (bytes.get(..end).unwrap_or(&[]), bytes.get(end + 1..).unwrap_or(&[])),
+        None => (bytes, &[]),
+    }
+}
+
+/// Why a SNIP request of this node failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum SnipFailure {
+    /// No reply within [`NodeConfig::snip_timeout`](crate::NodeConfig::snip_timeout).
+    TimedOut,
+    /// The node answered Optional Interaction Rejected (it has no SNIP, or is busy).
+    Rejected(openlcb_stream::wire::ErrorCode),
+    /// The transport lost the node or our own link.
+    PeerLost,
+}
+
+/// Why [`Node::request_snip`](crate::Node::request_snip) refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SnipRequestError {
+    /// A request to that node is still waiting for its reply (SNIP §6.2: one at a time).
+    #[error("a SNIP request to that node is already waiting")]
+    AlreadyPending,
+    /// [`NodeConfig::max_snip_requests`](crate::NodeConfig::max_snip_requests) requests wait.
+    #[error("too many SNIP requests are waiting")]
+    TooMany,
+    /// The node asked is this node.
+    #[error("a node cannot ask itself")]
+    SelfAddressed,
+}
+
+/// One request of this node waiting for its reply.
+#[derive(Debug)]
+pub(crate) struct PendingSnip {
+    pub(crate) peer: NodeId,
+    pub(crate) deadline: Instant,
+    /// The reply so far (at most [`MAX_REPLY_LEN`] bytes).
+    pub(crate) reply: Vec<u8>,
+}
+
+impl PendingSnip {
+    /// Adds a reply message; returns whether the reply is now whole. A message longer than
+    /// one CAN frame's 6 bytes is a whole framed reply; short ones are the frames of an older
+    /// node, whole once every string has arrived.
+    pub(crate) fn push(&mut self, payload: &[u8]) -> bool {
+        let room = MAX_REPLY_LEN.saturating_sub(self.reply.len());
+        self.reply.extend_from_slice(payload.get(..room.min(payload.len())).unwrap_or(&[]));
+        payload.len() > 6 || SnipInfo::is_complete(&self.reply) || self.reply.len() >= MAX_REPLY_LEN
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn example() -> SnipInfo {
+        SnipInfo {
+            manufacturer: "Acme".into(),
+            model: "Widget".into(),
+            hardware_version: "1.0".into(),
+            software_version: "2.3".into(),
+            user_name: "Yard".into(),
+            user_description: "West end".into(),
+        }
+    }
+
+    #[test]
+    fn payload_of_the_worked_example() {
+        // node-protocols.md §9.5: 36 bytes.
+        let expected = b"\x04Acme\0Widget\x001.0\x002.3\0\x02Yard\0West end\0";
+        assert_eq!(&example().to_payload()[..], &expected[..]);
+        assert_eq!(SnipInfo::parse(expected), example());
+        assert!(SnipInfo::is_complete(expected));
+        assert!(!SnipInfo::is_complete(&expected[..35]));
+    }
+
+    #[test]
+    fn parse_is_liberal() {
+        // Version 1 in both sections means the standard counts.
+        assert_eq!(SnipInfo::parse(b"\x01Acme\0Widget\x001.0\x002.3\0\x01Yard\0West end\0"), example());
+        // Extra strings of a higher version are skipped.
+        let extra = SnipInfo::parse(b"\x05Acme\0Widget\x001.0\x002.3\0extra\0\x03Yard\0West end\0more\0");
+        assert_eq!(extra, example());
+        // Missing fields are empty; a missing NUL ends the string at the end of the data.
+        let short = SnipInfo::parse(b"\x04Acme\0Wid");
+        assert_eq!((short.manufacturer.as_str(), short.model.as_str(), short.user_name.as_str()), ("Acme", "Wid", ""));
+        assert_eq!(SnipInfo::parse(&[]), SnipInfo::default());
+        // Bytes that are not UTF-8 are replaced, not refused.
+        assert_eq!(SnipInfo::parse(b"\x04\xFF\0").manufacturer, "\u{FFFD}");
+    }
+
+    #[test]
+    fn over_long_strings_are_reported_and_cut() {
+        let mut info = example();
+        info.model = "é".repeat(30); // 60 bytes
+        assert_eq!(info.check(), Err(SnipTooLong { field: SnipField::Model, len: 60 }));
+        let payload = info.to_payload();
+        let parsed = SnipInfo::parse(&payload);
+        assert_eq!(parsed.model, "é".repeat(20), "cut at 40 bytes on a character boundary");
+        assert!(payload.len() <= MAX_REPLY_LEN);
+        info.model = "a\0b".into();
+        assert!(info.check().is_err(), "a NUL would end the string early");
+    }
+
+    #[test]
+    fn the_longest_reply_fits_the_bound() {
+        let info = SnipInfo {
+            manufacturer: "m".repeat(40),
+            model: "m".repeat(40),
+            hardware_version: "h".repeat(20),
+            software_version: "s".repeat(20),
+            user_name: "n".repeat(62),
+            user_description: "d".repeat(63),
+        };
+        assert_eq!(info.check(), Ok(()));
+        assert_eq!(info.to_payload().len(), MAX_REPLY_LEN);
+    }
+
+    #[test]
+    fn pending_reply_from_frames_of_an_older_node() {
+        let whole = example().to_payload();
+        let mut pending = PendingSnip { peer: NodeId::MAX, deadline: Instant::ZERO, reply: Vec::new() };
+        let chunks: Vec<&[u8]> = whole.chunks(6).collect();
+        for (i, chunk) in chunks.iter().enumerate() {
+            assert_eq!(pending.push(chunk), i + 1 == chunks.len(), "whole only after the last frame");
+        }
+        assert_eq!(SnipInfo::parse(&pending.reply), example());
+    }
+}
