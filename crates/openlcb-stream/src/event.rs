@@ -121,6 +121,15 @@ pub enum Event {
         /// `total` equals `stated` (true when nothing was stated).
         matched: bool,
     },
+    /// As source: `finish` sent the Complete; the stream is over on this side and its handle
+    /// released. (The destination's storing of the data is its own business: the protocol
+    /// has no acknowledgement of a Complete.)
+    Sent {
+        /// The stream, now released.
+        handle: StreamHandle,
+        /// Bytes sent.
+        total: u64,
+    },
     /// The stream ended early. As destination, data received before stays readable.
     Terminated {
         /// The stream.

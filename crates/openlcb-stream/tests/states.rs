@@ -263,6 +263,7 @@ fn open_finish_sends_complete_with_count() {
     b.ep.finish(b.now, h).unwrap();
     let sent = b.sent();
     assert_eq!(sent.last().unwrap(), &(Mti::STREAM_DATA_COMPLETE, vec![4, 7, 0, 0, 0, 5]));
+    assert_eq!(b.events(), [Event::Sent { handle: h, total: 5 }], "the source is told it is done");
     assert_eq!(b.ep.stream_count(), 0);
     assert_eq!(b.ep.write(b.now, h, b"x"), Err(openlcb_stream::StreamError::UnknownStream));
 }

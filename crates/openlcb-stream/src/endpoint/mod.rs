@@ -482,6 +482,8 @@ impl StreamEndpoint {
             count: CompleteCount::Total(source.sent as u32),
         };
         out.send_wire(Mti::STREAM_DATA_COMPLETE, stream.peer, &complete);
+        let total = source.sent;
+        out.event(Event::Sent { handle, total });
         self.release(handle);
         Ok(())
     }
