@@ -23,7 +23,8 @@ fn permitted_link() -> CanLink {
         max_message_len: 32,
         transmit_queue_limit: 8,
         frame_queue_limit: 4,
-        max_held_messages: 2,
+        learn_slots: 2,
+        datagram_slots: 2,
         ..CanConfig::default()
     };
     let mut link = CanLink::new(Instant::ZERO, NodeId::new(LOCAL_NODE).unwrap(), config);

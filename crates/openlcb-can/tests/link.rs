@@ -159,30 +159,6 @@ fn unknown_destination_times_out_as_unreachable() {
     assert_eq!(solo.node.link.poll_timeout(), None);
 }
 
-#[test]
-fn message_from_unknown_alias_is_held_until_verified() {
-    let mut solo = Solo::permitted();
-    // A Stream Initiate Request from 0x789, which we have never heard of.
-    let sent = solo.inject(&[":X19CC8789N01230010000004;"]);
-    assert_eq!(sent, [":X19488123N0789;"], "addressed Verify Node ID to the unknown alias");
-    assert_eq!(solo.node.link.stats().held_inbound, 1);
-    assert!(solo.node.events.is_empty(), "nothing reached the endpoint yet");
-    // Its Verified Node ID releases the request; the endpoint's Reply goes to 0x789.
-    let sent = solo.inject(&[":X19170789N050101012202;"]);
-    assert_eq!(sent, [":X19868123N0789001080000400;"]);
-    assert!(matches!(solo.node.events.as_slice(), [Event::Opened { .. }]));
-}
-
-#[test]
-fn message_from_unknown_alias_is_dropped_after_the_timeout() {
-    let mut solo = Solo::permitted();
-    solo.inject(&[":X19CC8789N01230010000004;"]);
-    solo.advance_ms(1000);
-    assert_eq!(solo.node.link.stats().unknown_source_dropped, 1);
-    assert_eq!(solo.inject(&[":X19170789N050101012202;"]), Vec::<String>::new());
-    assert!(solo.node.events.is_empty());
-}
-
 // ----- reassembly errors -----
 
 #[test]
@@ -211,9 +187,10 @@ fn frames_for_other_nodes_and_odd_frames_are_counted() {
     assert_eq!(solo.node.link.stats().not_for_us, 2);
     solo.inject(&[":X1F123789N;", ":X19CC8789N01;"]);
     assert_eq!(solo.node.link.stats().invalid_frames, 2);
-    solo.inject(&[":X1A123789N2001;"]);
-    assert_eq!(solo.node.link.stats().unsupported_ignored, 1);
+    solo.inject(&[":X1E123789N2001;"]);
+    assert_eq!(solo.node.link.stats().unsupported_ignored, 1, "reserved format 6");
     assert!(solo.node.events.is_empty());
+    assert!(solo.node.delivered.is_empty());
 }
 
 // ----- two nodes -----

@@ -800,6 +800,9 @@ impl Network {
                     } else {
                         link.handle_frame(now, &frame, |msg| endpoint.handle_message(now, msg));
                     }
+                    // Renames must reach the endpoint before the next frame (the rule of
+                    // `CanLink::handle_frame`).
+                    apply_link_events(link, endpoint);
                 }
                 (Inbound::Bytes(bytes), Port::Tcp { link, .. }) => {
                     let mut input = &bytes[..];
@@ -870,21 +873,9 @@ impl Network {
     fn handle_events(&mut self, index: NodeIndex) -> bool {
         let mut any = false;
         // Link events first: they may end streams.
-        loop {
-            let Some(node) = self.nodes.get_mut(index) else { return any };
-            let event = match &mut node.port {
-                Port::Can { link, .. } => link.poll_event(),
-                Port::Tcp { .. } => None,
-            };
-            let Some(event) = event else { break };
-            any = true;
-            match event {
-                LinkEvent::AliasLost { .. } => node.endpoint.link_lost(),
-                LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => {
-                    node.endpoint.peer_lost(peer)
-                }
-                _ => {}
-            }
+        let Some(node) = self.nodes.get_mut(index) else { return any };
+        if let Port::Can { link, .. } = &mut node.port {
+            any |= apply_link_events(link, &mut node.endpoint);
         }
         loop {
             let Some(node) = self.nodes.get_mut(index) else { return any };
@@ -1133,4 +1124,19 @@ impl Network {
             .flatten()
             .min();
     }
+}
+
+/// Drains a CAN node's link events into its endpoint; true if there was any.
+fn apply_link_events(link: &mut CanLink, endpoint: &mut StreamEndpoint) -> bool {
+    let mut any = false;
+    while let Some(event) = link.poll_event() {
+        any = true;
+        match event {
+            LinkEvent::AliasLost { .. } => endpoint.link_lost(),
+            LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
+            LinkEvent::PeerRenamed { from, to, .. } => endpoint.rename_peer(from, to),
+            _ => {}
+        }
+    }
+    any
 }

@@ -7,7 +7,7 @@ pub mod published;
 
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
-use openlcb_stream::{Config, Event, Instant, NodeId, StreamEndpoint};
+use openlcb_stream::{Config, Event, Instant, Message, NodeId, StreamEndpoint};
 
 pub const A_ID: u64 = 0x0501_0101_2200;
 pub const B_ID: u64 = 0x0501_0101_2201;
@@ -55,6 +55,8 @@ pub struct Node {
     pub endpoint: StreamEndpoint,
     pub link_events: Vec<LinkEvent>,
     pub events: Vec<Event>,
+    /// Every message the link delivered, as it was delivered.
+    pub delivered: Vec<Message>,
     pub received: Vec<u8>,
     /// Read received stream data as it arrives.
     pub reading: bool,
@@ -67,28 +69,42 @@ impl Node {
             endpoint: StreamEndpoint::new(node_id(id), core),
             link_events: Vec::new(),
             events: Vec::new(),
+            delivered: Vec::new(),
             received: Vec::new(),
             reading: true,
         }
     }
 
-    /// Feeds one frame from the bus.
+    /// Feeds one frame from the bus, then the link's events to the endpoint (the rule of
+    /// `CanLink::handle_frame`: renames before the next frame). Every delivered message is
+    /// recorded in `delivered`.
     pub fn receive(&mut self, now: Instant, frame: &CanFrame) {
         let endpoint = &mut self.endpoint;
-        self.link.handle_frame(now, frame, |msg| endpoint.handle_message(now, msg));
+        let delivered = &mut self.delivered;
+        self.link.handle_frame(now, frame, |msg| {
+            delivered.push(msg.to_message());
+            endpoint.handle_message(now, msg)
+        });
+        self.apply_link_events();
+    }
+
+    /// Link events to the endpoint, recorded in `link_events`.
+    pub fn apply_link_events(&mut self) {
+        while let Some(event) = self.link.poll_event() {
+            match event {
+                LinkEvent::AliasLost { .. } => self.endpoint.link_lost(),
+                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.endpoint.peer_lost(node),
+                LinkEvent::PeerRenamed { from, to, .. } => self.endpoint.rename_peer(from, to),
+                _ => {}
+            }
+            self.link_events.push(event);
+        }
     }
 
     /// Link events to the endpoint, endpoint messages to the link, data read. Returns the
     /// frames the link has to send.
     pub fn service(&mut self, now: Instant) -> Vec<CanFrame> {
-        while let Some(event) = self.link.poll_event() {
-            match event {
-                LinkEvent::AliasLost { .. } => self.endpoint.link_lost(),
-                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.endpoint.peer_lost(node),
-                _ => {}
-            }
-            self.link_events.push(event);
-        }
+        self.apply_link_events();
         if self.reading {
             let mut buf = [0u8; 64];
             for handle in self.endpoint.handles().collect::<Vec<_>>() {

@@ -5,6 +5,7 @@
 //! `poll_event` and `poll_timeout`. After any input or command, drain `poll_transmit` and
 //! `poll_event` until `None`, then arm a timer for `poll_timeout`.
 
+mod rename;
 mod stream;
 mod timer;
 
