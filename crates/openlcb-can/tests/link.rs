@@ -3,50 +3,11 @@
 
 mod common;
 
-use common::{A_ID, B_ID, Bus, Node, alias, can_config, core_config, frame, node_id, text};
+use common::{A_ID, B_ID, Bus, Node, Solo, alias, can_config, core_config, frame, node_id};
 use openlcb_can::{CanConfig, LinkEvent, LoginState, SendError};
 use openlcb_stream::{Duration, Event, Instant, Message, Mti, OpenOptions, Termination};
 
 const C_ID: u64 = 0x0501_0101_2202;
-
-/// One node (link + endpoint) driven by hand: frames in as text, frames out as text.
-struct Solo {
-    now: Instant,
-    node: Node,
-}
-
-impl Solo {
-    fn new(can: CanConfig) -> Self {
-        Solo { now: Instant::ZERO, node: Node::new(Instant::ZERO, A_ID, core_config(), can) }
-    }
-
-    /// Logged in as 0x123, the login frames drained.
-    fn permitted() -> Self {
-        let mut solo = Solo::new(can_config(0x123));
-        solo.advance_ms(200);
-        assert_eq!(solo.node.link.alias(), Some(alias(0x123)));
-        solo.node.link_events.clear();
-        solo
-    }
-
-    fn sent(&mut self) -> Vec<String> {
-        self.node.service(self.now).iter().map(text).collect()
-    }
-
-    fn inject(&mut self, texts: &[&str]) -> Vec<String> {
-        for t in texts {
-            self.node.receive(self.now, &frame(t));
-        }
-        self.sent()
-    }
-
-    fn advance_ms(&mut self, ms: u64) -> Vec<String> {
-        self.now += Duration::from_millis(ms);
-        self.node.link.handle_timeout(self.now);
-        self.node.endpoint.handle_timeout(self.now);
-        self.sent()
-    }
-}
 
 // ----- login -----
 

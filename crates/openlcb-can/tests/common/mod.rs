@@ -7,7 +7,7 @@ pub mod published;
 
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
-use openlcb_stream::{Config, Event, Instant, Message, NodeId, StreamEndpoint};
+use openlcb_stream::{Config, Duration, Event, Instant, Message, NodeId, StreamEndpoint};
 
 pub const A_ID: u64 = 0x0501_0101_2200;
 pub const B_ID: u64 = 0x0501_0101_2201;
@@ -206,5 +206,49 @@ impl Bus {
     /// Forgets the trace so far.
     pub fn clear_trace(&mut self) {
         self.trace.clear();
+    }
+}
+
+/// One node (link + endpoint) driven by hand: frames in as text, frames out as text.
+pub struct Solo {
+    pub now: Instant,
+    pub node: Node,
+}
+
+impl Solo {
+    pub fn new(can: CanConfig) -> Self {
+        Solo { now: Instant::ZERO, node: Node::new(Instant::ZERO, A_ID, core_config(), can) }
+    }
+
+    /// Logged in as 0x123, the login frames drained.
+    pub fn permitted() -> Self {
+        Self::permitted_with(can_config(0x123))
+    }
+
+    /// Logged in with `can` (whose first alias must be free), the login frames drained.
+    pub fn permitted_with(can: CanConfig) -> Self {
+        let mut solo = Solo::new(can);
+        solo.advance_ms(200);
+        assert_eq!(solo.node.link.alias(), Some(alias(0x123)));
+        solo.node.link_events.clear();
+        solo
+    }
+
+    pub fn sent(&mut self) -> Vec<String> {
+        self.node.service(self.now).iter().map(text).collect()
+    }
+
+    pub fn inject(&mut self, texts: &[&str]) -> Vec<String> {
+        for t in texts {
+            self.node.receive(self.now, &frame(t));
+        }
+        self.sent()
+    }
+
+    pub fn advance_ms(&mut self, ms: u64) -> Vec<String> {
+        self.now += Duration::from_millis(ms);
+        self.node.link.handle_timeout(self.now);
+        self.node.endpoint.handle_timeout(self.now);
+        self.sent()
     }
 }
