@@ -1,6 +1,7 @@
 //! Counts heap allocations during a steady-state stream transfer through two `CanLink`s and
 //! two `StreamEndpoint`s: the links allocate nothing per frame on either side; the core
-//! allocates per message (one `Bytes` per Data Send, one per Proceed), not per frame.
+//! allocates per message (one `Bytes` per Data Send, one per Proceed), not per frame. Then
+//! 72-byte datagrams through the same links: framing and reassembly allocate nothing either.
 //!
 //! One test only in this file: the counter is global to the process.
 
@@ -11,7 +12,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use common::{A_ID, B_ID, Bus, Node, can_config};
 use openlcb_can::CanFrame;
-use openlcb_stream::{Config, Event, Instant, OpenOptions, StreamHandle};
+use openlcb_stream::{Config, Event, Instant, Message, Mti, OpenOptions, StreamHandle};
 
 struct Counting;
 
@@ -156,4 +157,25 @@ fn no_allocation_per_stream_frame_in_the_links() {
         tally.data_send_messages,
         tally.proceeds
     );
+
+    // Datagrams of 72 bytes, nine frames each, from A to B: the messages are built before
+    // counting (their payload is static), then sent, framed, reassembled and delivered.
+    static DATAGRAM: [u8; 72] = [0x5A; 72];
+    let (a_id, b_id) = (common::node_id(A_ID), common::node_id(B_ID));
+    let datagrams: Vec<Message> =
+        (0..100).map(|_| Message::addressed(Mti::DATAGRAM, a_id, b_id, &DATAGRAM[..])).collect();
+    let (mut in_links, mut frames, mut delivered) = (0, 0, 0);
+    for datagram in datagrams {
+        let before = allocations();
+        a.link.send(now, datagram).unwrap();
+        while let Some(frame) = a.link.poll_transmit() {
+            frames += 1;
+            b.link.handle_frame(now, &frame, |msg| {
+                delivered += usize::from(msg.mti == Mti::DATAGRAM && msg.payload == DATAGRAM);
+            });
+        }
+        in_links += allocations() - before;
+    }
+    assert_eq!((frames, delivered), (900, 100));
+    assert_eq!(in_links, 0, "allocations in the links over {frames} datagram frames");
 }

@@ -69,9 +69,7 @@ mod tests {
     }
 
     fn endpoint() -> StreamEndpoint {
-        let mut config = Config::default();
-        config.send_initialization_complete = false;
-        StreamEndpoint::new(id(LOCAL), config)
+        StreamEndpoint::new(id(LOCAL), Config { send_initialization_complete: false, ..Config::default() })
     }
 
     fn feed(endpoint: &mut StreamEndpoint, mti: Mti, from: u64, body: &impl Emit) {
