@@ -11,6 +11,7 @@
 use openlcb_stream::Mti;
 
 use crate::NodeAlias;
+use crate::fragment::FramePosition;
 
 /// Bit masks and shifts of the identifier.
 mod field {
@@ -43,6 +44,18 @@ pub enum DatagramFrame {
     Middle,
     /// Format 5: the final frame.
     Final,
+}
+
+impl DatagramFrame {
+    /// Where the frame sits in its datagram, as for the frames of an addressed message.
+    pub const fn position(self) -> FramePosition {
+        match self {
+            DatagramFrame::Only => FramePosition::Only,
+            DatagramFrame::First => FramePosition::First,
+            DatagramFrame::Middle => FramePosition::Middle,
+            DatagramFrame::Final => FramePosition::Last,
+        }
+    }
 }
 
 /// What a frame is, from its identifier.

@@ -655,7 +655,7 @@ impl CanLink {
             return bump(&mut self.stats.not_for_us);
         };
         let key = ReassemblyKey { source, destination: ours, mti: Mti::DATAGRAM };
-        let position = datagram_position(frame);
+        let position = frame.position();
         if position == FramePosition::Only {
             // A whole datagram: the sender has given up any datagram it left open.
             self.datagrams.discard(key);
@@ -903,16 +903,6 @@ impl CanLink {
 /// Room in the event queue: every cached peer's rename on a global AME, and other events.
 fn event_bound(config: &CanConfig) -> usize {
     config.alias_cache_size.saturating_add(EVENT_BOUND)
-}
-
-/// The frame position of a datagram frame format.
-fn datagram_position(frame: DatagramFrame) -> FramePosition {
-    match frame {
-        DatagramFrame::Only => FramePosition::Only,
-        DatagramFrame::First => FramePosition::First,
-        DatagramFrame::Middle => FramePosition::Middle,
-        DatagramFrame::Final => FramePosition::Last,
-    }
 }
 
 /// Copies a reassembled payload once into the link's `scratch` buffer (taken out of the
