@@ -57,6 +57,11 @@ impl FramePosition {
         }
     }
 
+    /// The frame ends its message (`Only` or `Last`).
+    pub const fn is_last(self) -> bool {
+        matches!(self, FramePosition::Only | FramePosition::Last)
+    }
+
     /// The flag bits for data byte 0.
     pub const fn flags(self) -> u8 {
         match self {
@@ -174,18 +179,8 @@ impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
                 CanFrame::build(self.id, |data| copy_into(data, 0, payload))
             }
             Layout::Addressed { destination } => {
-                let rest = payload.get(self.offset..).unwrap_or(&[]);
-                let chunk = rest.get(..ADDRESSED_PAYLOAD_PER_FRAME).unwrap_or(rest);
-                let first = self.offset == 0;
-                self.offset = self.offset.saturating_add(chunk.len());
-                let last = self.offset >= payload.len();
-                self.finished = last;
-                let position = match (first, last) {
-                    (true, true) => FramePosition::Only,
-                    (true, false) => FramePosition::First,
-                    (false, true) => FramePosition::Last,
-                    (false, false) => FramePosition::Middle,
-                };
+                let (chunk, position) = next_chunk(payload, &mut self.offset, ADDRESSED_PAYLOAD_PER_FRAME);
+                self.finished = position.is_last();
                 let [high, low] = destination.as_raw().to_be_bytes();
                 CanFrame::build(self.id, |data| {
                     data[0] = position.flags() | (high & 0x0F);
@@ -205,18 +200,9 @@ impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
                 })
             }
             Layout::Datagram { source, destination } => {
-                let rest = payload.get(self.offset..).unwrap_or(&[]);
-                let chunk = rest.get(..DATAGRAM_PAYLOAD_PER_FRAME).unwrap_or(rest);
-                let first = self.offset == 0;
-                self.offset = self.offset.saturating_add(chunk.len());
-                let last = self.offset >= payload.len();
-                self.finished = last;
-                let frame = match (first, last) {
-                    (true, true) => DatagramFrame::Only,
-                    (true, false) => DatagramFrame::First,
-                    (false, true) => DatagramFrame::Final,
-                    (false, false) => DatagramFrame::Middle,
-                };
+                let (chunk, position) = next_chunk(payload, &mut self.offset, DATAGRAM_PAYLOAD_PER_FRAME);
+                self.finished = position.is_last();
+                let frame = DatagramFrame::at(position);
                 let id = CanHeader { kind: FrameKind::Datagram { frame, destination }, source }.to_id();
                 CanFrame::build(id, |data| copy_into(data, 0, chunk))
             }
@@ -228,6 +214,23 @@ impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
         let n = self.remaining();
         (n, Some(n))
     }
+}
+
+/// The next chunk of at most `per_frame` bytes of `payload` from `offset` (moved past it),
+/// and where its frame sits in the message. An empty payload is one `Only` frame.
+fn next_chunk<'p>(payload: &'p [u8], offset: &mut usize, per_frame: usize) -> (&'p [u8], FramePosition) {
+    let rest = payload.get(*offset..).unwrap_or(&[]);
+    let chunk = rest.get(..per_frame).unwrap_or(rest);
+    let first = *offset == 0;
+    *offset = offset.saturating_add(chunk.len());
+    let last = *offset >= payload.len();
+    let position = match (first, last) {
+        (true, true) => FramePosition::Only,
+        (true, false) => FramePosition::First,
+        (false, true) => FramePosition::Last,
+        (false, false) => FramePosition::Middle,
+    };
+    (chunk, position)
 }
 
 /// Copies `bytes` to `data[at..]` as far as it fits and returns the used length.

@@ -47,6 +47,16 @@ pub enum DatagramFrame {
 }
 
 impl DatagramFrame {
+    /// The datagram frame format for a frame at `position` in its datagram.
+    pub const fn at(position: FramePosition) -> Self {
+        match position {
+            FramePosition::Only => DatagramFrame::Only,
+            FramePosition::First => DatagramFrame::First,
+            FramePosition::Middle => DatagramFrame::Middle,
+            FramePosition::Last => DatagramFrame::Final,
+        }
+    }
+
     /// Where the frame sits in its datagram, as for the frames of an addressed message.
     pub const fn position(self) -> FramePosition {
         match self {

@@ -89,6 +89,14 @@ mod tests {
         feed(endpoint, Mti::STREAM_INITIATE_REQUEST, from, &request);
     }
 
+    /// An endpoint with one open destination stream from `REAL`, DID 7, its outputs drained.
+    fn open_from_real() -> StreamEndpoint {
+        let mut e = endpoint();
+        request_from(&mut e, REAL, 7);
+        drain(&mut e);
+        e
+    }
+
     fn data_from(endpoint: &mut StreamEndpoint, from: u64, did: u8, bytes: &[u8]) {
         let data = DataSend { destination_stream: sid(did), data: bytes };
         feed(endpoint, Mti::STREAM_DATA_SEND, from, &data);
@@ -99,6 +107,10 @@ mod tests {
             core::iter::from_fn(|| endpoint.poll_transmit()).collect(),
             core::iter::from_fn(|| endpoint.poll_event()).collect(),
         )
+    }
+
+    fn buffered(endpoint: &StreamEndpoint) -> Vec<usize> {
+        endpoint.handles().filter_map(|h| endpoint.buffered(h)).collect()
     }
 
     fn peers(endpoint: &StreamEndpoint) -> Vec<(NodeId, Role)> {
@@ -163,15 +175,12 @@ mod tests {
         // Both DIDs now answer under the new name.
         data_from(&mut e, REAL, 7, &[1]);
         data_from(&mut e, REAL, 8, &[2, 2]);
-        let buffered: Vec<_> = e.handles().map(|h| e.buffered(h).unwrap()).collect();
-        assert_eq!(buffered, [1, 2]);
+        assert_eq!(buffered(&e), [1, 2]);
     }
 
     #[test]
     fn renaming_to_itself_or_without_streams_does_nothing() {
-        let mut e = endpoint();
-        request_from(&mut e, REAL, 7);
-        drain(&mut e);
+        let mut e = open_from_real();
         e.rename_peer(id(REAL), id(REAL));
         e.rename_peer(id(PROVISIONAL), id(0x0501_0101_2299));
         assert_eq!(peers(&e), [(id(REAL), Role::Destination)]);
@@ -180,14 +189,12 @@ mod tests {
 
     #[test]
     fn renaming_back_restores_the_old_name() {
-        let mut e = endpoint();
-        request_from(&mut e, REAL, 7);
-        drain(&mut e);
+        let mut e = open_from_real();
         // Evicted from the link's cache, then learnt again.
         e.rename_peer(id(REAL), id(PROVISIONAL));
         assert_eq!(peers(&e), [(id(PROVISIONAL), Role::Destination)]);
         e.rename_peer(id(PROVISIONAL), id(REAL));
         data_from(&mut e, REAL, 7, &[1, 2]);
-        assert_eq!(e.handles().map(|h| e.buffered(h).unwrap()).collect::<Vec<_>>(), [2]);
+        assert_eq!(buffered(&e), [2]);
     }
 }
