@@ -24,7 +24,7 @@ pub(crate) fn exit_status(error: &Error) -> u8 {
         Error::Connect { .. } | Error::Bind { .. } | Error::Login(_) => 3,
         Error::Rejected { .. } => 4,
         Error::TimedOut { .. } | Error::Unreachable(_) => 5,
-        Error::ConnectionLost(_) | Error::Protocol(_) | Error::Closed => 6,
+        Error::ConnectionLost(_) | Error::WriteStalled(_) | Error::Protocol(_) | Error::Closed => 6,
         Error::Terminated { .. } | Error::CountMismatch { .. } => 7,
         _ => 1,
     }

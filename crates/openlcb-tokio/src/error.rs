@@ -32,6 +32,10 @@ pub enum Error {
     /// The connection to the hub broke or was closed by the hub.
     #[error("connection to the hub lost: {0}")]
     ConnectionLost(#[source] Arc<io::Error>),
+    /// The socket took none of the pending output for this long (the hub stopped reading):
+    /// the connection is given up, and every transfer on it ends.
+    #[error("the hub took no data for {} s; giving the connection up", .0.as_secs_f64())]
+    WriteStalled(std::time::Duration),
     /// The hub sent bytes that cannot be framed (an OpenLCB-TCP length that cannot be trusted).
     #[error("the hub sent undecodable data: {0}")]
     Protocol(String),

@@ -27,6 +27,10 @@ pub struct NodeOptions {
     pub can: CanConfig,
     /// How long to wait for the TCP connection and the alias login.
     pub connect_timeout: Duration,
+    /// How long the socket may take none of the pending output before the connection is
+    /// given up with [`Error::WriteStalled`] (a hub that stopped reading). Default 30 s,
+    /// the endpoint's Proceed timeout.
+    pub write_timeout: Duration,
 }
 
 impl NodeOptions {
@@ -37,6 +41,7 @@ impl NodeOptions {
             config: Config::default(),
             can: CanConfig::default(),
             connect_timeout: Duration::from_secs(5),
+            write_timeout: Duration::from_secs(30),
         }
     }
 }
@@ -96,6 +101,15 @@ impl Control {
     }
 }
 
+/// A TCP connection to `address` with this crate's segment limit and keep-alive.
+async fn connect_socket(address: std::net::SocketAddr) -> std::io::Result<TcpStream> {
+    let socket = if address.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
+    crate::socket::limit_segments(&socket)?;
+    let stream = socket.connect(address).await?;
+    crate::socket::keep_alive(&stream)?;
+    Ok(stream)
+}
+
 /// One OpenLCB node connected to a hub. A driver task runs its stack; this handle and its
 /// streams talk to it through channels. The node keeps answering the network (Verify Node ID,
 /// Protocol Support Inquiry, alias enquiries) as long as the handle or any stream lives.
@@ -132,7 +146,7 @@ impl Node {
         let socket = tokio::time::timeout(timeout, async {
             let mut last = std::io::Error::new(std::io::ErrorKind::NotFound, "the name resolves to no address");
             for address in lookup_host(addr).await? {
-                match TcpStream::connect(address).await {
+                match connect_socket(address).await {
                     Ok(socket) => return Ok(socket),
                     Err(error) => last = error,
                 }
@@ -156,7 +170,12 @@ impl Node {
         let control = Control { commands, shared };
         match tokio::time::timeout(timeout, up).await {
             Ok(Ok(())) => Ok(Node { node_id, control, incoming, driver }),
-            Ok(Err(_)) => Err(control.shared.error()),
+            // A connection that breaks before the login is done never reached a hub (a
+            // firewall or proxy that accepts and closes, a port that is not a hub).
+            Ok(Err(_)) => Err(match control.shared.error() {
+                Error::ConnectionLost(source) => Error::Connect { addr: addr.to_string(), source },
+                other => other,
+            }),
             Err(_) => {
                 driver.abort();
                 Err(Error::Login("the alias login did not finish in time"))
