@@ -50,6 +50,9 @@ pub struct CanConfig {
     pub resolve_timeout: Duration,
     /// Received messages held while their sender's alias is being resolved.
     pub max_held_messages: usize,
+    /// Ask for our own Node ID (AME) before claiming it, waiting this long for an answer
+    /// ([`AliasLogin::with_node_id_check`]); `None` (the default) does not ask.
+    pub node_id_check: Option<Duration>,
 }
 
 impl Default for CanConfig {
@@ -66,6 +69,7 @@ impl Default for CanConfig {
             frame_queue_limit: 16,
             resolve_timeout: Duration::from_secs(1),
             max_held_messages: 8,
+            node_id_check: None,
         }
     }
 }
@@ -216,7 +220,8 @@ impl CanLink {
     /// A link for `node`, starting its alias login at `now` (the CID frames are the first
     /// transmits). All tables are allocated here, at their configured bounds.
     pub fn new(now: Instant, node: NodeId, config: CanConfig) -> Self {
-        let login = AliasLogin::new(now, node, config.first_alias, config.reserve_wait);
+        let login = AliasLogin::new(now, node, config.first_alias, config.reserve_wait)
+            .with_node_id_check(config.node_id_check);
         let held = (0..config.max_held_messages)
             .map(|_| Held {
                 in_use: false,

@@ -152,7 +152,7 @@ impl Wire {
                 }
                 LinkEvent::DuplicateNodeId { .. } => {
                     endpoint.link_lost();
-                    return Err(Error::Login("another node on the network has this Node ID"));
+                    return Err(Error::DuplicateNodeId { node: link.node_id(), at_login: !*permitted });
                 }
                 LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
                 _ => {}

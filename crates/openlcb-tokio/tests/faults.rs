@@ -176,3 +176,187 @@ async fn a_large_window_crosses_a_relay_with_small_socket_buffers() {
     assert_eq!(sent, payload.len() as u64);
     assert!(got == payload, "the data arrived changed");
 }
+
+// ----- the hub and its bridge -----
+
+use openlcb_tokio::{Hub, HubEvent, HubOptions};
+
+async fn start_hub(options: HubOptions) -> Hub {
+    bounded("binding the hub", Hub::bind("127.0.0.1:0", Some("127.0.0.1:0"), options)).await.unwrap()
+}
+
+/// Moves `len` bytes from `sender` to `destination` and returns what `receiver` got.
+async fn small_transfer(sender: &Node, receiver: &mut Node, len: usize) -> Vec<u8> {
+    let destination = receiver.node_id();
+    let payload = data(len);
+    let send = async {
+        let mut stream = sender.open(OpenOptions::new(destination, 2048)).await?;
+        stream.write_all(payload.clone()).await?;
+        stream.finish().await
+    };
+    let receive = async {
+        let mut stream = receiver.accept().await?;
+        let mut got = Vec::new();
+        while let Some(chunk) = stream.read().await? {
+            got.extend_from_slice(&chunk);
+        }
+        Ok::<_, Error>(got)
+    };
+    let (_, got) = bounded("a transfer", async { tokio::try_join!(send, receive) }).await.unwrap();
+    assert!(got == payload, "the data arrived changed");
+    got
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_node_with_a_taken_node_id_refuses_to_join_and_the_first_keeps_running() {
+    let hub = start_hub(HubOptions::default()).await;
+    let addr = hub.local_addr().to_string();
+    let taken = id(0x20);
+    let join = |node| Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(node));
+    let mut first = bounded("joining", join(taken)).await.unwrap();
+    let second = bounded("joining again", join(taken)).await;
+    assert!(matches!(second, Err(Error::DuplicateNodeId { at_login: true, .. })), "got {second:?}");
+    let sender = bounded("joining", join(id(0x21))).await.unwrap();
+    small_transfer(&sender, &mut first, 10_000).await;
+}
+
+/// Waits (bounded in rounds) until the hub has `n` clients.
+async fn until_clients(hub: &Hub, n: usize) {
+    for _ in 0..500 {
+        if hub.stats().clients_connected == n {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    panic!("the hub never got to {n} clients: {:?}", hub.stats());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_id_that_left_the_gridconnect_side_can_join_over_openlcb_tcp() {
+    let mut hub = start_hub(HubOptions::default()).await;
+    let gridconnect = hub.local_addr().to_string();
+    let tcp = hub.tcp_local_addr().unwrap().to_string();
+    let roaming = id(0x22);
+    let sender = bounded("joining", Node::connect(&gridconnect, Protocol::GridConnect, NodeOptions::new(id(0x23))))
+        .await
+        .unwrap();
+    let mut was_here =
+        bounded("joining", Node::connect(&gridconnect, Protocol::GridConnect, NodeOptions::new(roaming)))
+            .await
+            .unwrap();
+    small_transfer(&sender, &mut was_here, 1000).await;
+    // It leaves without a word (no AMR), like a program that was killed.
+    was_here.abort();
+    bounded("the hub noticing", async {
+        while !matches!(hub.next_event().await, Some(HubEvent::InputClosed { .. }) | None) {}
+    })
+    .await;
+    let mut back = bounded("joining over OpenLCB-TCP", Node::connect(&tcp, Protocol::Tcp, NodeOptions::new(roaming)))
+        .await
+        .unwrap();
+    small_transfer(&sender, &mut back, 10_000).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_hub_refuses_a_client_over_its_cap_and_says_so() {
+    let mut options = HubOptions::default();
+    options.max_clients = 2;
+    let mut hub = start_hub(options).await;
+    let addr = hub.local_addr();
+    let _a = TcpStream::connect(addr).await.unwrap();
+    let _b = TcpStream::connect(addr).await.unwrap();
+    until_clients(&hub, 2).await;
+    let mut third = TcpStream::connect(addr).await.unwrap();
+    let mut said = String::new();
+    bounded("the refusal", third.read_to_string(&mut said)).await.unwrap();
+    assert!(said.contains("hub full"), "the refused client was told {said:?}");
+    let refused = bounded("the event", async {
+        loop {
+            if let Some(HubEvent::Refused { clients, .. }) = hub.next_event().await {
+                return clients;
+            }
+        }
+    })
+    .await;
+    assert_eq!(refused, 2);
+    assert_eq!(hub.stats().clients_refused, 1);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_half_closed_client_still_receives() {
+    let hub = start_hub(HubOptions::default()).await;
+    let addr = hub.local_addr();
+    let mut listener = TcpStream::connect(addr).await.unwrap();
+    listener.write_all(b":X19490123N;\n").await.unwrap();
+    listener.shutdown().await.unwrap();
+    let mut talker = TcpStream::connect(addr).await.unwrap();
+    until_clients(&hub, 2).await;
+    talker.write_all(b":X19170456N0501010122AA;\n").await.unwrap();
+    let mut got = vec![0u8; 64];
+    let n = bounded("the frame", listener.read(&mut got)).await.unwrap();
+    assert!(String::from_utf8_lossy(&got[..n]).contains(":X19170456N0501010122AA;"), "got {:?}", &got[..n]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn garbage_is_reported_in_aggregate_not_per_piece() {
+    let mut hub = start_hub(HubOptions::default()).await;
+    let mut noisy = TcpStream::connect(hub.local_addr()).await.unwrap();
+    let garbage = ":Xzz;\n".repeat(1000);
+    noisy.write_all(garbage.as_bytes()).await.unwrap();
+    drop(noisy);
+    let (mut reports, mut counted) = (0, 0);
+    bounded("the reports", async {
+        while let Some(event) = hub.next_event().await {
+            match event {
+                HubEvent::Garbage { count, .. } => {
+                    reports += 1;
+                    counted += count;
+                }
+                HubEvent::InputClosed { .. } => break,
+                _ => {}
+            }
+        }
+    })
+    .await;
+    assert_eq!(counted, hub.stats().decode_errors, "every piece is counted");
+    assert!(counted >= 1000, "counted {counted}");
+    assert!(reports <= 2, "{reports} reports for {counted} pieces");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_never_speaks_is_closed() {
+    let mut options = HubOptions::default();
+    options.silent_timeout = Some(Duration::from_millis(200));
+    let hub = start_hub(options).await;
+    let mut silent = TcpStream::connect(hub.local_addr()).await.unwrap();
+    let mut buf = [0u8; 16];
+    let n = bounded("the close", silent.read(&mut buf)).await.unwrap();
+    assert_eq!(n, 0, "closed by the hub");
+    until_clients(&hub, 0).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn clients_that_never_read_leave_no_queued_bytes_behind() {
+    let mut options = HubOptions::default();
+    options.max_queued_bytes = 64 * 1024;
+    let hub = start_hub(options).await;
+    let addr = hub.local_addr();
+    let mut idle = Vec::new();
+    for _ in 0..5 {
+        let socket = TcpStream::connect(addr).await.unwrap();
+        socket2::SockRef::from(&socket).set_recv_buffer_size(4096).unwrap();
+        idle.push(socket);
+    }
+    let mut flooder = TcpStream::connect(addr).await.unwrap();
+    until_clients(&hub, 6).await;
+    let frame = b":X19170456N0501010122AA;\n".repeat(1000);
+    for _ in 0..400 {
+        if hub.stats().slow_clients == 5 {
+            break;
+        }
+        bounded("flooding", flooder.write_all(&frame)).await.unwrap();
+    }
+    assert_eq!(hub.stats().slow_clients, 5, "{:?}", hub.stats());
+    until_clients(&hub, 1).await;
+    assert_eq!(hub.stats().queued_bytes, 0, "nothing is held for clients that are gone");
+}
