@@ -110,6 +110,9 @@ pub struct CanConfig {
     pub learn_slots: usize,
     /// Verify Node ID frames sent to an alias being learnt, in all, before giving up.
     pub learn_attempts: u32,
+    /// Ask for our own Node ID (AME) before claiming it, waiting this long for an answer
+    /// ([`AliasLogin::with_node_id_check`]); `None` (the default) does not ask.
+    pub node_id_check: Option<Duration>,
 }
 
 impl Default for CanConfig {
@@ -128,6 +131,7 @@ impl Default for CanConfig {
             learn_slots: 16,
             learn_attempts: 3,
             datagram_slots: 4,
+            node_id_check: None,
         }
     }
 }
@@ -314,7 +318,8 @@ impl CanLink {
     /// A link for `node`, starting its alias login at `now` (the CID frames are the first
     /// transmits). All tables are allocated here, at their configured bounds.
     pub fn new(now: Instant, node: NodeId, config: CanConfig) -> Self {
-        let login = AliasLogin::new(now, node, config.first_alias, config.reserve_wait);
+        let login = AliasLogin::new(now, node, config.first_alias, config.reserve_wait)
+            .with_node_id_check(config.node_id_check);
         CanLink {
             node,
             login,

@@ -67,6 +67,9 @@ pub enum TimeoutKind {
     Proceed,
     /// The destination heard nothing from a source holding credit (TDE 0x2010 was sent).
     Idle,
+    /// The destination accepted a stream and no data came within
+    /// [`Config::first_data_timeout`](crate::Config::first_data_timeout) (TDE 0x2010 was sent).
+    FirstData,
     /// The application did not decide on an incoming request (it was refused with 0x2020).
     Decision,
 }

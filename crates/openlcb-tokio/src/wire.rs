@@ -54,7 +54,7 @@ fn apply_link_events(link: &mut CanLink, permitted: &mut bool, endpoint: &mut St
             }
             LinkEvent::DuplicateNodeId { .. } => {
                 endpoint.link_lost();
-                return Err(Error::Login("another node on the network has this Node ID"));
+                return Err(Error::DuplicateNodeId { node: link.node_id(), at_login: !*permitted });
             }
             LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
             LinkEvent::PeerRenamed { from, to, .. } => endpoint.rename_peer(from, to),
