@@ -588,8 +588,8 @@ impl CanLink {
                 }
                 self.deliver_from(now, header.source, Mti::STREAM_DATA_SEND, true, data, &mut deliver);
             }
-            FrameKind::Datagram { frame: position, destination } => {
-                self.on_datagram_frame(now, header.source, position, destination, data, &mut deliver);
+            FrameKind::Datagram { frame: part, destination } => {
+                self.on_datagram_frame(now, header.source, part, destination, data, &mut deliver);
             }
             FrameKind::ReservedFormat { .. } => bump(&mut self.stats.unsupported_ignored),
             _ => {}

@@ -291,8 +291,8 @@ impl Gateway {
             FrameKind::AliasMapEnquiry if data.is_empty() => self.cache.clear(),
             FrameKind::Message { can_mti } => self.can_message(now, header.source, Mti(can_mti), data),
             FrameKind::StreamData { destination } => self.can_stream_data(now, header.source, destination, data),
-            FrameKind::Datagram { frame: position, destination } => {
-                self.can_datagram(now, header.source, position, destination, data);
+            FrameKind::Datagram { frame: part, destination } => {
+                self.can_datagram(now, header.source, part, destination, data);
             }
             FrameKind::ReservedFormat { .. } => bump(&mut self.stats.invalid_frames),
             _ => {}
