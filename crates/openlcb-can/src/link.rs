@@ -168,9 +168,9 @@ pub enum LinkEvent {
     ///
     /// The rule: drain `poll_event` after **every** [`CanLink::handle_frame`] call, before
     /// the next frame is fed, and apply each rename to whatever is keyed by Node ID above the
-    /// link (`StreamEndpoint::rename_peer(from, to)`), so that the next message from that
-    /// alias finds its streams under the new name. Renames applied this way lose no message
-    /// and no stream when the cache evicts an entry.
+    /// link ([`StreamEndpoint::rename_peer`](openlcb_stream::StreamEndpoint::rename_peer)), so
+    /// that the next message from that alias finds its streams under the new name. Renames
+    /// applied this way lose no message and no stream when the cache evicts an entry.
     PeerRenamed {
         /// The name used until now.
         from: NodeId,
@@ -552,8 +552,8 @@ impl CanLink {
     ///
     /// The rule: drain [`poll_event`](Self::poll_event) after **every** call, before feeding
     /// the next frame, and apply each [`LinkEvent::PeerRenamed`] to whatever is keyed by Node
-    /// ID above the link (`StreamEndpoint::rename_peer`), so that the next message from that
-    /// alias finds its streams under the new name.
+    /// ID above the link ([`StreamEndpoint::rename_peer`](openlcb_stream::StreamEndpoint::rename_peer)),
+    /// so that the next message from that alias finds its streams under the new name.
     pub fn handle_frame(&mut self, now: Instant, frame: &CanFrame, mut deliver: impl FnMut(MessageRef<'_>)) {
         bump(&mut self.stats.frames_in);
         let header = match frame.header() {
