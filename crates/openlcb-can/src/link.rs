@@ -225,11 +225,12 @@ pub struct LinkStats {
     pub unsupported_ignored: u64,
     /// Global messages claiming our Node ID from another alias.
     pub own_node_claims: u64,
-    /// 0x2041: a middle or last frame without a first.
+    /// 0x2041: a middle or last frame of an addressed message without a first (datagrams:
+    /// `datagram_errors`).
     pub middle_without_first: u64,
-    /// 0x2042: a first frame before the previous message ended.
+    /// 0x2042: a first frame of an addressed message before the previous one ended.
     pub first_before_last_ended: u64,
-    /// 0x2011: no last frame in time.
+    /// 0x2011: no last frame of an addressed message in time.
     pub reassembly_timeouts: u64,
     /// Multi-frame messages longer than `max_message_len`, or with no free slot.
     pub reassembly_overflows: u64,
