@@ -423,10 +423,10 @@ impl Gateway {
     }
 }
 
-/// The gateway's own control frames queued at once: an AME per held message, an AMR per
-/// evicted proxy.
+/// The gateway's own frames queued at once: an AME per held message, an AMR per evicted
+/// proxy, a Datagram Rejected per datagram slot (more rejects are dropped and counted).
 fn raw_frame_bound(config: &GatewayConfig) -> usize {
-    config.max_held_messages.saturating_add(config.max_proxied_nodes)
+    config.max_held_messages.saturating_add(config.max_proxied_nodes).saturating_add(config.datagram_slots)
 }
 
 fn other(side: Side) -> Side {
