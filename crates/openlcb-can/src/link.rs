@@ -172,9 +172,9 @@ pub enum LinkEvent {
     ///
     /// The rule: drain `poll_event` after **every** [`CanLink::handle_frame`] call, before
     /// the next frame is fed, and apply each rename to whatever is keyed by Node ID above the
-    /// link (`StreamEndpoint::rename_peer(from, to)`), so that the next message from that
-    /// alias finds its streams under the new name. Renames applied this way lose no message
-    /// and no stream when the cache evicts an entry.
+    /// link ([`StreamEndpoint::rename_peer`](openlcb_stream::StreamEndpoint::rename_peer)), so
+    /// that the next message from that alias finds its streams under the new name. Renames
+    /// applied this way lose no message and no stream when the cache evicts an entry.
     PeerRenamed {
         /// The name used until now.
         from: NodeId,
@@ -229,11 +229,12 @@ pub struct LinkStats {
     pub unsupported_ignored: u64,
     /// Global messages claiming our Node ID from another alias.
     pub own_node_claims: u64,
-    /// 0x2041: a middle or last frame without a first.
+    /// 0x2041: a middle or last frame of an addressed message without a first (datagrams:
+    /// `datagram_errors`).
     pub middle_without_first: u64,
-    /// 0x2042: a first frame before the previous message ended.
+    /// 0x2042: a first frame of an addressed message before the previous one ended.
     pub first_before_last_ended: u64,
-    /// 0x2011: no last frame in time.
+    /// 0x2011: no last frame of an addressed message in time.
     pub reassembly_timeouts: u64,
     /// Multi-frame messages longer than `max_message_len`, or with no free slot.
     pub reassembly_overflows: u64,
@@ -557,8 +558,8 @@ impl CanLink {
     ///
     /// The rule: drain [`poll_event`](Self::poll_event) after **every** call, before feeding
     /// the next frame, and apply each [`LinkEvent::PeerRenamed`] to whatever is keyed by Node
-    /// ID above the link (`StreamEndpoint::rename_peer`), so that the next message from that
-    /// alias finds its streams under the new name.
+    /// ID above the link ([`StreamEndpoint::rename_peer`](openlcb_stream::StreamEndpoint::rename_peer)),
+    /// so that the next message from that alias finds its streams under the new name.
     pub fn handle_frame(&mut self, now: Instant, frame: &CanFrame, mut deliver: impl FnMut(MessageRef<'_>)) {
         bump(&mut self.stats.frames_in);
         let header = match frame.header() {
@@ -593,8 +594,8 @@ impl CanLink {
                 }
                 self.deliver_from(now, header.source, Mti::STREAM_DATA_SEND, true, data, &mut deliver);
             }
-            FrameKind::Datagram { frame: position, destination } => {
-                self.on_datagram_frame(now, header.source, position, destination, data, &mut deliver);
+            FrameKind::Datagram { frame: part, destination } => {
+                self.on_datagram_frame(now, header.source, part, destination, data, &mut deliver);
             }
             FrameKind::ReservedFormat { .. } => bump(&mut self.stats.unsupported_ignored),
             _ => {}

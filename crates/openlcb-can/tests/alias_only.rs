@@ -254,3 +254,23 @@ fn a_thousand_aliases_are_all_served_within_the_bounds() {
         assert!(current, "{peer} is a stale name");
     }
 }
+
+/// The event queue is sized from the cache: a global AME with a full cache of 200 entries
+/// queues 200 renames, none dropped.
+#[test]
+fn global_ame_with_a_full_cache_drops_no_rename() {
+    let mut can = can_config(0x123);
+    can.alias_cache_size = 200;
+    let mut solo = Solo::permitted_with(can);
+    for raw in 0x200u16..0x2C8 {
+        let node = 0x0501_0101_0000 + u64::from(raw);
+        solo.inject(&[&format!(":X10701{raw:03X}N{node:012X};")]);
+    }
+    assert_eq!(solo.node.link.cached_aliases(), 200);
+    solo.node.link_events.clear();
+    // One frame: all 200 renames are in the queue at once.
+    solo.node.link.handle_frame(solo.now, &common::frame(":X10702777N;"), |_| {});
+    solo.node.apply_link_events();
+    assert_eq!(renames(&solo.node.link_events).len(), 200);
+    assert_eq!(solo.node.link.stats().queue_overflows, 0);
+}

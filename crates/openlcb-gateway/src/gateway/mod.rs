@@ -291,8 +291,8 @@ impl Gateway {
             FrameKind::AliasMapEnquiry if data.is_empty() => self.cache.clear(),
             FrameKind::Message { can_mti } => self.can_message(now, header.source, Mti(can_mti), data),
             FrameKind::StreamData { destination } => self.can_stream_data(now, header.source, destination, data),
-            FrameKind::Datagram { frame: position, destination } => {
-                self.can_datagram(now, header.source, position, destination, data);
+            FrameKind::Datagram { frame: part, destination } => {
+                self.can_datagram(now, header.source, part, destination, data);
             }
             FrameKind::ReservedFormat { .. } => bump(&mut self.stats.invalid_frames),
             _ => {}
@@ -423,10 +423,10 @@ impl Gateway {
     }
 }
 
-/// The gateway's own control frames queued at once: an AME per held message, an AMR per
-/// evicted proxy.
+/// The gateway's own frames queued at once: an AME per held message, an AMR per evicted
+/// proxy, a Datagram Rejected per datagram slot (more rejects are dropped and counted).
 fn raw_frame_bound(config: &GatewayConfig) -> usize {
-    config.max_held_messages.saturating_add(config.max_proxied_nodes)
+    config.max_held_messages.saturating_add(config.max_proxied_nodes).saturating_add(config.datagram_slots)
 }
 
 fn other(side: Side) -> Side {
