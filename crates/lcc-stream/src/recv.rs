@@ -72,6 +72,7 @@ pub(crate) fn run(args: &RecvArgs) -> Result<ExitCode, String> {
 async fn receive(args: &RecvArgs) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
     let mut options = NodeOptions::new(args.node_id);
+    options.node.snip = net::snip("recv");
     options.node.stream.max_window = args.window;
     options.node.stream.early_proceed = args.early_proceed;
     options.node.stream.max_streams = usize::from(args.max_streams);

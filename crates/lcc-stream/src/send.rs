@@ -86,6 +86,7 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
     };
     let size = file.metadata().await.map(|m| m.len()).ok();
     let mut options = NodeOptions::new(args.node_id);
+    options.node.snip = net::snip("send");
     options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::STREAMS_NOT_SUPPORTED);
     options.node.stream.reply_timeout = Duration::from_secs(args.timeout).into();
     options.node.stream.proceed_timeout = Duration::from_secs(args.timeout).into();

@@ -5,8 +5,8 @@
 use std::collections::HashMap;
 
 use bytes::{Bytes, BytesMut};
-use openlcb_stream::wire::ErrorCode;
 use openlcb_node::{NodeEvent, SnipRequestError};
+use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Event, Instant, NodeId, Role, StreamError, StreamHandle, StreamInfo};
 use tokio::net::TcpStream;
 use tokio::sync::{mpsc, oneshot};
@@ -359,7 +359,11 @@ impl Driver {
                 let _ = reply.send(self.wire.alias_of(node));
             }
             Command::Stats { reply } => {
-                let _ = reply.send(NodeStats { wire: self.stats, endpoint: self.stack.streams().stats(), node: self.stack.stats() });
+                let _ = reply.send(NodeStats {
+                    wire: self.stats,
+                    endpoint: self.stack.streams().stats(),
+                    node: self.stack.stats(),
+                });
             }
         }
     }

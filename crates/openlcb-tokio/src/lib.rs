@@ -88,5 +88,5 @@ pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStr
 pub use openlcb_can::CanConfig;
 pub use openlcb_node::{NodeConfig, Protocols, SnipInfo};
 pub use openlcb_stream::{Config as StreamConfig, NodeId, OpenOptions};
-pub use {openlcb_can, openlcb_node, openlcb_stream};
 pub use wire::{Protocol, WireStats};
+pub use {openlcb_can, openlcb_node, openlcb_stream};

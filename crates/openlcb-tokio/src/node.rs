@@ -5,8 +5,8 @@ use std::time::Duration;
 
 use bytes::Bytes;
 use openlcb_can::CanConfig;
-use openlcb_stream::wire::ErrorCode;
 use openlcb_node::{NodeConfig, NodeStats as StackStats, Protocols, SnipInfo};
+use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{NodeId, OpenOptions, Stats, StreamHandle, StreamInfo};
 use tokio::net::{TcpStream, lookup_host};
 use tokio::sync::{mpsc, oneshot};
@@ -70,17 +70,46 @@ pub const DISCOVER_LIMIT: Duration = Duration::from_secs(30);
 
 /// Requests from the handles to the driver task.
 pub(crate) enum Command {
-    Open { options: OpenOptions, reply: oneshot::Sender<Result<(StreamHandle, StreamInfo), Error>> },
-    Write { handle: StreamHandle, data: Bytes, reply: oneshot::Sender<Result<(), Error>> },
-    Finish { handle: StreamHandle, reply: oneshot::Sender<Result<(), Error>> },
-    Abort { handle: StreamHandle, code: ErrorCode },
-    Read { handle: StreamHandle, reply: oneshot::Sender<Result<Option<Bytes>, Error>> },
-    Stats { reply: oneshot::Sender<NodeStats> },
+    Open {
+        options: OpenOptions,
+        reply: oneshot::Sender<Result<(StreamHandle, StreamInfo), Error>>,
+    },
+    Write {
+        handle: StreamHandle,
+        data: Bytes,
+        reply: oneshot::Sender<Result<(), Error>>,
+    },
+    Finish {
+        handle: StreamHandle,
+        reply: oneshot::Sender<Result<(), Error>>,
+    },
+    Abort {
+        handle: StreamHandle,
+        code: ErrorCode,
+    },
+    Read {
+        handle: StreamHandle,
+        reply: oneshot::Sender<Result<Option<Bytes>, Error>>,
+    },
+    Stats {
+        reply: oneshot::Sender<NodeStats>,
+    },
     /// Send Verify Node ID to everyone; forward every Verified Node ID to `sink`.
-    Discover { sink: mpsc::Sender<NodeId> },
-    Snip { peer: NodeId, reply: oneshot::Sender<Result<SnipInfo, Error>> },
-    Protocols { peer: NodeId, reply: oneshot::Sender<Result<Protocols, Error>> },
-    AliasOf { node: NodeId, reply: oneshot::Sender<Option<u16>> },
+    Discover {
+        sink: mpsc::Sender<NodeId>,
+    },
+    Snip {
+        peer: NodeId,
+        reply: oneshot::Sender<Result<SnipInfo, Error>>,
+    },
+    Protocols {
+        peer: NodeId,
+        reply: oneshot::Sender<Result<Protocols, Error>>,
+    },
+    AliasOf {
+        node: NodeId,
+        reply: oneshot::Sender<Option<u16>>,
+    },
 }
 
 /// Where the driver leaves the error it stopped with, for every handle to find.
