@@ -95,7 +95,7 @@ fn run() -> Report {
     let mut opened = (false, false);
     let mut chunk = [0u8; 256];
     // The `inject-hardfault` feature proves that a fault fails the run.
-    let mut fault_at = cfg!(feature = "inject-hardfault").then_some(LEN / 2);
+    let fault_at = cfg!(feature = "inject-hardfault").then_some(LEN / 2);
     let mut buf = [0u8; 200];
     while !r.finished && r.rounds < ROUND_LIMIT && time.get() < TIME_LIMIT {
         r.rounds += 1;
@@ -128,7 +128,6 @@ fn run() -> Report {
             let taken = source.write(time.get(), handle, chunk.get(..n).unwrap_or(&[])).unwrap_or(0);
             r.sent += taken as u64;
             if fault_at.is_some_and(|at| r.sent >= at) {
-                fault_at = None;
                 cortex_m::asm::udf(); // undefined instruction: UsageFault, escalated to HardFault
             }
             if r.sent == LEN && source.finish(time.get(), handle).is_err() {
