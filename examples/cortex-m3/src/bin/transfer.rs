@@ -58,6 +58,8 @@ struct Report {
     heap_peak: usize,
     heap_end: usize,
     streams_left: usize,
+    second_ok: bool,
+    heap_end_second: usize,
 }
 
 #[entry]
@@ -69,7 +71,9 @@ fn main() -> ! {
         && report.received == LEN
         && report.mismatches == 0
         && report.unexpected_events == 0
-        && report.streams_left == 0;
+        && report.streams_left == 0
+        && report.second_ok
+        && report.heap_end_second == report.heap_end;
     print(&report, ok);
     exit(ok)
 }
@@ -183,6 +187,27 @@ fn run() -> Report {
     }
     r.heap_end = heap();
     r.streams_left = source.stream_count() + destination.stream_count();
+    // A second, empty stream: the heap must come back to the same level (no leak per stream).
+    if let Ok(second) = source.open(time.get(), OpenOptions::new(b_id, WINDOW)) {
+        let mut finished = false;
+        for _ in 0..64 {
+            let _ = (a.poll(&mut source), b.poll(&mut destination));
+            while let Some(event) = source.poll_event() {
+                if let Event::Opened { .. } = event {
+                    let _ = source.finish(time.get(), second);
+                }
+            }
+            while let Some(event) = destination.poll_event() {
+                finished |= matches!(event, Event::Finished { total: 0, .. });
+            }
+            let handle = destination.handles().next();
+            if let Some(handle) = handle {
+                let _ = destination.read(time.get(), handle, &mut buf);
+            }
+        }
+        r.second_ok = finished && source.stream_count() + destination.stream_count() == 0;
+    }
+    r.heap_end_second = heap();
     let bus_stats = bus.stats();
     let mut out = Out;
     let _ = writeln!(
@@ -256,6 +281,12 @@ fn print(r: &Report, ok: bool) {
         r.heap_peak.saturating_sub(r.heap_logged_in),
         r.heap_end as i64 - r.heap_logged_in as i64,
         r.streams_left,
+    );
+    let _ = writeln!(
+        out,
+        "a second (empty) stream {}; heap after it {:+} B",
+        if r.second_ok { "opened and finished" } else { "FAILED" },
+        r.heap_end_second as i64 - r.heap_logged_in as i64
     );
     let _ = writeln!(out, "{}", if ok { "PASS: 64 KiB verified" } else { "FAIL" });
 }
