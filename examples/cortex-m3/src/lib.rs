@@ -119,8 +119,20 @@ pub mod exercise {
 
     use crate::opaque::{input, input_bytes, output};
 
+    /// The body of every size firmware: gives the heap its memory, builds the state under
+    /// measurement with `setup`, then forever does the baseline's work and one `turn` on it.
+    pub fn run<S>(setup: impl FnOnce() -> S, mut turn: impl FnMut(&mut S)) -> ! {
+        crate::init_heap();
+        let mut state = setup();
+        let mut buf = Vec::new();
+        loop {
+            baseline_turn(&mut buf);
+            turn(&mut state);
+        }
+    }
+
     /// The baseline's work: allocate, grow, fill and free a buffer of opaque size.
-    pub fn baseline_turn(buf: &mut Vec<u8>) {
+    fn baseline_turn(buf: &mut Vec<u8>) {
         buf.resize(input() as usize & 0xFFF, 0);
         input_bytes(buf);
         output(buf.iter().map(|b| u32::from(*b)).sum());

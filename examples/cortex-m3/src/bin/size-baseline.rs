@@ -5,15 +5,9 @@
 #![no_main]
 
 use cortex_m_rt::entry;
-use openlcb_cortex_m3::{exercise, init_heap};
+use openlcb_cortex_m3::exercise;
 
 #[entry]
 fn main() -> ! {
-    init_heap();
-    let mut buf = alloc::vec::Vec::new();
-    loop {
-        exercise::baseline_turn(&mut buf);
-    }
+    exercise::run(|| (), |_| {})
 }
-
-extern crate alloc;

@@ -4,21 +4,17 @@
 #![no_std]
 #![no_main]
 
-extern crate alloc;
-
 use cortex_m_rt::entry;
-use openlcb_cortex_m3::{exercise, init_heap};
+use openlcb_cortex_m3::exercise;
 
 #[entry]
 fn main() -> ! {
-    init_heap();
-    let mut buf = alloc::vec::Vec::new();
-    let mut endpoint = exercise::endpoint();
-    let mut link = exercise::link();
-    loop {
-        exercise::baseline_turn(&mut buf);
-        exercise::endpoint_turn(&mut endpoint);
-        exercise::link_turn(&mut link, &mut endpoint);
-        exercise::endpoint_outputs(&mut endpoint);
-    }
+    exercise::run(
+        || (exercise::endpoint(), exercise::link()),
+        |(endpoint, link)| {
+            exercise::endpoint_turn(endpoint);
+            exercise::link_turn(link, endpoint);
+            exercise::endpoint_outputs(endpoint);
+        },
+    )
 }

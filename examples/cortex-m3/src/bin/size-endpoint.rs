@@ -4,20 +4,14 @@
 #![no_std]
 #![no_main]
 
-extern crate alloc;
-
 use cortex_m_rt::entry;
-use openlcb_cortex_m3::{exercise, init_heap};
+use openlcb_cortex_m3::exercise;
 
 #[entry]
 fn main() -> ! {
-    init_heap();
-    let mut buf = alloc::vec::Vec::new();
-    let mut endpoint = exercise::endpoint();
-    loop {
-        exercise::baseline_turn(&mut buf);
-        exercise::endpoint_turn(&mut endpoint);
-        exercise::endpoint_transmits(&mut endpoint);
-        exercise::endpoint_outputs(&mut endpoint);
-    }
+    exercise::run(exercise::endpoint, |endpoint| {
+        exercise::endpoint_turn(endpoint);
+        exercise::endpoint_transmits(endpoint);
+        exercise::endpoint_outputs(endpoint);
+    })
 }
