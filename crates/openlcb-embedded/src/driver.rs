@@ -102,6 +102,9 @@ impl Poll {
 /// frames of a stream, under one identifier; a peripheral that gives back one of several
 /// pending frames of equal identifier other than the newest breaks that order (a bxcan in
 /// priority mode with all three mailboxes full of one identifier can: use FIFO mode).
+///
+/// The link must not hear its own frames: a controller in loopback or echo mode must filter
+/// them out (they would read as an alias collision).
 #[derive(Debug)]
 pub struct Driver<C: Can, K> {
     can: C,
