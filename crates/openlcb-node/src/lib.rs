@@ -88,6 +88,7 @@ extern crate std;
 
 mod config;
 mod datagram;
+pub mod memconfig;
 mod node;
 mod snip;
 
@@ -99,6 +100,10 @@ pub use config::{NodeConfig, Protocols};
 pub use datagram::{
     Datagram, DatagramAnswer, DatagramConfig, DatagramError, DatagramFailure, DatagramId, DatagramStats,
     MAX_DATAGRAM_LEN, OkFlags, rejection_code,
+};
+pub use memconfig::{
+    MemoryConfigOptions, MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, MemorySpace,
+    RamSpace, ReadOnlySpace, SpaceError, TransferPath,
 };
 pub use node::{Node, NodeEvent, NodeStats};
 pub use snip::{MAX_REPLY_LEN, SnipFailure, SnipField, SnipInfo, SnipRequestError, SnipTooLong};
