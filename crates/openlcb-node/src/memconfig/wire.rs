@@ -693,3 +693,284 @@ impl Reply {
         out
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use alloc::vec;
+
+    /// Parses `bytes` as a command, checks it is `expected`, and that it re-emits to `emitted`.
+    fn command(bytes: &[u8], expected: Command, emitted: &[u8]) {
+        let parsed = Command::parse(bytes).unwrap();
+        assert_eq!(parsed, expected);
+        assert_eq!(parsed.to_bytes(), emitted);
+        assert_eq!(Command::parse(&parsed.to_bytes()).unwrap(), parsed);
+    }
+
+    fn reply(bytes: &[u8], expected: Reply, emitted: &[u8]) {
+        let parsed = Reply::parse(bytes).unwrap();
+        assert_eq!(parsed, expected);
+        assert_eq!(parsed.to_bytes(), emitted);
+        assert_eq!(Reply::parse(&parsed.to_bytes()).unwrap(), parsed);
+    }
+
+    // ----- §9.1 datagram write of 8 bytes to 0xFD -----
+
+    #[test]
+    fn write_of_worked_example_9_1() {
+        let bytes = [0x20, 0x01, 0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8];
+        command(&bytes, Command::Write { space: 0xFD, address: 0, data: vec![1, 2, 3, 4, 5, 6, 7, 8] }, &bytes);
+        reply(&[0x20, 0x11, 0, 0, 0, 0], Reply::WriteOk { space: 0xFD, address: 0 }, &[0x20, 0x11, 0, 0, 0, 0]);
+        let failed = [0x20, 0x19, 0, 0, 0, 0, 0x10, 0x83];
+        reply(
+            &failed,
+            Reply::Failed { kind: FailedKind::Write, space: Some(0xFD), address: 0, code: ErrorCode(0x1083) },
+            &failed,
+        );
+    }
+
+    // ----- §9.2 read of 64 bytes from the CDI -----
+
+    #[test]
+    fn read_of_worked_example_9_2() {
+        let bytes = [0x20, 0x43, 0, 0, 0, 0, 0x40];
+        command(&bytes, Command::Read { space: 0xFF, address: 0, count: 64 }, &bytes);
+        let xml = b"<?xml version=\"1.0\"?>\n<cdi xmlns:xsi=\"http://www.w3.org/2001/XML";
+        assert_eq!(xml.len(), 64);
+        let mut answer = vec![0x20, 0x53, 0, 0, 0, 0];
+        answer.extend_from_slice(xml);
+        reply(&answer, Reply::ReadOk { space: 0xFF, address: 0, data: xml.to_vec() }, &answer);
+        let failed = [0x20, 0x5B, 0, 0, 0, 0, 0x10, 0x82];
+        reply(
+            &failed,
+            Reply::Failed { kind: FailedKind::Read, space: Some(0xFF), address: 0, code: ErrorCode(0x1082) },
+            &failed,
+        );
+    }
+
+    #[test]
+    fn read_count_top_bit_is_ignored_and_data_bounded() {
+        assert_eq!(
+            Command::parse(&[0x20, 0x40, 0, 0, 1, 0, 0x22, 0xC0]).unwrap(),
+            Command::Read { space: 0x22, address: 256, count: 0x40 }
+        );
+        assert_eq!(Command::parse(&[0x20, 0x00, 0, 0, 0, 0, 0x22]), Err(DecodeError::BadLength));
+        assert_eq!(Command::parse(&[0x20, 0x01, 0, 0, 0, 0]), Err(DecodeError::BadLength));
+        let mut long = vec![0x20, 0x01, 0, 0, 0, 0];
+        long.extend_from_slice(&[0; 65]);
+        assert_eq!(Command::parse(&long), Err(DecodeError::BadLength));
+        assert_eq!(Command::parse(&[0x20, 0x41, 0, 0]), Err(DecodeError::TooShort("address")));
+        assert_eq!(Command::parse(&[0x21, 0x80]), Err(DecodeError::NotMemoryConfiguration));
+        assert_eq!(Command::parse(&[0x20, 0x44, 0, 0, 0, 0, 1]), Err(DecodeError::UnknownCommand(0x44)));
+        assert_eq!(Command::parse(&[0x20, 0xAB]), Err(DecodeError::UnknownCommand(0xAB)));
+    }
+
+    // ----- §9.3 Write Stream to the firmware space -----
+
+    #[test]
+    fn write_stream_of_worked_example_9_3() {
+        command(&[0x20, 0xA1, 0xEF], Command::Freeze { space: 0xEF }, &[0x20, 0xA1, 0xEF]);
+        let bytes = [0x20, 0x20, 0, 0, 0, 0, 0xEF, 0x55];
+        command(&bytes, Command::WriteStream { space: 0xEF, address: 0, source_stream: 0x55 }, &bytes);
+        // The reply as the OpenMRN Bootloader sends it: no stream IDs (C-2).
+        let openmrn = [0x20, 0x30, 0, 0, 0, 0, 0xEF];
+        reply(&openmrn, Reply::WriteStreamOk { space: Some(0xEF), address: 0, streams: None }, &openmrn);
+        // The [MC] form, 9 bytes.
+        let standard = [0x20, 0x30, 0, 0, 0, 0, 0xEF, 0x55, 0x5A];
+        reply(
+            &standard,
+            Reply::WriteStreamOk { space: Some(0xEF), address: 0, streams: Some((0x55, 0x5A)) },
+            &standard,
+        );
+        let bad_image = [0x20, 0x38, 0, 0, 0, 0, 0xEF, 0x10, 0x88];
+        reply(
+            &bad_image,
+            Reply::Failed { kind: FailedKind::WriteStream, space: Some(0xEF), address: 0, code: ErrorCode(0x1088) },
+            &bad_image,
+        );
+        command(&[0x20, 0xA0, 0xEF], Command::Unfreeze { space: 0xEF }, &[0x20, 0xA0, 0xEF]);
+    }
+
+    #[test]
+    fn write_stream_with_the_fwu_tn_placeholder_is_accepted() {
+        // C-1: the FWU-TN trace's 9-byte form, 0xFF before the SID; sent in the [MC] form.
+        command(
+            &[0x20, 0x20, 0, 0, 0, 0, 0xEF, 0xFF, 0x55],
+            Command::WriteStream { space: 0xEF, address: 0, source_stream: 0x55 },
+            &[0x20, 0x20, 0, 0, 0, 0, 0xEF, 0x55],
+        );
+        // Its reply, DID before SID, is classified by byte 1 alone (C-2).
+        assert!(matches!(
+            Reply::parse(&[0x20, 0x30, 0, 0, 0, 0, 0xEF, 0x5A, 0x55]),
+            Ok(Reply::WriteStreamOk { space: Some(0xEF), .. })
+        ));
+    }
+
+    #[test]
+    fn stream_replies_without_the_space_byte_are_accepted() {
+        // C-8: OpenLcbCLib leaves byte 6 out of 0x30/0x38/0x70 replies.
+        reply(
+            &[0x20, 0x30, 0, 0, 0, 0, 0x55, 0x5A],
+            Reply::WriteStreamOk { space: None, address: 0, streams: Some((0x55, 0x5A)) },
+            &[0x20, 0x30, 0, 0, 0, 0, 0x55, 0x5A],
+        );
+        reply(
+            &[0x20, 0x38, 0, 0, 0, 0, 0x10, 0x80],
+            Reply::Failed { kind: FailedKind::WriteStream, space: None, address: 0, code: ErrorCode(0x1080) },
+            &[0x20, 0x38, 0, 0, 0, 0, 0x10, 0x80],
+        );
+        reply(
+            &[0x20, 0x70, 0, 0, 0, 0, 0x02, 0x01, 0, 0, 0, 0xC8],
+            Reply::ReadStreamOk { space: None, address: 0, source_stream: 2, destination_stream: 1, count: Some(200) },
+            &[0x20, 0x70, 0, 0, 0, 0, 0x02, 0x01, 0, 0, 0, 0xC8],
+        );
+    }
+
+    // ----- §9.4 Read Stream -----
+
+    #[test]
+    fn read_stream_of_worked_example_9_4() {
+        let bytes = [0x20, 0x61, 0, 0, 0, 0, 0xFF, 0x01, 0, 0, 0, 0xC8];
+        command(&bytes, Command::ReadStream { space: 0xFD, address: 0, destination_stream: 1, count: 200 }, &bytes);
+        let answer = [0x20, 0x71, 0, 0, 0, 0, 0x02, 0x01, 0, 0, 0, 0xC8];
+        reply(
+            &answer,
+            Reply::ReadStreamOk {
+                space: Some(0xFD),
+                address: 0,
+                source_stream: 2,
+                destination_stream: 1,
+                count: Some(200),
+            },
+            &answer,
+        );
+        // The byte-6 form of the same command.
+        let byte6 = [0x20, 0x60, 0, 0, 0, 0, 0xFD, 0xFF, 0x01, 0, 0, 0, 0xC8];
+        let parsed = Command::parse(&byte6).unwrap();
+        assert_eq!(parsed, Command::ReadStream { space: 0xFD, address: 0, destination_stream: 1, count: 200 });
+        let low = [0x20, 0x60, 0, 0, 0, 0, 0x22, 0xFF, 0x01, 0, 0, 0, 0xC8];
+        command(&low, Command::ReadStream { space: 0x22, address: 0, destination_stream: 1, count: 200 }, &low);
+        let failed = [0x20, 0x79, 0, 0, 0, 0, 0x10, 0x82];
+        reply(
+            &failed,
+            Reply::Failed { kind: FailedKind::ReadStream, space: Some(0xFD), address: 0, code: ErrorCode(0x1082) },
+            &failed,
+        );
+        // OpenMRN: a command without a count reads to the end.
+        assert_eq!(
+            Command::parse(&[0x20, 0x61, 0, 0, 0, 0, 0xFF, 0x01]).unwrap(),
+            Command::ReadStream { space: 0xFD, address: 0, destination_stream: 1, count: u32::MAX }
+        );
+    }
+
+    // ----- §9.6 smaller exchanges -----
+
+    #[test]
+    fn options_and_space_information_of_worked_example_9_6() {
+        command(&[0x20, 0x80], Command::GetOptions, &[0x20, 0x80]);
+        let options = [0x20, 0x82, 0x60, 0x00, 0xE3, 0xFF, 0xEF];
+        let parsed = Reply::parse(&options).unwrap();
+        reply(
+            &options,
+            Reply::Options(OptionsReply {
+                commands: 0x6000,
+                write_lengths: 0xE3,
+                highest_space: 0xFF,
+                lowest_space: Some(0xEF),
+                name: Vec::new(),
+            }),
+            &options,
+        );
+        assert!(matches!(parsed, Reply::Options(o) if o.streams()));
+        // An OpenMRN node with streams: avail 0x7000, lengths 0xE2 (C-5, either bit).
+        let Ok(Reply::Options(openmrn)) = Reply::parse(&[0x20, 0x82, 0x70, 0x00, 0xE2, 0x28, 0x27]) else { panic!() };
+        assert!(openmrn.streams());
+        let Ok(Reply::Options(plain)) = Reply::parse(&[0x20, 0x82, 0x60, 0x00, 0xE2, 0xFF]) else { panic!() };
+        assert!(!plain.streams());
+        assert_eq!(plain.lowest_space, None);
+
+        command(&[0x20, 0x84, 0xFD], Command::GetSpaceInfo { space: 0xFD }, &[0x20, 0x84, 0xFD]);
+        let info = [0x20, 0x87, 0xFD, 0x00, 0x00, 0x01, 0xFF, 0x00];
+        reply(
+            &info,
+            Reply::SpaceInfo(SpaceInfoReply {
+                space: 0xFD,
+                present: true,
+                highest_address: Some(0x1FF),
+                read_only: false,
+                lowest_address: None,
+                description: Vec::new(),
+            }),
+            &info,
+        );
+    }
+
+    #[test]
+    fn space_information_of_three_to_twelve_bytes() {
+        // C-10: OpenMRN's 3 bytes, OpenLcbCLib's 8, and a full one with a low address.
+        let absent = SpaceInfoReply {
+            space: 0x22,
+            present: false,
+            highest_address: None,
+            read_only: false,
+            lowest_address: None,
+            description: Vec::new(),
+        };
+        reply(&[0x20, 0x86, 0x22], Reply::SpaceInfo(absent.clone()), &[0x20, 0x86, 0x22]);
+        let padded = Reply::parse(&[0x20, 0x86, 0x22, 0, 0, 0, 0, 0]).unwrap();
+        assert!(matches!(padded, Reply::SpaceInfo(SpaceInfoReply { present: false, .. })));
+        let full = [0x20, 0x87, 0xEF, 0, 1, 0, 0, 0x03, 0, 0, 0x10, 0, b'f', b'w', 0];
+        reply(
+            &full,
+            Reply::SpaceInfo(SpaceInfoReply {
+                space: 0xEF,
+                present: true,
+                highest_address: Some(0x10000),
+                read_only: true,
+                lowest_address: Some(0x1000),
+                description: b"fw".to_vec(),
+            }),
+            &full,
+        );
+    }
+
+    #[test]
+    fn control_commands_and_their_replies() {
+        let id = [0x05, 0x01, 0x01, 0x01, 0x40, 0x01];
+        let lock = [0x20, 0x88, 0x05, 0x01, 0x01, 0x01, 0x40, 0x01];
+        command(&lock, Command::Lock { node: 0x05_01_01_01_40_01 }, &lock);
+        let mut locked = vec![0x20, 0x8A];
+        locked.extend_from_slice(&id);
+        reply(&locked, Reply::Lock { owner: 0x05_01_01_01_40_01 }, &locked);
+        command(&[0x20, 0x8C, 0xFA], Command::GetUniqueId { count: 2 }, &[0x20, 0x8C, 0x02]);
+        let ids = [0x20, 0x8D, 5, 1, 1, 1, 0x40, 2, 0, 1];
+        reply(&ids, Reply::UniqueIds { ids: vec![[5, 1, 1, 1, 0x40, 2, 0, 1]] }, &ids);
+        command(&[0x20, 0xA8], Command::UpdateComplete, &[0x20, 0xA8]);
+        command(&[0x20, 0xA9], Command::Reset, &[0x20, 0xA9]);
+        let factory = [0x20, 0xAA, 0x05, 0x01, 0x01, 0x01, 0x40, 0x02];
+        command(&factory, Command::FactoryReset { node: 0x05_01_01_01_40_02 }, &factory);
+        assert_eq!(Command::parse(&[0x20, 0xAA, 5, 1]), Err(DecodeError::TooShort("Node ID")));
+    }
+
+    #[test]
+    fn write_under_mask_pairs() {
+        let bytes = [0x20, 0x09, 0, 0, 0, 4, 0xF0, 0xAB, 0x0F, 0xCD];
+        command(
+            &bytes,
+            Command::WriteUnderMask { space: 0xFD, address: 4, mask: vec![0xF0, 0x0F], data: vec![0xAB, 0xCD] },
+            &bytes,
+        );
+        assert_eq!(Command::parse(&[0x20, 0x09, 0, 0, 0, 4, 0xF0]), Err(DecodeError::BadLength));
+    }
+
+    #[test]
+    fn replies_and_commands_are_told_apart() {
+        for command in [0x10, 0x1B, 0x30, 0x3B, 0x50, 0x53, 0x70, 0x7B, 0x82, 0x86, 0x87, 0x8A, 0x8D] {
+            assert!(is_reply(command), "0x{command:02X}");
+        }
+        for command in [0x00, 0x08, 0x20, 0x40, 0x60, 0x80, 0x84, 0x88, 0x8C, 0xA0, 0xA9, 0x14, 0x54] {
+            assert!(!is_reply(command), "0x{command:02X}");
+        }
+        assert_eq!(Reply::parse(&[0x20, 0x40, 0, 0, 0, 0, 1]), Err(DecodeError::UnknownCommand(0x40)));
+    }
+}
