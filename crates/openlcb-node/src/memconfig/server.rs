@@ -590,11 +590,10 @@ impl MemoryServer {
                 let _ = cx.streams.finish(cx.now, handle);
                 return self.end(index, true);
             }
-            let credit = cx.streams.credit(handle).unwrap_or(0) as usize;
+            // Without credit, one byte still goes to `write`: coming up short is what makes
+            // the endpoint raise `Writable` when the next Proceed arrives.
+            let credit = (cx.streams.credit(handle).unwrap_or(0) as usize).max(1);
             let n = credit.min(CHUNK).min(usize::try_from(end - next).unwrap_or(CHUNK));
-            if n == 0 {
-                return;
-            }
             let chunk = buf.get_mut(..n).unwrap_or_default();
             let read = match self.read_space(space, next, chunk) {
                 Ok(0) | Err(_) => {
@@ -607,7 +606,7 @@ impl MemoryServer {
             if let Some(Transfer { job: Job::Read { next, .. }, .. }) = self.transfers.get_mut(index) {
                 *next = next.saturating_add(u32::try_from(taken).unwrap_or(0));
             }
-            if taken == 0 {
+            if taken < read {
                 return;
             }
         }
