@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::Args;
 use openlcb_stream::NodeId;
-use openlcb_tokio::{Hub, HubEvent, HubOptions};
+use openlcb_tokio::{Error, Hub, HubEvent, HubOptions};
 
 use crate::net::{self, GRIDCONNECT_ADDR, TCP_ADDR};
 
@@ -16,8 +16,9 @@ pub(crate) struct HubArgs {
     /// Where GridConnect clients connect.
     #[arg(long, value_name = "ADDR", default_value = GRIDCONNECT_ADDR)]
     listen: String,
-    /// Where OpenLCB-TCP clients connect. A gateway bridges them with the GridConnect clients
-    /// (CAN nodes and OpenLCB-TCP nodes see each other, streams included).
+    /// Where OpenLCB-TCP clients connect (opened by default, beside --listen). A gateway
+    /// bridges them with the GridConnect clients (CAN nodes and OpenLCB-TCP nodes see each
+    /// other, streams included). A second hub needs another port here too, or --no-tcp.
     #[arg(long, value_name = "ADDR", default_value = TCP_ADDR)]
     tcp_listen: String,
     /// Do not listen for OpenLCB-TCP clients.
@@ -34,8 +35,15 @@ pub(crate) struct HubArgs {
     #[arg(long)]
     trace: bool,
     /// Bytes queued for one client before it is disconnected as too slow.
-    #[arg(long, value_name = "BYTES", default_value_t = 8 * 1024 * 1024)]
+    #[arg(long, value_name = "BYTES", default_value_t = 1024 * 1024)]
     max_queue: usize,
+    /// Clients connected at once (both listeners); more are refused.
+    #[arg(long, value_name = "N", default_value_t = 64)]
+    max_clients: usize,
+    /// Seconds a new client may stay silent (send nothing at all) before it is closed;
+    /// 0 keeps silent clients.
+    #[arg(long, value_name = "SECS", default_value_t = 60)]
+    silent_timeout: u64,
 }
 
 pub(crate) fn run(args: &HubArgs) -> Result<ExitCode, String> {
@@ -46,11 +54,14 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
     let mut options = HubOptions::default();
     options.trace = args.trace;
     options.max_queued_bytes = args.max_queue;
+    options.max_clients = args.max_clients;
+    options.silent_timeout = (args.silent_timeout > 0).then(|| std::time::Duration::from_secs(args.silent_timeout));
     options.bridge = !args.no_bridge;
     options.gateway_node_id = args.gateway_node_id;
     let tcp = (!args.no_tcp).then_some(args.tcp_listen.as_str());
     let mut hub = match Hub::bind(&args.listen, tcp, options).await {
         Ok(hub) => hub,
+        Err(Error::Bind { addr, source }) => return Ok(bind_failed(args, &addr, &source)),
         Err(error) => return Ok(net::fail("hub", &error)),
     };
     match hub.tcp_local_addr() {
@@ -79,6 +90,24 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
     }
 }
 
+/// Says which listener could not be opened and how to move or disable it; a usage error.
+fn bind_failed(args: &HubArgs, addr: &str, source: &std::io::Error) -> ExitCode {
+    let tcp = !args.no_tcp && addr == args.tcp_listen && addr != args.listen;
+    if tcp {
+        eprintln!(
+            "lcc-stream hub: cannot open the OpenLCB-TCP listener on {addr}: {source}\n\
+             (it is opened beside the GridConnect listener by default; move it with \
+             --tcp-listen HOST:PORT or turn it off with --no-tcp)"
+        );
+    } else {
+        eprintln!(
+            "lcc-stream hub: cannot open the GridConnect listener on {addr}: {source}\n\
+             (choose another with --listen HOST:PORT, e.g. --listen 127.0.0.1:12031)"
+        );
+    }
+    ExitCode::from(net::EXIT_USAGE)
+}
+
 fn print_event(event: &HubEvent) {
     match event {
         HubEvent::Connected { client, peer, protocol } => {
@@ -88,7 +117,12 @@ fn print_event(event: &HubEvent) {
         HubEvent::SlowClient { client, queued } => {
             eprintln!("client {client} dropped: too slow ({queued} bytes were waiting for it)")
         }
-        HubEvent::Garbage { client, error } => eprintln!("client {client} sent garbage: {error}"),
+        HubEvent::Garbage { client, count, error } => {
+            eprintln!("client {client} sent {count} undecodable pieces (the first: {error})")
+        }
+        HubEvent::Refused { peer, clients } => {
+            eprintln!("refused a client from {peer}: {clients} clients connected (--max-clients)")
+        }
         HubEvent::Frame { client, text } => println!("{client:>3} {text}"),
         _ => {}
     }

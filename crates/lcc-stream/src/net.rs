@@ -12,19 +12,38 @@ pub(crate) const GRIDCONNECT_ADDR: &str = "127.0.0.1:12021";
 /// The OpenLCB-TCP port of `lcc-stream hub`.
 pub(crate) const TCP_ADDR: &str = "127.0.0.1:12022";
 
+/// The text of [`EXIT_HELP`], for commands that add to it with `concat!`.
+macro_rules! exit_help {
+    () => {
+        "\
+Exit status: 0 success; 1 other failure; 2 bad arguments (also a listener that cannot
+be opened); 3 hub unreachable; 4 stream rejected; 5 peer timed out or not found;
+6 connection to the hub lost; 7 stream terminated or incomplete; 8 file error; 9 data did
+not verify (demo); 10 another node on the network has this Node ID; 130 interrupted
+(Ctrl-C or SIGTERM: open streams are terminated, partial files kept)."
+    };
+}
+pub(crate) use exit_help;
+
 /// Exit statuses, one per kind of failure a person can act on.
-pub(crate) const EXIT_HELP: &str = "\
-Exit status: 0 success; 1 other failure; 2 bad arguments; 3 hub unreachable;
-4 stream rejected; 5 peer timed out or not found; 6 connection to the hub lost;
-7 stream terminated or incomplete; 8 file error; 9 data did not verify (demo).";
+pub(crate) const EXIT_HELP: &str = exit_help!();
+
+/// Another node holds this Node ID (found at login or later).
+pub(crate) const EXIT_DUPLICATE_NODE_ID: u8 = 10;
+/// Interrupted by SIGINT or SIGTERM.
+pub(crate) const EXIT_INTERRUPTED: u8 = 130;
+/// Bad arguments, including a listener that cannot be opened (clap's status for usage errors).
+pub(crate) const EXIT_USAGE: u8 = 2;
 
 /// The exit status for `error`.
 pub(crate) fn exit_status(error: &Error) -> u8 {
     match error {
-        Error::Connect { .. } | Error::Bind { .. } | Error::Login(_) => 3,
+        Error::Bind { .. } => EXIT_USAGE,
+        Error::DuplicateNodeId { .. } => EXIT_DUPLICATE_NODE_ID,
+        Error::Connect { .. } | Error::Login(_) => 3,
         Error::Rejected { .. } => 4,
         Error::TimedOut { .. } | Error::Unreachable(_) => 5,
-        Error::ConnectionLost(_) | Error::Protocol(_) | Error::Closed => 6,
+        Error::ConnectionLost(_) | Error::WriteStalled(_) | Error::Protocol(_) | Error::Closed => 6,
         Error::Terminated { .. } | Error::CountMismatch { .. } => 7,
         _ => 1,
     }
@@ -43,6 +62,7 @@ pub(crate) fn result_word(error: &Error) -> &'static str {
         5 => "timed_out",
         6 => "connection_lost",
         7 => "terminated",
+        EXIT_DUPLICATE_NODE_ID => "duplicate_node_id",
         _ => "error",
     }
 }
@@ -84,6 +104,40 @@ impl ConnectArgs {
             (None, ProtocolArg::Gridconnect) => GRIDCONNECT_ADDR,
             (None, ProtocolArg::Tcp) => TCP_ADDR,
         }
+    }
+}
+
+/// SIGINT (Ctrl-C) and SIGTERM, listened for from the moment this is made (so that neither
+/// kills the process outright while a stream runs).
+pub(crate) struct Interrupt {
+    #[cfg(unix)]
+    signals: [tokio::signal::unix::Signal; 2],
+}
+
+impl Interrupt {
+    pub(crate) fn new() -> Result<Self, String> {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{SignalKind, signal};
+            let listen = |kind| signal(kind).map_err(|e| format!("cannot listen for signals: {e}"));
+            Ok(Interrupt { signals: [listen(SignalKind::interrupt())?, listen(SignalKind::terminate())?] })
+        }
+        #[cfg(not(unix))]
+        Ok(Interrupt {})
+    }
+
+    /// Waits for the next SIGINT or SIGTERM.
+    pub(crate) async fn wait(&mut self) {
+        #[cfg(unix)]
+        {
+            let [int, term] = &mut self.signals;
+            tokio::select! {
+                _ = int.recv() => {}
+                _ = term.recv() => {}
+            }
+        }
+        #[cfg(not(unix))]
+        let _ = tokio::signal::ctrl_c().await;
     }
 }
 

@@ -1,8 +1,10 @@
 //! `lcc-stream recv`: join the network as a node and write every incoming stream to a file.
 //!
 //! Data goes to `NAME.part` first; only a stream that finished with the byte count its source
-//! stated is renamed to `NAME`. A failed stream stays `.part`.
+//! stated is renamed to `NAME`. A failed stream stays `.part`; a stream that brought no data
+//! leaves no file. Names are claimed exclusively: no file is ever overwritten, also across runs.
 
+use std::io;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -10,11 +12,16 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use clap::Args;
-use openlcb_stream::NodeId;
+use openlcb_stream::wire::ErrorCode;
+use openlcb_stream::{NodeId, StreamInfo};
 use openlcb_tokio::{Error, Node, NodeOptions, RecvStream};
-use tokio::io::AsyncWriteExt as _;
+use tokio::io::{AsyncWriteExt as _, BufWriter};
+use tokio::sync::watch;
 
 use crate::net::{self, ConnectArgs, Json};
+
+/// Names tried for one stream before giving up (every one of them already taken).
+const NAME_ATTEMPTS: u64 = 100_000;
 
 /// The Node ID `recv` uses unless told otherwise (`send`'s default destination).
 pub(crate) const DEFAULT_RECEIVER: &str = "05.01.01.01.22.F1";
@@ -24,7 +31,8 @@ pub(crate) const DEFAULT_RECEIVER: &str = "05.01.01.01.22.F1";
 #[command(after_help = net::EXIT_HELP)]
 pub(crate) struct RecvArgs {
     /// Where to write: an existing directory (one file per stream, named after the sender and
-    /// a counter), or a file name (later streams get `.1`, `.2`, ... appended).
+    /// the first free counter), or a file name (if taken, or for later streams, `.1`, `.2`,
+    /// ... is appended). An existing file is never overwritten.
     #[arg(long, value_name = "PATH", default_value = ".")]
     out: PathBuf,
     /// This node's Node ID.
@@ -40,6 +48,10 @@ pub(crate) struct RecvArgs {
     /// Streams received at once; more are refused with 0x2020 (buffer unavailable).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u16).range(1..=255))]
     max_streams: u16,
+    /// Streams received at once from any one node (at most --max-streams), so one node
+    /// cannot take every slot.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u16).range(1..=255))]
+    max_streams_per_peer: u16,
     /// Exit after the first stream ends (with its status).
     #[arg(long)]
     once: bool,
@@ -58,40 +70,80 @@ pub(crate) fn run(args: &RecvArgs) -> Result<ExitCode, String> {
 }
 
 async fn receive(args: &RecvArgs) -> Result<ExitCode, String> {
+    let mut interrupt = net::Interrupt::new()?;
     let mut options = NodeOptions::new(args.node_id);
     options.config.max_window = args.window;
     options.config.early_proceed = args.early_proceed;
     options.config.max_streams = usize::from(args.max_streams);
+    options.config.max_streams_per_peer = usize::from(args.max_streams_per_peer.min(args.max_streams));
     options.config.idle_timeout = Some(Duration::from_secs(args.timeout).into());
-    let mut node = match Node::connect(args.connect.addr(), args.connect.protocol.into(), options).await {
-        Ok(node) => node,
-        Err(error) => return Ok(net::fail("recv", &error)),
+    let connect = Node::connect(args.connect.addr(), args.connect.protocol.into(), options);
+    let mut node = tokio::select! {
+        connected = connect => match connected {
+            Ok(node) => node,
+            Err(error) => return Ok(net::fail("recv", &error)),
+        },
+        () = interrupt.wait() => return Ok(ExitCode::from(net::EXIT_INTERRUPTED)),
     };
     // On stderr even with --json: scripts can wait for this line before starting a sender.
     eprintln!("lcc-stream recv: node {} listening on {}", args.node_id, args.connect.addr());
     let counter = Arc::new(AtomicU64::new(0));
+    let (stop, stopped) = watch::channel(false);
     let mut transfers = tokio::task::JoinSet::new();
+    let mut accepting = true;
     loop {
         tokio::select! {
-            accepted = node.accept() => match accepted {
+            accepted = node.accept(), if accepting => match accepted {
                 Ok(stream) => {
-                    let path = target_path(&args.out, stream.info().peer, counter.fetch_add(1, Ordering::Relaxed));
-                    let json = args.json;
-                    transfers.spawn(async move { save(stream, path, json).await });
-                    if args.once {
-                        // Take no more: the one stream decides the exit status.
-                        let status = transfers.join_next().await.and_then(Result::ok).unwrap_or(1);
-                        return Ok(ExitCode::from(status));
-                    }
+                    let target = Target { out: args.out.clone(), counter: counter.clone() };
+                    transfers.spawn(save(stream, target, args.json, stopped.clone()));
+                    // With --once, take no more: the one stream decides the exit status.
+                    accepting = !args.once;
                 }
                 Err(error) => {
                     while transfers.join_next().await.is_some() {}
                     return Ok(net::fail("recv", &error));
                 }
             },
-            Some(_) = transfers.join_next() => {}
-            _ = tokio::signal::ctrl_c() => return Ok(ExitCode::SUCCESS),
+            Some(done) = transfers.join_next() => {
+                if args.once {
+                    return Ok(ExitCode::from(done.unwrap_or(1)));
+                }
+            }
+            () = interrupt.wait() => {
+                // Every open stream ends with TDE and reports what it kept.
+                let _ = stop.send(true);
+                while transfers.join_next().await.is_some() {}
+                node.close().await;
+                eprintln!("lcc-stream recv: interrupted");
+                return Ok(ExitCode::from(net::EXIT_INTERRUPTED));
+            }
         }
+    }
+}
+
+/// Where the streams go: `--out` and the counter shared by every stream of this run.
+struct Target {
+    out: PathBuf,
+    counter: Arc<AtomicU64>,
+}
+
+impl Target {
+    /// Claims the next free name for a stream from `peer`: `NAME.part` is created exclusively
+    /// and `NAME` does not exist yet. Names taken by earlier runs are skipped.
+    async fn claim(&self, peer: NodeId) -> io::Result<(PathBuf, tokio::fs::File)> {
+        for _ in 0..NAME_ATTEMPTS {
+            let path = target_path(&self.out, peer, self.counter.fetch_add(1, Ordering::Relaxed));
+            if tokio::fs::try_exists(&path).await? {
+                continue;
+            }
+            match tokio::fs::OpenOptions::new().write(true).create_new(true).open(part_path(&path)).await {
+                Ok(file) => return Ok((path, file)),
+                Err(error) if error.kind() == io::ErrorKind::AlreadyExists => continue,
+                Err(error) => return Err(error),
+            }
+        }
+        Err(io::Error::new(io::ErrorKind::AlreadyExists, "every file name tried is taken"))
     }
 }
 
@@ -115,42 +167,114 @@ fn part_path(path: &Path) -> PathBuf {
     PathBuf::from(name)
 }
 
-/// Receives one stream into `path` (through `path.part`), reports it, and returns its exit
-/// status.
-async fn save(mut stream: RecvStream, path: PathBuf, json: bool) -> u8 {
+/// Moves `part` to `path` without ever replacing a file: a hard link fails if `path` exists.
+/// On a file system without hard links, a rename after checking that `path` is free.
+async fn publish(part: &Path, path: &Path) -> io::Result<()> {
+    match tokio::fs::hard_link(part, path).await {
+        Ok(()) => tokio::fs::remove_file(part).await,
+        Err(error) if error.kind() == io::ErrorKind::AlreadyExists => Err(error),
+        Err(_) if !tokio::fs::try_exists(path).await? => tokio::fs::rename(part, path).await,
+        Err(error) => Err(error),
+    }
+}
+
+/// The file a stream is written to, created when its first data arrives.
+struct Output {
+    path: PathBuf,
+    file: BufWriter<tokio::fs::File>,
+}
+
+impl Output {
+    async fn create(target: &Target, peer: NodeId) -> Result<Output, Failure> {
+        let (path, file) = target.claim(peer).await.map_err(Failure::File)?;
+        Ok(Output { path, file: BufWriter::with_capacity(1 << 20, file) })
+    }
+
+    /// Flushes, syncs and publishes under the final name.
+    async fn complete(mut self) -> Result<PathBuf, Failure> {
+        self.file.flush().await.map_err(Failure::File)?;
+        self.file.into_inner().sync_all().await.map_err(Failure::File)?;
+        publish(&part_path(&self.path), &self.path).await.map_err(Failure::File)?;
+        Ok(self.path)
+    }
+}
+
+/// Receives one stream (through `NAME.part`), reports it, and returns its exit status.
+async fn save(mut stream: RecvStream, target: Target, json: bool, mut stop: watch::Receiver<bool>) -> u8 {
     let info = *stream.info();
-    let part = part_path(&path);
     let started = Instant::now();
-    let outcome = async {
-        let file = tokio::fs::File::create(&part).await.map_err(Failure::File)?;
-        let mut file = tokio::io::BufWriter::with_capacity(1 << 20, file);
-        let received = async {
-            while let Some(chunk) = stream.read().await.map_err(Failure::Stream)? {
-                file.write_all(&chunk).await.map_err(Failure::File)?;
+    let mut output: Option<Output> = None;
+    let received = async {
+        loop {
+            let chunk = tokio::select! {
+                chunk = stream.read() => chunk.map_err(Failure::Stream)?,
+                _ = stop.wait_for(|stop| *stop) => return Err(Failure::Interrupted),
+            };
+            let Some(chunk) = chunk else { return Ok(()) };
+            if output.is_none() {
+                output = Some(Output::create(&target, info.peer).await?);
             }
-            Ok(())
+            if let Some(out) = output.as_mut() {
+                out.file.write_all(&chunk).await.map_err(Failure::File)?;
+            }
         }
-        .await;
-        // Whatever arrived is in the `.part` file, also after a failure.
-        let flushed = file.flush().await.map_err(Failure::File);
-        received?;
-        flushed?;
-        file.into_inner().sync_all().await.map_err(Failure::File)?;
-        tokio::fs::rename(&part, &path).await.map_err(Failure::File)
     }
     .await;
-    let elapsed = started.elapsed();
     let bytes = stream.received();
-    let bytes_per_s = net::rate(bytes, elapsed.as_secs_f64());
-    let (status, result, error) = match &outcome {
-        Ok(()) => (0, "ok", None),
-        Err(Failure::Stream(error)) => (net::exit_status(error), net::result_word(error), Some(error.to_string())),
-        Err(Failure::File(error)) => (net::EXIT_FILE, "file_error", Some(error.to_string())),
+    if matches!(received, Err(Failure::Interrupted)) {
+        // The source learns at once (TDE), rather than by its own timeout.
+        stream.abort(ErrorCode::TEMPORARY);
+    }
+    let outcome = match (received, output) {
+        (Ok(()), out) => finish(&target, info.peer, out).await,
+        (Err(failure), Some(mut out)) => {
+            // Whatever arrived stays in the `.part` file.
+            let _ = out.file.flush().await;
+            Err((failure, Some(part_path(&out.path))))
+        }
+        // A stream that brought no data leaves no file.
+        (Err(failure), None) => Err((failure, None)),
     };
-    let written_to = if outcome.is_ok() { &path } else { &part };
+    report(&info, started.elapsed(), bytes, &outcome, json)
+}
+
+/// Publishes a stream that ended well; one without any data becomes an empty file.
+async fn finish(target: &Target, peer: NodeId, out: Option<Output>) -> Result<PathBuf, (Failure, Option<PathBuf>)> {
+    let out = match out {
+        Some(out) => out,
+        None => Output::create(target, peer).await.map_err(|failure| (failure, None))?,
+    };
+    let part = part_path(&out.path);
+    out.complete().await.map_err(|failure| (failure, Some(part)))
+}
+
+/// Prints what came of one stream (text or JSON) and returns its exit status.
+fn report(
+    info: &StreamInfo,
+    elapsed: Duration,
+    bytes: u64,
+    outcome: &Result<PathBuf, (Failure, Option<PathBuf>)>,
+    json: bool,
+) -> u8 {
+    let bytes_per_s = net::rate(bytes, elapsed.as_secs_f64());
+    let (status, result, error) = match outcome {
+        Ok(_) => (0, "ok", None),
+        Err((Failure::Stream(error), _)) => (net::exit_status(error), net::result_word(error), Some(error.to_string())),
+        Err((Failure::File(error), _)) => (net::EXIT_FILE, "file_error", Some(error.to_string())),
+        Err((Failure::Interrupted, _)) => {
+            (net::EXIT_INTERRUPTED, "interrupted", Some("interrupted (the source was sent TDE 0x2000)".to_string()))
+        }
+    };
+    let file = match outcome {
+        Ok(path) | Err((_, Some(path))) => Some(path.display().to_string()),
+        Err((_, None)) => None,
+    };
     if json {
-        let mut report = Json::default()
-            .str("file", &written_to.display().to_string())
+        let mut report = Json::default();
+        if let Some(file) = &file {
+            report = report.str("file", file);
+        }
+        report = report
             .str("from", &info.peer.to_string())
             .num("bytes", bytes)
             .float("elapsed_s", elapsed.as_secs_f64())
@@ -165,16 +289,13 @@ async fn save(mut stream: RecvStream, path: PathBuf, json: bool) -> u8 {
         }
         println!("{}", report.finish());
     } else if let Some(error) = error {
-        eprintln!(
-            "lcc-stream recv: stream from {} failed after {bytes} bytes (kept in {}): {error}",
-            info.peer,
-            written_to.display()
-        );
+        let kept = file.map_or_else(|| "no file written".to_string(), |file| format!("kept in {file}"));
+        eprintln!("lcc-stream recv: stream from {} failed after {bytes} bytes ({kept}): {error}", info.peer);
     } else {
         println!(
             "received {bytes} bytes from {} into {} in {:.3} s ({}), window {}",
             info.peer,
-            written_to.display(),
+            file.unwrap_or_default(),
             elapsed.as_secs_f64(),
             net::rate_text(bytes_per_s),
             info.window
@@ -185,5 +306,6 @@ async fn save(mut stream: RecvStream, path: PathBuf, json: bool) -> u8 {
 
 enum Failure {
     Stream(Error),
-    File(std::io::Error),
+    File(io::Error),
+    Interrupted,
 }

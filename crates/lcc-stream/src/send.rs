@@ -3,6 +3,7 @@
 use std::io::IsTerminal as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use bytes::BytesMut;
@@ -20,9 +21,23 @@ pub(crate) const DEFAULT_SENDER: &str = "05.01.01.01.22.F0";
 /// Bytes read from the file and handed to the stream at once.
 const CHUNK: usize = 64 * 1024;
 
+/// What exit status 0 of `send` promises (also in the README).
+macro_rules! send_promise {
+    () => {
+        "\
+Exit status 0 means: the receiver accepted the stream, granted credit for every byte, and
+every byte and the Data Complete stating the byte count were written to the hub connection.
+It does not mean that the receiver has stored the data: a receiver that fails after that
+(disk full, killed) is not seen by `send`. `lcc-stream recv` reports and renames a file only
+once every stated byte has arrived.
+
+"
+    };
+}
+
 /// Options of `lcc-stream send`.
 #[derive(Debug, Args)]
-#[command(after_help = net::EXIT_HELP)]
+#[command(after_help = concat!(send_promise!(), net::exit_help!()))]
 pub(crate) struct SendArgs {
     /// The file to send.
     file: PathBuf,
@@ -91,53 +106,42 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
     };
 
     let started = Instant::now();
-    let node = match Node::connect(args.connect.addr(), args.connect.protocol.into(), options).await {
-        Ok(node) => node,
-        Err(error) => return Ok(report_error(&error, 0, started.elapsed())),
+    let mut interrupt = net::Interrupt::new()?;
+    let connect = Node::connect(args.connect.addr(), args.connect.protocol.into(), options);
+    let node = tokio::select! {
+        connected = connect => match connected {
+            Ok(node) => node,
+            Err(error) => return Ok(report_error(&error, 0, started.elapsed())),
+        },
+        () = interrupt.wait() => return Ok(ExitCode::from(net::EXIT_INTERRUPTED)),
     };
-    let mut open = OpenOptions::new(args.to, args.window);
-    open.content_uid = args.content_uid;
-    let mut stream = match node.open(open).await {
-        Ok(stream) => stream,
-        Err(error) => return Ok(report_error(&error, 0, started.elapsed())),
+    let written = AtomicU64::new(0);
+    let outcome = tokio::select! {
+        outcome = transfer(args, &node, &mut file, size, &written) => outcome,
+        () = interrupt.wait() => Err(Stop::Interrupted),
     };
-    let window = stream.info().window;
-    let mut progress = Progress::new(size, !args.json && std::io::stderr().is_terminal());
-
-    // Read the next chunk while the previous one goes out.
-    let started = Instant::now();
-    let mut next = read_chunk(&mut file).await;
-    loop {
-        let chunk = match next {
-            Ok(chunk) if chunk.is_empty() => break,
-            Ok(chunk) => chunk.freeze(),
-            Err(error) => {
-                progress.clear();
-                eprintln!("lcc-stream send: cannot read {}: {error}", args.file.display());
-                stream.abort();
-                return Ok(ExitCode::from(net::EXIT_FILE));
-            }
-        };
-        let (written, read) = tokio::join!(stream.write_all(chunk), read_chunk(&mut file));
-        if let Err(error) = written {
-            progress.clear();
-            return Ok(report_error(&error, stream.written(), started.elapsed()));
-        }
-        next = read;
-        progress.update(stream.written(), started.elapsed());
-    }
-    let written = stream.written();
-    let bytes = match stream.finish().await {
-        Ok(bytes) => bytes,
-        Err(error) => {
-            progress.clear();
-            return Ok(report_error(&error, written, started.elapsed()));
-        }
-    };
-    let elapsed = started.elapsed();
-    progress.clear();
+    // On an interrupt the stream was dropped inside `transfer`, which queued its TDE: the
+    // orderly close writes it before the connection goes.
     let stats = node.stats().await.map(|s| s.wire).unwrap_or_default();
-    let summary = Summary { bytes, elapsed, window, frames_out: stats.frames_out, writes: stats.writes };
+    node.close().await;
+    let summary = match outcome {
+        Ok(summary) => summary,
+        Err(Stop::Failed(error)) => {
+            return Ok(report_error(&error, written.load(Ordering::Relaxed), started.elapsed()));
+        }
+        Err(Stop::File(error)) => {
+            eprintln!("lcc-stream send: cannot read {}: {error}", args.file.display());
+            return Ok(ExitCode::from(net::EXIT_FILE));
+        }
+        Err(Stop::Interrupted) => {
+            eprintln!(
+                "lcc-stream send: interrupted after {} bytes; the stream was terminated (TDE 0x2000)",
+                written.load(Ordering::Relaxed)
+            );
+            return Ok(ExitCode::from(net::EXIT_INTERRUPTED));
+        }
+    };
+    let summary = Summary { frames_out: stats.frames_out, writes: stats.writes, ..summary };
     if args.json {
         let json = Json::default()
             .str("file", &args.file.display().to_string())
@@ -163,6 +167,49 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Why a transfer stopped early.
+enum Stop {
+    Failed(Error),
+    File(std::io::Error),
+    Interrupted,
+}
+
+/// Opens the stream, sends the file and finishes; `written` follows the progress.
+async fn transfer(
+    args: &SendArgs,
+    node: &Node,
+    file: &mut tokio::fs::File,
+    size: Option<u64>,
+    written: &AtomicU64,
+) -> Result<Summary, Stop> {
+    let mut open = OpenOptions::new(args.to, args.window);
+    open.content_uid = args.content_uid;
+    let mut stream = node.open(open).await.map_err(Stop::Failed)?;
+    let window = stream.info().window;
+    let mut progress = Progress::new(size, !args.json && std::io::stderr().is_terminal());
+    // Read the next chunk while the previous one goes out.
+    let started = Instant::now();
+    let mut next = read_chunk(file).await;
+    let outcome = loop {
+        let chunk = match next {
+            Ok(chunk) if chunk.is_empty() => break Ok(()),
+            Ok(chunk) => chunk.freeze(),
+            Err(error) => break Err(Stop::File(error)),
+        };
+        let (sent, read) = tokio::join!(stream.write_all(chunk), read_chunk(file));
+        if let Err(error) = sent {
+            break Err(Stop::Failed(error));
+        }
+        written.store(stream.written(), Ordering::Relaxed);
+        next = read;
+        progress.update(stream.written(), started.elapsed());
+    };
+    progress.clear();
+    outcome?;
+    let bytes = stream.finish().await.map_err(Stop::Failed)?;
+    Ok(Summary { bytes, elapsed: started.elapsed(), window, frames_out: 0, writes: 0 })
 }
 
 async fn read_chunk(file: &mut tokio::fs::File) -> std::io::Result<BytesMut> {

@@ -28,6 +28,23 @@ impl NodeAlias {
     pub const fn as_raw(self) -> u16 {
         self.0
     }
+
+    /// The provisional name of a peer known only by this alias: the alias in the low 12 bits,
+    /// every other bit 0 (`00.00.00.00.0A.AA`). A Node ID whose first byte is 0x00 is reserved
+    /// and never belongs to a real node (UID §5.13), so the name cannot clash with one.
+    /// [`CanLink`](crate::CanLink) delivers messages from an alias whose Node ID it does not
+    /// know under this name, and sends messages addressed to it straight to the alias.
+    pub const fn provisional_node_id(self) -> NodeId {
+        let [high, low] = self.0.to_be_bytes();
+        NodeId::from_bytes([0, 0, 0, 0, high, low])
+    }
+
+    /// The alias named by a provisional Node ID ([`provisional_node_id`](Self::provisional_node_id)),
+    /// or `None` if `node` is not one: bits 47-12 must be 0 and bits 11-0 a valid alias.
+    pub const fn from_provisional(node: NodeId) -> Option<NodeAlias> {
+        let raw = node.as_raw();
+        if raw >> 12 != 0 { None } else { Self::new(raw as u16) }
+    }
 }
 
 impl fmt::Debug for NodeAlias {
@@ -107,6 +124,24 @@ mod tests {
         assert_eq!(NodeAlias::from_low_bits(0x1F45_6123).map(NodeAlias::as_raw), Some(0x123));
         assert_eq!(NodeAlias::from_low_bits(0x1000), None);
         assert_eq!(format!("{:?} {}", NodeAlias::MAX, NodeAlias::MAX), "NodeAlias(0xFFF) 0xFFF");
+    }
+
+    #[test]
+    fn provisional_names_round_trip() {
+        let name = alias(0x031).provisional_node_id();
+        assert_eq!(name.as_raw(), 0x0000_0000_0031);
+        assert_eq!(name.to_string(), "00.00.00.00.00.31");
+        assert_eq!(NodeAlias::from_provisional(name), Some(alias(0x031)));
+        assert_eq!(NodeAlias::MAX.provisional_node_id().as_raw(), 0xFFF);
+        assert_eq!(NodeAlias::from_provisional(NodeAlias::MAX.provisional_node_id()), Some(NodeAlias::MAX));
+        // Not provisional: a bit above 11 set, or alias 0.
+        for raw in [0x0000_0000_1031, 0x0501_0101_2200, 0x8000_0000_0031, 0] {
+            assert_eq!(NodeAlias::from_provisional(NodeId::new(raw).unwrap()), None, "{raw:012X}");
+        }
+    }
+
+    fn alias(raw: u16) -> NodeAlias {
+        NodeAlias::new(raw).unwrap()
     }
 
     /// The check table of the CAN Frame Transfer TN appendix (wire-spec §7.5).

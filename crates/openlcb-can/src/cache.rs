@@ -86,6 +86,16 @@ impl AliasCache {
         self.entries.clear();
     }
 
+    /// Every mapping held, in no particular order, without marking any used.
+    pub fn iter(&self) -> impl Iterator<Item = (NodeAlias, NodeId)> + '_ {
+        self.entries.iter().map(|e| (e.alias, e.node))
+    }
+
+    /// The most mappings held at once.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
     /// Mappings held.
     pub fn len(&self) -> usize {
         self.entries.len()
@@ -143,6 +153,11 @@ mod tests {
         assert_eq!(cache.remove_alias(alias(1)), Some(node(1)));
         assert_eq!(cache.remove_alias(alias(1)), None);
         cache.insert(alias(2), node(2));
+        cache.insert(alias(3), node(3));
+        let mut all: Vec<_> = cache.iter().collect();
+        all.sort();
+        assert_eq!(all, [(alias(2), node(2)), (alias(3), node(3))]);
+        assert_eq!(cache.capacity(), 2);
         cache.clear();
         assert!(cache.is_empty());
     }

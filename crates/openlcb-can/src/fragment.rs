@@ -4,18 +4,24 @@
 //! - addressed messages: format 1, data bytes 0-1 = framing flags + destination alias, then at
 //!   most 6 payload bytes a frame; an empty payload is one 2-byte frame;
 //! - Stream Data Send: format 7 with the destination alias in the header, data byte 0 = DID,
-//!   then at most 7 payload bytes a frame; a DID alone is one 1-byte frame (a flush).
+//!   then at most 7 payload bytes a frame; a DID alone is one 1-byte frame (a flush);
+//! - Datagram (node-protocols §2.5): both aliases in the header, no `fddd`, 8 payload bytes a
+//!   frame: 0-8 bytes as one format 2 frame, more as format 3 (first), 4 (middle, never
+//!   empty), 5 (last); at most 72 bytes.
 
 use openlcb_stream::Mti;
 
 use crate::NodeAlias;
 use crate::frame::CanFrame;
-use crate::header::{CanHeader, FrameKind};
+use crate::header::{CanHeader, DatagramFrame, FrameKind};
+use crate::reassembly::MAX_DATAGRAM_LEN;
 
 /// Payload bytes of an addressed format 1 frame.
 pub const ADDRESSED_PAYLOAD_PER_FRAME: usize = 6;
 /// Payload bytes of a stream data frame, after the DID.
 pub const STREAM_PAYLOAD_PER_FRAME: usize = 7;
+/// Payload bytes of a datagram frame.
+pub const DATAGRAM_PAYLOAD_PER_FRAME: usize = CanFrame::MAX_DATA;
 
 /// Framing flags in data byte 0 of an addressed frame (wire-spec §7.2, active low).
 mod framing {
@@ -51,6 +57,11 @@ impl FramePosition {
         }
     }
 
+    /// The frame ends its message (`Only` or `Last`).
+    pub const fn is_last(self) -> bool {
+        matches!(self, FramePosition::Only | FramePosition::Last)
+    }
+
     /// The flag bits for data byte 0.
     pub const fn flags(self) -> u8 {
         match self {
@@ -75,8 +86,11 @@ pub enum EncodeError {
     /// A global message of more than 8 bytes (this crate does not split global messages).
     #[error("global message of {0} bytes does not fit one frame")]
     GlobalTooLong(usize),
-    /// An MTI that format 1 cannot carry (bits 15-12 set) other than Stream Data Send, e.g. a
-    /// datagram (not implemented by this crate).
+    /// A datagram of more than 72 bytes (DG §7.3.2).
+    #[error("datagram of {0} bytes is longer than 72")]
+    DatagramTooLong(usize),
+    /// An MTI that format 1 cannot carry (bits 15-12 set) other than Stream Data Send and
+    /// Datagram.
     #[error("{0:?} has no CAN form here")]
     Unsupported(Mti),
 }
@@ -86,6 +100,7 @@ enum Layout {
     Global,
     Addressed { destination: NodeAlias },
     StreamData,
+    Datagram { source: NodeAlias, destination: NodeAlias },
 }
 
 /// An iterator over the frames of one message. Holds the payload (any `AsRef<[u8]>`, e.g. the
@@ -110,6 +125,13 @@ impl<P: AsRef<[u8]>> Fragments<P> {
                 return Err(EncodeError::EmptyStreamData);
             }
             (FrameKind::StreamData { destination }, Layout::StreamData)
+        } else if mti == Mti::DATAGRAM {
+            let destination = destination.ok_or(EncodeError::MissingDestination(mti))?;
+            if len > MAX_DATAGRAM_LEN {
+                return Err(EncodeError::DatagramTooLong(len));
+            }
+            // The identifier changes frame by frame (formats 2-5): see `next`.
+            (FrameKind::Datagram { frame: DatagramFrame::Only, destination }, Layout::Datagram { source, destination })
         } else if mti.as_raw() & 0xF000 != 0 {
             return Err(EncodeError::Unsupported(mti));
         } else if mti.is_addressed() {
@@ -138,6 +160,7 @@ impl<P: AsRef<[u8]>> Fragments<P> {
                 let body_left = len.saturating_sub(1).saturating_sub(self.offset);
                 body_left.div_ceil(STREAM_PAYLOAD_PER_FRAME).max(1)
             }
+            Layout::Datagram { .. } => len.saturating_sub(self.offset).div_ceil(DATAGRAM_PAYLOAD_PER_FRAME).max(1),
         }
     }
 }
@@ -156,18 +179,8 @@ impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
                 CanFrame::build(self.id, |data| copy_into(data, 0, payload))
             }
             Layout::Addressed { destination } => {
-                let rest = payload.get(self.offset..).unwrap_or(&[]);
-                let chunk = rest.get(..ADDRESSED_PAYLOAD_PER_FRAME).unwrap_or(rest);
-                let first = self.offset == 0;
-                self.offset = self.offset.saturating_add(chunk.len());
-                let last = self.offset >= payload.len();
-                self.finished = last;
-                let position = match (first, last) {
-                    (true, true) => FramePosition::Only,
-                    (true, false) => FramePosition::First,
-                    (false, true) => FramePosition::Last,
-                    (false, false) => FramePosition::Middle,
-                };
+                let (chunk, position) = next_chunk(payload, &mut self.offset, ADDRESSED_PAYLOAD_PER_FRAME);
+                self.finished = position.is_last();
                 let [high, low] = destination.as_raw().to_be_bytes();
                 CanFrame::build(self.id, |data| {
                     data[0] = position.flags() | (high & 0x0F);
@@ -186,6 +199,13 @@ impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
                     copy_into(data, 1, chunk)
                 })
             }
+            Layout::Datagram { source, destination } => {
+                let (chunk, position) = next_chunk(payload, &mut self.offset, DATAGRAM_PAYLOAD_PER_FRAME);
+                self.finished = position.is_last();
+                let frame = DatagramFrame::at(position);
+                let id = CanHeader { kind: FrameKind::Datagram { frame, destination }, source }.to_id();
+                CanFrame::build(id, |data| copy_into(data, 0, chunk))
+            }
         };
         Some(frame)
     }
@@ -194,6 +214,23 @@ impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
         let n = self.remaining();
         (n, Some(n))
     }
+}
+
+/// The next chunk of at most `per_frame` bytes of `payload` from `offset` (moved past it),
+/// and where its frame sits in the message. An empty payload is one `Only` frame.
+fn next_chunk<'p>(payload: &'p [u8], offset: &mut usize, per_frame: usize) -> (&'p [u8], FramePosition) {
+    let rest = payload.get(*offset..).unwrap_or(&[]);
+    let chunk = rest.get(..per_frame).unwrap_or(rest);
+    let first = *offset == 0;
+    *offset = offset.saturating_add(chunk.len());
+    let last = *offset >= payload.len();
+    let position = match (first, last) {
+        (true, true) => FramePosition::Only,
+        (true, false) => FramePosition::First,
+        (false, true) => FramePosition::Last,
+        (false, false) => FramePosition::Middle,
+    };
+    (chunk, position)
 }
 
 /// Copies `bytes` to `data[at..]` as far as it fits and returns the used length.
@@ -280,6 +317,50 @@ mod tests {
     }
 
     #[test]
+    fn datagram_of_up_to_eight_bytes_is_one_format_2_frame() {
+        assert_eq!(frames(Mti::DATAGRAM, 0x123, Some(0x456), &[]), [(0x1A45_6123, vec![])]);
+        let eight: Vec<u8> = (1..=8).collect();
+        assert_eq!(frames(Mti::DATAGRAM, 0x123, Some(0x456), &eight), [(0x1A45_6123, eight)]);
+    }
+
+    /// node-protocols §9.1: the 14-byte write, `:X1B456123N2001000000000102;` then
+    /// `:X1D456123N030405060708;`.
+    #[test]
+    fn datagram_of_fourteen_bytes_is_first_and_last() {
+        let payload = [0x20, 0x01, 0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8];
+        assert_eq!(
+            frames(Mti::DATAGRAM, 0x123, Some(0x456), &payload),
+            [(0x1B45_6123, payload[..8].to_vec()), (0x1D45_6123, payload[8..].to_vec())]
+        );
+    }
+
+    #[test]
+    fn datagram_of_72_bytes_is_first_seven_middles_last() {
+        let payload: Vec<u8> = (0..72).collect();
+        let out = frames(Mti::DATAGRAM, 0x123, Some(0x456), &payload);
+        let ids: Vec<u32> = out.iter().map(|f| f.0).collect();
+        assert_eq!(
+            ids,
+            [
+                0x1B45_6123,
+                0x1C45_6123,
+                0x1C45_6123,
+                0x1C45_6123,
+                0x1C45_6123,
+                0x1C45_6123,
+                0x1C45_6123,
+                0x1C45_6123,
+                0x1D45_6123
+            ]
+        );
+        assert!(out.iter().all(|f| f.1.len() == 8), "every frame full, no middle empty");
+        assert_eq!(out.iter().flat_map(|f| f.1.clone()).collect::<Vec<u8>>(), payload);
+        // Nine bytes: eight, then one in the last frame.
+        let nine = frames(Mti::DATAGRAM, 0x123, Some(0x456), &[7; 9]);
+        assert_eq!(nine, [(0x1B45_6123, vec![7; 8]), (0x1D45_6123, vec![7])]);
+    }
+
+    #[test]
     fn global_message_carries_the_payload_in_the_data() {
         let node = [5, 1, 1, 1, 0x22, 0];
         assert_eq!(frames(Mti::INITIALIZATION_COMPLETE, 0x123, None, &node), [(0x1910_0123, node.to_vec())]);
@@ -298,7 +379,9 @@ mod tests {
             err(Mti::STREAM_DATA_PROCEED, None, &[1, 2]),
             Some(EncodeError::MissingDestination(Mti::STREAM_DATA_PROCEED))
         );
-        assert_eq!(err(Mti::DATAGRAM, Some(a), &[1]), Some(EncodeError::Unsupported(Mti::DATAGRAM)));
+        assert_eq!(err(Mti::DATAGRAM, Some(a), &[0; 73]), Some(EncodeError::DatagramTooLong(73)));
+        assert_eq!(err(Mti::DATAGRAM, None, &[1]), Some(EncodeError::MissingDestination(Mti::DATAGRAM)));
+        assert_eq!(err(Mti(0x1C68), Some(a), &[1]), Some(EncodeError::Unsupported(Mti(0x1C68))));
         assert_eq!(err(Mti::VERIFY_NODE_ID_GLOBAL, None, &[0; 9]), Some(EncodeError::GlobalTooLong(9)));
     }
 }

@@ -6,10 +6,10 @@
 use alloc::vec::Vec;
 
 use embedded_can::{ExtendedId, Frame, Id, StandardId};
-use openlcb_stream::{Duration, Instant, NodeId};
+use openlcb_stream::{Duration, Instant, Mti, NodeId};
 
 use crate::gridconnect::{self, GridConnectDecoder, GridConnectError};
-use crate::{CanConfig, CanFrame, CanHeader, CanLink, NodeAlias};
+use crate::{CanConfig, CanFrame, CanHeader, CanLink, MAX_DATAGRAM_LEN, NodeAlias};
 
 const LOCAL_NODE: u64 = 0x0501_0101_2200;
 const LOCAL_ALIAS: u16 = 0x123;
@@ -23,7 +23,8 @@ fn permitted_link() -> CanLink {
         max_message_len: 32,
         transmit_queue_limit: 8,
         frame_queue_limit: 4,
-        max_held_messages: 2,
+        learn_slots: 2,
+        datagram_slots: 2,
         ..CanConfig::default()
     };
     let mut link = CanLink::new(Instant::ZERO, NodeId::new(LOCAL_NODE).unwrap(), config);
@@ -137,6 +138,101 @@ pub fn can_reassembly(data: &[u8]) {
     }
     if let Some(deadline) = link.poll_timeout() {
         link.handle_timeout(deadline);
+        drain_and_check(&mut link);
+    }
+}
+
+/// Arbitrary datagram frames (formats 2-5) from three peers (two known, one not), with AMRs
+/// and time steps, into one permitted link with two datagram slots. The oracle is a model of
+/// the reassembly rules: every datagram delivered must equal the concatenated bytes of the
+/// frames that made it, and be delivered exactly when the model completes one; reassembly
+/// memory stays within its bound and no buffer grows.
+pub fn can_datagram(data: &[u8]) {
+    const SOURCES: [u16; 3] = [0x456, 0x789, 0xABC];
+    const TIMEOUT_MS: u64 = 3000;
+    let mut link = permitted_link();
+    let allocated = link.reassembly_allocated();
+    let slots = link.config().datagram_slots;
+    let mut now = Instant::from_millis(300);
+    for (alias, node) in [(0x456u32, 0x0501_0101_2201u64), (0x789, 0x0501_0101_2202)] {
+        let amd = CanFrame::extended(0x1070_1000 | alias, &NodeId::new(node).unwrap().to_bytes()).unwrap();
+        link.handle_frame(now, &amd, |_| {});
+    }
+    drain_and_check(&mut link);
+    // Per source: the bytes of the open datagram and the time of its first frame.
+    let mut model: [Option<(Vec<u8>, Instant)>; 3] = [None, None, None];
+    for op in data.chunks(3) {
+        let [selector, a, b] = [0, 1, 2].map(|i| op.get(i).copied().unwrap_or(0));
+        let index = usize::from(a % 3);
+        let source = SOURCES[index];
+        let len = usize::from(b % 9);
+        let payload: Vec<u8> = (0..len).map(|i| a.wrapping_mul(31).wrapping_add(b).wrapping_add(i as u8)).collect();
+        let format = match selector % 8 {
+            0 => 2,
+            1 | 2 => 3,
+            3 | 4 => 4,
+            5 => 5,
+            6 => {
+                now += Duration::from_millis(u64::from(b) * 40);
+                link.handle_timeout(now);
+                for open in &mut model {
+                    if open.as_ref().is_some_and(|(_, first)| *first + Duration::from_millis(TIMEOUT_MS) <= now) {
+                        *open = None;
+                    }
+                }
+                drain_and_check(&mut link);
+                continue;
+            }
+            _ => {
+                let amr = CanFrame::extended(0x1070_3000 | u32::from(source), &[5, 1, 1, 1, 0x22, 0x77]).unwrap();
+                link.handle_frame(now, &amr, |_| {});
+                model[index] = None;
+                drain_and_check(&mut link);
+                continue;
+            }
+        };
+        let expected = match format {
+            2 => {
+                model[index] = None;
+                Some(payload.clone())
+            }
+            3 => {
+                let open = model.iter().filter(|m| m.is_some()).count();
+                model[index] = match model[index] {
+                    Some(_) => None, // 0x2042: both dropped
+                    None if open >= slots => None,
+                    None => Some((payload.clone(), now)),
+                };
+                None
+            }
+            _ => match model[index].take() {
+                None => None,
+                Some((mut bytes, first)) => {
+                    bytes.extend_from_slice(&payload);
+                    match (bytes.len() > MAX_DATAGRAM_LEN, format) {
+                        (true, _) => None,
+                        (false, 5) => Some(bytes),
+                        (false, _) => {
+                            model[index] = Some((bytes, first));
+                            None
+                        }
+                    }
+                }
+            },
+        };
+        let id = 0x1000_0000 | format << 24 | 0x0800_0000 | u32::from(LOCAL_ALIAS) << 12 | u32::from(source);
+        let frame = CanFrame::extended(id, &payload).unwrap();
+        let mut delivered = Vec::new();
+        link.handle_frame(now, &frame, |msg| {
+            assert_eq!(msg.mti, Mti::DATAGRAM);
+            assert_eq!(msg.destination, NodeId::new(LOCAL_NODE));
+            delivered.push(msg.payload.to_vec());
+        });
+        assert_eq!(delivered, expected.into_iter().collect::<Vec<_>>(), "datagram bytes from {source:03X}");
+        let held: usize = model.iter().flatten().map(|(bytes, _)| bytes.len()).sum();
+        assert_eq!(link.reassembly_in_use(), held, "the link holds what the model holds");
+        assert!(link.reassembly_in_use() <= link.reassembly_bound());
+        assert_eq!(link.reassembly_allocated(), allocated, "a reassembly buffer grew");
         drain_and_check(&mut link);
     }
 }

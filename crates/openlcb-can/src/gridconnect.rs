@@ -1,15 +1,16 @@
 //! GridConnect text framing (wire-spec §9): `:X19CC8123N04560010000004;`.
 //!
 //! - [`encode`] writes `:X` + exactly 8 upper-case hex digits + `N` + 2 digits a data byte +
-//!   `;` into the caller's buffer (standard frames as `:S` + 3 digits, remote frames with `R`).
+//!   `;` into the caller's buffer (standard frames as `:S` + 3 digits, remote frames with `R`);
+//!   [`encode_to`] appends the same text to a `Vec<u8>`, a `BytesMut` or any `BufMut`.
 //! - [`GridConnectDecoder`] takes text in arbitrary pieces and keeps no text buffer, only the
 //!   frame being read. It accepts lower-case hex and any number of id digits, skips CR, LF,
 //!   tabs and spaces between frames, counts and skips standard (`:S`) and remote (`R`)
 //!   frames, and after garbage, a malformed frame or one longer than
 //!   [`MAX_FRAME_TEXT`] characters reports a typed error and resynchronises on the next `:`.
 
+use bytes::BufMut;
 use embedded_can::Frame;
-use openlcb_stream::wire::BufferTooSmall;
 
 use crate::frame::CanFrame;
 
@@ -26,6 +27,37 @@ const HEX: &[u8; 16] = b"0123456789ABCDEF";
 pub fn encoded_len(frame: &CanFrame) -> usize {
     let id_digits = if frame.is_extended() { 8 } else { 3 };
     2 + id_digits + 1 + 2 * frame.data().len() + 1
+}
+
+/// The buffer given to [`encode`] or [`encode_to`] has no room for the frame's text.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("a GridConnect frame needs {needed} bytes of buffer, {got} were free")]
+pub struct BufferTooSmall {
+    /// Bytes the text takes.
+    pub needed: usize,
+    /// Bytes the buffer had free.
+    pub got: usize,
+}
+
+/// Appends `frame` as GridConnect text to `out` and returns its length. A growable buffer
+/// (`Vec<u8>`, `BytesMut`) always has room; a fixed one may not.
+///
+/// ```
+/// use openlcb_can::{CanFrame, gridconnect};
+///
+/// let frame = CanFrame::extended(0x19490123, &[]).unwrap();
+/// let mut text = Vec::new();
+/// gridconnect::encode_to(&frame, &mut text).unwrap();
+/// assert_eq!(text, b":X19490123N;");
+/// ```
+pub fn encode_to(frame: &CanFrame, out: &mut impl BufMut) -> Result<usize, BufferTooSmall> {
+    let mut text = [0u8; MAX_ENCODED_LEN];
+    let len = encode(frame, &mut text)?;
+    if out.remaining_mut() < len {
+        return Err(BufferTooSmall { needed: len, got: out.remaining_mut() });
+    }
+    out.put_slice(text.get(..len).unwrap_or_default());
+    Ok(len)
 }
 
 /// Writes `frame` as GridConnect text to the front of `buf` and returns the length.
@@ -362,5 +394,10 @@ mod tests {
         let frame = CanFrame::extended(0x1070_0123, &[]).unwrap();
         let mut buf = [0u8; 11];
         assert_eq!(encode(&frame, &mut buf), Err(BufferTooSmall { needed: 12, got: 11 }));
+        let mut fixed = [0u8; 11];
+        assert_eq!(encode_to(&frame, &mut &mut fixed[..]), Err(BufferTooSmall { needed: 12, got: 11 }));
+        let mut growable = Vec::from(&b"x"[..]);
+        assert_eq!(encode_to(&frame, &mut growable), Ok(12));
+        assert_eq!(growable.len(), 13, "appended after what was there");
     }
 }

@@ -11,6 +11,7 @@
 use openlcb_stream::Mti;
 
 use crate::NodeAlias;
+use crate::fragment::FramePosition;
 
 /// Bit masks and shifts of the identifier.
 mod field {
@@ -43,6 +44,28 @@ pub enum DatagramFrame {
     Middle,
     /// Format 5: the final frame.
     Final,
+}
+
+impl DatagramFrame {
+    /// The datagram frame format for a frame at `position` in its datagram.
+    pub const fn at(position: FramePosition) -> Self {
+        match position {
+            FramePosition::Only => DatagramFrame::Only,
+            FramePosition::First => DatagramFrame::First,
+            FramePosition::Middle => DatagramFrame::Middle,
+            FramePosition::Last => DatagramFrame::Final,
+        }
+    }
+
+    /// Where the frame sits in its datagram, as for the frames of an addressed message.
+    pub const fn position(self) -> FramePosition {
+        match self {
+            DatagramFrame::Only => FramePosition::Only,
+            DatagramFrame::First => FramePosition::First,
+            DatagramFrame::Middle => FramePosition::Middle,
+            DatagramFrame::Final => FramePosition::Last,
+        }
+    }
 }
 
 /// What a frame is, from its identifier.

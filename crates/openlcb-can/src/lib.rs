@@ -4,8 +4,9 @@
 //! - [`CanHeader`]: the 29-bit identifier as a typed view; [`CanFrame`]: an identifier and up
 //!   to 8 data bytes, implementing [`embedded_can::Frame`] (re-exported as [`embedded_can`]).
 //! - [`Fragments`]: a message split into frames (format 1 with framing flags and 6 payload
-//!   bytes a frame, format 7 stream data with the DID and 7 payload bytes a frame);
-//!   [`Reassembler`]: bounded reassembly with the message network's error cases.
+//!   bytes a frame, formats 2-5 for datagrams with 8 bytes a frame, format 7 stream data with
+//!   the DID and 7 payload bytes a frame); [`Reassembler`]: bounded reassembly with the
+//!   message network's and the datagram transport's error cases.
 //! - [`AliasLogin`]: CID 7..4, the reserve wait, RID, AMD; defence, loss and duplicate Node
 //!   ID detection; [`AliasGenerator`]: the Technical Note's preferred alias generator.
 //! - [`AliasCache`]: remote alias mappings, bounded, least recently used evicted first.
@@ -20,43 +21,52 @@
 //! the command [`send`](CanLink::send), outputs [`poll_transmit`](CanLink::poll_transmit),
 //! [`poll_event`](CanLink::poll_event) and [`poll_timeout`](CanLink::poll_timeout). After any
 //! input or command, drain the outputs, then arm a timer for the earliest `poll_timeout` of
-//! link and endpoint. Received messages are handed to a closure, borrowing the frame (or the
-//! link's reassembly buffer), so the endpoint takes them without a copy:
+//! link and endpoint. Drain the link's events after **every** `handle_frame`, before the
+//! next frame, and apply each [`LinkEvent::PeerRenamed`] with `Node::rename_peer` (of
+//! `openlcb-node`, the node above the link). Received messages are handed to a closure,
+//! borrowing the frame (or the link's reassembly buffer), so the node takes them without a copy:
 //!
 //! ```
 //! use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent};
 //! use openlcb_node::{Node, NodeConfig};
 //! use openlcb_stream::{Instant, NodeId};
 //!
-//! let node = NodeId::new(0x05_01_01_01_22_00).unwrap();
-//! let mut endpoint = Node::new(node, NodeConfig::default());
-//! let mut link = CanLink::new(Instant::ZERO, node, CanConfig::default());
+//! let id = NodeId::new(0x05_01_01_01_22_00).unwrap();
+//! let mut node = Node::new(id, NodeConfig::default());
+//! let mut link = CanLink::new(Instant::ZERO, id, CanConfig::default());
 //! let mut bus: Vec<CanFrame> = Vec::new(); // stands in for the CAN driver
+//!
+//! // After every frame (the renames rule) and after the timers: the link's events.
+//! fn apply_link_events(link: &mut CanLink, node: &mut Node) {
+//!     while let Some(event) = link.poll_event() {
+//!         match event {
+//!             LinkEvent::AliasLost { .. } => node.link_lost(),
+//!             LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
+//!             LinkEvent::PeerRenamed { from, to, .. } => node.rename_peer(from, to),
+//!             _ => {}
+//!         }
+//!     }
+//! }
 //!
 //! // One turn of the loop: at `now`, with whatever frames arrived.
 //! let mut turn = |now: Instant, received: &[CanFrame], bus: &mut Vec<CanFrame>| {
 //!     link.handle_timeout(now);
-//!     endpoint.handle_timeout(now);
+//!     node.handle_timeout(now);
+//!     apply_link_events(&mut link, &mut node);
 //!     for frame in received {
-//!         link.handle_frame(now, frame, |msg| endpoint.handle_message(now, msg));
+//!         link.handle_frame(now, frame, |msg| node.handle_message(now, msg));
+//!         apply_link_events(&mut link, &mut node);
 //!     }
-//!     while let Some(event) = link.poll_event() {
-//!         match event {
-//!             LinkEvent::AliasLost { .. } => endpoint.link_lost(),
-//!             LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
-//!             _ => {}
-//!         }
-//!     }
-//!     // Take from the endpoint only what the link has room for: the rest waits there.
+//!     // Take from the node only what the link has room for: the rest waits there.
 //!     while link.can_send() {
-//!         let Some(msg) = endpoint.poll_transmit() else { break };
+//!         let Some(msg) = node.poll_transmit() else { break };
 //!         let _ = link.send(now, msg); // a message with no CAN form is counted and dropped
 //!     }
 //!     while let Some(frame) = link.poll_transmit() {
 //!         bus.push(frame);
 //!     }
-//!     while let Some(_event) = endpoint.poll_event() { /* the application's business */ }
-//!     [link.poll_timeout(), endpoint.poll_timeout()].into_iter().flatten().min()
+//!     while let Some(_event) = node.poll_event() { /* the application's business */ }
+//!     [link.poll_timeout(), node.poll_timeout()].into_iter().flatten().min()
 //! };
 //!
 //! // CID 7..4 go out at once; the node's Initialization Complete waits for the alias.
@@ -77,16 +87,22 @@
 //!   the broken interaction (a TDE would end every stream with that peer in the core). 0x2042
 //!   is only counted: the new first frame starts a message that may well complete, and an
 //!   OIR quoting the same MTI would read as a rejection of it.
-//! - A message from an alias not in the cache is held (bounded by
-//!   [`CanConfig::max_held_messages`]) and an addressed Verify Node ID goes to that alias; its
-//!   Verified Node ID (or an AMD) releases the held messages in arrival order. Messages still
-//!   held after [`CanConfig::resolve_timeout`] are dropped and counted.
-//! - A message for a node whose alias is unknown waits while an AME for that Node ID is out;
-//!   after [`CanConfig::resolve_timeout`] it is dropped with [`LinkEvent::Unreachable`].
+//! - A message from an alias not in the cache is delivered at once under the alias's
+//!   provisional name, [`NodeAlias::provisional_node_id`] (`00.00.00.00.0A.AA`); for a
+//!   message to us the link learns the Node ID in the background (addressed Verify Node ID,
+//!   [`CanConfig::learn_attempts`] asks with doubling waits, at most
+//!   [`CanConfig::learn_slots`] aliases at once). A global message never draws a Verify. When
+//!   the name of an alias changes (learnt, evicted from the cache, global AME) the link
+//!   raises [`LinkEvent::PeerRenamed`]; see [`CanLink`].
+//! - A message to a provisional name goes straight to its alias. A message for a node whose
+//!   alias is unknown waits while an AME for that Node ID is out; after
+//!   [`CanConfig::resolve_timeout`] it is dropped with [`LinkEvent::Unreachable`].
 //! - After losing its alias the link logs in again with the generator's next alias and sends
 //!   Initialization Complete itself (the endpoint sends it only once, when created).
-//! - Datagram frames (formats 2-5) are counted and ignored; global messages longer than one
-//!   frame are refused by [`CanLink::send`].
+//! - Datagrams (formats 2-5, at most 72 bytes) are framed and reassembled by the link
+//!   ([`Reassembler::for_datagrams`]); framing errors are answered with Datagram Rejected
+//!   (0x2041, 0x2042, 0x2020, 0x1000, 0x2011). Global messages longer than one frame are
+//!   refused by [`CanLink::send`].
 //! - The link does not see its own transmitted frames; a driver whose controller echoes them
 //!   must filter them out, or they read as an alias collision.
 
@@ -114,10 +130,13 @@ pub use embedded_can;
 
 pub use alias::{AliasGenerator, NodeAlias};
 pub use cache::AliasCache;
-pub use fragment::{ADDRESSED_PAYLOAD_PER_FRAME, EncodeError, Fragments, FramePosition, STREAM_PAYLOAD_PER_FRAME};
+pub use fragment::{
+    ADDRESSED_PAYLOAD_PER_FRAME, DATAGRAM_PAYLOAD_PER_FRAME, EncodeError, Fragments, FramePosition,
+    STREAM_PAYLOAD_PER_FRAME,
+};
 pub use frame::{CanFrame, FrameError};
 pub use gridconnect::{GridConnectDecoder, GridConnectError};
 pub use header::{CanHeader, DatagramFrame, FrameKind, HeaderError};
 pub use link::{CanConfig, CanLink, LinkEvent, LinkStats, SendError};
 pub use login::{AliasLogin, LoginEvent, LoginState, LoginStats};
-pub use reassembly::{Reassembler, ReassemblyError, ReassemblyKey};
+pub use reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};

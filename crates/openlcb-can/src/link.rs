@@ -1,4 +1,57 @@
 //! [`CanLink`]: one local node's adapter between full-format [`Message`]s and CAN frames.
+//!
+//! # Peers known only by their alias
+//!
+//! The alias cache is knowledge, never a gate (CFT §6.2.3 makes every node forget its
+//! mappings on a global AME; conformance tools never answer Verify Node ID):
+//!
+//! - **Provisional names.** A message of any kind (global, addressed, stream data, datagram)
+//!   from an alias whose Node ID is not cached is delivered at once, with the alias's
+//!   provisional name as its source: [`NodeAlias::provisional_node_id`], `00.00.00.00.0A.AA`
+//!   (a first byte of 0x00 is reserved and never a real node, UID §5.13). Nothing is held.
+//! - **Learning in the background.** An addressed message, stream data or a datagram to us
+//!   from an unknown alias starts learning it: an addressed Verify Node ID goes to the alias,
+//!   sent [`CanConfig::learn_attempts`] times in all, waiting [`CanConfig::resolve_timeout`]
+//!   after the first and twice as long after each next one (1 s, 2 s, 4 s), then given up
+//!   ([`LinkStats::learning_given_up`]). At most [`CanConfig::learn_slots`] aliases are asked
+//!   at once; when the table is full an alias is not asked now
+//!   ([`LinkStats::learning_table_full`]) and a later message from it asks again. A global
+//!   message from an unknown alias never draws a Verify, nor any other frame. Mappings are
+//!   learnt from AMD, Verified Node ID and Initialization Complete (a claimed Node ID that is
+//!   itself provisional-looking, 00.00.00.00.0x.xx, is never learnt).
+//! - **Renames.** Whenever the name the link uses for an alias changes, it queues
+//!   [`LinkEvent::PeerRenamed`]: on learning (provisional -> Node ID), on eviction of the least
+//!   recently used entry from the full cache (Node ID -> provisional), and on a global AME for
+//!   every cached entry (Node ID -> provisional; the cache is then cleared, and the AMDs the
+//!   AME provokes rename the peers back). A mapping to a different Node ID than cached
+//!   reports [`LinkEvent::PeerLost`] for the old Node ID, then takes the new one. An AMR
+//!   reports `PeerLost` with the alias's current name, real or provisional. A Node ID that
+//!   turns up on a new alias moves there silently: its old alias is forgotten (the streams
+//!   follow the Node ID, which did not change). The event queue has room for
+//!   [`CanConfig::alias_cache_size`] renames plus other events, so a global AME never drops
+//!   one. With renames applied above the link (the rule on [`CanLink::handle_frame`]),
+//!   evicting an entry loses no message and no stream.
+//! - **Outbound.** A message addressed to a provisional name goes straight to that alias: no
+//!   cache lookup, no AME. A message to a real Node ID goes to its cached alias, or waits for
+//!   an AME answer and is dropped with [`LinkEvent::Unreachable`] after `resolve_timeout`.
+//!
+//! A message that teaches a mapping (Verified Node ID, Initialization Complete) is delivered
+//! under the new name; its rename comes out of `poll_event` right after the `handle_frame`
+//! call.
+//!
+//! # Datagrams
+//!
+//! Datagram frames (formats 2-5) to our alias are reassembled in
+//! [`CanConfig::datagram_slots`] slots of 72 bytes keyed by (source alias, destination
+//! alias), see [`Reassembler::for_datagrams`], and delivered whole as [`Mti::DATAGRAM`].
+//! Framing errors are answered with Datagram Rejected (0x0A48) to the sender's alias and
+//! counted in [`LinkStats::datagram_errors`]: a middle or last frame without a first 0x2041;
+//! a first frame while one from the same source is open 0x2042 (both dropped); no free slot
+//! at a first frame 0x2020; more than 72 bytes 0x1000 (permanent, as OpenMRN sends; the
+//! partial datagram is dropped); no last frame within [`CanConfig::reassembly_timeout`] of
+//! the first 0x2011. A single-frame datagram from a source with a datagram still open ends
+//! the open one quietly (the sender has moved on). Datagram Received OK and Rejected are
+//! ordinary addressed messages.
 
 use alloc::collections::VecDeque;
 use alloc::vec::Vec;
@@ -11,11 +64,13 @@ use crate::NodeAlias;
 use crate::cache::AliasCache;
 use crate::fragment::{EncodeError, Fragments, FramePosition};
 use crate::frame::{CanFrame, FrameError};
-use crate::header::{CanHeader, FrameKind};
+use crate::header::{CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
-use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyKey};
+use crate::reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
 
-/// Events the link can have queued at once; more are dropped and counted.
+/// Events other than renames the link can have queued at once. The queue holds
+/// [`CanConfig::alias_cache_size`] more, for the renames of a global AME; beyond that events
+/// are dropped and counted.
 const EVENT_BOUND: usize = 64;
 
 /// Bounds and timers of a [`CanLink`]. Every table and buffer it keeps is sized from here.
@@ -31,11 +86,13 @@ pub struct CanConfig {
     pub alias_cache_size: usize,
     /// Addressed multi-frame messages assembled at once.
     pub reassembly_slots: usize,
-    /// The longest addressed message payload reassembled, and the longest held inbound
-    /// message, in bytes.
+    /// The longest addressed message payload reassembled, in bytes.
     pub max_message_len: usize,
-    /// How long a multi-frame message may wait for its next frame (0x2011 after that).
+    /// How long a multi-frame message may wait for its next frame, and a datagram for its
+    /// last frame counted from its first (0x2011 after that).
     pub reassembly_timeout: Duration,
+    /// Datagrams (formats 3-5) assembled at once, 72 bytes each.
+    pub datagram_slots: usize,
     /// Answer reassembly errors that lose a message (0x2041, 0x2011, and 0x2020 for no room)
     /// with Optional Interaction Rejected to the sender, quoting the MTI. 0x2042 is only
     /// counted: the message it starts goes on.
@@ -43,13 +100,19 @@ pub struct CanConfig {
     /// Messages accepted by [`CanLink::send`] and not yet framed (including those waiting
     /// for an alias). More are refused with [`SendError::QueueFull`].
     pub transmit_queue_limit: usize,
-    /// Frames the link itself queues (AME, OIR, Verify Node ID); more are dropped and counted.
+    /// Frames the link itself queues (AME, OIR, Verify Node ID, Datagram Rejected); more are
+    /// dropped and counted.
     pub frame_queue_limit: usize,
-    /// How long to wait for an unknown alias to be resolved, both ways: an AME for a Node ID
-    /// we want to send to, an addressed Verify Node ID to an alias we heard from.
+    /// How long to wait for an AME answer for a Node ID we want to send to; and the wait
+    /// after the first Verify Node ID to an alias being learnt (doubled after each next one).
     pub resolve_timeout: Duration,
-    /// Received messages held while their sender's alias is being resolved.
-    pub max_held_messages: usize,
+    /// Aliases whose Node ID is being asked for at once (addressed Verify Node ID).
+    pub learn_slots: usize,
+    /// Verify Node ID frames sent to an alias being learnt, in all, before giving up.
+    pub learn_attempts: u32,
+    /// Ask for our own Node ID (AME) before claiming it, waiting this long for an answer
+    /// ([`AliasLogin::with_node_id_check`]); `None` (the default) does not ask.
+    pub node_id_check: Option<Duration>,
 }
 
 impl Default for CanConfig {
@@ -65,7 +128,10 @@ impl Default for CanConfig {
             transmit_queue_limit: 64,
             frame_queue_limit: 16,
             resolve_timeout: Duration::from_secs(1),
-            max_held_messages: 8,
+            learn_slots: 16,
+            learn_attempts: 3,
+            datagram_slots: 4,
+            node_id_check: None,
         }
     }
 }
@@ -91,11 +157,30 @@ pub enum LinkEvent {
         /// That node's alias.
         other: NodeAlias,
     },
-    /// A peer released its alias (AMR). Call `StreamEndpoint::peer_lost(node)`.
+    /// A peer released its alias (AMR), or its alias now maps to another Node ID. Call
+    /// `StreamEndpoint::peer_lost(node)`.
     PeerLost {
-        /// The peer.
+        /// The peer: its Node ID, or its provisional name if the link never learnt it.
         node: NodeId,
         /// The alias it released.
+        alias: NodeAlias,
+    },
+    /// The name the link uses for `alias` changed from `from` to `to`: messages from the
+    /// alias carry `to` as their source from now on, and messages to `to` reach the alias.
+    /// Raised when a Node ID is learnt (provisional name -> Node ID), when a cache entry is
+    /// evicted and on a global AME (Node ID -> provisional name). See the module doc.
+    ///
+    /// The rule: drain `poll_event` after **every** [`CanLink::handle_frame`] call, before
+    /// the next frame is fed, and apply each rename to whatever is keyed by Node ID above the
+    /// link ([`StreamEndpoint::rename_peer`](openlcb_stream::StreamEndpoint::rename_peer)), so
+    /// that the next message from that alias finds its streams under the new name. Renames
+    /// applied this way lose no message and no stream when the cache evicts an entry.
+    PeerRenamed {
+        /// The name used until now.
+        from: NodeId,
+        /// The name used from now on.
+        to: NodeId,
+        /// The peer's alias.
         alias: NodeAlias,
     },
     /// No alias could be found for `node` within the resolve timeout; messages to it were
@@ -140,22 +225,30 @@ pub struct LinkStats {
     pub invalid_frames: u64,
     /// Addressed and stream frames for another node.
     pub not_for_us: u64,
-    /// Datagram frames (not implemented here) and reserved formats ignored.
+    /// Frames of the reserved formats 0 and 6 ignored.
     pub unsupported_ignored: u64,
     /// Global messages claiming our Node ID from another alias.
     pub own_node_claims: u64,
-    /// 0x2041: a middle or last frame without a first.
+    /// 0x2041: a middle or last frame of an addressed message without a first (datagrams:
+    /// `datagram_errors`).
     pub middle_without_first: u64,
-    /// 0x2042: a first frame before the previous message ended.
+    /// 0x2042: a first frame of an addressed message before the previous one ended.
     pub first_before_last_ended: u64,
-    /// 0x2011: no last frame in time.
+    /// 0x2011: no last frame of an addressed message in time.
     pub reassembly_timeouts: u64,
     /// Multi-frame messages longer than `max_message_len`, or with no free slot.
     pub reassembly_overflows: u64,
-    /// Received messages held until their sender's alias was known.
-    pub held_inbound: u64,
-    /// Received messages dropped because their sender's alias stayed unknown (or no room).
-    pub unknown_source_dropped: u64,
+    /// Datagram framing errors, each answered with Datagram Rejected.
+    pub datagram_errors: ReassemblyErrorCounts,
+    /// Messages delivered with a provisional name (their sender's Node ID was not cached).
+    pub provisional_deliveries: u64,
+    /// Addressed Verify Node ID frames sent to learn an alias's Node ID (first asks and
+    /// retries).
+    pub verifies_sent: u64,
+    /// Aliases whose Node ID was not learnt after `learn_attempts` Verify Node ID frames.
+    pub learning_given_up: u64,
+    /// Aliases not asked because `learn_slots` aliases were being asked already.
+    pub learning_table_full: u64,
     /// Messages to send dropped because no alias was found for their destination.
     pub unresolved_dropped: u64,
     /// Messages refused by `send`.
@@ -180,19 +273,29 @@ struct Unresolved {
     deadline: Option<Instant>,
 }
 
-#[derive(Debug)]
-struct Held {
-    in_use: bool,
-    arrival: u64,
-    source: NodeAlias,
-    mti: Mti,
-    addressed: bool,
-    payload: Vec<u8>,
+/// An alias whose Node ID is being asked for.
+#[derive(Debug, Clone, Copy)]
+struct Learning {
+    alias: NodeAlias,
+    /// Verify Node ID frames sent so far.
+    asked: u32,
+    /// When to ask again, or give up.
     deadline: Instant,
 }
 
-/// One node's CAN adapter: alias login, framing, reassembly and alias resolution, so that the
-/// stream endpoint speaks in Node IDs only. See the crate documentation for the drive loop.
+/// One node's CAN adapter: alias login, framing, reassembly (messages and datagrams) and
+/// alias resolution, so that the stream endpoint speaks in Node IDs only. See the crate
+/// documentation for the drive loop.
+///
+/// A peer whose Node ID is not cached is served at once under its provisional name
+/// ([`NodeAlias::provisional_node_id`]); its Node ID is learnt in the background (addressed
+/// Verify Node ID for messages to us, never for global ones) and every change of the name of
+/// an alias is reported as [`LinkEvent::PeerRenamed`]: learnt (provisional -> Node ID),
+/// evicted from the full cache or a global AME (Node ID -> provisional). A mapping to another
+/// Node ID than cached reports [`LinkEvent::PeerLost`] for the old one; an AMR reports
+/// `PeerLost` under the current name. Messages to a provisional name go straight to its
+/// alias. The driver drains [`poll_event`](Self::poll_event) after every
+/// [`handle_frame`](Self::handle_frame) and applies each rename above the link.
 #[derive(Debug)]
 pub struct CanLink {
     node: NodeId,
@@ -201,13 +304,13 @@ pub struct CanLink {
     announced: bool,
     cache: AliasCache,
     reassembly: Reassembler,
+    datagrams: Reassembler,
     scratch: Vec<u8>,
     frames: VecDeque<CanFrame>,
     messages: VecDeque<Outgoing>,
     current: Option<Fragments<Bytes>>,
     unresolved: VecDeque<Unresolved>,
-    held: Vec<Held>,
-    arrivals: u64,
+    learning: Vec<Learning>,
     events: VecDeque<LinkEvent>,
     stats: LinkStats,
 }
@@ -216,32 +319,22 @@ impl CanLink {
     /// A link for `node`, starting its alias login at `now` (the CID frames are the first
     /// transmits). All tables are allocated here, at their configured bounds.
     pub fn new(now: Instant, node: NodeId, config: CanConfig) -> Self {
-        let login = AliasLogin::new(now, node, config.first_alias, config.reserve_wait);
-        let held = (0..config.max_held_messages)
-            .map(|_| Held {
-                in_use: false,
-                arrival: 0,
-                source: NodeAlias::MAX,
-                mti: Mti(0),
-                addressed: false,
-                payload: Vec::with_capacity(config.max_message_len),
-                deadline: Instant::ZERO,
-            })
-            .collect();
+        let login = AliasLogin::new(now, node, config.first_alias, config.reserve_wait)
+            .with_node_id_check(config.node_id_check);
         CanLink {
             node,
             login,
             announced: false,
             cache: AliasCache::new(config.alias_cache_size),
             reassembly: Reassembler::new(config.reassembly_slots, config.max_message_len, config.reassembly_timeout),
-            scratch: Vec::with_capacity(config.max_message_len),
+            datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
+            scratch: Vec::with_capacity(config.max_message_len.max(MAX_DATAGRAM_LEN)),
             frames: VecDeque::with_capacity(config.frame_queue_limit),
             messages: VecDeque::with_capacity(config.transmit_queue_limit.saturating_add(1)),
             current: None,
             unresolved: VecDeque::with_capacity(config.transmit_queue_limit),
-            held,
-            arrivals: 0,
-            events: VecDeque::with_capacity(EVENT_BOUND),
+            learning: Vec::with_capacity(config.learn_slots),
+            events: VecDeque::with_capacity(event_bound(&config)),
             stats: LinkStats::default(),
             config,
         }
@@ -284,6 +377,40 @@ impl CanLink {
         self.cache.peek_node(alias)
     }
 
+    /// The name messages from `alias` carry now: its cached Node ID, else its provisional
+    /// name.
+    pub fn name_of(&self, alias: NodeAlias) -> NodeId {
+        self.cache.peek_node(alias).unwrap_or(alias.provisional_node_id())
+    }
+
+    /// Remote alias mappings cached now (at most [`CanConfig::alias_cache_size`]).
+    pub fn cached_aliases(&self) -> usize {
+        self.cache.len()
+    }
+
+    /// Aliases whose Node ID is being asked for now (at most [`CanConfig::learn_slots`]).
+    pub fn learning(&self) -> usize {
+        self.learning.len()
+    }
+
+    /// Payload bytes held in partly reassembled messages and datagrams; never more than
+    /// [`reassembly_bound`](Self::reassembly_bound).
+    pub fn reassembly_in_use(&self) -> usize {
+        self.reassembly.buffered() + self.datagrams.buffered()
+    }
+
+    /// The bound of [`reassembly_in_use`](Self::reassembly_in_use): `reassembly_slots` times
+    /// `max_message_len` plus `datagram_slots` times 72.
+    pub fn reassembly_bound(&self) -> usize {
+        self.reassembly.bound().saturating_add(self.datagrams.bound())
+    }
+
+    /// Bytes allocated for reassembly buffers: fixed when the link is made.
+    #[cfg(feature = "fuzzing")]
+    pub(crate) fn reassembly_allocated(&self) -> usize {
+        self.reassembly.allocated() + self.datagrams.allocated() + self.scratch.capacity()
+    }
+
     /// Messages accepted by `send` and not yet fully framed.
     pub fn queued_messages(&self) -> usize {
         self.messages.len()
@@ -300,10 +427,12 @@ impl CanLink {
 
     // ----- commands -----
 
-    /// Queues `message` for transmission. Addressed messages go to the cached alias of their
-    /// destination; an unknown destination is resolved with an AME first (messages wait, at
-    /// most [`CanConfig::resolve_timeout`], then [`LinkEvent::Unreachable`]). Messages wait
-    /// until the alias is permitted. Takes no allocation.
+    /// Queues `message` for transmission. Addressed messages to a provisional name
+    /// ([`NodeAlias::provisional_node_id`]) go straight to that alias; others go to the cached
+    /// alias of their destination, and an unknown destination is resolved with an AME first
+    /// (messages wait, at most [`CanConfig::resolve_timeout`], then
+    /// [`LinkEvent::Unreachable`]). Messages wait until the alias is permitted. Takes no
+    /// allocation.
     pub fn send(&mut self, now: Instant, message: Message) -> Result<(), SendError> {
         let result = self.enqueue(now, message);
         if result.is_err() {
@@ -328,6 +457,10 @@ impl CanLink {
             self.messages.push_back(Outgoing { message, destination: None });
             return Ok(());
         };
+        if let Some(alias) = NodeAlias::from_provisional(node) {
+            self.messages.push_back(Outgoing { message, destination: Some(alias) });
+            return Ok(());
+        }
         let waiting = self.unresolved.iter().any(|u| u.node == node);
         match self.cache.alias(node) {
             Some(alias) if !waiting => self.messages.push_back(Outgoing { message, destination: Some(alias) }),
@@ -384,25 +517,30 @@ impl CanLink {
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
         let unresolved = self.unresolved.iter().filter_map(|u| u.deadline);
-        let held = self.held.iter().filter(|h| h.in_use).map(|h| h.deadline);
-        [self.login.poll_timeout(), self.reassembly.poll_timeout()]
+        let learning = self.learning.iter().map(|l| l.deadline);
+        [self.login.poll_timeout(), self.reassembly.poll_timeout(), self.datagrams.poll_timeout()]
             .into_iter()
             .flatten()
             .chain(unresolved)
-            .chain(held)
+            .chain(learning)
             .min()
     }
 
     // ----- inputs -----
 
-    /// Runs every timer due at `now`: the login's reserve wait, reassembly timeouts (0x2011),
-    /// and alias resolutions that ran out. Early or repeated calls are harmless.
+    /// Runs every timer due at `now`: the login's reserve wait, reassembly timeouts (0x2011,
+    /// for messages and datagrams), alias resolutions that ran out, and the next Verify Node
+    /// ID (or giving up) for aliases being learnt. Early or repeated calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
         self.login.handle_timeout(now);
         self.drain_login_events(now);
         while let Some(key) = self.reassembly.take_expired(now) {
             self.reassembly_error(key.source, key.mti, ReassemblyError::Timeout);
         }
+        while let Some(key) = self.datagrams.take_expired(now) {
+            self.datagram_error(key.source, ReassemblyError::Timeout);
+        }
+        self.ask_again(now);
         while let Some(node) = self.unresolved.iter().find(|u| u.deadline.is_some_and(|d| d <= now)).map(|u| u.node) {
             let before = self.unresolved.len();
             self.unresolved.retain(|u| u.node != node);
@@ -410,16 +548,18 @@ impl CanLink {
             self.stats.unresolved_dropped = self.stats.unresolved_dropped.saturating_add(dropped as u64);
             self.event(LinkEvent::Unreachable { node, dropped });
         }
-        for held in self.held.iter_mut().filter(|h| h.in_use && h.deadline <= now) {
-            held.in_use = false;
-            bump(&mut self.stats.unknown_source_dropped);
-        }
     }
 
     /// Feeds one received frame. Every complete message for this node (or global) is handed
-    /// to `deliver`, borrowing its payload from `frame` (single frames, stream data) or from
-    /// the link's reassembly buffer: nothing is allocated. Usually
-    /// `|msg| endpoint.handle_message(now, msg)`.
+    /// to `deliver` at once, borrowing its payload from `frame` (single frames, stream data)
+    /// or from the link's reassembly buffer: nothing is allocated. Usually
+    /// `|msg| endpoint.handle_message(now, msg)`. A message from an alias whose Node ID is not
+    /// cached carries the alias's provisional name as its source.
+    ///
+    /// The rule: drain [`poll_event`](Self::poll_event) after **every** call, before feeding
+    /// the next frame, and apply each [`LinkEvent::PeerRenamed`] to whatever is keyed by Node
+    /// ID above the link ([`StreamEndpoint::rename_peer`](openlcb_stream::StreamEndpoint::rename_peer)),
+    /// so that the next message from that alias finds its streams under the new name.
     pub fn handle_frame(&mut self, now: Instant, frame: &CanFrame, mut deliver: impl FnMut(MessageRef<'_>)) {
         bump(&mut self.stats.frames_in);
         let header = match frame.header() {
@@ -437,12 +577,12 @@ impl CanLink {
         match header.kind {
             FrameKind::AliasMapDefinition => {
                 if let Some(node) = NodeId::from_slice(data) {
-                    self.learn(header.source, node, &mut deliver);
+                    self.learn(header.source, node);
                 }
             }
-            FrameKind::AliasMapReset => self.forget(header.source, NodeId::from_slice(data)),
+            FrameKind::AliasMapReset => self.forget(header.source),
             // CFT §6.2.3: a global AME drops every cached mapping; the AMDs it causes refill it.
-            FrameKind::AliasMapEnquiry if data.is_empty() => self.cache.clear(),
+            FrameKind::AliasMapEnquiry if data.is_empty() => self.forget_all_mappings(),
             FrameKind::Message { can_mti } => self.on_message(now, header.source, Mti(can_mti), data, &mut deliver),
             FrameKind::StreamData { destination } => {
                 if Some(destination) != self.login.alias() {
@@ -452,9 +592,12 @@ impl CanLink {
                     // Wire-spec §7.3: DLC 0 is invalid (no DID).
                     return bump(&mut self.stats.invalid_frames);
                 }
-                self.deliver_or_hold(now, header.source, Mti::STREAM_DATA_SEND, true, data, &mut deliver);
+                self.deliver_from(now, header.source, Mti::STREAM_DATA_SEND, true, data, &mut deliver);
             }
-            FrameKind::Datagram { .. } | FrameKind::ReservedFormat { .. } => bump(&mut self.stats.unsupported_ignored),
+            FrameKind::Datagram { frame: part, destination } => {
+                self.on_datagram_frame(now, header.source, part, destination, data, &mut deliver);
+            }
+            FrameKind::ReservedFormat { .. } => bump(&mut self.stats.unsupported_ignored),
             _ => {}
         }
     }
@@ -475,11 +618,11 @@ impl CanLink {
                     Some(node) if node == self.node => {
                         return bump(&mut self.stats.own_node_claims);
                     }
-                    Some(node) => self.learn(source, node, deliver),
+                    Some(node) => self.learn(source, node),
                     None => {}
                 }
             }
-            return self.deliver_or_hold(now, source, mti, false, data, deliver);
+            return self.deliver_from(now, source, mti, false, data, deliver);
         }
         let [flags_and_high, low, body @ ..] = data else {
             return bump(&mut self.stats.invalid_frames);
@@ -491,25 +634,54 @@ impl CanLink {
         let position = FramePosition::from_flags(*flags_and_high);
         if position == FramePosition::Only {
             // The usual case: the payload is handed over straight from the frame.
-            return self.deliver_or_hold(now, source, mti, true, body, deliver);
+            return self.deliver_from(now, source, mti, true, body, deliver);
         }
         let key = ReassemblyKey { source, destination: ours, mti };
         match self.reassembly.push(now, key, position, body) {
             Ok(None) => {}
             Ok(Some(whole)) => {
-                // Copied once into a buffer of the link so the reassembler is free again;
-                // `scratch` has room for `max_message_len` bytes, so this never allocates.
-                self.scratch.clear();
-                self.scratch.extend_from_slice(whole);
-                let message = core::mem::take(&mut self.scratch);
-                self.deliver_or_hold(now, source, mti, true, &message, deliver);
-                self.scratch = message;
+                let whole = take_into(&mut self.scratch, whole);
+                self.deliver_from(now, source, mti, true, &whole, deliver);
+                self.scratch = whole;
             }
             Err(error) => self.reassembly_error(source, mti, error),
         }
     }
 
-    fn deliver_or_hold(
+    fn on_datagram_frame(
+        &mut self,
+        now: Instant,
+        source: NodeAlias,
+        frame: DatagramFrame,
+        destination: NodeAlias,
+        data: &[u8],
+        deliver: &mut impl FnMut(MessageRef<'_>),
+    ) {
+        let Some(ours) = self.login.alias().filter(|ours| *ours == destination) else {
+            return bump(&mut self.stats.not_for_us);
+        };
+        let key = ReassemblyKey { source, destination: ours, mti: Mti::DATAGRAM };
+        let position = frame.position();
+        if position == FramePosition::Only {
+            // A whole datagram: the sender has given up any datagram it left open.
+            self.datagrams.discard(key);
+            return self.deliver_from(now, source, Mti::DATAGRAM, true, data, deliver);
+        }
+        match self.datagrams.push(now, key, position, data) {
+            Ok(None) => {}
+            Ok(Some(whole)) => {
+                let whole = take_into(&mut self.scratch, whole);
+                self.deliver_from(now, source, Mti::DATAGRAM, true, &whole, deliver);
+                self.scratch = whole;
+            }
+            Err(error) => self.datagram_error(source, error),
+        }
+    }
+
+    /// Hands one whole message from `source` to `deliver`, named by its cached Node ID or its
+    /// provisional name. A message to us (addressed, stream data, datagram) from an alias not
+    /// in the cache starts learning it; a global one draws nothing.
+    fn deliver_from(
         &mut self,
         now: Instant,
         source: NodeAlias,
@@ -518,50 +690,37 @@ impl CanLink {
         payload: &[u8],
         deliver: &mut impl FnMut(MessageRef<'_>),
     ) {
-        let destination = addressed.then_some(self.node);
-        if let Some(node) = self.cache.node(source) {
-            return deliver(MessageRef { mti, source: node, destination, payload });
-        }
-        // The sender's Node ID is unknown: hold the message and ask it (addressed Verify Node
-        // ID; its Verified Node ID, or any AMD, releases what is held, in arrival order).
-        let first_from_source = !self.held.iter().any(|h| h.in_use && h.source == source);
-        let slot = self.held.iter_mut().find(|h| !h.in_use);
-        let Some(slot) = slot.filter(|_| payload.len() <= self.config.max_message_len) else {
-            return bump(&mut self.stats.unknown_source_dropped);
-        };
-        self.arrivals = self.arrivals.wrapping_add(1);
-        slot.in_use = true;
-        slot.arrival = self.arrivals;
-        slot.source = source;
-        slot.mti = mti;
-        slot.addressed = addressed;
-        slot.payload.clear();
-        slot.payload.extend_from_slice(payload);
-        slot.deadline = now + self.config.resolve_timeout;
-        bump(&mut self.stats.held_inbound);
-        if first_from_source {
-            if let Some(ours) = self.login.alias() {
-                let verify = Fragments::new(Mti::VERIFY_NODE_ID_ADDRESSED, ours, Some(source), [0u8; 0])
-                    .ok()
-                    .and_then(|mut f| f.next());
-                self.queue_frame(verify);
+        let name = match self.cache.node(source) {
+            Some(node) => node,
+            None => {
+                bump(&mut self.stats.provisional_deliveries);
+                if addressed {
+                    self.start_learning(now, source);
+                }
+                source.provisional_node_id()
             }
-        }
+        };
+        let destination = addressed.then_some(self.node);
+        deliver(MessageRef { mti, source: name, destination, payload });
     }
 
-    /// Records `alias` <-> `node`, then hands over messages held from `alias` and releases
-    /// messages waiting for `node`'s alias.
-    fn learn(&mut self, alias: NodeAlias, node: NodeId, deliver: &mut impl FnMut(MessageRef<'_>)) {
-        if node == self.node {
+    /// Records `alias` <-> `node`, reports the renames it causes, and releases messages
+    /// waiting for `node`'s alias.
+    fn learn(&mut self, alias: NodeAlias, node: NodeId) {
+        if node == self.node || NodeAlias::from_provisional(node).is_some() {
             return;
         }
-        self.cache.insert(alias, node);
-        let local = self.node;
-        while let Some(held) = self.held.iter_mut().filter(|h| h.in_use && h.source == alias).min_by_key(|h| h.arrival)
-        {
-            held.in_use = false;
-            let destination = held.addressed.then_some(local);
-            deliver(MessageRef { mti: held.mti, source: node, destination, payload: &held.payload });
+        self.learning.retain(|l| l.alias != alias);
+        let previous = self.cache.peek_node(alias);
+        if let Some(old) = previous.filter(|old| *old != node) {
+            self.event(LinkEvent::PeerLost { node: old, alias });
+        }
+        if let Some((evicted, evicted_node)) = self.cache.insert(alias, node) {
+            let to = evicted.provisional_node_id();
+            self.event(LinkEvent::PeerRenamed { from: evicted_node, to, alias: evicted });
+        }
+        if previous.is_none() {
+            self.event(LinkEvent::PeerRenamed { from: alias.provisional_node_id(), to: node, alias });
         }
         let mut index = 0;
         while let Some(waiting) = self.unresolved.get(index) {
@@ -575,22 +734,72 @@ impl CanLink {
         }
     }
 
-    /// A peer released `alias` (AMR naming `released`): forget it, drop what was queued for
-    /// it or from it. The AMR's Node ID is reported: the cache may already map the alias to
-    /// the node that collided with it.
-    fn forget(&mut self, alias: NodeAlias, released: Option<NodeId>) {
+    /// A peer released `alias` (AMR): forget it, drop what was queued for it or from it, and
+    /// report it lost under its current name.
+    fn forget(&mut self, alias: NodeAlias) {
         self.reassembly.forget_source(alias);
-        for held in self.held.iter_mut().filter(|h| h.in_use && h.source == alias) {
-            held.in_use = false;
-            bump(&mut self.stats.unknown_source_dropped);
-        }
+        self.datagrams.forget_source(alias);
+        self.learning.retain(|l| l.alias != alias);
         let before = self.messages.len();
         self.messages.retain(|m| m.destination != Some(alias));
         self.stats.messages_dropped = self.stats.messages_dropped.saturating_add((before - self.messages.len()) as u64);
-        let cached = self.cache.remove_alias(alias);
-        if let Some(node) = released.filter(|n| *n != self.node).or(cached) {
-            self.event(LinkEvent::PeerLost { node, alias });
+        let node = self.cache.remove_alias(alias).unwrap_or(alias.provisional_node_id());
+        self.event(LinkEvent::PeerLost { node, alias });
+    }
+
+    /// A global AME (CFT §6.2.3): every cached peer goes back to its provisional name.
+    fn forget_all_mappings(&mut self) {
+        loop {
+            let first = self.cache.iter().next();
+            let Some((alias, node)) = first else { break };
+            self.cache.remove_alias(alias);
+            self.event(LinkEvent::PeerRenamed { from: node, to: alias.provisional_node_id(), alias });
         }
+    }
+
+    /// Starts asking `alias` for its Node ID, if it is not asked already and there is room.
+    fn start_learning(&mut self, now: Instant, alias: NodeAlias) {
+        if self.config.learn_attempts == 0 || self.learning.iter().any(|l| l.alias == alias) {
+            return;
+        }
+        if self.learning.len() >= self.config.learn_slots {
+            return bump(&mut self.stats.learning_table_full);
+        }
+        self.learning.push(Learning { alias, asked: 1, deadline: now + self.config.resolve_timeout });
+        self.send_verify(alias);
+    }
+
+    /// Asks again each alias whose wait ran out, waiting twice as long as before, or gives it
+    /// up after `learn_attempts` asks.
+    fn ask_again(&mut self, now: Instant) {
+        let mut index = 0;
+        while let Some(entry) = self.learning.get(index).copied() {
+            if entry.deadline > now {
+                index += 1;
+            } else if entry.asked >= self.config.learn_attempts {
+                self.learning.swap_remove(index);
+                bump(&mut self.stats.learning_given_up);
+            } else {
+                let wait = self.config.resolve_timeout.as_micros().saturating_mul(1u64 << entry.asked.min(32));
+                if let Some(slot) = self.learning.get_mut(index) {
+                    slot.asked = entry.asked + 1;
+                    slot.deadline = now + Duration::from_micros(wait);
+                }
+                self.send_verify(entry.alias);
+                index += 1;
+            }
+        }
+    }
+
+    fn send_verify(&mut self, alias: NodeAlias) {
+        bump(&mut self.stats.verifies_sent);
+        self.queue_addressed(Mti::VERIFY_NODE_ID_ADDRESSED, alias, &[]);
+    }
+
+    /// Answers a datagram framing error with Datagram Rejected to the sender (DG §7.3.2).
+    fn datagram_error(&mut self, source: NodeAlias, error: ReassemblyError) {
+        self.stats.datagram_errors.record(error);
+        self.queue_addressed(Mti::DATAGRAM_REJECTED, source, &error.datagram_code().0.to_be_bytes());
     }
 
     fn reassembly_error(&mut self, source: NodeAlias, mti: Mti, error: ReassemblyError) {
@@ -602,19 +811,24 @@ impl CanLink {
         };
         bump(counter);
         let answer = self.config.reject_reassembly_errors && error != ReassemblyError::FirstBeforeLastEnded;
-        let Some(ours) = self.login.alias().filter(|_| answer) else {
+        if !answer {
             return;
-        };
+        }
         let mut payload = [0u8; 4];
         let report = ErrorReport { code: error.code(), mti: Some(mti) };
-        let Ok(len) = report.emit(&mut payload) else {
+        if let Ok(len) = report.emit(&mut payload) {
+            self.queue_addressed(Mti::OPTIONAL_INTERACTION_REJECTED, source, payload.get(..len).unwrap_or(&[]));
+        }
+    }
+
+    /// Queues a one-frame addressed message of the link's own (at most 6 payload bytes) from
+    /// our alias to `to`, once permitted.
+    fn queue_addressed(&mut self, mti: Mti, to: NodeAlias, payload: &[u8]) {
+        let Some(ours) = self.login.alias() else {
             return;
         };
-        let oir =
-            Fragments::new(Mti::OPTIONAL_INTERACTION_REJECTED, ours, Some(source), payload.get(..len).unwrap_or(&[]))
-                .ok()
-                .and_then(|mut f| f.next());
-        self.queue_frame(oir);
+        let frame = Fragments::new(mti, ours, Some(to), payload).ok().and_then(|mut f| f.next());
+        self.queue_frame(frame);
     }
 
     // ----- login and alias resolution -----
@@ -646,7 +860,8 @@ impl CanLink {
         }
     }
 
-    /// Everything tied to the old alias goes: queued messages, partial messages, held frames.
+    /// Everything tied to the old alias goes: queued messages, partial messages and
+    /// datagrams, frames of the link's own, aliases being learnt.
     fn drop_traffic(&mut self) {
         let queued = self.messages.len() + self.unresolved.len() + usize::from(self.current.is_some());
         self.stats.messages_dropped = self.stats.messages_dropped.saturating_add(queued as u64);
@@ -655,9 +870,8 @@ impl CanLink {
         self.current = None;
         self.frames.clear();
         self.reassembly.clear();
-        for held in &mut self.held {
-            held.in_use = false;
-        }
+        self.datagrams.clear();
+        self.learning.clear();
     }
 
     /// Sends an AME for every node waiting for its alias that has not had one, once permitted.
@@ -684,12 +898,27 @@ impl CanLink {
     }
 
     fn event(&mut self, event: LinkEvent) {
-        if self.events.len() < EVENT_BOUND {
+        if self.events.len() < event_bound(&self.config) {
             self.events.push_back(event);
         } else {
             bump(&mut self.stats.queue_overflows);
         }
     }
+}
+
+/// Room in the event queue: every cached peer's rename on a global AME, and other events.
+fn event_bound(config: &CanConfig) -> usize {
+    config.alias_cache_size.saturating_add(EVENT_BOUND)
+}
+
+/// Copies a reassembled payload once into the link's `scratch` buffer (taken out of the
+/// link, so the reassembler is free again while the message is delivered). `scratch` has
+/// room for the longest message and datagram, so this never allocates.
+fn take_into(scratch: &mut Vec<u8>, whole: &[u8]) -> Vec<u8> {
+    let mut buffer = core::mem::take(scratch);
+    buffer.clear();
+    buffer.extend_from_slice(whole);
+    buffer
 }
 
 fn bump(counter: &mut u64) {

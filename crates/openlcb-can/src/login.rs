@@ -8,6 +8,15 @@
 //!    +------- other frame from our alias: AMR, Lost -+
 //! any state --(AMD with our Node ID from another alias)--> Stopped (sends nothing more)
 //! ```
+//!
+//! With [`AliasLogin::with_node_id_check`], the node asks before it claims its Node ID: after
+//! the reserve wait it sends RID and an AME carrying its own Node ID, waits once more, and
+//! only then sends AMD. A node already holding that Node ID answers the AME with its AMD
+//! (CFT §6.2.3), which stops this login *before* it has announced anything that would make
+//! the running node stop too (CFT §6.2.5 stops every node that sees its own Node ID in an
+//! AMD). The standard lists only CID, RID and AMD for a node in the Inhibited state; the AME
+//! is the one question the standard makes a holder of a Node ID answer, which is why the
+//! check is opt-in.
 
 use alloc::collections::VecDeque;
 
@@ -99,6 +108,10 @@ pub struct AliasLogin {
     transmits: VecDeque<CanFrame>,
     events: VecDeque<LoginEvent>,
     stats: LoginStats,
+    /// How long to wait for an answer to the AME for our own Node ID; `None`: no check.
+    node_id_check: Option<Duration>,
+    /// RID and the AME have gone out for the alias being checked.
+    asked: bool,
 }
 
 impl AliasLogin {
@@ -116,9 +129,20 @@ impl AliasLogin {
             transmits: VecDeque::with_capacity(QUEUE_BOUND),
             events: VecDeque::with_capacity(EVENT_BOUND),
             stats: LoginStats::default(),
+            node_id_check: None,
+            asked: false,
         };
         login.check(now, alias);
         login
+    }
+
+    /// Asks whether another node holds this Node ID before claiming it (see the module
+    /// documentation), waiting `wait` for an answer; `None` turns the check off (the default).
+    /// A node that answers ends the login with [`LoginEvent::DuplicateNodeId`] before this
+    /// node has sent AMD.
+    pub fn with_node_id_check(mut self, wait: Option<Duration>) -> Self {
+        self.node_id_check = wait;
+        self
     }
 
     // ----- getters -----
@@ -171,11 +195,24 @@ impl AliasLogin {
     /// Moves on to Permitted once the reserve wait is over. Early or repeated calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
         if let LoginState::Checking { alias, deadline } = self.state {
-            if now >= deadline {
+            if now < deadline {
+                return;
+            }
+            if !self.asked {
                 self.queue(CanHeader::control(FrameKind::ReserveId, alias), &[]);
-                self.queue(CanHeader::control(FrameKind::AliasMapDefinition, alias), &self.node.to_bytes());
-                self.state = LoginState::Permitted { alias };
-                self.event(LoginEvent::Permitted { alias });
+            }
+            match self.node_id_check {
+                Some(wait) if !self.asked => {
+                    // Alias reserved; before claiming the Node ID, ask who holds it.
+                    self.asked = true;
+                    self.queue(CanHeader::control(FrameKind::AliasMapEnquiry, alias), &self.node.to_bytes());
+                    self.state = LoginState::Checking { alias, deadline: now + wait };
+                }
+                _ => {
+                    self.queue(CanHeader::control(FrameKind::AliasMapDefinition, alias), &self.node.to_bytes());
+                    self.state = LoginState::Permitted { alias };
+                    self.event(LoginEvent::Permitted { alias });
+                }
             }
         }
     }
@@ -269,6 +306,7 @@ impl AliasLogin {
             self.queue(CanHeader::control(FrameKind::CheckId { sequence, node_id_bits }, alias), &[]);
         }
         self.state = LoginState::Checking { alias, deadline: now + self.reserve_wait };
+        self.asked = false;
     }
 
     fn has_queued(&self, kind: FrameKind) -> bool {
@@ -388,6 +426,41 @@ mod tests {
         l.handle_frame(Instant::from_millis(300), &frame(0x1070_2777, &[5, 1, 1, 1, 0x22, 1]));
         assert!(ids(&mut l).is_empty(), "AME for another node");
         assert_eq!(l.stats().enquiry_answers, 2);
+    }
+
+    fn checked_login() -> AliasLogin {
+        login().with_node_id_check(Some(Duration::from_millis(200)))
+    }
+
+    #[test]
+    fn checking_with_node_id_check_asks_before_claiming() {
+        let mut l = checked_login();
+        ids(&mut l);
+        l.handle_timeout(Instant::from_millis(200));
+        let sent: Vec<CanFrame> = core::iter::from_fn(|| l.poll_transmit()).collect();
+        let sent_ids: Vec<u32> = sent.iter().map(|f| f.raw_id()).collect();
+        assert_eq!(sent_ids, [0x1070_0555, 0x1070_2555], "RID, then AME");
+        assert_eq!(sent[1].payload(), &NodeId::new(NODE).unwrap().to_bytes(), "the AME carries our own Node ID");
+        assert_eq!(l.poll_event(), None, "not permitted yet");
+        l.handle_timeout(Instant::from_millis(399));
+        assert!(ids(&mut l).is_empty());
+        l.handle_timeout(Instant::from_millis(400));
+        assert_eq!(ids(&mut l), [0x1070_1555], "AMD only after nobody answered");
+        assert_eq!(l.poll_event(), Some(LoginEvent::Permitted { alias: alias(0x555) }));
+    }
+
+    #[test]
+    fn checking_amd_answering_our_enquiry_stops_before_claiming() {
+        let mut l = checked_login();
+        ids(&mut l);
+        l.handle_timeout(Instant::from_millis(200));
+        ids(&mut l);
+        // The running node with our Node ID answers the AME.
+        l.handle_frame(Instant::from_millis(210), &frame(0x1070_1777, &NodeId::new(NODE).unwrap().to_bytes()));
+        assert_eq!(l.poll_event(), Some(LoginEvent::DuplicateNodeId { other: alias(0x777) }));
+        assert_eq!(l.state(), LoginState::Stopped);
+        l.handle_timeout(Instant::from_millis(9000));
+        assert!(ids(&mut l).is_empty(), "no AMD ever went out: the running node keeps its ID");
     }
 
     #[test]

@@ -1,4 +1,5 @@
-//! Reassembly of addressed multi-frame messages in a bounded number of slots (wire-spec §7.2).
+//! Reassembly of addressed multi-frame messages (wire-spec §7.2) and of datagrams
+//! (node-protocols §2.5) in a bounded number of slots.
 
 use alloc::vec::Vec;
 
@@ -8,7 +9,12 @@ use openlcb_stream::{Duration, Instant, Mti};
 use crate::NodeAlias;
 use crate::fragment::FramePosition;
 
-/// What one message under assembly is keyed by: (source alias, destination alias, MTI).
+/// The longest datagram payload, in bytes (DG §7.3.2; node-protocols §2.1).
+pub const MAX_DATAGRAM_LEN: usize = 72;
+
+/// What one message under assembly is keyed by: (source alias, destination alias, MTI). For
+/// datagrams the MTI is always [`Mti::DATAGRAM`], so the key is (source, destination), as DG
+/// §7.2 asks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct ReassemblyKey {
     /// The sender.
@@ -27,13 +33,15 @@ pub enum ReassemblyError {
     #[error("middle or last frame without a first frame")]
     MiddleWithoutFirst,
     /// A first frame while a message with the same key was still open (0x2042). The old
-    /// message is dropped; the new frame starts a new message.
+    /// message is dropped; for an addressed message the new frame starts a new message, for a
+    /// datagram it is dropped too (see [`Reassembler::for_datagrams`]).
     #[error("first frame before the previous message ended")]
     FirstBeforeLastEnded,
     /// No last frame came within the timeout (0x2011). The message is dropped.
     #[error("timeout waiting for the last frame")]
     Timeout,
-    /// The message grew beyond the configured maximum length (0x2020). It is dropped.
+    /// The message grew beyond the configured maximum length (0x2020; 0x1000 for a datagram
+    /// over 72 bytes, which no resend can fix). It is dropped.
     #[error("message longer than the reassembly buffer")]
     TooLong,
     /// Every slot holds a message (0x2020). The first frame is dropped.
@@ -51,6 +59,63 @@ impl ReassemblyError {
             ReassemblyError::TooLong | ReassemblyError::NoFreeSlot => ErrorCode::BUFFER_UNAVAILABLE,
         }
     }
+
+    /// The code of the Datagram Rejected answering this error (node-protocols §2.5): as
+    /// [`code`](Self::code), except that a datagram over 72 bytes is permanent 0x1000 (what
+    /// OpenMRN sends: resending the same datagram cannot help).
+    pub const fn datagram_code(self) -> ErrorCode {
+        match self {
+            ReassemblyError::TooLong => ErrorCode(0x1000),
+            other => other.code(),
+        }
+    }
+}
+
+/// Reassembly errors by kind, for the counters of the link and the gateway.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ReassemblyErrorCounts {
+    /// [`ReassemblyError::MiddleWithoutFirst`] (0x2041).
+    pub middle_without_first: u64,
+    /// [`ReassemblyError::FirstBeforeLastEnded`] (0x2042).
+    pub first_before_last_ended: u64,
+    /// [`ReassemblyError::Timeout`] (0x2011).
+    pub timeouts: u64,
+    /// [`ReassemblyError::TooLong`].
+    pub too_long: u64,
+    /// [`ReassemblyError::NoFreeSlot`] (0x2020).
+    pub no_free_slot: u64,
+}
+
+impl ReassemblyErrorCounts {
+    /// Counts one `error`.
+    pub fn record(&mut self, error: ReassemblyError) {
+        let counter = match error {
+            ReassemblyError::MiddleWithoutFirst => &mut self.middle_without_first,
+            ReassemblyError::FirstBeforeLastEnded => &mut self.first_before_last_ended,
+            ReassemblyError::Timeout => &mut self.timeouts,
+            ReassemblyError::TooLong => &mut self.too_long,
+            ReassemblyError::NoFreeSlot => &mut self.no_free_slot,
+        };
+        *counter = counter.saturating_add(1);
+    }
+
+    /// All errors counted.
+    pub fn total(&self) -> u64 {
+        [self.middle_without_first, self.first_before_last_ended, self.timeouts, self.too_long, self.no_free_slot]
+            .into_iter()
+            .fold(0, u64::saturating_add)
+    }
+}
+
+/// What a [`Reassembler`] assembles: the rules differ where the standards differ.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Rules {
+    /// Addressed format 1 messages: a second first frame restarts the message; the wait
+    /// restarts with every frame.
+    Messages,
+    /// Datagrams: a second first frame drops both; the wait runs from the first frame.
+    Datagrams,
 }
 
 #[derive(Debug)]
@@ -61,21 +126,44 @@ struct Slot {
 }
 
 /// Bounded reassembly: `slots` messages at once, each at most `max_len` payload bytes, each
-/// dropped when no frame of it arrived for `timeout`. All memory is taken up front.
+/// dropped when it is not complete within `timeout`. All memory is taken up front:
+/// [`allocated`](Self::allocated) never changes.
 #[derive(Debug)]
 pub struct Reassembler {
     slots: Vec<Slot>,
     max_len: usize,
     timeout: Duration,
+    rules: Rules,
 }
 
 impl Reassembler {
-    /// `slots` slots of `max_len` bytes each.
+    /// Addressed multi-frame messages: `slots` slots of `max_len` bytes each; a message is
+    /// dropped when no frame of it arrived for `timeout`.
     pub fn new(slots: usize, max_len: usize, timeout: Duration) -> Self {
+        Self::with_rules(slots, max_len, timeout, Rules::Messages)
+    }
+
+    /// Datagrams (node-protocols §2.5): `slots` datagrams of at most [`MAX_DATAGRAM_LEN`]
+    /// bytes, keyed by (source, destination) with [`Mti::DATAGRAM`] in the key. Two rules
+    /// differ from [`new`](Self::new):
+    ///
+    /// - A first frame while a datagram from the same source is open drops **both** the
+    ///   partial datagram and the new first frame ([`ReassemblyError::FirstBeforeLastEnded`],
+    ///   answered with the temporary 0x2042). Datagram Rejected carries no identifier and
+    ///   only one datagram may be outstanding per pair (DG §6.1), so the sender takes 0x2042
+    ///   as the answer to the datagram it is sending now and resends it; had the new first
+    ///   frame been kept, that datagram would arrive twice.
+    /// - The wait runs from the first frame, not from the latest one: 72 bytes take at most
+    ///   nine frames, and a stream of empty middle frames cannot hold a slot for ever.
+    pub fn for_datagrams(slots: usize, timeout: Duration) -> Self {
+        Self::with_rules(slots, MAX_DATAGRAM_LEN, timeout, Rules::Datagrams)
+    }
+
+    fn with_rules(slots: usize, max_len: usize, timeout: Duration, rules: Rules) -> Self {
         let slots = (0..slots)
             .map(|_| Slot { key: None, buffer: Vec::with_capacity(max_len), deadline: Instant::ZERO })
             .collect();
-        Reassembler { slots, max_len, timeout }
+        Reassembler { slots, max_len, timeout, rules }
     }
 
     /// Adds one frame's payload (data bytes 2..). Returns the whole payload when `position`
@@ -98,6 +186,10 @@ impl Reassembler {
                     None => return Err(ReassemblyError::NoFreeSlot),
                 };
                 let slot = self.slots.get_mut(index).ok_or(ReassemblyError::NoFreeSlot)?;
+                if open.is_some() && self.rules == Rules::Datagrams {
+                    slot.key = None;
+                    return Err(ReassemblyError::FirstBeforeLastEnded);
+                }
                 slot.key = Some(key);
                 slot.deadline = deadline;
                 slot.buffer.clear();
@@ -107,7 +199,9 @@ impl Reassembler {
             (FramePosition::Middle | FramePosition::Last, None) => Err(ReassemblyError::MiddleWithoutFirst),
             (FramePosition::Middle | FramePosition::Last, Some(index)) => {
                 let slot = self.slots.get_mut(index).ok_or(ReassemblyError::MiddleWithoutFirst)?;
-                slot.deadline = deadline;
+                if self.rules == Rules::Messages {
+                    slot.deadline = deadline;
+                }
                 append(slot, data, max_len)?;
                 if position == FramePosition::Last {
                     slot.key = None;
@@ -131,6 +225,12 @@ impl Reassembler {
         self.slots.iter().filter(|s| s.key.is_some()).map(|s| s.deadline).min()
     }
 
+    /// Drops the open message with `key`, if there is one; true if there was.
+    pub fn discard(&mut self, key: ReassemblyKey) -> bool {
+        let open = self.slots.iter_mut().find(|s| s.key == Some(key));
+        open.map(|slot| slot.key = None).is_some()
+    }
+
     /// Drops every open message from `source` (its alias was released).
     pub fn forget_source(&mut self, source: NodeAlias) {
         for slot in &mut self.slots {
@@ -150,6 +250,22 @@ impl Reassembler {
     /// Messages being assembled.
     pub fn open_count(&self) -> usize {
         self.slots.iter().filter(|s| s.key.is_some()).count()
+    }
+
+    /// Payload bytes held by the messages being assembled; never more than
+    /// [`bound`](Self::bound).
+    pub fn buffered(&self) -> usize {
+        self.slots.iter().filter(|s| s.key.is_some()).map(|s| s.buffer.len()).sum()
+    }
+
+    /// The most payload bytes held at once: slots times the longest message.
+    pub fn bound(&self) -> usize {
+        self.slots.len().saturating_mul(self.max_len)
+    }
+
+    /// Bytes allocated for the slot buffers, all at construction: this never changes.
+    pub fn allocated(&self) -> usize {
+        self.slots.iter().map(|s| s.buffer.capacity()).sum()
     }
 }
 
@@ -242,6 +358,70 @@ mod tests {
         r.push(T0, key(1), FramePosition::First, &[0; 10]).unwrap();
         assert_eq!(r.push(T0, key(1), FramePosition::Middle, &[0; 7]), Err(ReassemblyError::TooLong));
         assert_eq!(r.open_count(), 0);
+    }
+
+    fn datagram_key(source: u16) -> ReassemblyKey {
+        ReassemblyKey {
+            source: NodeAlias::new(source).unwrap(),
+            destination: NodeAlias::new(0x456).unwrap(),
+            mti: Mti::DATAGRAM,
+        }
+    }
+
+    #[test]
+    fn datagram_second_first_drops_both() {
+        let mut r = Reassembler::for_datagrams(2, Duration::from_secs(3));
+        r.push(T0, datagram_key(0x123), FramePosition::First, &[1; 8]).unwrap();
+        assert_eq!(
+            r.push(T0, datagram_key(0x123), FramePosition::First, &[2; 8]),
+            Err(ReassemblyError::FirstBeforeLastEnded)
+        );
+        assert_eq!(r.open_count(), 0, "the partial datagram and the new first frame are gone");
+        assert_eq!(
+            r.push(T0, datagram_key(0x123), FramePosition::Last, &[3]),
+            Err(ReassemblyError::MiddleWithoutFirst)
+        );
+    }
+
+    #[test]
+    fn datagram_wait_runs_from_the_first_frame() {
+        let mut r = Reassembler::for_datagrams(1, Duration::from_secs(3));
+        r.push(T0, datagram_key(0x123), FramePosition::First, &[1; 8]).unwrap();
+        r.push(Instant::from_millis(2000), datagram_key(0x123), FramePosition::Middle, &[]).unwrap();
+        assert_eq!(r.poll_timeout(), Some(Instant::from_millis(3000)));
+        assert_eq!(r.take_expired(Instant::from_millis(3000)), Some(datagram_key(0x123)));
+    }
+
+    #[test]
+    fn datagram_of_72_bytes_fits_and_73_does_not() {
+        let mut r = Reassembler::for_datagrams(1, Duration::from_secs(3));
+        let allocated = r.allocated();
+        assert!(allocated >= MAX_DATAGRAM_LEN);
+        r.push(T0, datagram_key(0x123), FramePosition::First, &[0; 8]).unwrap();
+        for _ in 0..7 {
+            r.push(T0, datagram_key(0x123), FramePosition::Middle, &[0; 8]).unwrap();
+        }
+        assert_eq!(r.buffered(), 64);
+        let whole = r.push(T0, datagram_key(0x123), FramePosition::Last, &[9; 8]).unwrap().unwrap();
+        assert_eq!(whole.len(), 72);
+        r.push(T0, datagram_key(0x123), FramePosition::First, &[0; 8]).unwrap();
+        for _ in 0..8 {
+            r.push(T0, datagram_key(0x123), FramePosition::Middle, &[0; 8]).unwrap();
+        }
+        assert_eq!(r.push(T0, datagram_key(0x123), FramePosition::Last, &[0]), Err(ReassemblyError::TooLong));
+        assert_eq!(ReassemblyError::TooLong.datagram_code(), ErrorCode(0x1000));
+        assert_eq!(ReassemblyError::NoFreeSlot.datagram_code(), ErrorCode(0x2020));
+        assert_eq!(r.allocated(), allocated, "no buffer grew");
+        assert_eq!(r.bound(), MAX_DATAGRAM_LEN);
+    }
+
+    #[test]
+    fn error_counts_record_each_kind() {
+        let mut counts = ReassemblyErrorCounts::default();
+        counts.record(ReassemblyError::MiddleWithoutFirst);
+        counts.record(ReassemblyError::TooLong);
+        counts.record(ReassemblyError::TooLong);
+        assert_eq!((counts.middle_without_first, counts.too_long, counts.total()), (1, 2, 3));
     }
 
     #[test]

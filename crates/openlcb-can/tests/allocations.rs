@@ -1,6 +1,7 @@
 //! Counts heap allocations during a steady-state stream transfer through two `CanLink`s and
 //! two `StreamEndpoint`s: the links allocate nothing per frame on either side; the core
-//! allocates per message (one `Bytes` per Data Send, one per Proceed), not per frame.
+//! allocates per message (one `Bytes` per Data Send, one per Proceed), not per frame. Then
+//! 72-byte datagrams through the same links: framing and reassembly allocate nothing either.
 //!
 //! One test only in this file: the counter is global to the process.
 
@@ -11,7 +12,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use common::{A_ID, B_ID, Bus, Node, can_config};
 use openlcb_can::CanFrame;
-use openlcb_stream::{Config, Event, Instant, OpenOptions, StreamHandle};
+use openlcb_stream::{Config, Event, Instant, Message, Mti, OpenOptions, StreamHandle};
 
 struct Counting;
 
@@ -60,7 +61,7 @@ struct Tally {
 fn deliver(now: Instant, from: &mut Node, to: &mut Node, tally: &mut Tally) {
     loop {
         let before = allocations();
-        let Some(msg) = from.endpoint.poll_transmit() else {
+        let Some(msg) = from.endpoint().poll_transmit() else {
             break;
         };
         tally.core += allocations() - before;
@@ -81,7 +82,7 @@ fn deliver(now: Instant, from: &mut Node, to: &mut Node, tally: &mut Tally) {
         if frame.raw_id() >> 24 == 0x1F {
             tally.stream_frames += 1;
         }
-        let endpoint = &mut to.endpoint;
+        let endpoint = &mut to.stack;
         let mut in_core = 0;
         let before = allocations();
         to.link.handle_frame(now, &frame, |msg| {
@@ -103,19 +104,19 @@ fn transfer(now: Instant, a: &mut Node, b: &mut Node, stream: StreamHandle, tota
         if written < total {
             let chunk = &DATA[..(total - written).min(DATA.len())];
             let before = allocations();
-            written += a.endpoint.write(now, stream, chunk).unwrap();
+            written += a.endpoint().write(now, stream, chunk).unwrap();
             tally.core += allocations() - before;
         }
         deliver(now, a, b, tally);
         let before = allocations();
-        while let Some(event) = b.endpoint.poll_event() {
+        while let Some(event) = b.endpoint().poll_event() {
             if let Event::Readable { handle } = event {
-                while let Ok(n @ 1..) = b.endpoint.read(now, handle, &mut buf) {
+                while let Ok(n @ 1..) = b.endpoint().read(now, handle, &mut buf) {
                     read += n;
                 }
             }
         }
-        while a.endpoint.poll_event().is_some() {}
+        while a.endpoint().poll_event().is_some() {}
         tally.core += allocations() - before;
         deliver(now, b, a, tally);
     }
@@ -131,7 +132,7 @@ fn no_allocation_per_stream_frame_in_the_links() {
     ]);
     bus.advance_to(Instant::from_millis(200));
     let now = bus.now;
-    let stream = bus.nodes[0].endpoint.open(now, OpenOptions::new(common::node_id(B_ID), 2048)).unwrap();
+    let stream = bus.nodes[0].endpoint().open(now, OpenOptions::new(common::node_id(B_ID), 2048)).unwrap();
     bus.pump();
     let mut nodes = bus.nodes.into_iter();
     let (mut a, mut b) = (nodes.next().unwrap(), nodes.next().unwrap());
@@ -156,4 +157,25 @@ fn no_allocation_per_stream_frame_in_the_links() {
         tally.data_send_messages,
         tally.proceeds
     );
+
+    // Datagrams of 72 bytes, nine frames each, from A to B: the messages are built before
+    // counting (their payload is static), then sent, framed, reassembled and delivered.
+    static DATAGRAM: [u8; 72] = [0x5A; 72];
+    let (a_id, b_id) = (common::node_id(A_ID), common::node_id(B_ID));
+    let datagrams: Vec<Message> =
+        (0..100).map(|_| Message::addressed(Mti::DATAGRAM, a_id, b_id, &DATAGRAM[..])).collect();
+    let (mut in_links, mut frames, mut delivered) = (0, 0, 0);
+    for datagram in datagrams {
+        let before = allocations();
+        a.link.send(now, datagram).unwrap();
+        while let Some(frame) = a.link.poll_transmit() {
+            frames += 1;
+            b.link.handle_frame(now, &frame, |msg| {
+                delivered += usize::from(msg.mti == Mti::DATAGRAM && msg.payload == DATAGRAM);
+            });
+        }
+        in_links += allocations() - before;
+    }
+    assert_eq!((frames, delivered), (900, 100));
+    assert_eq!(in_links, 0, "allocations in the links over {frames} datagram frames");
 }

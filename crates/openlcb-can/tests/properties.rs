@@ -1,8 +1,8 @@
 //! Properties of framing: whatever is split into frames comes back whole, and every frame
-//! respects the layout rules of wire-spec §7.2 and §7.3.
+//! respects the layout rules of wire-spec §7.2 and §7.3 and node-protocols §2.5.
 
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
-use openlcb_can::{Fragments, FramePosition, NodeAlias, Reassembler, ReassemblyKey};
+use openlcb_can::{CanHeader, Fragments, FrameKind, FramePosition, NodeAlias, Reassembler, ReassemblyKey};
 use openlcb_stream::{Duration, Instant, Mti};
 use proptest::prelude::*;
 
@@ -54,6 +54,38 @@ proptest! {
             joined.extend_from_slice(&frame.payload()[1..]);
         }
         prop_assert_eq!(joined, data);
+    }
+
+    #[test]
+    fn datagrams_reassemble_to_themselves(payload in proptest::collection::vec(any::<u8>(), 0..=72)) {
+        let (source, destination) = (alias(0x123), alias(0x456));
+        let frames: Vec<_> = Fragments::new(Mti::DATAGRAM, source, Some(destination), &payload[..]).unwrap().collect();
+        prop_assert_eq!(frames.len(), payload.len().div_ceil(8).max(1));
+        let mut reassembler = Reassembler::for_datagrams(1, Duration::from_secs(3));
+        let key = ReassemblyKey { source, destination, mti: Mti::DATAGRAM };
+        let mut whole = None;
+        for (i, frame) in frames.iter().enumerate() {
+            let header = CanHeader::parse(frame.raw_id()).unwrap();
+            let FrameKind::Datagram { frame: part, destination: to } = header.kind else {
+                return Err(TestCaseError::fail("not a datagram frame"));
+            };
+            prop_assert_eq!((to, header.source), (destination, source));
+            let position = part.position();
+            let last = i + 1 == frames.len();
+            // All but the last frame are full; a middle frame is never empty.
+            prop_assert!(last || frame.payload().len() == 8);
+            prop_assert_eq!(position.is_last(), last);
+            let done = if position == FramePosition::Only {
+                Some(frame.payload().to_vec())
+            } else {
+                reassembler.push(Instant::ZERO, key, position, frame.payload()).unwrap().map(<[u8]>::to_vec)
+            };
+            if let Some(done) = done {
+                prop_assert!(last);
+                whole = Some(done);
+            }
+        }
+        prop_assert_eq!(whole, Some(payload));
     }
 
     #[test]

@@ -48,28 +48,28 @@ fn twenty_bytes_from_a_to_b_frame_for_frame() {
     // of the example gets DID 7 as published.
     for _ in 0..7 {
         let now = bus.now;
-        let handle = bus.nodes[A].endpoint.open(now, OpenOptions::new(b, 16)).unwrap();
+        let handle = bus.nodes[A].endpoint().open(now, OpenOptions::new(b, 16)).unwrap();
         bus.pump();
         assert!(opened(&bus.nodes[A], handle));
-        bus.nodes[A].endpoint.finish(now, handle).unwrap();
+        bus.nodes[A].endpoint().finish(now, handle).unwrap();
         bus.pump();
     }
-    assert_eq!(bus.nodes[B].endpoint.stream_count(), 0);
+    assert_eq!(bus.nodes[B].endpoint().stream_count(), 0);
     bus.clear_trace();
     bus.nodes[B].received.clear();
 
     let data: Vec<u8> = (0u8..20).collect();
     let now = bus.now;
     let options = OpenOptions::new(b, 16).source_stream(StreamId::new(4).unwrap());
-    let stream = bus.nodes[A].endpoint.open(now, options).unwrap();
+    let stream = bus.nodes[A].endpoint().open(now, options).unwrap();
     bus.pump();
     assert!(opened(&bus.nodes[A], stream));
-    let sent = bus.nodes[A].endpoint.write(now, stream, &data).unwrap();
+    let sent = bus.nodes[A].endpoint().write(now, stream, &data).unwrap();
     assert_eq!(sent, 16, "one window of credit");
     bus.pump();
-    let rest = bus.nodes[A].endpoint.write(now, stream, &data[sent..]).unwrap();
+    let rest = bus.nodes[A].endpoint().write(now, stream, &data[sent..]).unwrap();
     assert_eq!(rest, 4, "credit back after the Proceed");
-    bus.nodes[A].endpoint.finish(now, stream).unwrap();
+    bus.nodes[A].endpoint().finish(now, stream).unwrap();
     bus.pump();
 
     let expected = [

@@ -33,8 +33,11 @@ pub struct GatewayConfig {
     pub alias_cache_size: usize,
     /// Addressed multi-frame CAN messages assembled at once.
     pub reassembly_slots: usize,
-    /// How long a multi-frame CAN message may wait for its next frame.
+    /// How long a multi-frame CAN message may wait for its next frame, and a CAN datagram for
+    /// its last frame counted from its first.
     pub reassembly_timeout: Duration,
+    /// CAN datagrams (formats 3-5, at most 72 bytes) assembled at once.
+    pub datagram_slots: usize,
     /// How long a proxied node's alias check waits before RID (CFT §6.2.1: at least 200 ms).
     pub reserve_wait: Duration,
     /// How long a message for CAN waits for an AME to find its destination's alias before it
@@ -65,6 +68,7 @@ impl Default for GatewayConfig {
             alias_cache_size: 64,
             reassembly_slots: 8,
             reassembly_timeout: Duration::from_secs(3),
+            datagram_slots: 4,
             reserve_wait: Duration::from_millis(200),
             resolve_timeout: Duration::from_secs(1),
             merge_delay: Duration::from_millis(50),
@@ -78,7 +82,7 @@ impl GatewayConfig {
     /// The most payload bytes the gateway can hold between calls once its full-format output
     /// has been drained: a window per tracked stream, the untracked backlog, and the held and
     /// queued messages. Fixed tables (stream and proxy entries, the alias cache, the
-    /// reassembly slots) are allocated up front and not counted here.
+    /// reassembly and datagram slots) are allocated up front and not counted here.
     pub fn memory_bound(&self) -> usize {
         let streams = self.max_streams.saturating_mul(usize::from(self.max_window));
         let messages =

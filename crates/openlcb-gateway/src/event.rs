@@ -1,7 +1,7 @@
 //! What the gateway reports: [`GatewayEvent`]s, the [`StreamKey`] of a tracked stream, and
 //! [`GatewayStats`].
 
-use openlcb_can::NodeAlias;
+use openlcb_can::{NodeAlias, ReassemblyErrorCounts};
 use openlcb_stream::{NodeId, StreamId};
 
 /// The two sides of the gateway.
@@ -111,14 +111,19 @@ pub struct GatewayStats {
     /// Standard, remote, malformed frames, addressed frames without destination bytes and
     /// stream frames without a DID.
     pub invalid_frames: u64,
-    /// Datagram frames and full-format datagrams: counted and dropped, never forwarded.
-    pub datagrams_dropped: u64,
+    /// Datagrams forwarded: CAN datagrams reassembled for the full-format side, full-format
+    /// datagrams framed onto CAN (counted when queued).
+    pub datagrams_forwarded: u64,
+    /// CAN datagram framing errors, each answered with Datagram Rejected from the proxy
+    /// alias the datagram was addressed to.
+    pub datagram_errors: ReassemblyErrorCounts,
     /// MTIs with the special bit (0x2000) or without a CAN form: not forwarded.
     pub not_forwardable: u64,
     /// Addressed CAN traffic for CAN nodes, and full-format traffic for full-format nodes:
     /// it stays on its side.
     pub stayed_local: u64,
-    /// CAN messages from an alias whose Node ID is unknown (dropped).
+    /// CAN messages (datagrams included) from an alias whose Node ID is unknown: dropped, since
+    /// the full-format side needs a Node ID.
     pub unknown_source_dropped: u64,
     /// Full-format messages claiming the Node ID of a CAN node (dropped).
     pub echoes_dropped: u64,

@@ -88,8 +88,14 @@ pub fn gateway_ops(data: &[u8]) {
                 let source = input.pick(&ALIASES);
                 let target = input.pick(&ALIASES);
                 let mut payload = input.bytes(8);
-                let id = match input.byte() % 3 {
+                let id = match input.byte() % 4 {
                     0 => 0x1F00_0000 | (target << 12) | source,
+                    3 => {
+                        // A datagram frame (formats 2-5), to a proxy alias if there is one.
+                        let full = NodeId::new(NODES[usize::from(input.byte() % 2)]).unwrap();
+                        let to = gateway.proxy_alias(full).map_or(target, |a| u32::from(a.as_raw()));
+                        (0x1A + u32::from(input.byte() % 4)) << 24 | (to << 12) | source
+                    }
                     1 => {
                         if payload.len() >= 2 {
                             payload[0] = (payload[0] & 0x30) | (target >> 8) as u8;

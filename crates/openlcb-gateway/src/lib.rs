@@ -8,8 +8,21 @@
 //!   (learned from AMD, Verified Node ID and Initialization Complete), format-1 multi-frame
 //!   messages are reassembled, stream data frames (format 7) become Data Send messages.
 //!   Full-format messages become frames. MTIs with the special bit (0x2000) stay where they
-//!   are. Datagrams are counted and dropped in both directions (this gateway does not carry
-//!   them). Addressed traffic between two nodes on the same side stays on that side.
+//!   are. Addressed traffic between two nodes on the same side stays on that side.
+//! - **Datagrams** (node-protocols §2.5) cross both ways. CAN datagram frames (formats 2-5)
+//!   addressed to a proxy alias are reassembled in [`GatewayConfig::datagram_slots`] slots of
+//!   72 bytes, keyed by (source, destination) alias, and forwarded as one full-format
+//!   Datagram (0x1C48); framing errors are answered on CAN with Datagram Rejected from that
+//!   proxy alias, with the codes a CAN node uses (0x2041 middle or last without first, 0x2042
+//!   first while one is open, both dropped, 0x2020 no free slot, 0x1000 over 72 bytes, 0x2011
+//!   no last frame in time), and counted in [`GatewayStats::datagram_errors`]. A full-format
+//!   Datagram is framed as formats 2-5 from the proxy alias of its source (more than 72
+//!   bytes has no CAN form and is not forwarded). Datagram Received OK and Rejected are
+//!   ordinary addressed messages.
+//! - **Aliases only.** A CAN message (a datagram too) from an alias whose Node ID the gateway
+//!   has not learnt is dropped and counted ([`GatewayStats::unknown_source_dropped`]): unlike
+//!   a node's `CanLink`, which serves such a peer under a provisional name, the gateway has
+//!   no Node ID to put on the full-format side.
 //! - **Proxy aliases.** Each full-format node whose traffic goes onto CAN gets its own alias
 //!   login (CID 7..4, RID, AMD) before its first message; its messages are held (bounded)
 //!   until then. The gateway answers AME for those nodes, defends their aliases against CID,

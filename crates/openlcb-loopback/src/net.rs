@@ -831,6 +831,9 @@ impl Network {
                     } else {
                         link.handle_frame(now, &frame, |msg| stack.handle_message(now, msg));
                     }
+                    // Renames must reach the node before the next frame (the rule of
+                    // `CanLink::handle_frame`).
+                    apply_link_events(link, stack);
                 }
                 (Inbound::Bytes(bytes), Port::Tcp { link, .. }) => {
                     let mut input = &bytes[..];
@@ -902,21 +905,9 @@ impl Network {
     fn handle_events(&mut self, index: NodeIndex) -> bool {
         let mut any = false;
         // Link events first: they may end streams.
-        loop {
-            let Some(node) = self.nodes.get_mut(index) else { return any };
-            let event = match &mut node.port {
-                Port::Can { link, .. } => link.poll_event(),
-                Port::Tcp { .. } => None,
-            };
-            let Some(event) = event else { break };
-            any = true;
-            match event {
-                LinkEvent::AliasLost { .. } => node.stack.link_lost(),
-                LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => {
-                    node.stack.peer_lost(peer)
-                }
-                _ => {}
-            }
+        let Some(node) = self.nodes.get_mut(index) else { return any };
+        if let Port::Can { link, .. } = &mut node.port {
+            any |= apply_link_events(link, &mut node.stack);
         }
         loop {
             let Some(node) = self.nodes.get_mut(index) else { return any };
@@ -1172,4 +1163,19 @@ impl Network {
             .flatten()
             .min();
     }
+}
+
+/// Drains a CAN node's link events into its node; true if there was any.
+fn apply_link_events(link: &mut CanLink, node: &mut Node) -> bool {
+    let mut any = false;
+    while let Some(event) = link.poll_event() {
+        any = true;
+        match event {
+            LinkEvent::AliasLost { .. } => node.link_lost(),
+            LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
+            LinkEvent::PeerRenamed { from, to, .. } => node.rename_peer(from, to),
+            _ => {}
+        }
+    }
+    any
 }

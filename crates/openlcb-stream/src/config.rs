@@ -50,6 +50,20 @@ pub struct Config {
     /// while it held credit (a source that reset or went silent). `None` disables it.
     /// Default 60 s, four keep-alive intervals.
     pub idle_timeout: Option<Duration>,
+    /// As destination, terminate (TDE 0x2010) an accepted stream that has brought no payload
+    /// byte for this long (never longer than `idle_timeout`). `None` leaves only the idle
+    /// timeout. Default 5 s: a source sends its first data right after the Reply (one round
+    /// trip through a hub, well under a second, plus opening a file), so 5 s never cuts off a
+    /// real sender, while a peer that opens streams and sends nothing holds receive slots for
+    /// 5 s instead of the whole idle timeout (60 s). Keep-alives are not data: they keep a
+    /// stream that has started alive, not one that never did.
+    pub first_data_timeout: Option<Duration>,
+    /// As destination, how long a Complete that states more bytes than have arrived waits
+    /// for data still in flight before the stream ends with a count mismatch. In-flight data
+    /// is at most the credit the source holds and is already on the wire, so the grace only
+    /// covers reordering on CAN (a Complete out-arbitrates data frames) and gateway delays.
+    /// Default 2 s.
+    pub complete_grace: Duration,
     /// With [`AcceptPolicy::Ask`], how long a request may wait for the application's decision.
     /// Default 500 ms, inside the 750 ms the message network standard allows for a response.
     pub decision_timeout: Duration,
@@ -67,6 +81,8 @@ impl Default for Config {
             proceed_timeout: Duration::from_secs(30),
             keepalive_interval: Some(Duration::from_secs(15)),
             idle_timeout: Some(Duration::from_secs(60)),
+            first_data_timeout: Some(Duration::from_secs(5)),
+            complete_grace: Duration::from_secs(2),
             decision_timeout: Duration::from_millis(500),
         }
     }

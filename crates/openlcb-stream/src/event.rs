@@ -67,6 +67,9 @@ pub enum TimeoutKind {
     Proceed,
     /// The destination heard nothing from a source holding credit (TDE 0x2010 was sent).
     Idle,
+    /// The destination accepted a stream and no data came within
+    /// [`Config::first_data_timeout`](crate::Config::first_data_timeout) (TDE 0x2010 was sent).
+    FirstData,
     /// The application did not decide on an incoming request (it was refused with 0x2020).
     Decision,
 }
@@ -120,6 +123,15 @@ pub enum Event {
         stated: Option<u64>,
         /// `total` equals `stated` (true when nothing was stated).
         matched: bool,
+    },
+    /// As source: `finish` sent the Complete; the stream is over on this side and its handle
+    /// released. (The destination's storing of the data is its own business: the protocol
+    /// has no acknowledgement of a Complete.)
+    Sent {
+        /// The stream, now released.
+        handle: StreamHandle,
+        /// Bytes sent.
+        total: u64,
     },
     /// The stream ended early. As destination, data received before stays readable.
     Terminated {

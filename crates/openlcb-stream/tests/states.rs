@@ -226,6 +226,27 @@ fn open_credit_exhausted_proceed_times_out() {
 }
 
 #[test]
+fn open_write_without_credit_keeps_the_proceed_deadline() {
+    let mut b = Bench::new(config());
+    let h = b.open_source(16);
+    b.ep.write(b.now, h, &[0; 16]).unwrap();
+    b.sent();
+    // A driver calls `write` on every wake-up; each finds no credit.
+    for _ in 0..5 {
+        b.advance(Duration::from_secs(5));
+        assert_eq!(b.ep.write(b.now, h, &[0; 16]).unwrap(), 0);
+    }
+    b.advance(Duration::from_secs(5));
+    let tde = (Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x10, 0x08, 0x88]);
+    assert_eq!(b.sent().last(), Some(&tde));
+    assert_eq!(
+        b.events(),
+        [Event::TimedOut { handle: h, kind: TimeoutKind::Proceed }],
+        "30 s from when credit ran out"
+    );
+}
+
+#[test]
 fn open_proceed_restores_credit() {
     let mut b = Bench::new(config());
     let h = b.open_source(16);
@@ -263,6 +284,7 @@ fn open_finish_sends_complete_with_count() {
     b.ep.finish(b.now, h).unwrap();
     let sent = b.sent();
     assert_eq!(sent.last().unwrap(), &(Mti::STREAM_DATA_COMPLETE, vec![4, 7, 0, 0, 0, 5]));
+    assert_eq!(b.events(), [Event::Sent { handle: h, total: 5 }], "the source is told it is done");
     assert_eq!(b.ep.stream_count(), 0);
     assert_eq!(b.ep.write(b.now, h, b"x"), Err(openlcb_stream::StreamError::UnknownStream));
 }
@@ -532,6 +554,9 @@ fn open_tde_from_source_keeps_received_data() {
 fn open_source_silent_times_out() {
     let mut b = Bench::new(config());
     let (h, did) = b.open_destination();
+    b.peer(Mti::STREAM_DATA_SEND, &data(did, b"a"));
+    assert_eq!(read_all(&mut b, h), b"a");
+    b.events();
     b.advance(Duration::from_secs(59));
     b.peer(Mti::STREAM_DATA_SEND, &[did]); // a keep-alive restarts the wait
     b.advance(Duration::from_secs(59));
@@ -539,6 +564,32 @@ fn open_source_silent_times_out() {
     b.advance(Duration::from_secs(1));
     assert_eq!(b.sent(), [(Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x10, 0x1F, 0x88])]);
     assert_eq!(b.events(), [Event::TimedOut { handle: h, kind: TimeoutKind::Idle }]);
+}
+
+#[test]
+fn open_no_first_data_times_out_early() {
+    let mut b = Bench::new(config());
+    let (h, did) = b.open_destination();
+    b.advance(Duration::from_secs(4));
+    b.peer(Mti::STREAM_DATA_SEND, &[did]); // a keep-alive is not data
+    assert!(b.events().is_empty());
+    b.advance(Duration::from_secs(1));
+    assert_eq!(b.sent(), [(Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x10, 0x1F, 0x88])]);
+    assert_eq!(b.events(), [Event::TimedOut { handle: h, kind: TimeoutKind::FirstData }]);
+    assert_eq!(b.ep.stream_count(), 0, "the slot is free again");
+}
+
+#[test]
+fn draining_count_not_made_up_is_a_mismatch_after_the_grace() {
+    let mut b = Bench::new(config());
+    let (h, did) = b.open_destination();
+    b.peer(Mti::STREAM_DATA_SEND, &data(did, &[1; 7]));
+    b.peer(Mti::STREAM_DATA_COMPLETE, &[4, did, 0, 0, 0, 10]);
+    assert_eq!(b.events(), [Event::Readable { handle: h }], "3 bytes may still be in flight");
+    b.advance(Duration::from_secs(2));
+    assert_eq!(b.events(), [Event::Finished { handle: h, total: 7, stated: Some(10), matched: false }]);
+    assert!(b.sent().is_empty(), "the source has already finished: nothing to terminate");
+    assert_eq!(read_all(&mut b, h), [1; 7], "what arrived stays readable");
 }
 
 #[test]

@@ -67,6 +67,10 @@ pub(crate) struct Driver {
     flush_waiters: Vec<DoneReply>,
     read_buf: Vec<u8>,
     scratch: Vec<u8>,
+    /// See [`NodeOptions::write_timeout`].
+    write_timeout: std::time::Duration,
+    /// When the socket last took bytes, or had nothing to take.
+    last_write: tokio::time::Instant,
 }
 
 impl Driver {
@@ -79,10 +83,13 @@ impl Driver {
         incoming: mpsc::Sender<RecvStream>,
         shared: Shared,
     ) -> Self {
-        let NodeOptions { node_id, config, can, .. } = options;
+        let NodeOptions { node_id, config, can, write_timeout, .. } = options;
+        let start = tokio::time::Instant::now();
         Driver {
             socket,
-            start: tokio::time::Instant::now(),
+            start,
+            write_timeout,
+            last_write: start,
             endpoint: StreamEndpoint::new(node_id, config),
             wire: Wire::new(protocol, Instant::ZERO, node_id, can),
             stats: WireStats::default(),
@@ -126,11 +133,20 @@ impl Driver {
                     let _ = up.send(());
                 }
             }
-            let deadline = [self.wire.poll_timeout(), self.endpoint.poll_timeout()].into_iter().flatten().min();
-            if let Some(at) = deadline {
-                sleep.as_mut().reset(self.start + std::time::Duration::from_micros(at.as_micros()));
-            }
             let want_write = !self.wire.pending().is_empty();
+            let stalled_at = self.write_deadline(want_write);
+            if stalled_at.is_some_and(|at| at <= tokio::time::Instant::now()) {
+                return Error::WriteStalled(self.write_timeout);
+            }
+            let deadline = [self.wire.poll_timeout(), self.endpoint.poll_timeout()]
+                .into_iter()
+                .flatten()
+                .map(|at| self.start + std::time::Duration::from_micros(at.as_micros()))
+                .chain(stalled_at)
+                .min();
+            if let Some(at) = deadline {
+                sleep.as_mut().reset(at);
+            }
             tokio::select! {
                 ready = self.socket.readable() => {
                     if let Err(error) = ready.map_err(Error::lost).and_then(|()| self.read_socket()) {
@@ -155,6 +171,16 @@ impl Driver {
                 () = tokio::task::yield_now(), if busy => {}
             }
         }
+    }
+
+    /// When the pending output counts as stalled: [`NodeOptions::write_timeout`] after the
+    /// socket last took bytes. `None` while nothing waits to be written.
+    fn write_deadline(&mut self, want_write: bool) -> Option<tokio::time::Instant> {
+        if !want_write {
+            self.last_write = tokio::time::Instant::now();
+            return None;
+        }
+        Some(self.last_write + self.write_timeout)
     }
 
     /// The drive loop's work at one instant: timers, events, application data in and out,
@@ -230,6 +256,9 @@ impl Driver {
         match self.socket.try_write(pending) {
             Ok(n) => {
                 self.wire.advance(n, &mut self.stats);
+                if n > 0 {
+                    self.last_write = tokio::time::Instant::now();
+                }
                 Ok(())
             }
             Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => Ok(()),

@@ -32,12 +32,31 @@ pub enum Error {
     /// The connection to the hub broke or was closed by the hub.
     #[error("connection to the hub lost: {0}")]
     ConnectionLost(#[source] Arc<io::Error>),
+    /// The socket took none of the pending output for this long (the hub stopped reading):
+    /// the connection is given up, and every transfer on it ends.
+    #[error("the hub took no data for {} s; giving the connection up", .0.as_secs_f64())]
+    WriteStalled(std::time::Duration),
     /// The hub sent bytes that cannot be framed (an OpenLCB-TCP length that cannot be trusted).
     #[error("the hub sent undecodable data: {0}")]
     Protocol(String),
     /// The CAN alias could not be used: another node has this Node ID, or the login stalled.
     #[error("CAN alias login failed: {0}")]
     Login(&'static str),
+    /// Another node on the network has this node's Node ID. Found at login (`at_login`: this
+    /// node asked before claiming it, and the other node answered), the node never joined;
+    /// found later (the other node announced it), this node stopped sending at once, as the
+    /// CAN frame transfer standard requires.
+    #[error("{}", if *.at_login {
+        format!("another node on the network already has Node ID {node}; this node did not join (choose another Node ID)")
+    } else {
+        format!("another node announced Node ID {node}, this node's own; this node stopped (two nodes must never share a Node ID)")
+    })]
+    DuplicateNodeId {
+        /// The Node ID both nodes have.
+        node: NodeId,
+        /// Found before this node claimed the ID (it never joined).
+        at_login: bool,
+    },
     /// The destination refused the stream.
     #[error("node {peer} rejected the stream with code {code}{}", if code.class() == ReplyClass::Temporary { "; it may accept later" } else { "" })]
     Rejected {
@@ -110,6 +129,7 @@ fn timeout_text(peer: NodeId, kind: TimeoutKind) -> String {
         TimeoutKind::Reply => format!("node {peer} did not answer the stream request in time"),
         TimeoutKind::Proceed => format!("node {peer} stopped granting credit (no Data Proceed in time)"),
         TimeoutKind::Idle => format!("node {peer} went silent in the middle of the stream"),
+        TimeoutKind::FirstData => format!("node {peer} opened a stream and sent no data in time"),
         TimeoutKind::Decision => format!("the request from node {peer} was not decided on in time"),
         _ => format!("a wait for node {peer} ran out"),
     }

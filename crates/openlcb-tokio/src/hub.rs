@@ -10,6 +10,11 @@
 //!
 //! Every client has its own queue, bounded in bytes. A client that falls that far behind is
 //! disconnected (with a [`HubEvent::SlowClient`]): one slow client never stalls the rest.
+//! The number of clients is capped ([`HubOptions::max_clients`]; one more is told so and
+//! closed), TCP keep-alive finds clients that vanished, a client that says nothing at all
+//! for [`HubOptions::silent_timeout`] after connecting is closed, and a client that
+//! half-closes its socket (shuts down its sending side) still receives. Garbage is counted
+//! and reported at most once per [`GARBAGE_REPORT_INTERVAL`] per client.
 
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -18,7 +23,7 @@ use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use bytes::{Bytes, BytesMut};
-use openlcb_can::{GridConnectDecoder, gridconnect};
+use openlcb_can::{CanFrame, CanHeader, FrameKind, GridConnectDecoder, NodeAlias, gridconnect};
 use openlcb_tcp::Decoder;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
@@ -32,12 +37,23 @@ use openlcb_stream::NodeId;
 /// A connected client, numbered from 1 in order of arrival.
 pub type ClientId = u64;
 
+/// A client's garbage is reported at most this often (with a count of what was skipped).
+pub const GARBAGE_REPORT_INTERVAL: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// The most a client's writer holds for one `write` call, and what its buffer shrinks back to.
+const WRITE_BATCH: usize = 64 * 1024;
+
 /// Bounds and switches of a [`Hub`].
 #[derive(Debug, Clone)]
 #[non_exhaustive]
 pub struct HubOptions {
     /// Bytes queued for one client before it counts as too slow and is disconnected.
     pub max_queued_bytes: usize,
+    /// Clients connected at once (both listeners); one more is refused and closed.
+    pub max_clients: usize,
+    /// A client that sends nothing at all for this long after connecting is closed (a node
+    /// logs in at once; a silent connection is a stray or a port scan). `None` keeps them.
+    pub silent_timeout: Option<std::time::Duration>,
     /// Report every relayed frame as a [`HubEvent::Frame`].
     pub trace: bool,
     /// Events held for [`Hub::next_event`]; more are dropped and counted.
@@ -55,7 +71,9 @@ pub struct HubOptions {
 impl Default for HubOptions {
     fn default() -> Self {
         HubOptions {
-            max_queued_bytes: 8 * 1024 * 1024,
+            max_queued_bytes: 1024 * 1024,
+            max_clients: 64,
+            silent_timeout: Some(std::time::Duration::from_secs(60)),
             trace: false,
             event_capacity: 4096,
             bridge: true,
@@ -92,12 +110,28 @@ pub enum HubEvent {
         /// Bytes it had queued.
         queued: usize,
     },
-    /// A client sent something that is not a frame (reported once per run of errors).
+    /// A client sent something that is not a frame: at most one report per client per
+    /// [`GARBAGE_REPORT_INTERVAL`], and one when it leaves, with the count since the last.
     Garbage {
         /// Its number.
         client: ClientId,
-        /// What was wrong.
+        /// Undecodable pieces since the last report.
+        count: u64,
+        /// What was wrong with the first of them.
         error: String,
+    },
+    /// A client closed its sending side (or its connection: the hub finds out which at its
+    /// next write). It still receives; the aliases it held are released for it.
+    InputClosed {
+        /// Its number.
+        client: ClientId,
+    },
+    /// A client was refused: the hub has [`HubOptions::max_clients`] clients.
+    Refused {
+        /// Its address.
+        peer: SocketAddr,
+        /// Clients connected.
+        clients: usize,
     },
     /// A frame was relayed (only with [`HubOptions::trace`]).
     Frame {
@@ -124,6 +158,11 @@ pub struct HubStats {
     pub slow_clients: u64,
     /// Events dropped because nobody read them.
     pub events_dropped: u64,
+    /// Clients refused because the hub was full.
+    pub clients_refused: u64,
+    /// Bytes queued for all clients now (each client's share is bounded by
+    /// [`HubOptions::max_queued_bytes`]).
+    pub queued_bytes: usize,
 }
 
 pub(crate) struct Client {
@@ -133,7 +172,14 @@ pub(crate) struct Client {
     queue: mpsc::UnboundedSender<Bytes>,
     queued: Arc<AtomicUsize>,
     tasks: Vec<AbortHandle>,
+    /// Aliases the client announced (AMD) and has not released (AMR), at most
+    /// [`ALIASES_PER_CLIENT`]: when it leaves, the hub releases them for it.
+    aliases: Vec<(NodeAlias, NodeId)>,
 }
+
+/// Aliases remembered per GridConnect client (a gateway or a host of many virtual nodes has
+/// several; beyond this many the oldest is forgotten).
+const ALIASES_PER_CLIENT: usize = 32;
 
 pub(crate) struct State {
     options: HubOptions,
@@ -145,6 +191,7 @@ pub(crate) struct State {
     decode_errors: AtomicU64,
     slow_clients: AtomicU64,
     events_dropped: AtomicU64,
+    refused: AtomicU64,
 }
 
 impl State {
@@ -162,7 +209,8 @@ impl State {
             Protocol::Tcp => ClientId::MAX - 1,
         };
         let (queue, rx) = mpsc::unbounded_channel();
-        let client = Client { protocol, bridge: true, queue, queued: Arc::default(), tasks: Vec::new() };
+        let client =
+            Client { protocol, bridge: true, queue, queued: Arc::default(), tasks: Vec::new(), aliases: Vec::new() };
         if let Ok(mut clients) = self.clients.lock() {
             clients.insert(id, client);
         }
@@ -179,15 +227,65 @@ impl State {
         &self.options
     }
 
-    /// Removes a client and stops its tasks; `true` if it was still there.
+    /// Removes a client and stops its tasks; `true` if it was still there. The aliases it
+    /// still held are released for it (an AMR each, to every other GridConnect client and
+    /// the bridge): a node that left without a word is forgotten, and its Node ID may join
+    /// again, on either side.
     fn remove(&self, client: ClientId) -> bool {
         let removed = self.clients.lock().ok().and_then(|mut clients| clients.remove(&client));
         match removed {
             Some(entry) => {
                 entry.tasks.iter().for_each(AbortHandle::abort);
+                // Its queue goes with it: nothing it held counts any more.
+                entry.queued.store(0, Ordering::Relaxed);
+                self.relay_amrs(client, &entry.aliases);
                 true
             }
             None => false,
+        }
+    }
+
+    /// A client that stopped sending cannot hold or defend an alias any more: its aliases
+    /// are released for it at once, even though it still receives.
+    fn release_aliases(&self, client: ClientId) {
+        let aliases = self
+            .clients
+            .lock()
+            .ok()
+            .and_then(|mut clients| clients.get_mut(&client).map(|c| std::mem::take(&mut c.aliases)))
+            .unwrap_or_default();
+        self.relay_amrs(client, &aliases);
+    }
+
+    fn relay_amrs(&self, client: ClientId, aliases: &[(NodeAlias, NodeId)]) {
+        let mut chunk = BytesMut::new();
+        let mut text = [0u8; gridconnect::MAX_ENCODED_LEN];
+        for (alias, node) in aliases {
+            let header = CanHeader::control(FrameKind::AliasMapReset, *alias);
+            let Some(frame) = CanFrame::from_header(&header, &node.to_bytes()) else { continue };
+            if let Ok(len) = gridconnect::encode(&frame, &mut text) {
+                chunk.extend_from_slice(text.get(..len).unwrap_or_default());
+                chunk.extend_from_slice(b"\n");
+            }
+        }
+        if !chunk.is_empty() {
+            self.relay(client, Protocol::GridConnect, &chunk.freeze());
+        }
+    }
+
+    /// Follows a client's alias announcements (AMD) and releases (AMR). Called for control
+    /// frames only, which are rare (logins), not for every frame.
+    fn track_alias(&self, client: ClientId, frame: &CanFrame) {
+        let Ok(header) = frame.header() else { return };
+        let node = NodeId::from_slice(frame.payload());
+        let Ok(mut clients) = self.clients.lock() else { return };
+        let Some(entry) = clients.get_mut(&client) else { return };
+        entry.aliases.retain(|(alias, _)| *alias != header.source);
+        if let (FrameKind::AliasMapDefinition, Some(node)) = (header.kind, node) {
+            if entry.aliases.len() >= ALIASES_PER_CLIENT {
+                entry.aliases.remove(0);
+            }
+            entry.aliases.push((header.source, node));
         }
     }
 
@@ -241,7 +339,7 @@ impl Hub {
     pub async fn bind(listen: &str, tcp_listen: Option<&str>, options: HubOptions) -> Result<Hub, Error> {
         let bind = |addr: &str| {
             let addr = addr.to_string();
-            async move { TcpListener::bind(&addr).await.map_err(|source| Error::Bind { addr, source: Arc::new(source) }) }
+            async move { open_listener(&addr).await.map_err(|source| Error::Bind { addr, source: Arc::new(source) }) }
         };
         let listener = bind(listen).await?;
         let tcp_listener = match tcp_listen {
@@ -267,6 +365,7 @@ impl Hub {
             decode_errors: AtomicU64::new(0),
             slow_clients: AtomicU64::new(0),
             events_dropped: AtomicU64::new(0),
+            refused: AtomicU64::new(0),
         });
         let mut listeners = JoinSet::new();
         listeners.spawn(accept_loop(listener, Protocol::GridConnect, state.clone()));
@@ -301,6 +400,12 @@ impl Hub {
             decode_errors: state.decode_errors.load(Ordering::Relaxed),
             slow_clients: state.slow_clients.load(Ordering::Relaxed),
             events_dropped: state.events_dropped.load(Ordering::Relaxed),
+            clients_refused: state.refused.load(Ordering::Relaxed),
+            queued_bytes: state
+                .clients
+                .lock()
+                .map(|c| c.values().map(|c| c.queued.load(Ordering::Relaxed)).sum())
+                .unwrap_or(0),
         }
     }
 
@@ -308,6 +413,23 @@ impl Hub {
     pub async fn next_event(&mut self) -> Option<HubEvent> {
         self.events.recv().await
     }
+}
+
+/// A listener on `addr` whose connections keep segments below a small peer window
+/// (see [`SEGMENT_LIMIT`](crate::socket::SEGMENT_LIMIT): OpenMRN nodes shrink their buffers).
+async fn open_listener(addr: &str) -> std::io::Result<TcpListener> {
+    let mut last = std::io::Error::new(std::io::ErrorKind::InvalidInput, "the address resolves to nothing");
+    for address in tokio::net::lookup_host(addr).await? {
+        let socket =
+            if address.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
+        socket.set_reuseaddr(true)?;
+        crate::socket::limit_segments(&socket)?;
+        match socket.bind(address).and_then(|()| socket.listen(1024)) {
+            Ok(listener) => return Ok(listener),
+            Err(error) => last = error,
+        }
+    }
+    Err(last)
 }
 
 async fn accept_loop(listener: TcpListener, protocol: Protocol, state: Arc<State>) {
@@ -326,12 +448,21 @@ async fn accept_loop(listener: TcpListener, protocol: Protocol, state: Arc<State
 }
 
 fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, protocol: Protocol, state: &Arc<State>) {
+    let connected = state.clients.lock().map(|c| c.values().filter(|c| !c.bridge).count()).unwrap_or(0);
+    if connected >= state.options.max_clients {
+        state.refused.fetch_add(1, Ordering::Relaxed);
+        state.event(HubEvent::Refused { peer, clients: connected });
+        tasks.spawn(refuse(socket, protocol, connected));
+        return;
+    }
     let _ = socket.set_nodelay(true);
+    let _ = crate::socket::keep_alive(&socket);
     let id = state.next_id.fetch_add(1, Ordering::Relaxed);
     state.accepted.fetch_add(1, Ordering::Relaxed);
     let (queue, rx) = mpsc::unbounded_channel();
     let queued = Arc::new(AtomicUsize::new(0));
-    let client = Client { protocol, bridge: false, queue, queued: queued.clone(), tasks: Vec::new() };
+    let client =
+        Client { protocol, bridge: false, queue, queued: queued.clone(), tasks: Vec::new(), aliases: Vec::new() };
     if let Ok(mut clients) = state.clients.lock() {
         clients.insert(id, client);
     }
@@ -352,34 +483,99 @@ fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, pr
     }
 }
 
-/// Reads a client's frames, encodes each again and relays them in one chunk per read.
+/// Tells a client over the cap why it is closed. GridConnect clients get one line of text
+/// (decoders skip text outside frames); OpenLCB-TCP clients just see the close.
+async fn refuse(mut socket: TcpStream, protocol: Protocol, clients: usize) {
+    if protocol == Protocol::GridConnect {
+        let line = format!("hub full: {clients} clients connected; try again later\r\n");
+        let _ = tokio::time::timeout(std::time::Duration::from_secs(1), socket.write_all(line.as_bytes())).await;
+    }
+    let _ = socket.shutdown().await;
+}
+
+/// Garbage from one client, counted between reports.
+#[derive(Default)]
+struct GarbageReport {
+    count: u64,
+    first: Option<String>,
+    last_report: Option<tokio::time::Instant>,
+}
+
+impl GarbageReport {
+    /// Counts one piece; keeps the description of the first piece since the last report.
+    fn note(&mut self, error: impl FnOnce() -> String) {
+        self.count += 1;
+        if self.first.is_none() {
+            self.first = Some(error());
+        }
+    }
+
+    /// Reports what was counted if the interval is over (or `now_anyway`).
+    fn flush(&mut self, id: ClientId, state: &State, now_anyway: bool) {
+        let due = self.last_report.is_none_or(|at| at.elapsed() >= GARBAGE_REPORT_INTERVAL);
+        if self.count == 0 || !(due || now_anyway) {
+            return;
+        }
+        let error = self.first.take().unwrap_or_default();
+        state.event(HubEvent::Garbage { client: id, count: std::mem::take(&mut self.count), error });
+        self.last_report = Some(tokio::time::Instant::now());
+    }
+}
+
+/// Reads a client's frames, encodes each again and relays them in one chunk per read. At
+/// the end of its input (a half-close) the client stays: it still receives.
 async fn read_client(id: ClientId, mut reader: OwnedReadHalf, protocol: Protocol, state: Arc<State>) {
     let mut buf = vec![0u8; 16 * 1024];
     let mut gridconnect_decoder = GridConnectDecoder::default();
     let mut tcp_decoder = Decoder::default();
     let mut chunk = BytesMut::new();
+    let mut garbage = GarbageReport::default();
+    let mut heard = false;
+    let silent_deadline = state.options.silent_timeout.map(|t| tokio::time::Instant::now() + t);
     let reason = loop {
-        let n = match reader.read(&mut buf).await {
-            Ok(0) => break "closed the connection".to_string(),
-            Ok(n) => n,
-            Err(error) => break error.to_string(),
+        let read = reader.read(&mut buf);
+        let n = match silent_deadline.filter(|_| !heard) {
+            Some(at) => match tokio::time::timeout_at(at, read).await {
+                Ok(read) => read,
+                Err(_) => break Some("sent nothing since it connected".to_string()),
+            },
+            None => read.await,
         };
+        let n = match n {
+            Ok(0) => break None,
+            Ok(n) => n,
+            Err(error) => break Some(error.to_string()),
+        };
+        heard = true;
         let input = buf.get(..n).unwrap_or_default();
         let (frames, errors) = match protocol {
-            Protocol::GridConnect => relay_gridconnect(id, input, &mut gridconnect_decoder, &mut chunk, &state),
-            Protocol::Tcp => relay_tcp(id, input, &mut tcp_decoder, &mut chunk, &state),
+            Protocol::GridConnect => {
+                relay_gridconnect(id, input, &mut gridconnect_decoder, &mut chunk, &state, &mut garbage)
+            }
+            Protocol::Tcp => relay_tcp(id, input, &mut tcp_decoder, &mut chunk, &state, &mut garbage),
         };
+        garbage.flush(id, &state, false);
         state.frames.fetch_add(frames, Ordering::Relaxed);
         state.decode_errors.fetch_add(errors, Ordering::Relaxed);
         if !chunk.is_empty() {
             state.relay(id, protocol, &chunk.split().freeze());
         }
         if let Some(failure) = tcp_decoder.failure() {
-            break format!("sent an OpenLCB-TCP length that cannot be trusted ({failure})");
+            break Some(format!("sent an OpenLCB-TCP length that cannot be trusted ({failure})"));
         }
     };
-    if state.remove(id) {
-        state.event(HubEvent::Disconnected { client: id, reason });
+    garbage.flush(id, &state, true);
+    match reason {
+        Some(reason) => {
+            if state.remove(id) {
+                state.event(HubEvent::Disconnected { client: id, reason });
+            }
+        }
+        // A half-closed client keeps receiving; its writer ends it when the socket fails.
+        None => {
+            state.release_aliases(id);
+            state.event(HubEvent::InputClosed { client: id });
+        }
     }
 }
 
@@ -389,11 +585,15 @@ fn relay_gridconnect(
     decoder: &mut GridConnectDecoder,
     chunk: &mut BytesMut,
     state: &State,
+    garbage: &mut GarbageReport,
 ) -> (u64, u64) {
     let (mut frames, mut errors) = (0, 0);
     let mut text = [0u8; gridconnect::MAX_ENCODED_LEN];
     decoder.decode_all(input, |decoded| match decoded {
         Ok(frame) => {
+            if is_alias_map_frame(&frame) {
+                state.track_alias(id, &frame);
+            }
             if let Ok(len) = gridconnect::encode(&frame, &mut text) {
                 let text = text.get(..len).unwrap_or_default();
                 chunk.extend_from_slice(text);
@@ -406,13 +606,25 @@ fn relay_gridconnect(
         }
         Err(error) => {
             errors += 1;
-            state.event(HubEvent::Garbage { client: id, error: error.to_string() });
+            garbage.note(|| error.to_string());
         }
     });
     (frames, errors)
 }
 
-fn relay_tcp(id: ClientId, mut input: &[u8], decoder: &mut Decoder, chunk: &mut BytesMut, state: &State) -> (u64, u64) {
+/// An AMD or AMR: the frames that bind and release aliases.
+fn is_alias_map_frame(frame: &CanFrame) -> bool {
+    frame.header().is_ok_and(|h| matches!(h.kind, FrameKind::AliasMapDefinition | FrameKind::AliasMapReset))
+}
+
+fn relay_tcp(
+    id: ClientId,
+    mut input: &[u8],
+    decoder: &mut Decoder,
+    chunk: &mut BytesMut,
+    state: &State,
+    garbage: &mut GarbageReport,
+) -> (u64, u64) {
     let (mut frames, mut errors) = (0, 0);
     while let Some(decoded) = decoder.decode(&mut input) {
         match decoded {
@@ -432,7 +644,7 @@ fn relay_tcp(id: ClientId, mut input: &[u8], decoder: &mut Decoder, chunk: &mut 
             }
             Err(error) => {
                 errors += 1;
-                state.event(HubEvent::Garbage { client: id, error: error.to_string() });
+                garbage.note(|| error.to_string());
             }
         }
     }
@@ -447,21 +659,23 @@ async fn write_client(
     queued: Arc<AtomicUsize>,
     state: Arc<State>,
 ) {
-    const BATCH: usize = 256 * 1024;
-    let mut batch = Vec::with_capacity(BATCH);
+    let mut batch = Vec::new();
     let reason = loop {
         let Some(first) = queue.recv().await else { break None };
         batch.extend_from_slice(&first);
-        while batch.len() < BATCH {
+        while batch.len() < WRITE_BATCH {
             let Ok(more) = queue.try_recv() else { break };
             batch.extend_from_slice(&more);
         }
-        // Every byte here was added to `queued` before it was queued.
-        queued.fetch_sub(batch.len(), Ordering::Relaxed);
+        // Every byte here was added to `queued` before it was queued (a removed client's
+        // count is already 0).
+        let _ = queued.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |q| Some(q.saturating_sub(batch.len())));
         if let Err(error) = writer.write_all(&batch).await {
             break Some(error.to_string());
         }
         batch.clear();
+        // Memory goes back when a burst is over.
+        batch.shrink_to(WRITE_BATCH);
     };
     if state.remove(id) {
         let reason = reason.unwrap_or_else(|| "queue closed".to_string());

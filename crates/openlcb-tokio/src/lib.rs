@@ -75,6 +75,7 @@ mod driver;
 mod error;
 pub mod hub;
 mod node;
+mod socket;
 mod wire;
 
 pub use error::Error;

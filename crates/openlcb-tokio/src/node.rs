@@ -23,20 +23,30 @@ pub struct NodeOptions {
     /// The stream engine's bounds, window and timers. Its `accept_policy` decides incoming
     /// requests (`AcceptAll` by default: every accepted stream comes out of [`Node::accept`]).
     pub config: Config,
-    /// The CAN link's bounds and timers (GridConnect only).
+    /// The CAN link's bounds and timers (GridConnect only). By default the node asks
+    /// whether its Node ID is taken before claiming it (200 ms more at login): a second node
+    /// with a running node's ID then fails with [`Error::DuplicateNodeId`] and the running
+    /// node is not disturbed.
     pub can: CanConfig,
     /// How long to wait for the TCP connection and the alias login.
     pub connect_timeout: Duration,
+    /// How long the socket may take none of the pending output before the connection is
+    /// given up with [`Error::WriteStalled`] (a hub that stopped reading). Default 30 s,
+    /// the endpoint's Proceed timeout.
+    pub write_timeout: Duration,
 }
 
 impl NodeOptions {
     /// Defaults for the node `node_id`.
     pub fn new(node_id: NodeId) -> Self {
+        let mut can = CanConfig::default();
+        can.node_id_check = Some(can.reserve_wait);
         NodeOptions {
             node_id,
             config: Config::default(),
-            can: CanConfig::default(),
+            can,
             connect_timeout: Duration::from_secs(5),
+            write_timeout: Duration::from_secs(30),
         }
     }
 }
@@ -96,6 +106,22 @@ impl Control {
     }
 }
 
+/// The error a driver stopped with, once it has finished stopping (it records the error
+/// after it lets go of everything else).
+async fn driver_error(driver: JoinHandle<()>, shared: &Shared) -> Error {
+    let _ = tokio::time::timeout(Duration::from_secs(2), driver).await;
+    shared.error()
+}
+
+/// A TCP connection to `address` with this crate's segment limit and keep-alive.
+async fn connect_socket(address: std::net::SocketAddr) -> std::io::Result<TcpStream> {
+    let socket = if address.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
+    crate::socket::limit_segments(&socket)?;
+    let stream = socket.connect(address).await?;
+    crate::socket::keep_alive(&stream)?;
+    Ok(stream)
+}
+
 /// One OpenLCB node connected to a hub. A driver task runs its stack; this handle and its
 /// streams talk to it through channels. The node keeps answering the network (Verify Node ID,
 /// Protocol Support Inquiry, alias enquiries) as long as the handle or any stream lives.
@@ -132,7 +158,7 @@ impl Node {
         let socket = tokio::time::timeout(timeout, async {
             let mut last = std::io::Error::new(std::io::ErrorKind::NotFound, "the name resolves to no address");
             for address in lookup_host(addr).await? {
-                match TcpStream::connect(address).await {
+                match connect_socket(address).await {
                     Ok(socket) => return Ok(socket),
                     Err(error) => last = error,
                 }
@@ -156,7 +182,12 @@ impl Node {
         let control = Control { commands, shared };
         match tokio::time::timeout(timeout, up).await {
             Ok(Ok(())) => Ok(Node { node_id, control, incoming, driver }),
-            Ok(Err(_)) => Err(control.shared.error()),
+            // A connection that breaks before the login is done never reached a hub (a
+            // firewall or proxy that accepts and closes, a port that is not a hub).
+            Ok(Err(_)) => Err(match driver_error(driver, &control.shared).await {
+                Error::ConnectionLost(source) => Error::Connect { addr: addr.to_string(), source },
+                other => other,
+            }),
             Err(_) => {
                 driver.abort();
                 Err(Error::Login("the alias login did not finish in time"))
@@ -193,6 +224,18 @@ impl Node {
     /// own timeouts. (A node that is simply dropped stops once its last stream is done.)
     pub fn abort(self) {
         self.driver.abort();
+    }
+
+    /// Stops the node in an orderly way: whatever the driver still has to send (for example
+    /// the Terminate Due To Error of streams just aborted) is written first, within about a
+    /// second, then the connection closes. Drop or abort every stream first: the driver
+    /// runs while any of them lives.
+    pub async fn close(mut self) {
+        self.incoming.close();
+        let driver = std::mem::replace(&mut self.driver, tokio::spawn(async {}));
+        // Dropping the handle closes the command channel: the driver flushes and stops.
+        drop(self);
+        let _ = tokio::time::timeout(Duration::from_secs(2), driver).await;
     }
 
     /// Waits until the driver stops (the connection was lost) and returns why.

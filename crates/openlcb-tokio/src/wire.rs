@@ -42,6 +42,28 @@ pub struct WireStats {
 /// taking of more application data) until the socket has taken some.
 pub(crate) const HIGH_WATER: usize = 256 * 1024;
 
+/// Drains the CAN link's events into the endpoint. Returns an error the node cannot recover
+/// from.
+fn apply_link_events(link: &mut CanLink, permitted: &mut bool, endpoint: &mut StreamEndpoint) -> Result<(), Error> {
+    while let Some(event) = link.poll_event() {
+        match event {
+            LinkEvent::Permitted { .. } => *permitted = true,
+            LinkEvent::AliasLost { .. } => {
+                *permitted = false;
+                endpoint.link_lost();
+            }
+            LinkEvent::DuplicateNodeId { .. } => {
+                endpoint.link_lost();
+                return Err(Error::DuplicateNodeId { node: link.node_id(), at_login: !*permitted });
+            }
+            LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
+            LinkEvent::PeerRenamed { from, to, .. } => endpoint.rename_peer(from, to),
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// Messages handed to the CAN link at once; the rest wait in the driver's own queue (which
 /// the endpoint's credit bounds), so that nothing is ever refused for a full link queue.
 const CAN_LINK_QUEUE: usize = 16;
@@ -97,15 +119,22 @@ impl Wire {
     ) -> Result<(), Error> {
         stats.bytes_in += bytes.len() as u64;
         match self {
-            Wire::GridConnect { link, decoder, .. } => {
+            Wire::GridConnect { link, decoder, permitted, .. } => {
+                let mut result = Ok(());
                 decoder.decode_all(bytes, |decoded| match decoded {
                     Ok(frame) => {
                         stats.frames_in += 1;
                         link.handle_frame(now, &frame, |msg| endpoint.handle_message(now, msg));
+                        // Renames must reach the endpoint before the next frame (the rule of
+                        // `CanLink::handle_frame`).
+                        let applied = apply_link_events(link, permitted, endpoint);
+                        if result.is_ok() {
+                            result = applied;
+                        }
                     }
                     Err(_) => stats.decode_errors += 1,
                 });
-                Ok(())
+                result
             }
             Wire::Tcp { link } => {
                 let mut input = bytes;
@@ -143,22 +172,7 @@ impl Wire {
     /// The link's events, for the endpoint. Returns an error the node cannot recover from.
     pub(crate) fn poll_events(&mut self, endpoint: &mut StreamEndpoint) -> Result<(), Error> {
         let Wire::GridConnect { link, permitted, .. } = self else { return Ok(()) };
-        while let Some(event) = link.poll_event() {
-            match event {
-                LinkEvent::Permitted { .. } => *permitted = true,
-                LinkEvent::AliasLost { .. } => {
-                    *permitted = false;
-                    endpoint.link_lost();
-                }
-                LinkEvent::DuplicateNodeId { .. } => {
-                    endpoint.link_lost();
-                    return Err(Error::Login("another node on the network has this Node ID"));
-                }
-                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
-                _ => {}
-            }
-        }
-        Ok(())
+        apply_link_events(link, permitted, endpoint)
     }
 
     /// There is room to frame more application data.

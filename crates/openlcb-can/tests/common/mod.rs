@@ -7,7 +7,7 @@ pub mod published;
 
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
-use openlcb_stream::{Config, Event, Instant, Message, NodeId, StreamEndpoint};
+use openlcb_stream::{Config, Duration, Event, Instant, Message, NodeId, StreamEndpoint};
 
 pub const A_ID: u64 = 0x0501_0101_2200;
 pub const B_ID: u64 = 0x0501_0101_2201;
@@ -52,66 +52,98 @@ pub fn can_config(first_alias: u16) -> CanConfig {
 
 pub struct Node {
     pub link: CanLink,
-    pub endpoint: StreamEndpoint,
+    /// The node above the link (it answers the message-network basics, SNIP, datagrams).
+    pub stack: openlcb_node::Node,
     pub link_events: Vec<LinkEvent>,
     pub events: Vec<Event>,
+    /// The node's other events (datagrams, SNIP, ...).
+    pub node_events: Vec<openlcb_node::NodeEvent>,
+    /// Every message the link delivered, as it was delivered.
+    pub delivered: Vec<Message>,
     pub received: Vec<u8>,
     /// Read received stream data as it arrives.
     pub reading: bool,
 }
 
 impl Node {
-    /// A node that announces itself (Initialization Complete, the node layer's first message)
-    /// once its alias is permitted.
+    /// A link and the node above it, whose stream endpoint has the configuration `core`.
     pub fn new(now: Instant, id: u64, core: Config, can: CanConfig) -> Self {
-        let mut link = CanLink::new(now, node_id(id), can);
-        link.send(now, Message::initialization_complete(node_id(id))).expect("an empty queue takes it");
+        let mut config = openlcb_node::NodeConfig::default();
+        config.stream = core;
+        Node::with_config(now, id, config, can)
+    }
+
+    /// A link and the node above it.
+    pub fn with_config(now: Instant, id: u64, config: openlcb_node::NodeConfig, can: CanConfig) -> Self {
         Node {
-            link,
-            endpoint: StreamEndpoint::new(node_id(id), core),
+            link: CanLink::new(now, node_id(id), can),
+            stack: openlcb_node::Node::new(node_id(id), config),
             link_events: Vec::new(),
             events: Vec::new(),
+            node_events: Vec::new(),
+            delivered: Vec::new(),
             received: Vec::new(),
             reading: true,
         }
     }
 
-    /// Feeds one frame from the bus.
+    /// Feeds one frame from the bus, then the link's events to the node (the rule of
+    /// `CanLink::handle_frame`: renames before the next frame). Every delivered message is
+    /// recorded in `delivered`.
     pub fn receive(&mut self, now: Instant, frame: &CanFrame) {
-        let endpoint = &mut self.endpoint;
-        self.link.handle_frame(now, frame, |msg| endpoint.handle_message(now, msg));
+        let stack = &mut self.stack;
+        let delivered = &mut self.delivered;
+        self.link.handle_frame(now, frame, |msg| {
+            delivered.push(msg.to_message());
+            stack.handle_message(now, msg)
+        });
+        self.apply_link_events();
     }
 
-    /// Link events to the endpoint, endpoint messages to the link, data read. Returns the
-    /// frames the link has to send.
-    pub fn service(&mut self, now: Instant) -> Vec<CanFrame> {
+    /// Link events to the node, recorded in `link_events`.
+    pub fn apply_link_events(&mut self) {
         while let Some(event) = self.link.poll_event() {
             match event {
-                LinkEvent::AliasLost { .. } => self.endpoint.link_lost(),
-                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.endpoint.peer_lost(node),
+                LinkEvent::AliasLost { .. } => self.stack.link_lost(),
+                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.stack.peer_lost(node),
+                LinkEvent::PeerRenamed { from, to, .. } => self.stack.rename_peer(from, to),
                 _ => {}
             }
             self.link_events.push(event);
         }
+    }
+
+    /// Link events to the node, node messages to the link, data read. Returns the
+    /// frames the link has to send.
+    pub fn service(&mut self, now: Instant) -> Vec<CanFrame> {
+        self.apply_link_events();
         if self.reading {
             let mut buf = [0u8; 64];
-            for handle in self.endpoint.handles().collect::<Vec<_>>() {
-                while let Ok(n @ 1..) = self.endpoint.read(now, handle, &mut buf) {
+            for handle in self.endpoint().handles().collect::<Vec<_>>() {
+                while let Ok(n @ 1..) = self.endpoint().read(now, handle, &mut buf) {
                     self.received.extend_from_slice(&buf[..n]);
                 }
             }
         }
-        while let Some(event) = self.endpoint.poll_event() {
-            self.events.push(event);
+        while let Some(event) = self.stack.poll_event() {
+            match event {
+                openlcb_node::NodeEvent::Stream(event) => self.events.push(event),
+                other => self.node_events.push(other),
+            }
         }
-        while let Some(msg) = self.endpoint.poll_transmit() {
+        while let Some(msg) = self.stack.poll_transmit() {
             self.link.send(now, msg).expect("the link takes the message");
         }
         core::iter::from_fn(|| self.link.poll_transmit()).collect()
     }
 
+    /// The node's stream endpoint.
+    pub fn endpoint(&mut self) -> &mut StreamEndpoint {
+        self.stack.streams_mut()
+    }
+
     pub fn poll_timeout(&self) -> Option<Instant> {
-        [self.link.poll_timeout(), self.endpoint.poll_timeout()].into_iter().flatten().min()
+        [self.link.poll_timeout(), self.stack.poll_timeout()].into_iter().flatten().min()
     }
 }
 
@@ -162,7 +194,7 @@ impl Bus {
         self.now = t;
         for node in &mut self.nodes {
             node.link.handle_timeout(t);
-            node.endpoint.handle_timeout(t);
+            node.stack.handle_timeout(t);
         }
         self.pump();
     }
@@ -194,5 +226,70 @@ impl Bus {
     /// Forgets the trace so far.
     pub fn clear_trace(&mut self) {
         self.trace.clear();
+    }
+}
+
+/// One node (link + endpoint) driven by hand: frames in as text, frames out as text.
+pub struct Solo {
+    pub now: Instant,
+    pub node: Node,
+}
+
+/// A node configuration whose application takes every datagram (nothing is rejected above the
+/// link), so that tests see only what the link itself answers.
+pub fn claiming_every_datagram() -> openlcb_node::NodeConfig {
+    let mut config = openlcb_node::NodeConfig::default();
+    config.stream = core_config();
+    config.datagrams.claimed = (0..=255).collect();
+    config
+}
+
+impl Solo {
+    pub fn new(can: CanConfig) -> Self {
+        Solo::with_config(can, {
+            let mut config = openlcb_node::NodeConfig::default();
+            config.stream = core_config();
+            config
+        })
+    }
+
+    pub fn with_config(can: CanConfig, config: openlcb_node::NodeConfig) -> Self {
+        Solo { now: Instant::ZERO, node: Node::with_config(Instant::ZERO, A_ID, config, can) }
+    }
+
+    /// Logged in as 0x123, the login frames drained.
+    pub fn permitted() -> Self {
+        Self::permitted_with(can_config(0x123))
+    }
+
+    /// Logged in with `can` (whose first alias must be free), the login frames drained.
+    pub fn permitted_with(can: CanConfig) -> Self {
+        Self::logged_in(Solo::new(can))
+    }
+
+    /// `solo` logged in as 0x123, the login frames drained.
+    pub fn logged_in(mut solo: Solo) -> Self {
+        solo.advance_ms(200);
+        assert_eq!(solo.node.link.alias(), Some(alias(0x123)));
+        solo.node.link_events.clear();
+        solo
+    }
+
+    pub fn sent(&mut self) -> Vec<String> {
+        self.node.service(self.now).iter().map(text).collect()
+    }
+
+    pub fn inject(&mut self, texts: &[&str]) -> Vec<String> {
+        for t in texts {
+            self.node.receive(self.now, &frame(t));
+        }
+        self.sent()
+    }
+
+    pub fn advance_ms(&mut self, ms: u64) -> Vec<String> {
+        self.now += Duration::from_millis(ms);
+        self.node.link.handle_timeout(self.now);
+        self.node.stack.handle_timeout(self.now);
+        self.sent()
     }
 }

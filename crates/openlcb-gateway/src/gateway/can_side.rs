@@ -2,8 +2,8 @@
 
 use alloc::collections::VecDeque;
 
-use openlcb_can::{CanFrame, CanHeader, FrameKind, LoginEvent, NodeAlias};
-use openlcb_stream::{Instant, Message, NodeId};
+use openlcb_can::{CanFrame, CanHeader, Fragments, FrameKind, LoginEvent, NodeAlias, ReassemblyError, ReassemblyKey};
+use openlcb_stream::{Instant, Message, Mti, NodeId};
 
 use super::{
     ALIAS_RETRIES, CanBound, EVENT_BOUND, Gateway, InFlight, Readiness, Ready, Waiting, bump, raw_frame_bound,
@@ -118,10 +118,26 @@ impl Gateway {
         self.drop_ready(|source, _| source == alias);
     }
 
+    /// A CAN datagram addressed to a proxy alias could not be reassembled: counted, and
+    /// answered with Datagram Rejected from that proxy alias to the sender (DG §7.3.2), if
+    /// the alias is still held.
+    pub(super) fn datagram_failed(&mut self, key: ReassemblyKey, error: ReassemblyError) {
+        self.stats.datagram_errors.record(error);
+        if self.proxied_node(key.destination).is_none() {
+            return;
+        }
+        let code = error.datagram_code().0.to_be_bytes();
+        let rejected = Fragments::new(Mti::DATAGRAM_REJECTED, key.destination, Some(key.source), code)
+            .ok()
+            .and_then(|mut f| f.next());
+        self.queue_raw(rejected);
+    }
+
     /// A CAN node released its alias (AMR): forget it, drop what was queued for it, end its
     /// streams.
     pub(super) fn can_node_left(&mut self, alias: NodeAlias) {
         self.reassembly.forget_source(alias);
+        self.datagrams.forget_source(alias);
         if let Some(node) = self.cache.remove_alias(alias) {
             self.end_streams_of(node, StreamEnd::NodeGone);
         }

@@ -8,7 +8,10 @@ use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
 use bytes::Bytes;
-use openlcb_can::{AliasCache, CanFrame, Fragments, FrameKind, FramePosition, NodeAlias, Reassembler, ReassemblyKey};
+use openlcb_can::{
+    AliasCache, CanFrame, DatagramFrame, Fragments, FrameKind, FramePosition, NodeAlias, Reassembler, ReassemblyError,
+    ReassemblyKey,
+};
 use openlcb_stream::{Instant, Message, MessageRef, Mti, NodeId, StreamId};
 
 use crate::proxy::Proxy;
@@ -102,6 +105,7 @@ pub struct Gateway {
     proxies: Vec<Proxy>,
     cache: AliasCache,
     reassembly: Reassembler,
+    datagrams: Reassembler,
     streams: Vec<Tracked>,
     waiting: VecDeque<Waiting>,
     control: VecDeque<Ready>,
@@ -124,6 +128,7 @@ impl Gateway {
             proxies: Vec::with_capacity(config.max_proxied_nodes),
             cache: AliasCache::new(config.alias_cache_size),
             reassembly: Reassembler::new(config.reassembly_slots, config.max_message_len, config.reassembly_timeout),
+            datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
             streams: Vec::with_capacity(config.max_streams),
             waiting: VecDeque::with_capacity(config.max_held_messages),
             control: VecDeque::with_capacity(config.max_queued_messages),
@@ -220,14 +225,16 @@ impl Gateway {
             let complete = s.complete.as_ref().filter(|_| s.awaits_overtaken_data(self.now)).map(|c| c.deadline);
             [s.merge_deadline, complete, Some(s.last_activity + self.config.stream_idle_timeout)]
         });
-        logins.chain(waiting).chain(streams.flatten()).chain(self.reassembly.poll_timeout()).min()
+        let reassembly = [self.reassembly.poll_timeout(), self.datagrams.poll_timeout()];
+        logins.chain(waiting).chain(streams.flatten()).chain(reassembly.into_iter().flatten()).min()
     }
 
     // ----- inputs -----
 
     /// Runs every timer due at `now`: proxy alias checks, merge buffers due, Completes that
     /// waited long enough for overtaken data, alias resolutions that ran out, reassembly
-    /// timeouts and idle streams. Early or repeated calls are harmless.
+    /// timeouts (a datagram's is answered with Datagram Rejected 0x2011) and idle streams.
+    /// Early or repeated calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
         self.now = now;
         for proxy in &mut self.proxies {
@@ -236,6 +243,9 @@ impl Gateway {
         self.drain_login_events(now);
         while self.reassembly.take_expired(now).is_some() {
             bump(&mut self.stats.reassembly_errors);
+        }
+        while let Some(key) = self.datagrams.take_expired(now) {
+            self.datagram_failed(key, ReassemblyError::Timeout);
         }
         self.expire_resolutions(now);
         let mut index = 0;
@@ -281,7 +291,9 @@ impl Gateway {
             FrameKind::AliasMapEnquiry if data.is_empty() => self.cache.clear(),
             FrameKind::Message { can_mti } => self.can_message(now, header.source, Mti(can_mti), data),
             FrameKind::StreamData { destination } => self.can_stream_data(now, header.source, destination, data),
-            FrameKind::Datagram { .. } => bump(&mut self.stats.datagrams_dropped),
+            FrameKind::Datagram { frame: part, destination } => {
+                self.can_datagram(now, header.source, part, destination, data);
+            }
             FrameKind::ReservedFormat { .. } => bump(&mut self.stats.invalid_frames),
             _ => {}
         }
@@ -291,11 +303,10 @@ impl Gateway {
     pub fn handle_message(&mut self, now: Instant, msg: MessageRef<'_>) {
         self.now = now;
         bump(&mut self.stats.messages_in);
-        if msg.mti == Mti::DATAGRAM {
-            return bump(&mut self.stats.datagrams_dropped);
-        }
-        // MN §3.1.1: special MTIs never cross a gateway.
-        if msg.mti.is_special() || (msg.mti.is_stream_or_datagram() && msg.mti != Mti::STREAM_DATA_SEND) {
+        // MN §3.1.1: special MTIs never cross a gateway. Of the 0x1000 MTIs only Stream Data
+        // Send and Datagram have a CAN form.
+        let no_can_form = msg.mti.is_stream_or_datagram() && !matches!(msg.mti, Mti::STREAM_DATA_SEND | Mti::DATAGRAM);
+        if msg.mti.is_special() || no_can_form {
             return bump(&mut self.stats.not_forwardable);
         }
         if self.cache.peek_alias(msg.source).is_some() {
@@ -322,6 +333,9 @@ impl Gateway {
         }
         if !self.ensure_proxy(now, msg.source) {
             return bump(&mut self.stats.proxy_table_full);
+        }
+        if msg.mti == Mti::DATAGRAM {
+            bump(&mut self.stats.datagrams_forwarded);
         }
         self.forward(now, Side::Full, msg.to_message());
     }
@@ -359,6 +373,31 @@ impl Gateway {
         self.forward(now, Side::Can, Message::addressed(mti, node, destination, payload));
     }
 
+    /// A CAN datagram frame: reassembled when it is for a proxied node, forwarded whole.
+    fn can_datagram(&mut self, now: Instant, source: NodeAlias, frame: DatagramFrame, alias: NodeAlias, data: &[u8]) {
+        let Some(destination) = self.proxied_node(alias) else {
+            return bump(&mut self.stats.stayed_local);
+        };
+        let key = ReassemblyKey { source, destination: alias, mti: Mti::DATAGRAM };
+        let position = frame.position();
+        let payload = if position == FramePosition::Only {
+            // A whole datagram: the sender has given up any datagram it left open.
+            self.datagrams.discard(key);
+            Bytes::copy_from_slice(data)
+        } else {
+            match self.datagrams.push(now, key, position, data) {
+                Ok(Some(whole)) => Bytes::copy_from_slice(whole),
+                Ok(None) => return,
+                Err(error) => return self.datagram_failed(key, error),
+            }
+        };
+        let Some(node) = self.cache.node(source) else {
+            return bump(&mut self.stats.unknown_source_dropped);
+        };
+        bump(&mut self.stats.datagrams_forwarded);
+        self.forward(now, Side::Can, Message::addressed(Mti::DATAGRAM, node, destination, payload));
+    }
+
     fn can_stream_data(&mut self, now: Instant, source: NodeAlias, destination: NodeAlias, data: &[u8]) {
         let Some((&did, body)) = data.split_first() else {
             // Wire-spec §7.3: DLC 0 is invalid (no DID).
@@ -384,10 +423,10 @@ impl Gateway {
     }
 }
 
-/// The gateway's own control frames queued at once: an AME per held message, an AMR per
-/// evicted proxy.
+/// The gateway's own frames queued at once: an AME per held message, an AMR per evicted
+/// proxy, a Datagram Rejected per datagram slot (more rejects are dropped and counted).
 fn raw_frame_bound(config: &GatewayConfig) -> usize {
-    config.max_held_messages.saturating_add(config.max_proxied_nodes)
+    config.max_held_messages.saturating_add(config.max_proxied_nodes).saturating_add(config.datagram_slots)
 }
 
 fn other(side: Side) -> Side {

@@ -84,6 +84,8 @@ pub struct Net {
     pub from_gateway: Vec<CanFrame>,
     /// Frames the CAN node put on CAN.
     pub from_can_node: Vec<CanFrame>,
+    /// Messages the CAN node's link delivered.
+    pub can_delivered: Vec<Message>,
     /// Messages the gateway sent to the full-format node.
     pub to_full: Vec<Message>,
     /// Messages the full-format node sent to the gateway.
@@ -127,6 +129,7 @@ impl Net {
             gateway_link: TcpLink::new(node_id(GATEWAY_NODE)),
             from_gateway: Vec::new(),
             from_can_node: Vec::new(),
+            can_delivered: Vec::new(),
             to_full: Vec::new(),
             from_full: Vec::new(),
             gateway_events: Vec::new(),
@@ -225,17 +228,15 @@ impl Net {
             moved = true;
             self.from_gateway.push(frame);
             let endpoint = &mut self.can.endpoint;
-            self.can_link.handle_frame(now, &frame, |msg| endpoint.handle_message(now, msg));
+            let delivered = &mut self.can_delivered;
+            self.can_link.handle_frame(now, &frame, |msg| {
+                delivered.push(msg.to_message());
+                endpoint.handle_message(now, msg)
+            });
+            // The rule of `CanLink::handle_frame`: its events (renames) before the next frame.
+            self.apply_can_link_events();
         }
-        while let Some(event) = self.can_link.poll_event() {
-            match event {
-                LinkEvent::AliasLost { .. } => self.can.endpoint.link_lost(),
-                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => {
-                    self.can.endpoint.peer_lost(node)
-                }
-                _ => {}
-            }
-        }
+        self.apply_can_link_events();
 
         // Gateway -> TCP bytes -> full-format node.
         while let Some(message) = self.gateway.poll_message() {
@@ -255,6 +256,19 @@ impl Net {
         }
         self.max_memory = self.max_memory.max(self.gateway.memory_in_use());
         moved
+    }
+
+    fn apply_can_link_events(&mut self) {
+        while let Some(event) = self.can_link.poll_event() {
+            match event {
+                LinkEvent::AliasLost { .. } => self.can.endpoint.link_lost(),
+                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => {
+                    self.can.endpoint.peer_lost(node)
+                }
+                LinkEvent::PeerRenamed { from, to, .. } => self.can.endpoint.rename_peer(from, to),
+                _ => {}
+            }
+        }
     }
 
     /// Turns until nothing moves.

@@ -451,7 +451,9 @@ impl StreamEndpoint {
         if !rest.is_empty() {
             source.write_blocked = true;
         }
-        if source.credit == 0 {
+        // One deadline, from the moment credit ran out: a write that finds no credit changes
+        // no timer (drivers call `write` on every wake-up).
+        if source.credit == 0 && taken > 0 {
             stream.timers.set(Timer::Proceed, now + proceed_timeout);
         }
         if taken > 0 {
@@ -488,6 +490,8 @@ impl StreamEndpoint {
             count: CompleteCount::Total(source.sent as u32),
         };
         out.send_wire(Mti::STREAM_DATA_COMPLETE, stream.peer, &complete);
+        let total = source.sent;
+        out.event(Event::Sent { handle, total });
         self.release(handle);
         Ok(())
     }
@@ -753,7 +757,10 @@ impl StreamEndpoint {
             }
             _ => {
                 send_due_proceed(stream, out);
-                restart_idle(now, stream, idle);
+                // A keep-alive before any data does not lift the first-data wait.
+                if stream_received(stream) > 0 {
+                    restart_idle(now, stream, idle);
+                }
             }
         }
     }
@@ -780,7 +787,7 @@ impl StreamEndpoint {
         let Some(handle) = self.find(peer, Role::Destination, complete.destination_stream) else {
             return self.count(|s| &mut s.stray_completes);
         };
-        let idle = self.config.idle_timeout;
+        let grace = self.config.complete_grace;
         let Ok((stream, out)) = self.parts(handle) else { return };
         let Half::Destination(dest) = &mut stream.half else { return };
         if stream.source_stream != complete.source_stream || dest.state != DestinationState::Receiving {
@@ -795,9 +802,7 @@ impl StreamEndpoint {
             Some(missing) if missing <= dest.outstanding() => {
                 let expected = received.saturating_add(missing);
                 dest.state = DestinationState::Draining { expected };
-                if let Some(timeout) = idle {
-                    stream.timers.set(Timer::Idle, now + timeout);
-                }
+                stream.timers.set(Timer::Idle, now + grace);
             }
             // The count cannot be reached: it is below what arrived, or beyond any credit.
             Some(_) => {
@@ -877,6 +882,10 @@ impl StreamEndpoint {
         let Some(stream) = s.stream.as_mut() else { return };
         let handle = StreamHandle { slot: slot as u16, generation };
         let (peer, role) = (stream.peer, stream.role());
+        let draining = match &stream.half {
+            Half::Destination(Destination { state: DestinationState::Draining { expected }, .. }) => Some(*expected),
+            _ => None,
+        };
         match timer {
             Timer::Keepalive => {
                 if let (Ok(()), Some(interval)) = (send_flush(stream, &mut self.out), keepalive) {
@@ -884,9 +893,18 @@ impl StreamEndpoint {
                 }
             }
             Timer::Reply => self.end(handle, |h| Event::TimedOut { handle: h, kind: TimeoutKind::Reply }),
+            Timer::Idle if draining.is_some() => {
+                // The grace for in-flight data is over: the count cannot be made up.
+                let total = stream_received(stream);
+                self.finish_destination(handle, total, draining);
+            }
             Timer::Proceed | Timer::Idle => {
                 self.out.terminate(peer, ErrorCode::TIMEOUT, role);
-                let kind = if timer == Timer::Proceed { TimeoutKind::Proceed } else { TimeoutKind::Idle };
+                let kind = match timer {
+                    Timer::Proceed => TimeoutKind::Proceed,
+                    _ if stream_received(stream) == 0 => TimeoutKind::FirstData,
+                    _ => TimeoutKind::Idle,
+                };
                 self.end(handle, |h| Event::TimedOut { handle: h, kind });
             }
             Timer::Decision => {
@@ -900,7 +918,7 @@ impl StreamEndpoint {
     // ----- helpers -----
 
     fn accept_slot(&mut self, now: Instant, slot: usize, local_window: u16, early: bool) {
-        let idle = self.config.idle_timeout;
+        let (idle, first_data) = (self.config.idle_timeout, self.config.first_data_timeout);
         let Some(s) = self.slots.get_mut(slot) else { return };
         let handle = StreamHandle { slot: slot as u16, generation: s.generation };
         let Some(stream) = s.stream.as_mut() else { return };
@@ -908,7 +926,11 @@ impl StreamEndpoint {
         stream.window = window;
         stream.half = Half::Destination(Destination::new(window, early));
         stream.timers.stop(Timer::Decision);
-        if let Some(timeout) = idle {
+        let first_data = match (idle, first_data) {
+            (Some(idle), Some(first)) => Some(if first < idle { first } else { idle }),
+            (idle, first) => idle.or(first),
+        };
+        if let Some(timeout) = first_data {
             stream.timers.set(Timer::Idle, now + timeout);
         }
         let reply = InitiateReply {
@@ -1174,6 +1196,14 @@ fn send_due_proceed(stream: &mut Stream, out: &mut Outputs) -> bool {
     let proceed = DataProceed { source_stream: stream.source_stream, destination_stream: did };
     out.send_wire(Mti::STREAM_DATA_PROCEED, stream.peer, &proceed);
     true
+}
+
+/// Payload bytes a destination stream has received (0 for a source).
+fn stream_received(stream: &Stream) -> u64 {
+    match &stream.half {
+        Half::Destination(d) => d.received,
+        Half::Source(_) => 0,
+    }
 }
 
 /// Runs the idle timer only while the source holds credit: a source waiting for a Proceed

@@ -1,0 +1,362 @@
+//! Faulty and unusual hubs on 127.0.0.1: a hub that stops reading, one that closes at once,
+//! and a relay with the socket options of OpenMRN's `hub`. Every wait is bounded; every
+//! loop stops by itself.
+
+use std::future::Future;
+use std::time::Duration;
+
+use bytes::BytesMut;
+use openlcb_stream::{Message, Mti, NodeId, OpenOptions};
+use openlcb_tcp::{CaptureTime, Decoder, LinkPrefix, TcpFrame};
+use openlcb_tokio::{Error, Node, NodeOptions, Protocol};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+
+/// No single step of a test may take longer than this.
+const LIMIT: Duration = Duration::from_secs(120);
+
+async fn bounded<T>(what: &str, future: impl Future<Output = T>) -> T {
+    match tokio::time::timeout(LIMIT, future).await {
+        Ok(value) => value,
+        Err(_) => panic!("{what} did not finish within {LIMIT:?}"),
+    }
+}
+
+fn id(last: u8) -> NodeId {
+    NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, last])
+}
+
+/// Data that differs at every offset of a window.
+fn data(len: usize) -> Vec<u8> {
+    (0..len).map(|i| (i as u32).wrapping_mul(2_654_435_761).rotate_right(13) as u8).collect()
+}
+
+fn encode(out: &mut BytesMut, hub: NodeId, message: &Message) {
+    let prefix = LinkPrefix { gateway: hub, capture_time: CaptureTime::wrapping(0) };
+    TcpFrame::new(prefix, message.as_ref()).encode_to(out).unwrap();
+}
+
+/// A hub that answers the first Initiate Request with an accept and a great deal of credit,
+/// then never reads again: the sender's output piles up in the socket.
+async fn hub_that_stops_reading(listener: TcpListener, me: NodeId, sender: NodeId) {
+    let (mut socket, _) = listener.accept().await.unwrap();
+    socket2::SockRef::from(&socket).set_recv_buffer_size(4096).unwrap();
+    let mut decoder = Decoder::default();
+    let mut buf = vec![0u8; 4096];
+    let sid = 'request: loop {
+        let n = socket.read(&mut buf).await.unwrap();
+        assert!(n > 0, "the node left before asking for a stream");
+        let mut input = &buf[..n];
+        while let Some(frame) = decoder.decode(&mut input) {
+            let message = frame.unwrap().message;
+            if message.mti == Mti::STREAM_INITIATE_REQUEST {
+                break 'request message.payload[4];
+            }
+        }
+    };
+    let mut out = BytesMut::new();
+    let reply = Message::addressed(Mti::STREAM_INITIATE_REPLY, me, sender, vec![0xFF, 0xFF, 0x80, 0x00, sid, 1]);
+    encode(&mut out, me, &reply);
+    for _ in 0..200 {
+        encode(&mut out, me, &Message::addressed(Mti::STREAM_DATA_PROCEED, me, sender, vec![sid, 1]));
+    }
+    socket.write_all(&out).await.unwrap();
+    // Hold the connection open, reading nothing, until the node gives it up.
+    let _ = socket.readable().await;
+    tokio::time::sleep(LIMIT).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hub_that_stops_reading_ends_the_transfer_with_write_stalled() {
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let (sender_id, receiver_id) = (id(0x10), id(0x11));
+    let hub = tokio::spawn(hub_that_stops_reading(listener, receiver_id, sender_id));
+    let mut options = NodeOptions::new(sender_id);
+    options.write_timeout = Duration::from_millis(500);
+    let node = bounded("joining", Node::connect(&addr, Protocol::Tcp, options)).await.unwrap();
+    let mut stream = bounded("opening", node.open(OpenOptions::new(receiver_id, 65535))).await.unwrap();
+    let chunk = data(1 << 20);
+    let outcome = bounded("writing into a hub that reads nothing", async {
+        // 13 MB of credit is more than any socket buffer takes; the loop ends on the error.
+        for _ in 0..64 {
+            stream.write_all(chunk.clone()).await?;
+        }
+        Ok::<_, Error>(())
+    })
+    .await;
+    assert!(matches!(outcome, Err(Error::WriteStalled(_))), "got {outcome:?}");
+    hub.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_port_that_closes_at_once_is_an_unreachable_hub() {
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let closer = tokio::spawn(async move {
+        // Accept and close, like a firewall or a service that is not a hub.
+        for _ in 0..4 {
+            let Ok((socket, _)) = listener.accept().await else { return };
+            drop(socket);
+        }
+    });
+    let outcome = bounded("connecting", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(id(0x12)))).await;
+    assert!(matches!(outcome, Err(Error::Connect { .. })), "got {outcome:?}");
+    closer.abort();
+}
+
+/// What OpenMRN's `hub` does to every client it accepts (`FdUtils::optimize_socket_fd`).
+fn openmrn_socket_options(socket: &TcpStream) {
+    let socket = socket2::SockRef::from(socket);
+    socket.set_recv_buffer_size(8192).unwrap();
+    socket.set_send_buffer_size(8192).unwrap();
+}
+
+/// Copies one client's bytes to the other, a frame's worth per write as OpenMRN's hub does.
+async fn pump(mut from: tokio::net::tcp::OwnedReadHalf, mut to: tokio::net::tcp::OwnedWriteHalf) {
+    let mut buf = vec![0u8; 8192];
+    loop {
+        let n = match from.read(&mut buf).await {
+            Ok(0) | Err(_) => return,
+            Ok(n) => n,
+        };
+        for piece in buf[..n].chunks(64) {
+            if to.write_all(piece).await.is_err() {
+                return;
+            }
+        }
+    }
+}
+
+/// A two-client relay with OpenMRN's socket options. Returns the segment size each client
+/// advertised (as the relay sees it).
+async fn small_window_relay(listener: TcpListener) -> [u32; 2] {
+    let (a, _) = listener.accept().await.unwrap();
+    let (b, _) = listener.accept().await.unwrap();
+    openmrn_socket_options(&a);
+    openmrn_socket_options(&b);
+    let mss = [&a, &b].map(|s| socket2::SockRef::from(s).tcp_mss().unwrap());
+    let (a_read, a_write) = a.into_split();
+    let (b_read, b_write) = b.into_split();
+    tokio::spawn(pump(a_read, b_write));
+    tokio::spawn(pump(b_read, a_write));
+    mss
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_large_window_crosses_a_relay_with_small_socket_buffers() {
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let relay = tokio::spawn(small_window_relay(listener));
+    let (sender_id, receiver_id) = (id(0x13), id(0x14));
+    let mut receiver =
+        bounded("joining", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(receiver_id))).await.unwrap();
+    let sender =
+        bounded("joining", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(sender_id))).await.unwrap();
+    // The cause of the stall through OpenMRN's hub: segments larger than the ~16 KB window
+    // such a hub advertises. Every node must keep its segments below it.
+    let mss = bounded("the relay", relay).await.unwrap();
+    assert!(mss.iter().all(|&m| m <= 8192), "segment sizes {mss:?} exceed a small hub's window");
+
+    let payload = data(1 << 20);
+    let send = async {
+        let mut stream = sender.open(OpenOptions::new(receiver_id, 65535)).await?;
+        stream.write_all(payload.clone()).await?;
+        stream.finish().await
+    };
+    let receive = async {
+        let mut stream = receiver.accept().await?;
+        let mut got = Vec::new();
+        while let Some(chunk) = stream.read().await? {
+            got.extend_from_slice(&chunk);
+        }
+        Ok::<_, Error>(got)
+    };
+    let (sent, got) = bounded("the transfer", async { tokio::try_join!(send, receive) }).await.unwrap();
+    assert_eq!(sent, payload.len() as u64);
+    assert!(got == payload, "the data arrived changed");
+}
+
+// ----- the hub and its bridge -----
+
+use openlcb_tokio::{Hub, HubEvent, HubOptions};
+
+async fn start_hub(options: HubOptions) -> Hub {
+    bounded("binding the hub", Hub::bind("127.0.0.1:0", Some("127.0.0.1:0"), options)).await.unwrap()
+}
+
+/// Moves `len` bytes from `sender` to `destination` and returns what `receiver` got.
+async fn small_transfer(sender: &Node, receiver: &mut Node, len: usize) -> Vec<u8> {
+    let destination = receiver.node_id();
+    let payload = data(len);
+    let send = async {
+        let mut stream = sender.open(OpenOptions::new(destination, 2048)).await?;
+        stream.write_all(payload.clone()).await?;
+        stream.finish().await
+    };
+    let receive = async {
+        let mut stream = receiver.accept().await?;
+        let mut got = Vec::new();
+        while let Some(chunk) = stream.read().await? {
+            got.extend_from_slice(&chunk);
+        }
+        Ok::<_, Error>(got)
+    };
+    let (_, got) = bounded("a transfer", async { tokio::try_join!(send, receive) }).await.unwrap();
+    assert!(got == payload, "the data arrived changed");
+    got
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_node_with_a_taken_node_id_refuses_to_join_and_the_first_keeps_running() {
+    let hub = start_hub(HubOptions::default()).await;
+    let addr = hub.local_addr().to_string();
+    let taken = id(0x20);
+    let join = |node| Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(node));
+    let mut first = bounded("joining", join(taken)).await.unwrap();
+    let second = bounded("joining again", join(taken)).await;
+    assert!(matches!(second, Err(Error::DuplicateNodeId { at_login: true, .. })), "got {second:?}");
+    let sender = bounded("joining", join(id(0x21))).await.unwrap();
+    small_transfer(&sender, &mut first, 10_000).await;
+}
+
+/// Waits (bounded in rounds) until the hub has `n` clients.
+async fn until_clients(hub: &Hub, n: usize) {
+    for _ in 0..500 {
+        if hub.stats().clients_connected == n {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    panic!("the hub never got to {n} clients: {:?}", hub.stats());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_id_that_left_the_gridconnect_side_can_join_over_openlcb_tcp() {
+    let mut hub = start_hub(HubOptions::default()).await;
+    let gridconnect = hub.local_addr().to_string();
+    let tcp = hub.tcp_local_addr().unwrap().to_string();
+    let roaming = id(0x22);
+    let sender = bounded("joining", Node::connect(&gridconnect, Protocol::GridConnect, NodeOptions::new(id(0x23))))
+        .await
+        .unwrap();
+    let mut was_here =
+        bounded("joining", Node::connect(&gridconnect, Protocol::GridConnect, NodeOptions::new(roaming)))
+            .await
+            .unwrap();
+    small_transfer(&sender, &mut was_here, 1000).await;
+    // It leaves without a word (no AMR), like a program that was killed.
+    was_here.abort();
+    bounded("the hub noticing", async {
+        while !matches!(hub.next_event().await, Some(HubEvent::InputClosed { .. }) | None) {}
+    })
+    .await;
+    let mut back = bounded("joining over OpenLCB-TCP", Node::connect(&tcp, Protocol::Tcp, NodeOptions::new(roaming)))
+        .await
+        .unwrap();
+    small_transfer(&sender, &mut back, 10_000).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_hub_refuses_a_client_over_its_cap_and_says_so() {
+    let mut options = HubOptions::default();
+    options.max_clients = 2;
+    let mut hub = start_hub(options).await;
+    let addr = hub.local_addr();
+    let _a = TcpStream::connect(addr).await.unwrap();
+    let _b = TcpStream::connect(addr).await.unwrap();
+    until_clients(&hub, 2).await;
+    let mut third = TcpStream::connect(addr).await.unwrap();
+    let mut said = String::new();
+    bounded("the refusal", third.read_to_string(&mut said)).await.unwrap();
+    assert!(said.contains("hub full"), "the refused client was told {said:?}");
+    let refused = bounded("the event", async {
+        loop {
+            if let Some(HubEvent::Refused { clients, .. }) = hub.next_event().await {
+                return clients;
+            }
+        }
+    })
+    .await;
+    assert_eq!(refused, 2);
+    assert_eq!(hub.stats().clients_refused, 1);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_half_closed_client_still_receives() {
+    let hub = start_hub(HubOptions::default()).await;
+    let addr = hub.local_addr();
+    let mut listener = TcpStream::connect(addr).await.unwrap();
+    listener.write_all(b":X19490123N;\n").await.unwrap();
+    listener.shutdown().await.unwrap();
+    let mut talker = TcpStream::connect(addr).await.unwrap();
+    until_clients(&hub, 2).await;
+    talker.write_all(b":X19170456N0501010122AA;\n").await.unwrap();
+    let mut got = vec![0u8; 64];
+    let n = bounded("the frame", listener.read(&mut got)).await.unwrap();
+    assert!(String::from_utf8_lossy(&got[..n]).contains(":X19170456N0501010122AA;"), "got {:?}", &got[..n]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn garbage_is_reported_in_aggregate_not_per_piece() {
+    let mut hub = start_hub(HubOptions::default()).await;
+    let mut noisy = TcpStream::connect(hub.local_addr()).await.unwrap();
+    let garbage = ":Xzz;\n".repeat(1000);
+    noisy.write_all(garbage.as_bytes()).await.unwrap();
+    drop(noisy);
+    let (mut reports, mut counted) = (0, 0);
+    bounded("the reports", async {
+        while let Some(event) = hub.next_event().await {
+            match event {
+                HubEvent::Garbage { count, .. } => {
+                    reports += 1;
+                    counted += count;
+                }
+                HubEvent::InputClosed { .. } => break,
+                _ => {}
+            }
+        }
+    })
+    .await;
+    assert_eq!(counted, hub.stats().decode_errors, "every piece is counted");
+    assert!(counted >= 1000, "counted {counted}");
+    assert!(reports <= 2, "{reports} reports for {counted} pieces");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_never_speaks_is_closed() {
+    let mut options = HubOptions::default();
+    options.silent_timeout = Some(Duration::from_millis(200));
+    let hub = start_hub(options).await;
+    let mut silent = TcpStream::connect(hub.local_addr()).await.unwrap();
+    let mut buf = [0u8; 16];
+    let n = bounded("the close", silent.read(&mut buf)).await.unwrap();
+    assert_eq!(n, 0, "closed by the hub");
+    until_clients(&hub, 0).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn clients_that_never_read_leave_no_queued_bytes_behind() {
+    let mut options = HubOptions::default();
+    options.max_queued_bytes = 64 * 1024;
+    let hub = start_hub(options).await;
+    let addr = hub.local_addr();
+    let mut idle = Vec::new();
+    for _ in 0..5 {
+        let socket = TcpStream::connect(addr).await.unwrap();
+        socket2::SockRef::from(&socket).set_recv_buffer_size(4096).unwrap();
+        idle.push(socket);
+    }
+    let mut flooder = TcpStream::connect(addr).await.unwrap();
+    until_clients(&hub, 6).await;
+    let frame = b":X19170456N0501010122AA;\n".repeat(1000);
+    for _ in 0..400 {
+        if hub.stats().slow_clients == 5 {
+            break;
+        }
+        bounded("flooding", flooder.write_all(&frame)).await.unwrap();
+    }
+    assert_eq!(hub.stats().slow_clients, 5, "{:?}", hub.stats());
+    until_clients(&hub, 1).await;
+    assert_eq!(hub.stats().queued_bytes, 0, "nothing is held for clients that are gone");
+}
