@@ -579,7 +579,12 @@ impl Network {
 
     /// A node, to script it directly (datagrams, SNIP).
     pub fn node(&mut self, node: NodeIndex) -> Option<&mut Node> {
-        self.nodes.get_mut(node).map(|n| &mut n.stack)
+        // A command given now may have queued messages: the node takes a turn at once.
+        let now = self.now;
+        self.nodes.get_mut(node).map(|n| {
+            n.wake = Some(n.wake.map_or(now, |w| w.min(now)));
+            &mut n.stack
+        })
     }
 
     /// The events other than stream events `node` raised since the last call (datagrams,

@@ -6,7 +6,7 @@ use alloc::vec::Vec;
 
 use bytes::Bytes;
 use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport};
-use openlcb_stream::{AcceptPolicy, Event, Instant, Message, MessageRef, Mti, NodeId, StreamEndpoint};
+use openlcb_stream::{AcceptPolicy, Event, Instant, Message, MessageRef, Mti, NodeId, StreamEndpoint, StreamHandle};
 
 use crate::datagram::{
     Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramService, OkFlags, rejected,
@@ -118,6 +118,8 @@ pub(crate) struct Outputs {
     /// `memory_inbox`, not to the application.
     memory_datagrams: Vec<DatagramId>,
     memory_inbox: VecDeque<NodeEvent>,
+    /// Streams Memory Configuration finished: their `Sent` event is its, not the application's.
+    memory_finished: Vec<StreamHandle>,
 }
 
 impl Outputs {
@@ -185,6 +187,15 @@ impl Cx<'_> {
         Some(id)
     }
 
+    /// Finishes a stream of Memory Configuration (its `Sent` event stays inside).
+    pub(crate) fn finish_stream(&mut self, handle: StreamHandle) -> bool {
+        let finished = self.streams.finish(self.now, handle).is_ok();
+        if finished {
+            self.out.memory_finished.push(handle);
+        }
+        finished
+    }
+
     /// Sends a reply datagram (its delivery is the datagram service's business).
     pub(crate) fn send_reply(&mut self, to: NodeId, payload: &[u8]) {
         let _ = self.send_datagram(to, payload);
@@ -225,6 +236,7 @@ impl Node {
             answers_dropped: 0,
             memory_datagrams: Vec::new(),
             memory_inbox: VecDeque::new(),
+            memory_finished: Vec::new(),
         };
         if config.send_initialization_complete {
             out.transmit(Message::initialization_complete(id));
@@ -733,8 +745,17 @@ impl Node {
                 let claimed = self.with_memory(now, |cx, server, client| {
                     server.is_some_and(|s| s.on_stream_event(cx, &event)) || client.on_stream_event(cx, &event)
                 });
+                let ours_sent = match event {
+                    Event::Sent { handle, .. } => self.out.memory_finished.iter().position(|h| *h == handle),
+                    _ => None,
+                };
                 match event {
                     _ if claimed => {}
+                    Event::Sent { .. } if ours_sent.is_some() => {
+                        if let Some(index) = ours_sent {
+                            self.out.memory_finished.swap_remove(index);
+                        }
+                    }
                     Event::IncomingRequest { handle, .. } if accept_for_application => {
                         let _ = self.streams.accept(now, handle, None);
                     }

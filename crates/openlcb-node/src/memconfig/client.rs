@@ -107,6 +107,9 @@ struct Operation {
     deadline: Option<Instant>,
     retries: u8,
     progress: u64,
+    /// A Read Reply shorter than asked for, at (offset, length): trusted only once a second
+    /// read says the same, since a CAN datagram that lost a middle frame looks just like one.
+    short_reply: Option<(u32, usize)>,
 }
 
 impl Operation {
@@ -252,6 +255,7 @@ impl MemoryClient {
             deadline: None,
             retries: 0,
             progress: 0,
+            short_reply: None,
         };
         self.operations.push(op);
         let index = self.operations.len() - 1;
@@ -516,6 +520,11 @@ impl MemoryClient {
             {
                 // MC §4.5: a reply may carry fewer bytes than asked for.
                 let n = data.len().min(len as usize);
+                if n < len as usize && op.short_reply != Some((at, n)) {
+                    op.short_reply = Some((at, n));
+                    return self.next_chunk(cx, index, at);
+                }
+                op.short_reply = None;
                 if let Kind::Read { data: buf, .. } = &mut op.kind {
                     buf.extend_from_slice(data.get(..n).unwrap_or_default());
                 }
@@ -728,7 +737,7 @@ impl MemoryClient {
         op.progress = sent;
         let all_out = sent >= payload.len() as u64;
         let acknowledged = cx.streams.credit(handle).is_some_and(|c| c > 0);
-        let finished = all_out && acknowledged && cx.streams.finish(cx.now, handle).is_ok();
+        let finished = all_out && acknowledged && cx.finish_stream(handle);
         op.step =
             Step::WriteStream { sid, handle: if finished { None } else { Some(handle) }, sent, finished, replied };
         if !finished {

@@ -587,7 +587,7 @@ impl MemoryServer {
             };
             let (handle, space, next, end) = (*handle, *space, *next, *end);
             if next >= end {
-                let _ = cx.streams.finish(cx.now, handle);
+                cx.finish_stream(handle);
                 return self.end(index, true);
             }
             // Without credit, one byte still goes to `write`: coming up short is what makes
