@@ -401,3 +401,130 @@ fn client_answers_an_initiate_request_before_the_datagram_ok() {
     );
     assert!(!events.iter().any(|e| matches!(e, NodeEvent::Stream(_))), "the read's stream events stay inside");
 }
+
+/// A scripted stand-in for OpenMRN's `Bootloader.hxx`, stream build, as node-protocols.md
+/// §4.5 reads it: no OK to Freeze (it logs in again), PIP `70 00 10 ..`, Write Stream Reply
+/// `20 30 addr EF` without stream IDs sent before the Initiate, a window of the largest
+/// power of two <= min(proposal, 1024), DID 0x5A always, 4-byte Proceeds sent only after a
+/// "flash write" of `flash_delay`, no Write Stream Reply after Complete, OK without flags
+/// to Unfreeze.
+struct OpenMrnBootloader {
+    flash_delay: Duration,
+    sid: u8,
+    window: usize,
+    received: Vec<u8>,
+    in_window: usize,
+    /// Proceeds waiting for their flash write to finish.
+    proceeds_due: Vec<Instant>,
+    completed: bool,
+    unfrozen: bool,
+}
+
+impl OpenMrnBootloader {
+    fn handle(&mut self, now: Instant, msg: &Message, out: &mut Vec<Message>) {
+        let send =
+            |out: &mut Vec<Message>, mti, payload: Vec<u8>| out.push(Message::addressed(mti, SERVER, CLIENT, payload));
+        match msg.mti {
+            Mti::DATAGRAM => match &msg.payload[..] {
+                [0x20, 0xA1, 0xEF] => send(out, Mti::INITIALIZATION_COMPLETE, SERVER.to_bytes().to_vec()),
+                [0x20, 0x20, a, b, c, d, 0xEF, sid] => {
+                    self.sid = *sid;
+                    send(out, Mti::DATAGRAM_RECEIVED_OK, vec![0x80]);
+                    send(out, Mti::DATAGRAM, vec![0x20, 0x30, *a, *b, *c, *d, 0xEF]);
+                }
+                [0x20, 0xA0, 0xEF] => {
+                    self.unfrozen = true;
+                    send(out, Mti::DATAGRAM_RECEIVED_OK, vec![]);
+                }
+                other => panic!("the bootloader got {other:02X?}"),
+            },
+            Mti::PROTOCOL_SUPPORT_INQUIRY => send(out, Mti::PROTOCOL_SUPPORT_REPLY, vec![0x70, 0, 0x10, 0, 0, 0]),
+            Mti::DATAGRAM_RECEIVED_OK => {}
+            Mti::STREAM_INITIATE_REQUEST => {
+                let proposal = usize::from(u16::from_be_bytes([msg.payload[0], msg.payload[1]]));
+                assert_eq!(msg.payload[4], self.sid);
+                let mut window = 1024;
+                while window > proposal {
+                    window /= 2;
+                }
+                self.window = window;
+                let w = (window as u16).to_be_bytes();
+                send(out, Mti::STREAM_INITIATE_REPLY, vec![w[0], w[1], 0x80, 0x00, self.sid, 0x5A]);
+            }
+            Mti::STREAM_DATA_SEND => {
+                assert_eq!(msg.payload[0], 0x5A);
+                let data = &msg.payload[1..];
+                self.received.extend_from_slice(data);
+                self.in_window += data.len();
+                assert!(self.in_window <= self.window, "window overrun");
+                if self.in_window == self.window {
+                    self.in_window = 0;
+                    self.proceeds_due.push(now + self.flash_delay);
+                }
+            }
+            Mti::STREAM_DATA_COMPLETE => {
+                assert_eq!(&msg.payload[..2], [self.sid, 0x5A]);
+                self.completed = true;
+            }
+            _ => {}
+        }
+    }
+}
+
+#[test]
+fn firmware_upgrade_against_a_scripted_openmrn_bootloader() {
+    for flash_delay in [Duration::from_millis(0), Duration::from_secs(5)] {
+        let mut client = Node::new(CLIENT, NodeConfig::default());
+        let mut target = OpenMrnBootloader {
+            flash_delay,
+            sid: 0,
+            window: 0,
+            received: Vec::new(),
+            in_window: 0,
+            proceeds_due: Vec::new(),
+            completed: false,
+            unfrozen: false,
+        };
+        let image = pattern(3000, 42);
+        let mut now = Instant::ZERO;
+        client.upgrade_firmware(now, SERVER, image.clone(), TransferPath::Auto).unwrap();
+        let mut done = None;
+        for _ in 0..100_000 {
+            let mut answers = Vec::new();
+            while let Some(m) = client.poll_transmit() {
+                target.handle(now, &m, &mut answers);
+            }
+            while target.proceeds_due.first().is_some_and(|t| *t <= now) {
+                target.proceeds_due.remove(0);
+                answers.push(Message::addressed(
+                    Mti::STREAM_DATA_PROCEED,
+                    SERVER,
+                    CLIENT,
+                    vec![target.sid, 0x5A, 0, 0],
+                ));
+            }
+            for a in &answers {
+                client.handle_message(now, a.as_ref());
+            }
+            for event in std::iter::from_fn(|| client.poll_event()) {
+                match event {
+                    NodeEvent::Memory(e) => done = Some(e),
+                    NodeEvent::Stream(e) => panic!("a stream event of the upgrade leaked: {e:?}"),
+                    _ => {}
+                }
+            }
+            if done.is_some() {
+                break;
+            }
+            if answers.is_empty() {
+                let next = [client.poll_timeout(), target.proceeds_due.first().copied()].into_iter().flatten().min();
+                now = next.expect("nothing to wait for: a hang").max(now);
+                client.handle_timeout(now);
+            }
+        }
+        assert!(matches!(done, Some(MemoryEvent::WriteDone { len: 3000, .. })), "{done:?}");
+        assert_eq!(target.window, 1024);
+        assert!(target.completed && target.unfrozen);
+        assert_eq!(target.received, image);
+    }
+}

@@ -457,6 +457,8 @@ impl MemoryClient {
 
     fn ask_protocols(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
         let op = self.operations.get_mut(index)?;
+        // A Freeze still waiting for its OK is answered by the restart: its outcome is moot.
+        op.datagram = None;
         op.step = Step::Protocols;
         op.deadline = Some(cx.now + cx.options.reply_timeout);
         let inquiry = Message::addressed(Mti::PROTOCOL_SUPPORT_INQUIRY, cx.out.node, op.peer, Bytes::new());
