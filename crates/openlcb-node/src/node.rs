@@ -202,9 +202,15 @@ impl Cx<'_> {
     }
 }
 
-/// One local OpenLCB node: the stream endpoint, the datagram service, SNIP and the
-/// message-network basics, in the handle / command / poll shape of the stream core. See the
-/// crate documentation for the drive loop.
+/// One local OpenLCB node: the stream endpoint, the datagram service, Memory
+/// Configuration, SNIP and the message-network basics, in the handle / command / poll shape
+/// of the stream core. See the crate documentation for the drive loop.
+///
+/// With [`AcceptPolicy::AcceptAll`] in [`NodeConfig::stream`] the node's endpoint runs with
+/// [`AcceptPolicy::Ask`] and the node accepts each request itself, at once, unless Memory
+/// Configuration claims it first (a Write Stream it was told of, a Read Stream it armed), so
+/// that those get the window the space can take; [`streams`](Node::streams)`().config()`
+/// shows `Ask`. With `RejectAll` no stream is taken, Memory Configuration's included.
 #[derive(Debug)]
 pub struct Node {
     config: NodeConfig,

@@ -611,7 +611,7 @@ impl Reply {
         }
     }
 
-    /// The datagram for this reply, strictly: the [MC] layouts, the short space code where
+    /// The datagram for this reply, strictly: the MC layouts, the short space code where
     /// there is one, a 3-byte "not present" space reply (C-10), no failure text.
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut out = Vec::with_capacity(16);
