@@ -298,3 +298,77 @@ fn figure_stream_backup_is_faster_than_datagram_backup() {
     );
     assert!(stream < datagrams, "stream {stream} s, datagrams {datagrams} s");
 }
+
+// ----- the worked examples, frame by frame -----
+
+const CDI: &str = "<?xml version=\"1.0\"?>\n<cdi xmlns:xsi=\"http://www.w3.org/2001/XMLSchema-instance\"></cdi>";
+
+fn example_server() -> MemoryServer {
+    MemoryServer::new().with_space(0xFD, RamSpace::new(512)).with_space(0xFF, ReadOnlySpace::cdi(CDI))
+}
+
+fn text(frame: &openlcb_can::CanFrame) -> String {
+    let mut buf = [0u8; 32];
+    let n = openlcb_can::gridconnect::encode(frame, &mut buf).unwrap();
+    String::from_utf8(buf[..n].to_vec()).unwrap()
+}
+
+#[test]
+fn worked_examples_9_1_9_2_and_9_6_frame_by_frame() {
+    let mut net = Network::new(1);
+    let bus = net.add_bus(125_000, 16);
+    let mut ct = NodeOptions::default();
+    ct.can.first_alias = openlcb_can::NodeAlias::new(0x123);
+    let mut target = NodeOptions::default();
+    target.can.first_alias = openlcb_can::NodeAlias::new(0x456);
+    target.memory_server = Some(example_server);
+    let client = net.add_can_node(node(1), bus, ct);
+    net.add_can_node(node(2), bus, target);
+    net.run_until(Instant::from_millis(1_000), 1_000_000).unwrap();
+    let mut exchange = |net: &mut Network, start: &dyn Fn(&mut Network)| -> Vec<String> {
+        net.record_frames();
+        start(net);
+        assert!(!matches!(finish(net, client, Duration::from_secs(10)), MemoryEvent::Failed { .. }));
+        net.recorded_frames().iter().map(|(_, f)| text(f)).collect()
+    };
+    // §9.1: a datagram write of 01..08 to 0xFD at 0, done at once (OK without Reply Pending).
+    let frames = exchange(&mut net, &|net| {
+        let now = net.now();
+        net.node(client)
+            .unwrap()
+            .write_memory(now, node(2), 0xFD, 0, (1..=8).collect::<Vec<u8>>(), TransferPath::Datagrams)
+            .unwrap();
+    });
+    assert_eq!(frames, [":X1B456123N2001000000000102;", ":X1D456123N030405060708;", ":X19A28456N012300;"]);
+    // §9.2: a read of 64 bytes of the CDI.
+    let frames = exchange(&mut net, &|net| {
+        let now = net.now();
+        net.node(client).unwrap().read_memory(now, node(2), 0xFF, 0, Some(64), TransferPath::Datagrams).unwrap();
+    });
+    assert_eq!(
+        frames,
+        [
+            ":X1A456123N20430000000040;",
+            ":X19A28456N012380;",
+            ":X1B123456N2053000000003C3F;",
+            ":X1C123456N786D6C2076657273;",
+            ":X1C123456N696F6E3D22312E30;",
+            ":X1C123456N223F3E0A3C636469;",
+            ":X1C123456N20786D6C6E733A78;",
+            ":X1C123456N73693D2268747470;",
+            ":X1C123456N3A2F2F7777772E77;",
+            ":X1C123456N332E6F72672F3230;",
+            ":X1D123456N30312F584D4C;",
+            ":X19A28123N045600;",
+        ]
+    );
+    // §9.6: Get Address Space Information for 0xFD (a datagram read to the end asks it first).
+    let frames = exchange(&mut net, &|net| {
+        let now = net.now();
+        net.node(client).unwrap().read_memory(now, node(2), 0xFD, 0, None, TransferPath::Datagrams).unwrap();
+    });
+    assert_eq!(
+        frames[..4],
+        [":X1A456123N2084FD;", ":X19A28456N012380;", ":X1A123456N2087FD000001FF00;", ":X19A28123N045600;"]
+    );
+}
