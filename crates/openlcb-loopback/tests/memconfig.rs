@@ -325,7 +325,7 @@ fn worked_examples_9_1_9_2_and_9_6_frame_by_frame() {
     let client = net.add_can_node(node(1), bus, ct);
     net.add_can_node(node(2), bus, target);
     net.run_until(Instant::from_millis(1_000), 1_000_000).unwrap();
-    let mut exchange = |net: &mut Network, start: &dyn Fn(&mut Network)| -> Vec<String> {
+    let exchange = |net: &mut Network, start: &dyn Fn(&mut Network)| -> Vec<String> {
         net.record_frames();
         start(net);
         assert!(!matches!(finish(net, client, Duration::from_secs(10)), MemoryEvent::Failed { .. }));
