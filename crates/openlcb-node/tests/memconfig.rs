@@ -116,11 +116,22 @@ fn read_back(node: &mut Node, space: u8) -> Vec<u8> {
     buf
 }
 
+impl Pair {
+    /// No stream event of Memory Configuration's transfers reached either application.
+    fn assert_no_stream_events(&self) {
+        let leaked = self.events.iter().chain(&self.server_events).find(|e| matches!(e, NodeEvent::Stream(_)));
+        assert!(leaked.is_none(), "{leaked:?}");
+    }
+}
+
 fn read_all(path: TransferPath, len: Option<u32>) -> MemoryEvent {
     let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 4096));
     pair.pump();
     pair.client.read_memory(pair.now, SERVER, 0xFD, 0, len, path).unwrap();
-    pair.finish()
+    let end = pair.finish();
+    pair.pump();
+    pair.assert_no_stream_events();
+    end
 }
 
 #[test]
@@ -174,6 +185,8 @@ fn write_then_verify(path: TransferPath) {
         MemoryEvent::WriteDone { len, .. } => assert_eq!(len, 5000),
         other => panic!("{other:?}"),
     }
+    pair.pump();
+    pair.assert_no_stream_events();
     let space = read_back(&mut pair.server, 0xFD);
     assert_eq!(&space[1000..6000], &data[..]);
     assert_eq!(&space[..1000], &pattern(8192, 7)[..1000]);
@@ -527,4 +540,17 @@ fn firmware_upgrade_against_a_scripted_openmrn_bootloader() {
         assert!(target.completed && target.unfrozen);
         assert_eq!(target.received, image);
     }
+}
+
+#[test]
+fn pip_has_memory_configuration_exactly_with_a_server() {
+    let plain = Node::new(SERVER, NodeConfig::default());
+    assert!(!plain.protocols().contains(Protocols::MEMORY_CONFIGURATION));
+    let config_only = Node::new(SERVER, NodeConfig::default())
+        .with_memory_server(MemoryServer::new().with_space(0xFD, RamSpace::new(16)));
+    let bits = config_only.protocols();
+    assert!(bits.contains(Protocols::MEMORY_CONFIGURATION | Protocols::DATAGRAM | Protocols::STREAM));
+    assert!(!bits.contains(Protocols::FIRMWARE_UPGRADE) && !bits.contains(Protocols::FIRMWARE_UPGRADE_ACTIVE));
+    let firmware = server_with(NodeConfig::default(), 16);
+    assert!(firmware.protocols().contains(Protocols::FIRMWARE_UPGRADE));
 }

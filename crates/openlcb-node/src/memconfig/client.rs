@@ -235,34 +235,28 @@ impl MemoryClient {
         }
         let id = MemoryOperation(self.next_id);
         self.next_id = self.next_id.wrapping_add(1);
-        let first = match (&kind, path) {
-            (Kind::Firmware { .. }, _) => Step::Freeze,
-            (_, TransferPath::Auto) if cx.streams_enabled => Step::Options,
-            (_, TransferPath::Stream) => Step::Chunk { at: 0, len: 0 },
-            _ => Step::Chunk { at: 0, len: 0 },
-        };
-        let stream_first = path == TransferPath::Stream && !matches!(kind, Kind::Firmware { .. });
-        let op = Operation {
+        let firmware = matches!(kind, Kind::Firmware { .. });
+        self.operations.push(Operation {
             id,
             peer,
             space,
             address,
             kind,
             path,
-            step: first,
+            step: Step::Options,
             datagram: None,
             awaiting_reply: false,
             deadline: None,
             retries: 0,
             progress: 0,
             short_reply: None,
-        };
-        self.operations.push(op);
+        });
         let index = self.operations.len() - 1;
-        let outcome = match first {
-            Step::Freeze => self.send(cx, index, Step::Freeze, &Command::Freeze { space: SPACE_FIRMWARE }),
-            Step::Options => self.send(cx, index, Step::Options, &Command::GetOptions),
-            _ if stream_first => self.begin_transfer(cx, index, true),
+        let outcome = match path {
+            // FWU §5.5: Freeze first; the PIP asked after it decides the path.
+            _ if firmware => self.send(cx, index, Step::Freeze, &Command::Freeze { space: SPACE_FIRMWARE }),
+            TransferPath::Auto if cx.streams_enabled => self.send(cx, index, Step::Options, &Command::GetOptions),
+            TransferPath::Stream => self.begin_transfer(cx, index, true),
             _ => self.begin_transfer(cx, index, false),
         };
         self.settle(cx, index, outcome);
@@ -562,9 +556,10 @@ impl MemoryClient {
     pub(crate) fn peer_restarted(&mut self, cx: &mut Cx<'_>, peer: NodeId) {
         let Some(index) = self.find(peer) else { return };
         let outcome = match self.operations.get(index).map(|o| o.step) {
+            // C-11: a Freeze answered by the target's restart (the OpenMRN Bootloader's way).
             Some(Step::Freeze) => self.ask_protocols(cx, index),
-            // The Initialization Complete after our Freeze's OK: ask again in the new state.
-            Some(Step::Protocols) => self.ask_protocols(cx, index),
+            // The Initialization Complete that follows our Freeze's OK: the inquiry sent after
+            // the OK reaches the restarted target (a lost one is asked again at the deadline).
             Some(Step::Unfreeze) => Some(Outcome::Done),
             // Streams and datagrams in flight end through their own events.
             _ => None,
