@@ -382,7 +382,7 @@ fn read_stream_server_order_is_ok_then_initiate_then_reply() {
 }
 
 #[test]
-fn client_answers_an_initiate_request_before_the_datagram_ok() {
+fn read_stream_against_a_scripted_server_in_openmrn_order() {
     // OpenMRN's order (§3.10): Initiate Request first, the OK only after the Initiate Reply.
     let mut client = Node::new(CLIENT, NodeConfig::default());
     let now = Instant::ZERO;
