@@ -32,7 +32,7 @@ struct TcpWire {
 impl Wire for TcpWire {
     fn carry(&mut self, now: Instant, from: &mut StreamEndpoint, to: &mut StreamEndpoint, a_to_b: bool) {
         let (sender, receiver) = if a_to_b { (&mut self.a, &mut self.b) } else { (&mut self.b, &mut self.a) };
-        sender.send_from(now, from).expect("encode");
+        sender.send_from(now, || from.poll_transmit()).expect("encode");
         carry(now, sender, receiver, to);
     }
 }

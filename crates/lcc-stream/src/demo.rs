@@ -67,8 +67,8 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
     let data = generate(args.bytes, 0x0501_0101_22F0);
 
     let mut receiver_options = NodeOptions::new(receiver_id);
-    receiver_options.config.max_window = args.window;
-    receiver_options.config.early_proceed = args.early_proceed;
+    receiver_options.node.stream.max_window = args.window;
+    receiver_options.node.stream.early_proceed = args.early_proceed;
     let mut receiver = match Node::connect(&addr, protocol, receiver_options).await {
         Ok(node) => node,
         Err(error) => return Ok(net::fail("demo receiver", &error)),

@@ -3,6 +3,7 @@
 mod demo;
 mod hub;
 mod net;
+mod nodes;
 mod recv;
 mod send;
 mod sim;
@@ -29,6 +30,8 @@ enum Command {
     Send(send::SendArgs),
     /// Join the network as a node and write every incoming stream to a file.
     Recv(recv::RecvArgs),
+    /// List the nodes on the network: Node ID, CAN alias, SNIP strings and protocols.
+    Nodes(nodes::NodesArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
 }
@@ -40,6 +43,7 @@ fn main() -> ExitCode {
         Command::Hub(args) => hub::run(&args),
         Command::Send(args) => send::run(&args),
         Command::Recv(args) => recv::run(&args),
+        Command::Nodes(args) => nodes::run(&args),
         Command::Demo(args) => demo::run(&args),
     };
     match result {

@@ -141,6 +141,18 @@ impl Interrupt {
     }
 }
 
+/// The Simple Node Information of an `lcc-stream` node running `command`, so that tools
+/// (`lcc-stream nodes`, JMRI) can tell what it is.
+pub(crate) fn snip(command: &str) -> openlcb_tokio::SnipInfo {
+    openlcb_tokio::SnipInfo {
+        manufacturer: "openlcb-stream".into(),
+        model: format!("lcc-stream {command}"),
+        hardware_version: std::env::consts::ARCH.into(),
+        software_version: env!("CARGO_PKG_VERSION").into(),
+        ..openlcb_tokio::SnipInfo::default()
+    }
+}
+
 /// A multi-threaded runtime for one subcommand.
 pub(crate) fn runtime() -> Result<tokio::runtime::Runtime, String> {
     tokio::runtime::Builder::new_multi_thread().enable_all().build().map_err(|e| format!("cannot start tokio: {e}"))

@@ -72,11 +72,12 @@ pub(crate) fn run(args: &RecvArgs) -> Result<ExitCode, String> {
 async fn receive(args: &RecvArgs) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
     let mut options = NodeOptions::new(args.node_id);
-    options.config.max_window = args.window;
-    options.config.early_proceed = args.early_proceed;
-    options.config.max_streams = usize::from(args.max_streams);
-    options.config.max_streams_per_peer = usize::from(args.max_streams_per_peer.min(args.max_streams));
-    options.config.idle_timeout = Some(Duration::from_secs(args.timeout).into());
+    options.node.snip = net::snip("recv");
+    options.node.stream.max_window = args.window;
+    options.node.stream.early_proceed = args.early_proceed;
+    options.node.stream.max_streams = usize::from(args.max_streams);
+    options.node.stream.max_streams_per_peer = usize::from(args.max_streams_per_peer.min(args.max_streams));
+    options.node.stream.idle_timeout = Some(Duration::from_secs(args.timeout).into());
     let connect = Node::connect(args.connect.addr(), args.connect.protocol.into(), options);
     let mut node = tokio::select! {
         connected = connect => match connected {

@@ -86,9 +86,10 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
     };
     let size = file.metadata().await.map(|m| m.len()).ok();
     let mut options = NodeOptions::new(args.node_id);
-    options.config.accept_policy = AcceptPolicy::RejectAll(ReplyCode::STREAMS_NOT_SUPPORTED);
-    options.config.reply_timeout = Duration::from_secs(args.timeout).into();
-    options.config.proceed_timeout = Duration::from_secs(args.timeout).into();
+    options.node.snip = net::snip("send");
+    options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::STREAMS_NOT_SUPPORTED);
+    options.node.stream.reply_timeout = Duration::from_secs(args.timeout).into();
+    options.node.stream.proceed_timeout = Duration::from_secs(args.timeout).into();
     let report_error = |error: &Error, bytes: u64, elapsed: Duration| {
         if args.json {
             let json = Json::default()

@@ -249,7 +249,7 @@ async fn a_rejected_stream_exits_4_with_the_meaning() {
     let hub = Hub::bind("127.0.0.1:0", None, HubOptions::default()).await.unwrap();
     let addr = hub.local_addr().to_string();
     let mut options = NodeOptions::new(RECEIVER.parse().unwrap());
-    options.config.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
+    options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
     let _busy = bounded("join", Node::connect(&addr, Protocol::GridConnect, options)).await.unwrap();
 
     let send = spawn(&["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &addr]);

@@ -274,3 +274,33 @@ fn global_ame_with_a_full_cache_drops_no_rename() {
     assert_eq!(renames(&solo.node.link_events).len(), 200);
     assert_eq!(solo.node.link.stats().queue_overflows, 0);
 }
+
+/// The flood of the issue: 1 000 aliases that never answer Verify send ten Initiate Requests
+/// each; every one of the 10 000 is answered (accepted, or 0x2020 once the stream table is
+/// full), and no table grows past its bound.
+#[test]
+fn ten_thousand_requests_from_a_thousand_silent_aliases_are_all_answered() {
+    let mut solo = Solo::permitted();
+    let link_config = solo.node.link.config().clone();
+    let max_streams = solo.node.endpoint().config().max_streams;
+    let (mut accepted, mut busy) = (0, 0);
+    for round in 1..=10u8 {
+        for raw in (0x200u16..).filter(|a| *a != 0x123).take(1000) {
+            let request = format!(":X19CC8{raw:03X}N012300100000{round:02X};");
+            for frame in solo.inject(&[&request]) {
+                let Some(reply) = frame.strip_prefix(&format!(":X19868123N0{raw:03X}")) else { continue };
+                match &reply[4..8] {
+                    "8000" => accepted += 1,
+                    "2020" => busy += 1,
+                    other => panic!("unexpected reply code {other} in {frame}"),
+                }
+            }
+            assert!(solo.node.endpoint().stream_count() <= max_streams);
+            assert!(solo.node.link.learning() <= link_config.learn_slots);
+            assert!(solo.node.link.cached_aliases() <= link_config.alias_cache_size);
+        }
+    }
+    assert_eq!(accepted + busy, 10_000, "every request answered");
+    assert_eq!(accepted, max_streams, "the table fills, then every request is refused as busy");
+    assert_eq!(solo.node.link.stats().queue_overflows, 0);
+}

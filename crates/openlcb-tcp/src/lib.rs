@@ -70,8 +70,8 @@
 //!
 //! let stream = a.open(now, OpenOptions::new(b_id, 256)).unwrap();
 //! for _ in 0..3 {
-//!     a_link.send_from(now, &mut a).unwrap();
-//!     b_link.send_from(now, &mut b).unwrap();
+//!     a_link.send_from(now, || a.poll_transmit()).unwrap();
+//!     b_link.send_from(now, || b.poll_transmit()).unwrap();
 //!     carry(now, &mut a_link, &mut b_link, &mut b);
 //!     carry(now, &mut b_link, &mut a_link, &mut a);
 //! }

@@ -3,7 +3,7 @@
 
 use alloc::vec::Vec;
 
-use openlcb_stream::{Instant, Message, MessageRef, NodeId, StreamEndpoint};
+use openlcb_stream::{Instant, Message, MessageRef, NodeId};
 
 use crate::{CaptureTime, DecodeError, Decoder, EncodeError, LinkPrefix, TcpFrame};
 
@@ -130,13 +130,18 @@ impl TcpLink {
         }
     }
 
-    /// Drains `endpoint`'s transmits into the link ([`send`](Self::send) each); returns how
-    /// many messages were encoded. Every message is drained even if one fails; the first
-    /// failure is returned (the core never builds such a message).
-    pub fn send_from(&mut self, now: Instant, endpoint: &mut StreamEndpoint) -> Result<usize, EncodeError> {
+    /// Drains a node's or an endpoint's transmits into the link ([`send`](Self::send) each),
+    /// usually `link.send_from(now, || node.poll_transmit())`; returns how many messages were
+    /// encoded. Every message is drained even if one fails; the first failure is returned (the
+    /// stack never builds such a message).
+    pub fn send_from(
+        &mut self,
+        now: Instant,
+        mut poll_transmit: impl FnMut() -> Option<Message>,
+    ) -> Result<usize, EncodeError> {
         let mut sent = 0;
         let mut first_error = None;
-        while let Some(message) = endpoint.poll_transmit() {
+        while let Some(message) = poll_transmit() {
             match self.send(now, &message) {
                 Ok(_) => sent += 1,
                 Err(error) => {

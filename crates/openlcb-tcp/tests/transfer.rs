@@ -60,7 +60,7 @@ struct Node {
 impl Node {
     /// Drains the endpoint into the link and takes the bytes the socket would write.
     fn transmit(&mut self, now: Instant) -> Vec<u8> {
-        self.link.send_from(now, &mut self.endpoint).unwrap();
+        self.link.send_from(now, || self.endpoint.poll_transmit()).unwrap();
         let wire = self.link.transmit_pending().to_vec();
         self.link.advance_transmit(wire.len());
         wire

@@ -1,16 +1,18 @@
-//! The driver task of a [`Node`](crate::Node): it owns the socket, the stream endpoint and the
+//! The driver task of a [`Node`](crate::Node): it owns the socket, the sans-IO node and the
 //! link, and runs the sans-IO drive loop (handle input, drain outputs, arm the timer) between
 //! the socket, the clock and the handles' commands.
 
 use std::collections::HashMap;
 
 use bytes::{Bytes, BytesMut};
+use openlcb_node::{NodeEvent, SnipRequestError};
 use openlcb_stream::wire::ErrorCode;
-use openlcb_stream::{Event, Instant, NodeId, Role, StreamEndpoint, StreamError, StreamHandle, StreamInfo};
+use openlcb_stream::{Event, Instant, NodeId, Role, StreamError, StreamHandle, StreamInfo};
 use tokio::net::TcpStream;
 use tokio::sync::{mpsc, oneshot};
 
 use crate::node::{Command, Control, NodeStats, Shared};
+use crate::requests::Requests;
 use crate::wire::{Wire, WireStats};
 use crate::{Error, NodeOptions, Protocol, RecvStream};
 
@@ -53,7 +55,10 @@ struct Receiving {
 pub(crate) struct Driver {
     socket: TcpStream,
     start: tokio::time::Instant,
-    endpoint: StreamEndpoint,
+    /// The sans-IO node: streams, datagrams, SNIP, the message-network basics.
+    stack: openlcb_node::Node,
+    /// Handles' questions to other nodes, waiting for the node's answers.
+    requests: Requests,
     wire: Wire,
     stats: WireStats,
     commands: mpsc::Receiver<Command>,
@@ -83,14 +88,15 @@ impl Driver {
         incoming: mpsc::Sender<RecvStream>,
         shared: Shared,
     ) -> Self {
-        let NodeOptions { node_id, config, can, write_timeout, .. } = options;
+        let NodeOptions { node_id, node, can, write_timeout, .. } = options;
         let start = tokio::time::Instant::now();
         Driver {
             socket,
             start,
             write_timeout,
             last_write: start,
-            endpoint: StreamEndpoint::new(node_id, config),
+            stack: openlcb_node::Node::new(node_id, node),
+            requests: Requests::default(),
             wire: Wire::new(protocol, Instant::ZERO, node_id, can),
             stats: WireStats::default(),
             commands,
@@ -138,7 +144,7 @@ impl Driver {
             if stalled_at.is_some_and(|at| at <= tokio::time::Instant::now()) {
                 return Error::WriteStalled(self.write_timeout);
             }
-            let deadline = [self.wire.poll_timeout(), self.endpoint.poll_timeout()]
+            let deadline = [self.wire.poll_timeout(), self.stack.poll_timeout()]
                 .into_iter()
                 .flatten()
                 .map(|at| self.start + std::time::Duration::from_micros(at.as_micros()))
@@ -188,17 +194,17 @@ impl Driver {
     /// if there may be more to do at once (the caller comes back without waiting).
     fn step(&mut self) -> Result<bool, Error> {
         let now = self.now();
-        let deadline = [self.wire.poll_timeout(), self.endpoint.poll_timeout()].into_iter().flatten().min();
+        let deadline = [self.wire.poll_timeout(), self.stack.poll_timeout()].into_iter().flatten().min();
         if deadline.is_some_and(|at| at <= now) {
             self.wire.handle_timeout(now);
-            self.endpoint.handle_timeout(now);
+            self.stack.handle_timeout(now);
         }
         let mut busy = false;
         for _ in 0..ROUNDS {
-            self.wire.poll_events(&mut self.endpoint)?;
-            self.endpoint_events(now);
+            self.wire.poll_events(&mut self.stack)?;
+            self.node_events(now);
             let moved = self.feed_writes(now) + self.fill_reads(now);
-            self.endpoint_events(now);
+            self.node_events(now);
             self.deliver_reads();
             let written = self.write_out(now)?;
             busy = moved > 0 || written > 0;
@@ -220,7 +226,7 @@ impl Driver {
     fn write_out(&mut self, now: Instant) -> Result<usize, Error> {
         let mut written = 0;
         loop {
-            self.wire.pump(now, &mut self.endpoint, &mut self.stats);
+            self.wire.pump(now, &mut self.stack, &mut self.stats);
             let pending = self.wire.pending().len();
             if pending == 0 {
                 return Ok(written);
@@ -240,7 +246,7 @@ impl Driver {
             Ok(n) => {
                 let now = self.now();
                 let bytes = self.read_buf.get(..n).unwrap_or_default();
-                self.wire.receive(now, bytes, &mut self.endpoint, &mut self.stats)
+                self.wire.receive(now, bytes, &mut self.stack, &mut self.stats)
             }
             Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => Ok(()),
             Err(error) => Err(Error::lost(error)),
@@ -269,7 +275,7 @@ impl Driver {
     /// Writes until every framed byte is out.
     async fn flush(&mut self) -> Result<(), Error> {
         loop {
-            self.wire.pump(self.now(), &mut self.endpoint, &mut self.stats);
+            self.wire.pump(self.now(), &mut self.stack, &mut self.stats);
             if self.wire.pending().is_empty() {
                 return Ok(());
             }
@@ -283,7 +289,7 @@ impl Driver {
     fn command(&mut self, command: Command) {
         let now = self.now();
         match command {
-            Command::Open { options, reply } => match self.endpoint.open(now, options) {
+            Command::Open { options, reply } => match self.stack.streams_mut().open(now, options) {
                 Ok(handle) => {
                     let sending =
                         Sending { peer: options.destination, opening: Some(reply), write: None, failed: None };
@@ -307,7 +313,7 @@ impl Driver {
                 Some(Sending { failed: Some(error), .. }) => {
                     let _ = reply.send(Err(error));
                 }
-                Some(_) => match self.endpoint.finish(now, handle) {
+                Some(_) => match self.stack.streams_mut().finish(now, handle) {
                     Ok(()) => self.flush_waiters.push(reply),
                     Err(error) => {
                         let _ = reply.send(Err(error.into()));
@@ -320,7 +326,7 @@ impl Driver {
             Command::Abort { handle, code } => {
                 self.sends.remove(&handle);
                 self.recvs.remove(&handle);
-                let _ = self.endpoint.abort(now, handle, code);
+                let _ = self.stack.streams_mut().abort(now, handle, code);
             }
             Command::Read { handle, reply } => match self.recvs.get_mut(&handle) {
                 Some(receiving) => receiving.reader = Some(reply),
@@ -328,16 +334,48 @@ impl Driver {
                     let _ = reply.send(Err(StreamError::UnknownStream.into()));
                 }
             },
+            Command::Discover { sink } => {
+                self.requests.listen_verified(sink);
+                self.stack.verify_all();
+            }
+            Command::Snip { peer, reply } => match self.stack.request_snip(now, peer) {
+                // A second question to the same node shares the request already out.
+                Ok(()) | Err(SnipRequestError::AlreadyPending) => {
+                    if let Err(reply) = self.requests.ask_snip(peer, reply) {
+                        let _ = reply.send(Err(Error::Busy));
+                    }
+                }
+                Err(_) => {
+                    let _ = reply.send(Err(Error::Busy));
+                }
+            },
+            Command::Protocols { peer, reply } => match self.requests.ask_protocols(peer, reply) {
+                Ok(()) => self.stack.request_protocols(peer),
+                Err(reply) => {
+                    let _ = reply.send(Err(Error::Busy));
+                }
+            },
+            Command::AliasOf { node, reply } => {
+                let _ = reply.send(self.wire.alias_of(node));
+            }
             Command::Stats { reply } => {
-                let _ = reply.send(NodeStats { wire: self.stats, endpoint: self.endpoint.stats() });
+                let _ = reply.send(NodeStats {
+                    wire: self.stats,
+                    endpoint: self.stack.streams().stats(),
+                    node: self.stack.stats(),
+                });
             }
         }
     }
 
-    // ----- the endpoint's events -----
+    // ----- the node's events -----
 
-    fn endpoint_events(&mut self, now: Instant) {
-        while let Some(event) = self.endpoint.poll_event() {
+    fn node_events(&mut self, now: Instant) {
+        while let Some(event) = self.stack.poll_event() {
+            let NodeEvent::Stream(event) = event else {
+                self.requests.answer(event);
+                continue;
+            };
             match event {
                 Event::Opened { handle, info } if info.role == Role::Source => {
                     if let Some(reply) = self.sends.get_mut(&handle).and_then(|s| s.opening.take()) {
@@ -396,7 +434,7 @@ impl Driver {
     /// or terminate it if nobody can take it.
     fn incoming_stream(&mut self, now: Instant, handle: StreamHandle, info: StreamInfo) {
         let Some(commands) = self.weak_commands.upgrade() else {
-            let _ = self.endpoint.abort(now, handle, ErrorCode::BUFFER_UNAVAILABLE);
+            let _ = self.stack.streams_mut().abort(now, handle, ErrorCode::BUFFER_UNAVAILABLE);
             return;
         };
         let control = Control { commands, shared: self.shared.clone() };
@@ -407,7 +445,7 @@ impl Driver {
             }
             Err(refused) => {
                 refused.into_inner().forget();
-                let _ = self.endpoint.abort(now, handle, ErrorCode::BUFFER_UNAVAILABLE);
+                let _ = self.stack.streams_mut().abort(now, handle, ErrorCode::BUFFER_UNAVAILABLE);
             }
         }
     }
@@ -423,7 +461,7 @@ impl Driver {
                 break;
             }
             let Some((data, _)) = &mut sending.write else { continue };
-            match self.endpoint.write(now, handle, data) {
+            match self.stack.streams_mut().write(now, handle, data) {
                 Ok(n) => {
                     taken += n;
                     bytes::Buf::advance(data, n);
@@ -441,7 +479,7 @@ impl Driver {
                 }
             }
             // Put the new Data Sends into the output now, so `has_room` sees them.
-            self.wire.pump(now, &mut self.endpoint, &mut self.stats);
+            self.wire.pump(now, &mut self.stack, &mut self.stats);
         }
         taken
     }
@@ -454,7 +492,7 @@ impl Driver {
             while receiving.staging.len() < STAGING_LIMIT {
                 let room = (STAGING_LIMIT - receiving.staging.len()).min(self.scratch.len());
                 let Some(buf) = self.scratch.get_mut(..room) else { break };
-                match self.endpoint.read(now, handle, buf) {
+                match self.stack.streams_mut().read(now, handle, buf) {
                     Ok(n @ 1..) => {
                         receiving.staging.extend_from_slice(buf.get(..n).unwrap_or_default());
                         taken += n;
@@ -468,7 +506,7 @@ impl Driver {
 
     /// Answers waiting readers with staged data, or with the end once everything was read.
     fn deliver_reads(&mut self) {
-        let endpoint = &self.endpoint;
+        let endpoint = self.stack.streams();
         self.recvs.retain(|&handle, receiving| {
             if receiving.reader.is_none() {
                 return true;

@@ -65,6 +65,25 @@ pub enum Error {
         /// The raw code; [`ReplyCode::meaning`] explains it.
         code: ReplyCode,
     },
+    /// A Simple Node Information request got no usable answer.
+    #[error("{}", crate::requests::snip_failure_text(*.peer, *.failure))]
+    Snip {
+        /// The node asked.
+        peer: NodeId,
+        /// What happened.
+        failure: openlcb_node::SnipFailure,
+    },
+    /// A node did not answer a question in time.
+    #[error("node {peer} did not answer the {what} in time")]
+    NoAnswer {
+        /// The node asked.
+        peer: NodeId,
+        /// The question.
+        what: &'static str,
+    },
+    /// Too many questions of this kind wait for answers already.
+    #[error("too many requests are waiting for answers; try again")]
+    Busy,
     /// No node with this Node ID answered on the network.
     #[error("node {0} is not on the network (nobody answered for that Node ID)")]
     Unreachable(NodeId),

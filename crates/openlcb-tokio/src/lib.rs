@@ -75,10 +75,18 @@ mod driver;
 mod error;
 pub mod hub;
 mod node;
+mod requests;
 mod socket;
 mod wire;
 
 pub use error::Error;
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};
-pub use node::{Node, NodeOptions, NodeStats, RecvStream, SendStream};
+pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStream};
+
+// What a user of this crate needs from the ones below it, so that sending a stream takes
+// this crate alone.
+pub use openlcb_can::CanConfig;
+pub use openlcb_node::{NodeConfig, Protocols, SnipInfo};
+pub use openlcb_stream::{Config as StreamConfig, NodeId, OpenOptions};
 pub use wire::{Protocol, WireStats};
+pub use {openlcb_can, openlcb_node, openlcb_stream};

@@ -5,8 +5,9 @@ use std::time::Duration;
 
 use bytes::Bytes;
 use openlcb_can::CanConfig;
+use openlcb_node::{NodeConfig, NodeStats as StackStats, Protocols, SnipInfo};
 use openlcb_stream::wire::ErrorCode;
-use openlcb_stream::{Config, NodeId, OpenOptions, Stats, StreamHandle, StreamInfo};
+use openlcb_stream::{NodeId, OpenOptions, Stats, StreamHandle, StreamInfo};
 use tokio::net::{TcpStream, lookup_host};
 use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
@@ -20,9 +21,10 @@ use crate::{Error, Protocol, WireStats};
 pub struct NodeOptions {
     /// This node's 48-bit Node ID. It must be unique on the network.
     pub node_id: NodeId,
-    /// The stream engine's bounds, window and timers. Its `accept_policy` decides incoming
-    /// requests (`AcceptAll` by default: every accepted stream comes out of [`Node::accept`]).
-    pub config: Config,
+    /// The node's bounds, timers and SNIP strings. Its stream configuration's `accept_policy`
+    /// decides incoming requests (`AcceptAll` by default: every accepted stream comes out of
+    /// [`Node::accept`]).
+    pub node: NodeConfig,
     /// The CAN link's bounds and timers (GridConnect only). By default the node asks
     /// whether its Node ID is taken before claiming it (200 ms more at login): a second node
     /// with a running node's ID then fails with [`Error::DuplicateNodeId`] and the running
@@ -43,7 +45,7 @@ impl NodeOptions {
         can.node_id_check = Some(can.reserve_wait);
         NodeOptions {
             node_id,
-            config: Config::default(),
+            node: NodeConfig::default(),
             can,
             connect_timeout: Duration::from_secs(5),
             write_timeout: Duration::from_secs(30),
@@ -59,16 +61,55 @@ pub struct NodeStats {
     pub wire: WireStats,
     /// The stream engine's counters of handled and refused input.
     pub endpoint: Stats,
+    /// The node's own counters (routing, answers, datagrams).
+    pub node: StackStats,
 }
+
+/// The longest [`Node::discover`] listens, however often nodes answer.
+pub const DISCOVER_LIMIT: Duration = Duration::from_secs(30);
 
 /// Requests from the handles to the driver task.
 pub(crate) enum Command {
-    Open { options: OpenOptions, reply: oneshot::Sender<Result<(StreamHandle, StreamInfo), Error>> },
-    Write { handle: StreamHandle, data: Bytes, reply: oneshot::Sender<Result<(), Error>> },
-    Finish { handle: StreamHandle, reply: oneshot::Sender<Result<(), Error>> },
-    Abort { handle: StreamHandle, code: ErrorCode },
-    Read { handle: StreamHandle, reply: oneshot::Sender<Result<Option<Bytes>, Error>> },
-    Stats { reply: oneshot::Sender<NodeStats> },
+    Open {
+        options: OpenOptions,
+        reply: oneshot::Sender<Result<(StreamHandle, StreamInfo), Error>>,
+    },
+    Write {
+        handle: StreamHandle,
+        data: Bytes,
+        reply: oneshot::Sender<Result<(), Error>>,
+    },
+    Finish {
+        handle: StreamHandle,
+        reply: oneshot::Sender<Result<(), Error>>,
+    },
+    Abort {
+        handle: StreamHandle,
+        code: ErrorCode,
+    },
+    Read {
+        handle: StreamHandle,
+        reply: oneshot::Sender<Result<Option<Bytes>, Error>>,
+    },
+    Stats {
+        reply: oneshot::Sender<NodeStats>,
+    },
+    /// Send Verify Node ID to everyone; forward every Verified Node ID to `sink`.
+    Discover {
+        sink: mpsc::Sender<NodeId>,
+    },
+    Snip {
+        peer: NodeId,
+        reply: oneshot::Sender<Result<SnipInfo, Error>>,
+    },
+    Protocols {
+        peer: NodeId,
+        reply: oneshot::Sender<Result<Protocols, Error>>,
+    },
+    AliasOf {
+        node: NodeId,
+        reply: oneshot::Sender<Option<u16>>,
+    },
 }
 
 /// Where the driver leaves the error it stopped with, for every handle to find.
@@ -174,7 +215,7 @@ impl Node {
         let node_id = options.node_id;
         let shared = Shared::default();
         let (commands, command_rx) = mpsc::channel(64);
-        let (incoming_tx, incoming) = mpsc::channel(options.config.max_streams.max(1));
+        let (incoming_tx, incoming) = mpsc::channel(options.node.stream.max_streams.max(1));
         let (up_tx, up) = oneshot::channel();
         let driver =
             Driver::new(socket, protocol, options, command_rx, commands.downgrade(), incoming_tx, shared.clone());
@@ -217,6 +258,46 @@ impl Node {
     /// Frame and stream counters.
     pub async fn stats(&self) -> Result<NodeStats, Error> {
         self.control.call(|reply| Command::Stats { reply }).await
+    }
+
+    /// Asks every node on the network who it is (global Verify Node ID) and returns the Node
+    /// IDs that answer, in the order they answered. It stops `quiet` after the last answer,
+    /// after `limit` answers, or after [`DISCOVER_LIMIT`] in all, whichever comes first.
+    pub async fn discover(&self, quiet: Duration, limit: usize) -> Result<Vec<NodeId>, Error> {
+        let (sink, mut answers) = mpsc::channel(limit.clamp(1, 1024));
+        if self.control.commands.send(Command::Discover { sink }).await.is_err() {
+            return Err(self.control.shared.error());
+        }
+        let give_up = tokio::time::Instant::now() + DISCOVER_LIMIT;
+        let mut found = Vec::new();
+        while found.len() < limit {
+            let wait = quiet.min(give_up.saturating_duration_since(tokio::time::Instant::now()));
+            match tokio::time::timeout(wait, answers.recv()).await {
+                Ok(Some(node)) if !found.contains(&node) => found.push(node),
+                Ok(Some(_)) => {}
+                Ok(None) => return Err(self.control.shared.error()),
+                Err(_) => break,
+            }
+        }
+        Ok(found)
+    }
+
+    /// Asks `peer` for its Simple Node Information (the node's SNIP timeout applies).
+    pub async fn snip(&self, peer: NodeId) -> Result<SnipInfo, Error> {
+        self.control.call(|reply| Command::Snip { peer, reply }).await?
+    }
+
+    /// Asks `peer` which protocols it supports, waiting at most `timeout` for the answer.
+    pub async fn protocols(&self, peer: NodeId, timeout: Duration) -> Result<Protocols, Error> {
+        match tokio::time::timeout(timeout, self.control.call(|reply| Command::Protocols { peer, reply })).await {
+            Ok(answer) => answer?,
+            Err(_) => Err(Error::NoAnswer { peer, what: "Protocol Support Inquiry" }),
+        }
+    }
+
+    /// The CAN alias the node's link knows for `node` (always `None` over OpenLCB-TCP).
+    pub async fn alias_of(&self, node: NodeId) -> Result<Option<u16>, Error> {
+        self.control.call(|reply| Command::AliasOf { node, reply }).await
     }
 
     /// Stops the node at once: the connection closes without a word to anyone, as if the

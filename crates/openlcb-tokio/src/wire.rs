@@ -1,11 +1,12 @@
 //! The transport under a node: a [`CanLink`] spoken as GridConnect text, or a [`TcpLink`]
-//! spoken as OpenLCB-TCP binary. Both turn socket bytes into messages for the endpoint and
-//! the endpoint's messages into one growing output buffer that the driver writes in batches.
+//! spoken as OpenLCB-TCP binary. Both turn socket bytes into messages for the node and
+//! the node's messages into one growing output buffer that the driver writes in batches.
 
 use std::collections::VecDeque;
 
 use openlcb_can::{CanConfig, CanLink, GridConnectDecoder, LinkEvent, gridconnect};
-use openlcb_stream::{Instant, Message, NodeId, StreamEndpoint};
+use openlcb_node::Node;
+use openlcb_stream::{Instant, Message, NodeId};
 use openlcb_tcp::TcpLink;
 
 use crate::Error;
@@ -42,22 +43,22 @@ pub struct WireStats {
 /// taking of more application data) until the socket has taken some.
 pub(crate) const HIGH_WATER: usize = 256 * 1024;
 
-/// Drains the CAN link's events into the endpoint. Returns an error the node cannot recover
+/// Drains the CAN link's events into the node. Returns an error the node cannot recover
 /// from.
-fn apply_link_events(link: &mut CanLink, permitted: &mut bool, endpoint: &mut StreamEndpoint) -> Result<(), Error> {
+fn apply_link_events(link: &mut CanLink, permitted: &mut bool, node: &mut Node) -> Result<(), Error> {
     while let Some(event) = link.poll_event() {
         match event {
             LinkEvent::Permitted { .. } => *permitted = true,
             LinkEvent::AliasLost { .. } => {
                 *permitted = false;
-                endpoint.link_lost();
+                node.link_lost();
             }
             LinkEvent::DuplicateNodeId { .. } => {
-                endpoint.link_lost();
+                node.link_lost();
                 return Err(Error::DuplicateNodeId { node: link.node_id(), at_login: !*permitted });
             }
-            LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
-            LinkEvent::PeerRenamed { from, to, .. } => endpoint.rename_peer(from, to),
+            LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
+            LinkEvent::PeerRenamed { from, to, .. } => node.rename_peer(from, to),
             _ => {}
         }
     }
@@ -65,14 +66,14 @@ fn apply_link_events(link: &mut CanLink, permitted: &mut bool, endpoint: &mut St
 }
 
 /// Messages handed to the CAN link at once; the rest wait in the driver's own queue (which
-/// the endpoint's credit bounds), so that nothing is ever refused for a full link queue.
+/// the streams' credit bounds), so that nothing is ever refused for a full link queue.
 const CAN_LINK_QUEUE: usize = 16;
 
 pub(crate) enum Wire {
     GridConnect {
         link: Box<CanLink>,
         decoder: GridConnectDecoder,
-        /// Messages from the endpoint not yet handed to the link.
+        /// Messages from the node not yet handed to the link.
         waiting: VecDeque<Message>,
         /// Encoded text; bytes before `taken` are written.
         out: Vec<u8>,
@@ -108,13 +109,13 @@ impl Wire {
         }
     }
 
-    /// Feeds bytes read from the socket; every message goes to `endpoint`. An `Err` means the
+    /// Feeds bytes read from the socket; every message goes to `node`. An `Err` means the
     /// connection must be closed.
     pub(crate) fn receive(
         &mut self,
         now: Instant,
         bytes: &[u8],
-        endpoint: &mut StreamEndpoint,
+        node: &mut Node,
         stats: &mut WireStats,
     ) -> Result<(), Error> {
         stats.bytes_in += bytes.len() as u64;
@@ -124,10 +125,10 @@ impl Wire {
                 decoder.decode_all(bytes, |decoded| match decoded {
                     Ok(frame) => {
                         stats.frames_in += 1;
-                        link.handle_frame(now, &frame, |msg| endpoint.handle_message(now, msg));
-                        // Renames must reach the endpoint before the next frame (the rule of
+                        link.handle_frame(now, &frame, |msg| node.handle_message(now, msg));
+                        // Renames must reach the node before the next frame (the rule of
                         // `CanLink::handle_frame`).
-                        let applied = apply_link_events(link, permitted, endpoint);
+                        let applied = apply_link_events(link, permitted, node);
                         if result.is_ok() {
                             result = applied;
                         }
@@ -142,7 +143,7 @@ impl Wire {
                     match decoded {
                         Ok(msg) => {
                             stats.frames_in += 1;
-                            endpoint.handle_message(now, msg);
+                            node.handle_message(now, msg);
                         }
                         Err(_) => stats.decode_errors += 1,
                     }
@@ -169,10 +170,18 @@ impl Wire {
         }
     }
 
-    /// The link's events, for the endpoint. Returns an error the node cannot recover from.
-    pub(crate) fn poll_events(&mut self, endpoint: &mut StreamEndpoint) -> Result<(), Error> {
+    /// The link's events, for the node. Returns an error the node cannot recover from.
+    pub(crate) fn poll_events(&mut self, node: &mut Node) -> Result<(), Error> {
         let Wire::GridConnect { link, permitted, .. } = self else { return Ok(()) };
-        apply_link_events(link, permitted, endpoint)
+        apply_link_events(link, permitted, node)
+    }
+
+    /// The CAN alias the link knows for `node`.
+    pub(crate) fn alias_of(&self, node: NodeId) -> Option<u16> {
+        match self {
+            Wire::GridConnect { link, .. } => link.alias_of(node).map(|alias| alias.as_raw()),
+            Wire::Tcp { .. } => None,
+        }
     }
 
     /// There is room to frame more application data.
@@ -183,12 +192,12 @@ impl Wire {
         }
     }
 
-    /// Moves the endpoint's messages down through the link into the output buffer, as far as
+    /// Moves the node's messages down through the link into the output buffer, as far as
     /// the high-water mark allows.
-    pub(crate) fn pump(&mut self, now: Instant, endpoint: &mut StreamEndpoint, stats: &mut WireStats) {
+    pub(crate) fn pump(&mut self, now: Instant, node: &mut Node, stats: &mut WireStats) {
         match self {
             Wire::GridConnect { link, waiting, out, taken, .. } => {
-                waiting.extend(std::iter::from_fn(|| endpoint.poll_transmit()));
+                waiting.extend(std::iter::from_fn(|| node.poll_transmit()));
                 while link.queued_messages() < CAN_LINK_QUEUE {
                     let Some(message) = waiting.pop_front() else { break };
                     // A refusal (no CAN form, link stopped) is counted in the link's stats.
@@ -213,7 +222,7 @@ impl Wire {
             Wire::Tcp { link } => {
                 let before = link.stats().messages_out;
                 // Encoding fails only for messages the core never builds.
-                let _ = link.send_from(now, endpoint);
+                let _ = link.send_from(now, || node.poll_transmit());
                 stats.frames_out += link.stats().messages_out - before;
             }
         }
@@ -246,7 +255,7 @@ impl Wire {
         }
     }
 
-    /// Nothing is queued anywhere below the endpoint.
+    /// Nothing is queued anywhere below the node.
     pub(crate) fn is_flushed(&self) -> bool {
         match self {
             Wire::GridConnect { link, waiting, out, taken, .. } => {

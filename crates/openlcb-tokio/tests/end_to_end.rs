@@ -41,7 +41,7 @@ fn addr(hub: &Hub, protocol: Protocol) -> String {
 
 async fn join(addr: &str, protocol: Protocol, node: NodeId, window: u16) -> Node {
     let mut options = NodeOptions::new(node);
-    options.config.max_window = window;
+    options.node.stream.max_window = window;
     bounded("joining", Node::connect(addr, protocol, options)).await.unwrap()
 }
 
@@ -151,7 +151,7 @@ async fn a_rejection_reports_the_code_and_its_meaning() {
     let hub = start_hub(HubOptions::default()).await;
     let addr = addr(&hub, Protocol::GridConnect);
     let mut options = NodeOptions::new(id(0xF1));
-    options.config.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
+    options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
     let _busy = bounded("joining", Node::connect(&addr, Protocol::GridConnect, options)).await.unwrap();
     let sender = join(&addr, Protocol::GridConnect, id(0xF0), 2048).await;
     let error = bounded("open", sender.open(OpenOptions::new(id(0xF1), 2048))).await.unwrap_err();
@@ -290,7 +290,7 @@ async fn a_receiver_that_vanishes_mid_transfer_fails_the_sender() {
     let hub = start_hub(HubOptions::default()).await;
     let addr = addr(&hub, Protocol::GridConnect);
     let mut options = NodeOptions::new(id(0xF0));
-    options.config.proceed_timeout = openlcb_stream::Duration::from_millis(1500);
+    options.node.stream.proceed_timeout = openlcb_stream::Duration::from_millis(1500);
     let sender = bounded("joining", Node::connect(&addr, Protocol::GridConnect, options)).await.unwrap();
     let mut receiver = join(&addr, Protocol::GridConnect, id(0xF1), 2048).await;
 
@@ -407,8 +407,8 @@ async fn a_window_whose_frames_exceed_the_output_buffer_still_flows() {
     let addr = addr(&hub, Protocol::GridConnect);
     for (n, early_proceed) in [false, true].into_iter().enumerate() {
         let mut options = NodeOptions::new(id(0xE0 + n as u8));
-        options.config.max_window = 65535;
-        options.config.early_proceed = early_proceed;
+        options.node.stream.max_window = 65535;
+        options.node.stream.early_proceed = early_proceed;
         let mut receiver = bounded("joining", Node::connect(&addr, Protocol::GridConnect, options)).await.unwrap();
         let sender = join(&addr, Protocol::GridConnect, id(0xD0 + n as u8), 65535).await;
         let payload = data(3 * 65535 + 1, 9);

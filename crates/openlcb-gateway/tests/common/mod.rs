@@ -211,7 +211,7 @@ impl Net {
         }
 
         // Full-format node -> TCP bytes -> gateway.
-        self.full_link.send_from(now, &mut self.full.endpoint).unwrap();
+        self.full_link.send_from(now, || self.full.endpoint.poll_transmit()).unwrap();
         let bytes = self.full_link.transmit_pending().to_vec();
         self.full_link.advance_transmit(bytes.len());
         let mut input = &bytes[..];

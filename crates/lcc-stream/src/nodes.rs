@@ -1,0 +1,158 @@
+//! `lcc-stream nodes`: who is on the network, with their names (SNIP) and protocols (PIP).
+
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::Args;
+use openlcb_stream::{AcceptPolicy, NodeId, wire::ReplyCode};
+use openlcb_tokio::{Error, Node, NodeOptions, Protocols, SnipInfo};
+use serde::Serialize;
+
+use crate::net::{self, ConnectArgs};
+
+/// The Node ID `nodes` joins with unless told otherwise.
+const DEFAULT_LISTER: &str = "05.01.01.01.22.F2";
+/// The most nodes listed.
+const MOST_NODES: usize = 1024;
+/// How long each node may take to answer the Protocol Support Inquiry.
+const PIP_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// Options of `lcc-stream nodes`.
+#[derive(Debug, Args)]
+#[command(after_help = net::exit_help!())]
+pub(crate) struct NodesArgs {
+    /// This node's Node ID while it asks.
+    #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_LISTER)]
+    node_id: NodeId,
+    /// Seconds of quiet after the last answer to Verify Node ID before the list is complete
+    /// (0.05 to 30).
+    #[arg(long, value_name = "SECS", default_value_t = 1.0, value_parser = parse_wait)]
+    wait: f64,
+    /// Print one JSON object per node (one per line) instead of text.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    connect: ConnectArgs,
+}
+
+fn parse_wait(text: &str) -> Result<f64, String> {
+    let secs: f64 = text.parse().map_err(|_| format!("`{text}` is not a number of seconds"))?;
+    if (0.05..=30.0).contains(&secs) { Ok(secs) } else { Err("the quiet period must be 0.05 to 30 seconds".into()) }
+}
+
+/// One node as `--json` prints it.
+#[derive(Debug, Serialize)]
+struct NodeReport {
+    /// `05.01.01.01.22.F1`.
+    node_id: String,
+    /// The CAN alias in hex (`"3B2"`), or null over OpenLCB-TCP.
+    alias: Option<String>,
+    /// The SNIP strings, or null when the node did not answer.
+    snip: Option<SnipReport>,
+    /// The names of the protocols it announces, or null when it did not answer.
+    protocols: Option<Vec<&'static str>>,
+    /// Why SNIP or PIP gave nothing, if either did.
+    errors: Vec<String>,
+}
+
+#[derive(Debug, Serialize)]
+struct SnipReport {
+    manufacturer: String,
+    model: String,
+    hardware_version: String,
+    software_version: String,
+    user_name: String,
+    user_description: String,
+}
+
+impl From<SnipInfo> for SnipReport {
+    fn from(info: SnipInfo) -> Self {
+        SnipReport {
+            manufacturer: info.manufacturer,
+            model: info.model,
+            hardware_version: info.hardware_version,
+            software_version: info.software_version,
+            user_name: info.user_name,
+            user_description: info.user_description,
+        }
+    }
+}
+
+pub(crate) fn run(args: &NodesArgs) -> Result<ExitCode, String> {
+    net::runtime()?.block_on(list(args))
+}
+
+async fn list(args: &NodesArgs) -> Result<ExitCode, String> {
+    let mut options = NodeOptions::new(args.node_id);
+    options.node.snip = net::snip("nodes");
+    options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
+    let node = match Node::connect(args.connect.addr(), args.connect.protocol.into(), options).await {
+        Ok(node) => node,
+        Err(error) => return Ok(net::fail("nodes", &error)),
+    };
+    let found = match node.discover(Duration::from_secs_f64(args.wait), MOST_NODES).await {
+        Ok(found) => found,
+        Err(error) => return Ok(net::fail("nodes", &error)),
+    };
+    // One node at a time, its SNIP and PIP at once: answers take milliseconds, and a node that
+    // does not answer costs at most the SNIP and PIP timeouts.
+    let mut reports = Vec::with_capacity(found.len());
+    for peer in &found {
+        reports.push(describe(&node, *peer).await);
+    }
+    node.close().await;
+    for report in &reports {
+        if args.json {
+            println!("{}", serde_json::to_string(report).map_err(|e| e.to_string())?);
+        } else {
+            println!("{}", text_line(report));
+        }
+    }
+    if !args.json {
+        eprintln!("{} node(s) answered", found.len());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Asks one node for its SNIP and PIP at once.
+async fn describe(node: &Node, peer: NodeId) -> NodeReport {
+    let (snip, protocols, alias) =
+        tokio::join!(node.snip(peer), node.protocols(peer, PIP_TIMEOUT), node.alias_of(peer));
+    let mut errors = Vec::new();
+    let snip = keep(snip, &mut errors).map(SnipReport::from);
+    let protocols = keep(protocols, &mut errors).map(|p: Protocols| p.names().collect());
+    let alias = keep(alias, &mut errors).flatten().map(|a| format!("{a:03X}"));
+    NodeReport { node_id: peer.to_string(), alias, snip, protocols, errors }
+}
+
+/// The value, or `None` with the error's text recorded.
+fn keep<T>(result: Result<T, Error>, errors: &mut Vec<String>) -> Option<T> {
+    result.map_err(|e| errors.push(e.to_string())).ok()
+}
+
+fn text_line(report: &NodeReport) -> String {
+    let mut line = report.node_id.clone();
+    if let Some(alias) = &report.alias {
+        line.push_str(&format!("  alias {alias}"));
+    }
+    match &report.snip {
+        Some(s) => {
+            line.push_str(&format!(
+                "  {} {} (hw {}, sw {})",
+                s.manufacturer, s.model, s.hardware_version, s.software_version
+            ));
+            if !s.user_name.is_empty() {
+                line.push_str(&format!("  \"{}\"", s.user_name));
+            }
+            if !s.user_description.is_empty() {
+                line.push_str(&format!("  {}", s.user_description));
+            }
+        }
+        None => line.push_str("  (no SNIP)"),
+    }
+    match &report.protocols {
+        Some(names) => line.push_str(&format!("  [{}]", names.join(" "))),
+        None => line.push_str("  [no PIP]"),
+    }
+    line
+}

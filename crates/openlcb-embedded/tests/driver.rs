@@ -1,0 +1,436 @@
+//! The driver against in-memory peripherals: alias login, a verified transfer through a
+//! memory bus that pushes back, `WouldBlock` and displaced frames never losing a frame,
+//! peripheral errors, and frames of a foreign frame type.
+
+use std::cell::Cell;
+use std::collections::VecDeque;
+
+use embedded_can::nb::Can;
+use embedded_can::{ErrorKind, ExtendedId, Frame, Id};
+use openlcb_can::{CanConfig, CanFrame, CanLink};
+use openlcb_embedded::memory_bus::MemoryBus;
+use openlcb_embedded::{Driver, Error, Poll, Upper};
+use openlcb_stream::{Config, Event, Instant, NodeId, OpenOptions, StreamEndpoint, StreamHandle};
+
+const A: u64 = 0x05_01_01_01_22_00;
+const B: u64 = 0x05_01_01_01_22_01;
+
+fn node(raw: u64) -> NodeId {
+    NodeId::new(raw).unwrap()
+}
+
+/// The byte at `offset` of the test pattern (not periodic in any window size).
+fn pattern(offset: u64) -> u8 {
+    let x = offset.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    (x >> 56) as u8 ^ offset as u8
+}
+
+/// Jumps virtual time to the earliest deadline of the polls.
+fn advance(time: &Cell<Instant>, polls: &[Poll]) {
+    let next = polls.iter().filter_map(|p| p.deadline).min().expect("a timer is armed while idle");
+    assert!(next <= time.get() + openlcb_stream::Duration::from_secs(60), "nothing left to wait for");
+    time.set(next.max(time.get()));
+}
+
+// ----- login -----
+
+#[test]
+fn login_on_memory_bus_reserves_aliases_after_the_reserve_wait() {
+    let bus: MemoryBus<CanFrame, 2, 8> = MemoryBus::new();
+    let time = Cell::new(Instant::ZERO);
+    let clock = || time.get();
+    let mut a = Driver::new(bus.port(0).unwrap(), clock, CanLink::new(time.get(), node(A), CanConfig::default()));
+    let mut b = Driver::new(bus.port(1).unwrap(), clock, CanLink::new(time.get(), node(B), CanConfig::default()));
+    let mut ea = StreamEndpoint::new(node(A), Config::default());
+    let mut eb = StreamEndpoint::new(node(B), Config::default());
+
+    let pa = a.poll(&mut ea).unwrap();
+    let pb = b.poll(&mut eb).unwrap();
+    assert_eq!((pa.transmitted, pb.transmitted), (4, 4), "CID 7..4 from each");
+    assert_eq!(pa.deadline, Some(Instant::from_millis(200)));
+    assert_eq!(a.link().alias(), None);
+
+    // Before the reserve wait ends, nothing is permitted.
+    time.set(Instant::from_millis(199));
+    a.poll(&mut ea).unwrap();
+    b.poll(&mut eb).unwrap();
+    assert_eq!((a.link().alias(), b.link().alias()), (None, None));
+
+    time.set(Instant::from_millis(200));
+    for _ in 0..4 {
+        a.poll(&mut ea).unwrap();
+        b.poll(&mut eb).unwrap();
+    }
+    let (alias_a, alias_b) = (a.link().alias().unwrap(), b.link().alias().unwrap());
+    assert_ne!(alias_a, alias_b);
+    // Each learned the other's mapping from its AMD / Initialization Complete.
+    assert_eq!(a.link().node_of(alias_b), Some(node(B)));
+    assert_eq!(b.link().node_of(alias_a), Some(node(A)));
+    // 4 CID + RID + AMD + Initialization Complete each.
+    assert_eq!(bus.stats().frames, 14);
+    assert_eq!(a.stats().frames_transmitted, 7);
+    assert_eq!(a.stats().frames_received, 7);
+    assert_eq!(bus.queued(), 0);
+}
+
+// ----- a transfer -----
+
+struct Outcome {
+    received: u64,
+    finished: bool,
+    would_block: u64,
+    bus_would_block: u64,
+    bus_frames: u64,
+    transmitted: u64,
+}
+
+/// Moves `len` bytes from A to B through a memory bus with receive FIFOs of `DEPTH` frames,
+/// checking every byte against the pattern as it is read.
+fn transfer<const DEPTH: usize>(len: u64, window: u16, read_chunk: usize) -> Outcome {
+    let bus: MemoryBus<CanFrame, 2, DEPTH> = MemoryBus::new();
+    let time = Cell::new(Instant::ZERO);
+    let clock = || time.get();
+    let mut a = Driver::new(bus.port(0).unwrap(), clock, CanLink::new(time.get(), node(A), CanConfig::default()))
+        .with_receive_budget(4);
+    let mut b = Driver::new(bus.port(1).unwrap(), clock, CanLink::new(time.get(), node(B), CanConfig::default()))
+        .with_receive_budget(4);
+    let mut source = StreamEndpoint::new(node(A), Config::default());
+    let mut destination = StreamEndpoint::new(node(B), Config::default());
+
+    let mut stream: Option<StreamHandle> = None;
+    let (mut sent, mut received, mut finished) = (0u64, 0u64, false);
+    let mut chunk = [0u8; 512];
+    let mut buf = vec![0u8; read_chunk];
+    for _round in 0..2_000_000 {
+        if finished {
+            break;
+        }
+        let pa = a.poll(&mut source).unwrap();
+        let pb = b.poll(&mut destination).unwrap();
+        let mut worked = false;
+        if stream.is_none() && a.link().alias().is_some() && b.link().alias().is_some() {
+            stream = Some(source.open(time.get(), OpenOptions::new(node(B), window)).unwrap());
+            worked = true;
+        }
+        while let Some(event) = source.poll_event() {
+            match event {
+                Event::Opened { .. } | Event::Writable { .. } => {}
+                other => panic!("source: unexpected {other:?}"),
+            }
+        }
+        if let Some(handle) = stream.filter(|h| sent < len && source.credit(*h).unwrap_or(0) > 0) {
+            let n = chunk.len().min((len - sent) as usize);
+            for (i, byte) in chunk[..n].iter_mut().enumerate() {
+                *byte = pattern(sent + i as u64);
+            }
+            let taken = source.write(time.get(), handle, &chunk[..n]).unwrap();
+            sent += taken as u64;
+            if sent == len {
+                source.finish(time.get(), handle).unwrap();
+            }
+            worked |= taken > 0;
+        }
+        while let Some(event) = destination.poll_event() {
+            match event {
+                Event::Opened { .. } | Event::Readable { .. } => {}
+                Event::Finished { total, matched, .. } => {
+                    assert!(matched, "Complete's total does not match");
+                    assert_eq!(total, len);
+                    finished = true;
+                }
+                other => panic!("destination: unexpected {other:?}"),
+            }
+        }
+        for handle in destination.handles().collect::<Vec<_>>() {
+            while let Ok(n @ 1..) = destination.read(time.get(), handle, &mut buf) {
+                for (i, byte) in buf[..n].iter().enumerate() {
+                    assert_eq!(*byte, pattern(received + i as u64), "byte {} differs", received + i as u64);
+                }
+                received += n as u64;
+                worked = true;
+            }
+        }
+        if !worked && pa.is_idle() && pb.is_idle() {
+            advance(&time, &[pa, pb]);
+        }
+    }
+    Outcome {
+        received,
+        finished,
+        would_block: a.stats().would_block + b.stats().would_block,
+        bus_would_block: bus.stats().would_block,
+        bus_frames: bus.stats().frames,
+        transmitted: a.stats().frames_transmitted + b.stats().frames_transmitted,
+    }
+}
+
+#[test]
+fn transfer_64k_through_a_memory_bus_verifies_every_byte() {
+    let outcome = transfer::<8>(64 * 1024, 2048, 700);
+    assert!(outcome.finished);
+    assert_eq!(outcome.received, 64 * 1024);
+    // 64 KiB in 7-byte frames, at least.
+    assert!(outcome.bus_frames > 64 * 1024 / 7, "{} frames", outcome.bus_frames);
+    assert_eq!(outcome.transmitted, outcome.bus_frames, "every accepted frame is on the bus once");
+}
+
+#[test]
+fn transfer_with_shallow_fifos_is_pushed_back_and_loses_nothing() {
+    // Receive FIFOs of 2 frames (a real controller's size) against a receive budget of 4 and
+    // windows of 2048 bytes: the sender meets WouldBlock all the time.
+    let outcome = transfer::<2>(20_000, 2048, 100);
+    assert!(outcome.finished);
+    assert_eq!(outcome.received, 20_000);
+    assert!(outcome.would_block > 100, "only {} WouldBlock", outcome.would_block);
+    assert_eq!(outcome.would_block, outcome.bus_would_block);
+    assert_eq!(outcome.transmitted, outcome.bus_frames);
+}
+
+// ----- WouldBlock, displaced frames, errors -----
+
+/// A peripheral with `mailboxes` transmit mailboxes, emptied only by `drain`; with `replace`,
+/// when full it replaces a pending frame of strictly lower priority (the newest such), as the
+/// trait allows.
+#[derive(Default)]
+struct Mailboxes {
+    mailboxes: usize,
+    replace: bool,
+    pending: Vec<CanFrame>,
+    wire: Vec<CanFrame>,
+    inbox: VecDeque<Result<CanFrame, ErrorKind>>,
+    fail_transmit: Option<ErrorKind>,
+}
+
+impl Mailboxes {
+    fn new(mailboxes: usize) -> Self {
+        Mailboxes { mailboxes, ..Default::default() }
+    }
+
+    /// Sends every pending frame, in the order they were placed (a FIFO-mode controller).
+    fn drain(&mut self) {
+        self.wire.append(&mut self.pending);
+    }
+}
+
+impl Can for Mailboxes {
+    type Frame = CanFrame;
+    type Error = ErrorKind;
+
+    fn transmit(&mut self, frame: &CanFrame) -> nb::Result<Option<CanFrame>, ErrorKind> {
+        if let Some(error) = self.fail_transmit {
+            return Err(nb::Error::Other(error));
+        }
+        if self.pending.len() < self.mailboxes {
+            self.pending.push(*frame);
+            return Ok(None);
+        }
+        // The lowest-priority pending frame, the newest of equals.
+        let (index, lowest) = self.pending.iter().enumerate().max_by_key(|(i, f)| (f.id(), *i)).unwrap();
+        if self.replace && lowest.id() > frame.id() {
+            let displaced = self.pending.remove(index);
+            self.pending.push(*frame);
+            return Ok(Some(displaced));
+        }
+        Err(nb::Error::WouldBlock)
+    }
+
+    fn receive(&mut self) -> nb::Result<CanFrame, ErrorKind> {
+        match self.inbox.pop_front() {
+            Some(Ok(frame)) => Ok(frame),
+            Some(Err(error)) => Err(nb::Error::Other(error)),
+            None => Err(nb::Error::WouldBlock),
+        }
+    }
+}
+
+/// The frames a link emits with no peripheral in the way: the reference order.
+fn reference_frames(link: &mut CanLink) -> Vec<CanFrame> {
+    std::iter::from_fn(|| link.poll_transmit()).collect()
+}
+
+fn fixed_clock(at: Instant) -> impl FnMut() -> Instant {
+    move || at
+}
+
+#[test]
+fn would_block_keeps_the_frame_and_sends_it_first_next_time() {
+    let mut reference = CanLink::new(Instant::ZERO, node(A), CanConfig::default());
+    let expected = reference_frames(&mut reference);
+    assert_eq!(expected.len(), 4);
+
+    let link = CanLink::new(Instant::ZERO, node(A), CanConfig::default());
+    let mut driver = Driver::new(Mailboxes::new(1), fixed_clock(Instant::ZERO), link);
+    let mut endpoint = StreamEndpoint::new(node(A), Config::default());
+    // One mailbox, emptied between polls: one frame a poll, the refused one held meanwhile.
+    for round in 0..4 {
+        let poll = driver.poll(&mut endpoint).unwrap();
+        assert_eq!(poll.transmitted, 1, "round {round}");
+        assert_eq!(poll.transmit_blocked, round < 3, "round {round}");
+        assert_eq!(driver.is_transmit_blocked(), round < 3);
+        driver.can_mut().drain();
+    }
+    assert_eq!(driver.can().wire, expected, "every frame once, in order");
+    assert_eq!(driver.stats().would_block, 3);
+    assert!(driver.poll(&mut endpoint).unwrap().is_idle());
+}
+
+#[test]
+fn a_displaced_frame_is_kept_and_sent_again() {
+    let link = CanLink::new(Instant::ZERO, node(A), CanConfig::default());
+    let mut mailboxes = Mailboxes::new(1);
+    mailboxes.replace = true;
+    // A lower-priority frame of someone else's already waits in the only mailbox.
+    let low = CanFrame::extended(0x1FFF_FFFF, &[1, 2, 3]).unwrap();
+    mailboxes.pending.push(low);
+    let mut driver = Driver::new(mailboxes, fixed_clock(Instant::ZERO), link);
+    let mut endpoint = StreamEndpoint::new(node(A), Config::default());
+
+    let poll = driver.poll(&mut endpoint).unwrap();
+    // CID 7 displaced `low`, which the driver now holds (and cannot place: every CID has a
+    // higher priority than it, and the mailbox is full).
+    assert_eq!(driver.stats().displaced, 1);
+    assert!(poll.transmit_blocked);
+    let mut guard = 0;
+    while driver.can().wire.len() < 5 {
+        driver.can_mut().drain();
+        driver.poll(&mut endpoint).unwrap();
+        guard += 1;
+        assert!(guard < 20, "frames stuck: {:?}", driver.can().wire);
+    }
+    driver.can_mut().drain();
+    let wire = &driver.can().wire;
+    assert_eq!(wire.len(), 5, "{wire:?}");
+    assert_eq!(wire.iter().filter(|f| **f == low).count(), 1, "the displaced frame went out exactly once");
+    let mut reference = CanLink::new(Instant::ZERO, node(A), CanConfig::default());
+    let cids: Vec<CanFrame> = wire.iter().copied().filter(|f| *f != low).collect();
+    assert_eq!(cids, reference_frames(&mut reference));
+}
+
+#[test]
+fn a_transmit_error_keeps_the_frame_and_is_returned() {
+    let link = CanLink::new(Instant::ZERO, node(A), CanConfig::default());
+    let mut mailboxes = Mailboxes::new(8);
+    mailboxes.fail_transmit = Some(ErrorKind::Bit);
+    let mut driver = Driver::new(mailboxes, fixed_clock(Instant::ZERO), link);
+    let mut endpoint = StreamEndpoint::new(node(A), Config::default());
+    assert_eq!(driver.poll(&mut endpoint), Err(Error::Transmit(ErrorKind::Bit)));
+    assert_eq!(driver.stats().transmit_errors, 1);
+    assert!(driver.is_transmit_blocked());
+    driver.can_mut().fail_transmit = None;
+    let poll = driver.poll(&mut endpoint).unwrap();
+    assert_eq!(poll.transmitted, 4);
+    driver.can_mut().drain();
+    let mut reference = CanLink::new(Instant::ZERO, node(A), CanConfig::default());
+    assert_eq!(driver.can().wire, reference_frames(&mut reference));
+}
+
+#[test]
+fn a_receive_error_is_returned_and_the_next_poll_goes_on() {
+    let link = CanLink::new(Instant::ZERO, node(A), CanConfig::default());
+    let mut mailboxes = Mailboxes::new(8);
+    let standard = <CanFrame as Frame>::new(embedded_can::StandardId::new(0x123).unwrap(), &[1]).unwrap();
+    mailboxes.inbox.extend([Ok(standard), Err(ErrorKind::Overrun), Ok(standard)]);
+    let mut driver = Driver::new(mailboxes, fixed_clock(Instant::ZERO), link);
+    let mut endpoint = StreamEndpoint::new(node(A), Config::default());
+    assert_eq!(driver.poll(&mut endpoint), Err(Error::Receive(ErrorKind::Overrun)));
+    assert_eq!(driver.stats().receive_errors, 1);
+    assert_eq!(driver.link().stats().standard_ignored, 1);
+    // Transmission still happened in that poll.
+    assert_eq!(driver.can().pending.len(), 4);
+    let poll = driver.poll(&mut endpoint).unwrap();
+    assert_eq!(poll.received, 1);
+    assert_eq!(driver.link().stats().standard_ignored, 2);
+}
+
+#[test]
+fn the_receive_budget_bounds_one_poll() {
+    let link = CanLink::new(Instant::ZERO, node(A), CanConfig::default());
+    let mut mailboxes = Mailboxes::new(8);
+    let frame = CanFrame::extended(0x1FFF_F123, &[]).unwrap();
+    mailboxes.inbox.extend(std::iter::repeat_n(Ok(frame), 5));
+    let mut driver = Driver::new(mailboxes, fixed_clock(Instant::ZERO), link).with_receive_budget(3);
+    let mut endpoint = StreamEndpoint::new(node(A), Config::default());
+    let first = driver.poll(&mut endpoint).unwrap();
+    assert_eq!((first.received, first.receive_pending), (3, true));
+    let second = driver.poll(&mut endpoint).unwrap();
+    assert_eq!((second.received, second.receive_pending), (2, false));
+}
+
+// ----- a foreign frame type -----
+
+/// A HAL's own frame type, with room for CAN FD's 64 bytes.
+#[derive(Clone, Debug, PartialEq)]
+struct HalFrame {
+    id: Id,
+    remote: bool,
+    data: Vec<u8>,
+}
+
+impl Frame for HalFrame {
+    fn new(id: impl Into<Id>, data: &[u8]) -> Option<Self> {
+        (data.len() <= 64).then(|| HalFrame { id: id.into(), remote: false, data: data.to_vec() })
+    }
+    fn new_remote(id: impl Into<Id>, dlc: usize) -> Option<Self> {
+        (dlc <= 8).then(|| HalFrame { id: id.into(), remote: true, data: vec![0; dlc] })
+    }
+    fn is_extended(&self) -> bool {
+        matches!(self.id, Id::Extended(_))
+    }
+    fn is_remote_frame(&self) -> bool {
+        self.remote
+    }
+    fn id(&self) -> Id {
+        self.id
+    }
+    fn dlc(&self) -> usize {
+        self.data.len()
+    }
+    fn data(&self) -> &[u8] {
+        if self.remote { &[] } else { &self.data }
+    }
+}
+
+/// Counts what the endpoint is handed.
+struct Recorder {
+    messages: usize,
+}
+
+impl Upper for Recorder {
+    fn handle_message(&mut self, _now: Instant, _message: openlcb_stream::MessageRef<'_>) {
+        self.messages += 1;
+    }
+    fn handle_timeout(&mut self, _now: Instant) {}
+    fn poll_transmit(&mut self) -> Option<openlcb_stream::Message> {
+        None
+    }
+    fn poll_timeout(&self) -> Option<Instant> {
+        None
+    }
+}
+
+#[test]
+fn foreign_frames_are_converted_both_ways_and_oversized_ones_counted() {
+    let bus: MemoryBus<HalFrame, 2, 16> = MemoryBus::new();
+    let mut other = bus.port(1).unwrap();
+    let link = CanLink::new(Instant::ZERO, node(A), CanConfig::default());
+    let mut driver = Driver::new(bus.port(0).unwrap(), fixed_clock(Instant::ZERO), link);
+    assert!(bus.port(0).is_none(), "a port is handed out once");
+    let mut upper = Recorder { messages: 0 };
+
+    // Verify Node ID global (0x19490), from alias 0x123: one frame that reaches the upper
+    // layer once the sender's alias is known from its AMD.
+    let id = |raw: u32| Id::Extended(ExtendedId::new(raw).unwrap());
+    other.transmit(&HalFrame::new(id(0x1070_1123), &B.to_be_bytes()[2..]).unwrap()).unwrap();
+    other.transmit(&HalFrame::new(id(0x1949_0123), &[]).unwrap()).unwrap();
+    other.transmit(&HalFrame::new(id(0x1949_0123), &[0; 12]).unwrap()).unwrap();
+    other.transmit(&HalFrame::new_remote(id(0x1949_0123), 2).unwrap()).unwrap();
+    driver.poll(&mut upper).unwrap();
+    assert_eq!(driver.stats().frames_received, 4);
+    assert_eq!(driver.stats().unconvertible, 1, "12 data bytes have no classic CAN form");
+    assert_eq!(driver.link().stats().remote_ignored, 1);
+    assert_eq!(upper.messages, 1);
+    // The CID frames went out as HalFrames.
+    let cid = other.receive().unwrap();
+    assert!(cid.is_extended() && cid.data.is_empty());
+    assert_eq!(cid.id, id(openlcb_embedded::convert::<HalFrame, CanFrame>(&cid).unwrap().raw_id()));
+}

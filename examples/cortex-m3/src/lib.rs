@@ -1,0 +1,287 @@
+//! The runtime every firmware of this package shares, so that the flash budget compares like
+//! with like: cortex-m-rt's reset and vector table, an `embedded-alloc` heap, a panic handler
+//! and a HardFault handler that end the run with a failure status through semihosting, and
+//! opaque input and output for the size firmwares (volatile memory the optimiser cannot see
+//! through, so nothing under measurement is folded away).
+//!
+//! Only unsafe code here: handing the heap its memory, and the volatile accesses.
+
+#![no_std]
+
+use core::mem::MaybeUninit;
+use core::panic::PanicInfo;
+
+use cortex_m_rt::{ExceptionFrame, exception};
+use cortex_m_semihosting::{debug, hio};
+use embedded_alloc::LlffHeap;
+
+/// Bytes of RAM given to the heap (of the lm3s6965's 64 KiB; the rest is static data and stack).
+pub const HEAP_SIZE: usize = 40 * 1024;
+
+/// The global allocator. `HEAP.used()` is what the transfer reports.
+#[global_allocator]
+pub static HEAP: LlffHeap = LlffHeap::empty();
+
+/// Gives the heap its memory. Call once, first thing in `main`.
+pub fn init_heap() {
+    static mut HEAP_MEM: [MaybeUninit<u8>; HEAP_SIZE] = [MaybeUninit::uninit(); HEAP_SIZE];
+    // SAFETY: called once at start-up, before any allocation; HEAP_MEM is used by nothing else.
+    #[allow(unsafe_code)]
+    unsafe {
+        HEAP.init(&raw mut HEAP_MEM as usize, HEAP_SIZE)
+    }
+}
+
+/// Writes `text` to the host's stdout (no formatting machinery).
+pub fn write(text: &str) {
+    if let Ok(mut out) = hio::hstdout() {
+        let _ = out.write_all(text.as_bytes());
+    }
+}
+
+/// Ends the run: QEMU exits with status 0 on success, 1 on failure.
+pub fn exit(success: bool) -> ! {
+    debug::exit(if success { debug::EXIT_SUCCESS } else { debug::EXIT_FAILURE });
+    // Without a debugger attached, `exit` returns: stop here.
+    loop {
+        cortex_m::asm::bkpt();
+    }
+}
+
+#[panic_handler]
+fn panic(_info: &PanicInfo<'_>) -> ! {
+    write("FAIL: panicked\n");
+    exit(false)
+}
+
+#[exception]
+unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
+    write("FAIL: HardFault\n");
+    exit(false)
+}
+
+#[exception]
+unsafe fn DefaultHandler(_irq: i16) {
+    write("FAIL: unexpected exception\n");
+    exit(false)
+}
+
+/// Opaque input and output for the size firmwares: a fake mailbox in RAM that only volatile
+/// accesses touch, so the optimiser must keep every path that depends on it.
+pub mod opaque {
+    use core::ptr::{addr_of, addr_of_mut, read_volatile, write_volatile};
+
+    static mut INPUT: [u8; 16] = [0; 16];
+    static mut OUTPUT: u32 = 0;
+
+    /// A value the optimiser cannot predict.
+    pub fn input() -> u32 {
+        // SAFETY: a plain read of a static only volatile accesses touch; single core.
+        #[allow(unsafe_code)]
+        unsafe {
+            read_volatile(addr_of!(INPUT).cast::<u32>())
+        }
+    }
+
+    /// Fills `buf` with bytes the optimiser cannot predict.
+    pub fn input_bytes(buf: &mut [u8]) {
+        for (i, byte) in buf.iter_mut().enumerate() {
+            // SAFETY: as in `input`; the index stays inside the array.
+            #[allow(unsafe_code)]
+            unsafe {
+                *byte = read_volatile(addr_of!(INPUT).cast::<u8>().add(i % 16));
+            }
+        }
+    }
+
+    /// Consumes `value` so that whatever computed it is kept.
+    pub fn output(value: u32) {
+        // SAFETY: a plain write of a static only volatile accesses touch; single core.
+        #[allow(unsafe_code)]
+        unsafe {
+            write_volatile(addr_of_mut!(OUTPUT), value)
+        }
+    }
+}
+
+/// What the size firmwares run: the baseline's allocator work, then every input, command and
+/// output of the part under measurement, each driven by opaque input so that both stream
+/// roles and every path stay in the binary.
+pub mod exercise {
+    extern crate alloc;
+
+    use alloc::vec::Vec;
+
+    use embedded_can::nb::Can;
+    use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent};
+    use openlcb_stream::wire::{ErrorCode, ReplyCode};
+    use openlcb_stream::{AcceptPolicy, Config, Event, Instant, MessageRef, Mti, NodeId, OpenOptions, StreamEndpoint};
+
+    use crate::opaque::{input, input_bytes, output};
+
+    /// The body of every size firmware: gives the heap its memory, builds the state under
+    /// measurement with `setup`, then forever does the baseline's work and one `turn` on it.
+    pub fn run<S>(setup: impl FnOnce() -> S, mut turn: impl FnMut(&mut S)) -> ! {
+        crate::init_heap();
+        let mut state = setup();
+        let mut buf = Vec::new();
+        loop {
+            baseline_turn(&mut buf);
+            turn(&mut state);
+        }
+    }
+
+    /// The baseline's work: allocate, grow, fill and free a buffer of opaque size.
+    fn baseline_turn(buf: &mut Vec<u8>) {
+        buf.resize(input() as usize & 0xFFF, 0);
+        input_bytes(buf);
+        output(buf.iter().map(|b| u32::from(*b)).sum());
+        if input() == 0 {
+            *buf = Vec::new();
+        }
+    }
+
+    fn node_id() -> NodeId {
+        NodeId::new(u64::from(input()) << 16 | u64::from(input() & 0xFFFF)).unwrap_or(NodeId::MAX)
+    }
+
+    fn now() -> Instant {
+        Instant::from_micros(u64::from(input()))
+    }
+
+    /// An endpoint for an opaque Node ID, with the accept policy chosen by input.
+    pub fn endpoint() -> StreamEndpoint {
+        let mut config = Config::default();
+        if input() & 1 == 1 {
+            config.accept_policy = AcceptPolicy::Ask;
+        }
+        config.early_proceed = input() & 2 == 2;
+        StreamEndpoint::new(node_id(), config)
+    }
+
+    /// A link for an opaque Node ID.
+    pub fn link() -> CanLink {
+        CanLink::new(now(), node_id(), CanConfig::default())
+    }
+
+    /// One opaque input or command into the endpoint: a received message, a timeout, or any
+    /// command of either role on any of its streams.
+    pub fn endpoint_turn(endpoint: &mut StreamEndpoint) {
+        let now = now();
+        let op = input();
+        let mut payload = [0u8; 64];
+        input_bytes(&mut payload);
+        let len = (op >> 8) as usize % payload.len();
+        let data = payload.get(..len).unwrap_or(&[]);
+        let handle = endpoint.handles().nth((op >> 4) as usize & 3);
+        let peer = node_id();
+        let word = (op >> 16) as u16;
+        match (op & 0xF, handle) {
+            (0, _) => {
+                let destination = (op & 0x10 != 0).then(|| endpoint.node_id());
+                endpoint.handle_message(now, MessageRef { mti: Mti(word), source: peer, destination, payload: data });
+            }
+            (1, _) => endpoint.handle_timeout(now),
+            (2, _) => output(endpoint.open(now, OpenOptions::new(peer, word)).is_ok().into()),
+            (3, Some(h)) => output(endpoint.write(now, h, data).unwrap_or(0) as u32),
+            (4, Some(h)) => output(endpoint.flush(now, h).is_ok().into()),
+            (5, Some(h)) => output(endpoint.finish(now, h).is_ok().into()),
+            (6, Some(h)) => output(endpoint.accept(now, h, Some(word)).is_ok().into()),
+            (7, Some(h)) => output(endpoint.reject(now, h, ReplyCode(word)).is_ok().into()),
+            (8, Some(h)) => output(endpoint.read(now, h, &mut payload).unwrap_or(0) as u32),
+            (9, Some(h)) => output(endpoint.abort(now, h, ErrorCode(word)).is_ok().into()),
+            (10, Some(h)) => output(endpoint.credit(h).unwrap_or(0)),
+            (11, _) => endpoint.peer_lost(peer),
+            (12, _) => endpoint.link_lost(),
+            _ => {}
+        }
+    }
+
+    /// Drains the endpoint's events and timeout into the opaque output (its transmits go to
+    /// the caller: a link, or the output).
+    pub fn endpoint_outputs(endpoint: &mut StreamEndpoint) {
+        while let Some(event) = endpoint.poll_event() {
+            output(match event {
+                Event::IncomingRequest { info, .. } => u32::from(info.window),
+                Event::Opened { info, .. } => 1 + u32::from(info.window),
+                Event::Rejected { code, .. } => u32::from(code.0),
+                Event::Readable { .. } => 3,
+                Event::Writable { .. } => 4,
+                Event::Finished { total, .. } => total as u32,
+                Event::Terminated { .. } => 6,
+                Event::TimedOut { .. } => 7,
+                _ => 8,
+            });
+        }
+        output(endpoint.poll_timeout().map_or(0, |t| t.as_micros() as u32));
+    }
+
+    /// Drains the endpoint's transmits into the opaque output.
+    pub fn endpoint_transmits(endpoint: &mut StreamEndpoint) {
+        while let Some(message) = endpoint.poll_transmit() {
+            output(u32::from(message.mti.0) + message.payload.len() as u32);
+        }
+    }
+
+    fn opaque_frame() -> Option<CanFrame> {
+        let mut data = [0u8; 8];
+        input_bytes(&mut data);
+        let len = input() as usize % 9;
+        CanFrame::extended(input(), data.get(..len).unwrap_or(&[]))
+    }
+
+    /// One opaque frame or timeout into the link, whose messages go to the endpoint; the
+    /// link's events go to the endpoint, the endpoint's transmits to the link, the link's
+    /// frames to the output.
+    pub fn link_turn(link: &mut CanLink, endpoint: &mut StreamEndpoint) {
+        let now = now();
+        if input() & 1 == 1 {
+            link.handle_timeout(now);
+            endpoint.handle_timeout(now);
+        } else if let Some(frame) = opaque_frame() {
+            link.handle_frame(now, &frame, |message| endpoint.handle_message(now, message));
+        }
+        while let Some(event) = link.poll_event() {
+            match event {
+                LinkEvent::AliasLost { .. } => endpoint.link_lost(),
+                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
+                _ => {}
+            }
+        }
+        while link.can_send() {
+            let Some(message) = endpoint.poll_transmit() else { break };
+            output(link.send(now, message).is_ok().into());
+        }
+        while let Some(frame) = link.poll_transmit() {
+            output(frame.raw_id());
+        }
+        output(link.poll_timeout().map_or(0, |t| t.as_micros() as u32));
+    }
+
+    /// A CAN peripheral whose receive FIFO and transmit mailboxes are opaque memory.
+    pub struct OpaqueCan;
+
+    impl Can for OpaqueCan {
+        type Frame = CanFrame;
+        type Error = embedded_can::ErrorKind;
+
+        fn transmit(&mut self, frame: &CanFrame) -> nb::Result<Option<CanFrame>, Self::Error> {
+            match input() & 3 {
+                0 => Err(nb::Error::WouldBlock),
+                1 => Err(nb::Error::Other(embedded_can::ErrorKind::Other)),
+                _ => {
+                    output(frame.raw_id());
+                    Ok(opaque_frame().filter(|_| input() & 4 == 4))
+                }
+            }
+        }
+
+        fn receive(&mut self) -> nb::Result<CanFrame, Self::Error> {
+            match input() & 3 {
+                0 => Err(nb::Error::WouldBlock),
+                1 => Err(nb::Error::Other(embedded_can::ErrorKind::Overrun)),
+                _ => opaque_frame().ok_or(nb::Error::WouldBlock),
+            }
+        }
+    }
+}
