@@ -433,7 +433,57 @@ struct OpenMrnBootloader {
     unfrozen: bool,
 }
 
-impl OpenMrnBootloader {
+/// A peer played by a script: it answers each message, and may have answers due later.
+trait Scripted {
+    fn handle(&mut self, now: Instant, msg: &Message, out: &mut Vec<Message>);
+    /// Answers due by `now` (a Proceed after a flash write).
+    fn due(&mut self, _now: Instant, _out: &mut Vec<Message>) {}
+    fn next_due(&self) -> Option<Instant> {
+        None
+    }
+}
+
+/// Runs `client` against `target` until the client's operation ends; fails on a hang or
+/// on a stream event reaching the application.
+fn run_scripted(client: &mut Node, target: &mut dyn Scripted) -> Option<MemoryEvent> {
+    let mut now = Instant::ZERO;
+    for _ in 0..100_000 {
+        let mut answers = Vec::new();
+        while let Some(m) = client.poll_transmit() {
+            target.handle(now, &m, &mut answers);
+        }
+        target.due(now, &mut answers);
+        for a in &answers {
+            client.handle_message(now, a.as_ref());
+        }
+        for event in std::iter::from_fn(|| client.poll_event()) {
+            match event {
+                NodeEvent::Memory(e) => return Some(e),
+                NodeEvent::Stream(e) => panic!("a stream event of the operation leaked: {e:?}"),
+                _ => {}
+            }
+        }
+        if answers.is_empty() {
+            let next = [client.poll_timeout(), target.next_due()].into_iter().flatten().min();
+            now = next.expect("nothing to wait for: a hang").max(now);
+            client.handle_timeout(now);
+        }
+    }
+    None
+}
+
+impl Scripted for OpenMrnBootloader {
+    fn due(&mut self, now: Instant, out: &mut Vec<Message>) {
+        while self.proceeds_due.first().is_some_and(|t| *t <= now) {
+            self.proceeds_due.remove(0);
+            out.push(Message::addressed(Mti::STREAM_DATA_PROCEED, SERVER, CLIENT, vec![self.sid, 0x5A, 0, 0]));
+        }
+    }
+
+    fn next_due(&self) -> Option<Instant> {
+        self.proceeds_due.first().copied()
+    }
+
     fn handle(&mut self, now: Instant, msg: &Message, out: &mut Vec<Message>) {
         let send =
             |out: &mut Vec<Message>, mti, payload: Vec<u8>| out.push(Message::addressed(mti, SERVER, CLIENT, payload));
@@ -499,42 +549,8 @@ fn firmware_upgrade_against_a_scripted_openmrn_bootloader() {
             unfrozen: false,
         };
         let image = pattern(3000, 42);
-        let mut now = Instant::ZERO;
-        client.upgrade_firmware(now, SERVER, image.clone(), TransferPath::Auto).unwrap();
-        let mut done = None;
-        for _ in 0..100_000 {
-            let mut answers = Vec::new();
-            while let Some(m) = client.poll_transmit() {
-                target.handle(now, &m, &mut answers);
-            }
-            while target.proceeds_due.first().is_some_and(|t| *t <= now) {
-                target.proceeds_due.remove(0);
-                answers.push(Message::addressed(
-                    Mti::STREAM_DATA_PROCEED,
-                    SERVER,
-                    CLIENT,
-                    vec![target.sid, 0x5A, 0, 0],
-                ));
-            }
-            for a in &answers {
-                client.handle_message(now, a.as_ref());
-            }
-            for event in std::iter::from_fn(|| client.poll_event()) {
-                match event {
-                    NodeEvent::Memory(e) => done = Some(e),
-                    NodeEvent::Stream(e) => panic!("a stream event of the upgrade leaked: {e:?}"),
-                    _ => {}
-                }
-            }
-            if done.is_some() {
-                break;
-            }
-            if answers.is_empty() {
-                let next = [client.poll_timeout(), target.proceeds_due.first().copied()].into_iter().flatten().min();
-                now = next.expect("nothing to wait for: a hang").max(now);
-                client.handle_timeout(now);
-            }
-        }
+        client.upgrade_firmware(Instant::ZERO, SERVER, image.clone(), TransferPath::Auto).unwrap();
+        let done = run_scripted(&mut client, &mut target);
         assert!(matches!(done, Some(MemoryEvent::WriteDone { len: 3000, .. })), "{done:?}");
         assert_eq!(target.window, 1024);
         assert!(target.completed && target.unfrozen);
@@ -553,4 +569,47 @@ fn pip_has_memory_configuration_exactly_with_a_server() {
     assert!(!bits.contains(Protocols::FIRMWARE_UPGRADE) && !bits.contains(Protocols::FIRMWARE_UPGRADE_ACTIVE));
     let firmware = server_with(NodeConfig::default(), 16);
     assert!(firmware.protocols().contains(Protocols::FIRMWARE_UPGRADE));
+}
+
+/// An OpenLcbCLib-style target as node-protocols.md §3.11 reads it: Datagram OK 0x80 to
+/// Write Stream, the Write Stream Reply only after Complete and without the space byte
+/// (`20 30 addr SID DID`, C-2, C-8).
+struct ReplyAfterComplete {
+    sid: u8,
+    received: Vec<u8>,
+}
+
+impl Scripted for ReplyAfterComplete {
+    fn handle(&mut self, _now: Instant, msg: &Message, out: &mut Vec<Message>) {
+        let send =
+            |out: &mut Vec<Message>, mti, payload: Vec<u8>| out.push(Message::addressed(mti, SERVER, CLIENT, payload));
+        match msg.mti {
+            Mti::DATAGRAM if msg.payload[1] == 0x20 => {
+                self.sid = msg.payload[7];
+                send(out, Mti::DATAGRAM_RECEIVED_OK, vec![0x80]);
+            }
+            Mti::STREAM_INITIATE_REQUEST => {
+                send(out, Mti::STREAM_INITIATE_REPLY, vec![0x01, 0x00, 0x80, 0x00, self.sid, 0x03]);
+            }
+            Mti::STREAM_DATA_SEND => {
+                self.received.extend_from_slice(&msg.payload[1..]);
+                if self.received.len() % 256 == 0 {
+                    send(out, Mti::STREAM_DATA_PROCEED, vec![self.sid, 0x03]);
+                }
+            }
+            Mti::STREAM_DATA_COMPLETE => send(out, Mti::DATAGRAM, vec![0x20, 0x30, 0, 0, 0, 0, self.sid, 0x03]),
+            _ => {}
+        }
+    }
+}
+
+#[test]
+fn write_stream_reply_after_complete_without_the_space_byte() {
+    let mut client = Node::new(CLIENT, NodeConfig::default());
+    let mut target = ReplyAfterComplete { sid: 0, received: Vec::new() };
+    let data = pattern(1000, 8);
+    client.write_memory(Instant::ZERO, SERVER, 0x10, 0, data.clone(), TransferPath::Stream).unwrap();
+    let done = run_scripted(&mut client, &mut target);
+    assert!(matches!(done, Some(MemoryEvent::WriteDone { len: 1000, .. })), "{done:?}");
+    assert_eq!(target.received, data);
 }
