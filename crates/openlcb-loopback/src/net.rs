@@ -7,7 +7,7 @@ use bytes::Bytes;
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
 use openlcb_gateway::{Gateway, GatewayConfig};
-use openlcb_node::{Node, NodeConfig, NodeEvent};
+use openlcb_node::{MemoryServer, Node, NodeConfig, NodeEvent};
 use openlcb_stream::{
     Duration, Event, Instant, NodeId, OpenOptions, Role, StreamEndpoint, StreamHandle, Termination, TimeoutKind,
 };
@@ -31,7 +31,22 @@ pub struct NodeOptions {
     /// Pass every received CAN frame through GridConnect text, encoder and decoder, as a
     /// node behind a GridConnect hub would.
     pub gridconnect: bool,
+    /// Makes the node's Memory Configuration server (again after a reset).
+    pub memory_server: Option<fn() -> MemoryServer>,
 }
+
+impl NodeOptions {
+    fn build(&self, id: NodeId) -> Node {
+        let node = Node::new(id, self.node.clone());
+        match self.memory_server {
+            Some(make) => node.with_memory_server(make()),
+            None => node,
+        }
+    }
+}
+
+/// Events other than stream events a node keeps for [`Network::take_events`].
+const KEPT_EVENTS: usize = 1024;
 
 impl Default for NodeOptions {
     fn default() -> Self {
@@ -40,6 +55,7 @@ impl Default for NodeOptions {
             can: CanConfig::default(),
             latency: Duration::from_millis(1),
             gridconnect: false,
+            memory_server: None,
         }
     }
 }
@@ -274,6 +290,8 @@ struct SimNode {
     receiving: HashMap<StreamHandle, usize>,
     /// Run a turn at this time (or earlier).
     wake: Option<Instant>,
+    /// Events other than stream events, the newest [`KEPT_EVENTS`].
+    events: VecDeque<NodeEvent>,
 }
 
 /// What sits at the end of a pipe.
@@ -446,7 +464,7 @@ impl Network {
     fn push_node(&mut self, id: NodeId, options: NodeOptions, port: Port) -> NodeIndex {
         self.nodes.push(SimNode {
             id,
-            stack: Node::new(id, options.node.clone()),
+            stack: options.build(id),
             options,
             port,
             inbox: VecDeque::new(),
@@ -455,6 +473,7 @@ impl Network {
             sending: Vec::new(),
             receiving: HashMap::new(),
             wake: Some(self.now),
+            events: VecDeque::new(),
         });
         self.nodes.len() - 1
     }
@@ -560,7 +579,18 @@ impl Network {
 
     /// A node, to script it directly (datagrams, SNIP).
     pub fn node(&mut self, node: NodeIndex) -> Option<&mut Node> {
-        self.nodes.get_mut(node).map(|n| &mut n.stack)
+        // A command given now may have queued messages: the node takes a turn at once.
+        let now = self.now;
+        self.nodes.get_mut(node).map(|n| {
+            n.wake = Some(n.wake.map_or(now, |w| w.min(now)));
+            &mut n.stack
+        })
+    }
+
+    /// The events other than stream events `node` raised since the last call (datagrams,
+    /// SNIP, Memory Configuration), oldest first.
+    pub fn take_events(&mut self, node: NodeIndex) -> Vec<NodeEvent> {
+        self.nodes.get_mut(node).map(|n| n.events.drain(..).collect()).unwrap_or_default()
     }
 
     /// A CAN node's current alias.
@@ -667,7 +697,7 @@ impl Network {
         let fresh_alias = 1 + self.rng.below(0xFFE) as u16;
         let Some(node) = self.nodes.get_mut(index) else { return };
         node.inbox.clear();
-        node.stack = Node::new(node.id, node.options.node.clone());
+        node.stack = node.options.build(node.id);
         match &mut node.port {
             Port::Can { bus, port, link } => {
                 let mut can = node.options.can.clone();
@@ -888,7 +918,13 @@ impl Network {
             let Some(node) = self.nodes.get_mut(index) else { return any };
             let Some(event) = node.stack.poll_event() else { break };
             any = true;
-            let NodeEvent::Stream(event) = event else { continue };
+            let NodeEvent::Stream(event) = event else {
+                if node.events.len() >= KEPT_EVENTS {
+                    node.events.pop_front();
+                }
+                node.events.push_back(event);
+                continue;
+            };
             match event {
                 Event::Opened { handle, info } if info.role == Role::Destination => {
                     let found = self.transfers.iter().position(|t| {

@@ -6,6 +6,7 @@ use core::ops::BitOr;
 use openlcb_stream::{Config, Duration};
 
 use crate::datagram::DatagramConfig;
+use crate::memconfig::MemoryConfigOptions;
 use crate::snip::SnipInfo;
 
 /// Bounds, timers and identity of a [`Node`](crate::Node). Every table and buffer it keeps
@@ -22,6 +23,9 @@ pub struct NodeConfig {
     pub datagrams: DatagramConfig,
     /// What this node answers to Simple Node Information Request.
     pub snip: SnipInfo,
+    /// Memory Configuration's bounds and timers, server and client. (The spaces themselves
+    /// are given with [`Node::set_memory_server`](crate::Node::set_memory_server).)
+    pub memory: MemoryConfigOptions,
     /// How long a SNIP request of this node waits for the reply.
     pub snip_timeout: Duration,
     /// SNIP requests of this node waiting at once.
@@ -45,6 +49,7 @@ impl Default for NodeConfig {
             streams_enabled: true,
             datagrams: DatagramConfig::default(),
             snip: SnipInfo::default(),
+            memory: MemoryConfigOptions::default(),
             snip_timeout: Duration::from_secs(3),
             max_snip_requests: 8,
             extra_protocols: Protocols::NONE,

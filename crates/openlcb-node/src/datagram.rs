@@ -237,6 +237,11 @@ impl DatagramService {
         }
     }
 
+    /// The application takes datagrams with this content ID.
+    pub(crate) fn claims(&self, content: u8) -> bool {
+        self.is_claimed(content)
+    }
+
     fn is_claimed(&self, content: u8) -> bool {
         self.claimed.get(usize::from(content / 64)).is_some_and(|word| word & (1 << (content % 64)) != 0)
     }
@@ -446,7 +451,7 @@ impl DatagramService {
     }
 }
 
-fn rejected(local: NodeId, to: NodeId, code: ErrorCode) -> Message {
+pub(crate) fn rejected(local: NodeId, to: NodeId, code: ErrorCode) -> Message {
     Message::addressed(Mti::DATAGRAM_REJECTED, local, to, Bytes::copy_from_slice(&code.0.to_be_bytes()))
 }
 

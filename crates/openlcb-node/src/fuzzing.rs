@@ -152,3 +152,204 @@ fn drain(node: &mut Node, open: &mut Vec<crate::DatagramId>) {
         }
     }
 }
+
+/// Memory Configuration commands and replies: any bytes parse without panic, and what
+/// parses re-emits to bytes that parse to the same value (emission is stable after that).
+pub fn memconfig_roundtrip(data: &[u8]) {
+    use crate::memconfig::{Command, Reply};
+    // Half the inputs get the content ID, so most reach the command decoders.
+    let mut prefixed = Vec::with_capacity(data.len() + 1);
+    prefixed.push(crate::memconfig::wire::CONTENT_ID);
+    prefixed.extend_from_slice(data);
+    for input in [data, &prefixed[..]] {
+        if let Ok(command) = Command::parse(input) {
+            let bytes = command.to_bytes();
+            assert!(bytes.len() <= crate::MAX_DATAGRAM_LEN, "{command:?} emits {} bytes", bytes.len());
+            assert_eq!(Command::parse(&bytes).as_ref(), Ok(&command), "{input:02X?} -> {bytes:02X?}");
+            assert_eq!(Command::parse(&bytes).map(|c| c.to_bytes()), Ok(bytes));
+        }
+        if let Ok(reply) = Reply::parse(input) {
+            let bytes = reply.to_bytes();
+            assert_eq!(Reply::parse(&bytes).as_ref(), Ok(&reply), "{input:02X?} -> {bytes:02X?}");
+            assert_eq!(Reply::parse(&bytes).map(|r| r.to_bytes()), Ok(bytes));
+        }
+    }
+}
+
+/// What a peer does to a memory server.
+#[derive(Debug, Arbitrary)]
+enum ServerOp {
+    /// A well-formed command built from these fields (`kind` picks which).
+    Command {
+        peer: u8,
+        kind: u8,
+        space: u8,
+        address: u16,
+        count: u8,
+        stream: u8,
+        data: Vec<u8>,
+    },
+    /// Any datagram with content ID 0x20.
+    Raw {
+        peer: u8,
+        bytes: Vec<u8>,
+    },
+    /// Stream traffic for the server's transfers: `kind` picks the MTI; the IDs are the
+    /// last ones the server used, or `stream`.
+    Stream {
+        peer: u8,
+        kind: u8,
+        stream: u8,
+        payload: Vec<u8>,
+    },
+    /// Datagram OK or Rejected for the server's reply datagrams.
+    Answer {
+        peer: u8,
+        ok: bool,
+        code: u16,
+    },
+    Restart {
+        peer: u8,
+    },
+    PeerLost {
+        peer: u8,
+    },
+    Advance {
+        millis: u16,
+    },
+}
+
+/// Random commands and stream messages against a memory server: no panic; the spaces keep
+/// their sizes; reads never return bytes beyond a space; stream transfers within their
+/// bound; every datagram within 72 bytes; and once the peers go quiet, no transfer is left.
+pub fn memconfig_server_ops(data: &[u8]) {
+    use crate::memconfig::{Command, MemoryServer, RamSpace, ReadOnlySpace, Reply};
+    let mut u = Unstructured::new(data);
+    let Ok(ops) = Vec::<ServerOp>::arbitrary(&mut u) else { return };
+    let local = NodeId::from_bytes([5, 1, 1, 1, 0x40, 2]);
+    let mut config = NodeConfig::default();
+    config.memory.max_server_streams = 2;
+    config.stream.max_window = 64;
+    let bound = config.memory.max_server_streams;
+    let server = MemoryServer::new()
+        .with_space(0xFD, RamSpace::new(300))
+        .with_space(0x10, RamSpace::new(5))
+        .with_space(0xFF, ReadOnlySpace::cdi("<cdi/>"))
+        .with_space(0xEF, RamSpace::new(200))
+        .with_acdi()
+        .with_unique_ids([[1; 8], [2; 8]]);
+    let mut node = Node::new(local, config).with_memory_server(server);
+    let sizes = [(0xFD, 300), (0x10, 5), (0xFF, 7), (0xEF, 200)];
+    let mut now = Instant::ZERO;
+    let peer = |i: u8| PEERS.get(usize::from(i) % PEERS.len()).copied().unwrap_or(PEERS[0]);
+    let spaces = [0xFD, 0x10, 0xFF, 0xEF, 0xFC, 0xFB, 0x33];
+    // The last stream IDs the server put on the wire (SID, DID), for stream ops.
+    let mut ids = (0u8, 0u8);
+    for op in ops {
+        let message = |mti, p: u8, payload: &[u8], node: &mut Node, now| {
+            let destination = Some(local);
+            node.handle_message(now, MessageRef { mti, source: peer(p), destination, payload });
+        };
+        match op {
+            ServerOp::Command { peer: p, kind, space, address, count, stream, data } => {
+                let space = spaces.get(usize::from(space) % spaces.len()).copied().unwrap_or(0xFD);
+                let address = u32::from(address);
+                let mut data = data;
+                data.truncate(64);
+                if data.is_empty() {
+                    data.push(count);
+                }
+                let command = match kind % 12 {
+                    0 => Command::Read { space, address, count },
+                    1 => Command::Write { space, address, data },
+                    2 => Command::WriteUnderMask { space, address, mask: data.clone(), data },
+                    3 => Command::ReadStream { space, address, destination_stream: stream, count: u32::from(count) },
+                    4 => Command::WriteStream { space, address, source_stream: stream },
+                    5 => Command::GetOptions,
+                    6 => Command::GetSpaceInfo { space },
+                    7 => Command::Lock { node: u64::from(count) },
+                    8 => Command::GetUniqueId { count },
+                    9 => Command::Freeze { space },
+                    10 => Command::Unfreeze { space },
+                    _ => Command::FactoryReset { node: local.as_raw() },
+                };
+                message(Mti::DATAGRAM, p, &command.to_bytes(), &mut node, now);
+            }
+            ServerOp::Raw { peer: p, bytes } => {
+                let mut payload = alloc::vec![0x20];
+                payload.extend(bytes.iter().take(71));
+                message(Mti::DATAGRAM, p, &payload, &mut node, now);
+            }
+            ServerOp::Stream { peer: p, kind, stream, mut payload } => {
+                let (mti, head) = match kind % 5 {
+                    0 => (Mti::STREAM_INITIATE_REPLY, alloc::vec![0, 64, 0x80, 0, ids.0, ids.1]),
+                    1 => (Mti::STREAM_INITIATE_REQUEST, alloc::vec![0xFF, 0xFF, 0, 0, stream, 0xFF]),
+                    2 => (Mti::STREAM_DATA_SEND, alloc::vec![ids.1]),
+                    3 => (Mti::STREAM_DATA_PROCEED, alloc::vec![ids.0, ids.1, 0, 0]),
+                    _ => (Mti::STREAM_DATA_COMPLETE, alloc::vec![stream, ids.1]),
+                };
+                let mut bytes = head;
+                payload.truncate(64);
+                bytes.append(&mut payload);
+                message(mti, p, &bytes, &mut node, now);
+            }
+            ServerOp::Answer { peer: p, ok, code } => {
+                if ok {
+                    message(Mti::DATAGRAM_RECEIVED_OK, p, &[0], &mut node, now);
+                } else {
+                    message(Mti::DATAGRAM_REJECTED, p, &code.to_be_bytes(), &mut node, now);
+                }
+            }
+            ServerOp::Restart { peer: p } => {
+                let source = peer(p);
+                let payload = source.to_bytes();
+                node.handle_message(
+                    now,
+                    MessageRef { mti: Mti::INITIALIZATION_COMPLETE, source, destination: None, payload: &payload },
+                );
+            }
+            ServerOp::PeerLost { peer: p } => node.peer_lost(peer(p)),
+            ServerOp::Advance { millis } => {
+                now += Duration::from_millis(u64::from(millis) * 16);
+                node.handle_timeout(now);
+            }
+        }
+        while let Some(sent) = node.poll_transmit() {
+            assert!(sent.payload.len() <= crate::MAX_DATAGRAM_LEN || sent.mti == Mti::STREAM_DATA_SEND);
+            match sent.mti {
+                Mti::DATAGRAM => {
+                    if let Ok(Reply::ReadOk { space, address, data }) = Reply::parse(&sent.payload) {
+                        let size = sizes.iter().find(|(s, _)| *s == space).map_or(u32::MAX, |(_, n)| *n);
+                        let end = address as usize + data.len();
+                        assert!(space >= 0xFB || end <= size as usize, "read past the end of 0x{space:02X}");
+                    }
+                    if let Ok(Reply::WriteStreamOk { streams: Some((sid, did)), .. }) = Reply::parse(&sent.payload) {
+                        ids = (sid, did);
+                    }
+                }
+                Mti::STREAM_INITIATE_REQUEST => {
+                    ids = (sent.payload.get(4).copied().unwrap_or(0), sent.payload.get(5).copied().unwrap_or(0))
+                }
+                Mti::STREAM_INITIATE_REPLY => {
+                    ids = (sent.payload.get(4).copied().unwrap_or(0), sent.payload.get(5).copied().unwrap_or(0))
+                }
+                _ => {}
+            }
+        }
+        while node.poll_event().is_some() {}
+        let server = node.memory_server();
+        assert!(server.is_some_and(|s| s.active_streams() <= bound), "too many transfers");
+        for (space, size) in sizes {
+            let len = server.and_then(|s| s.space(space)).map(|s| s.len());
+            assert_eq!(len, Some(size), "space 0x{space:02X} changed size");
+        }
+    }
+    // Liveness: a long quiet time later, no transfer is left.
+    for _ in 0..20 {
+        now += Duration::from_secs(30);
+        node.handle_timeout(now);
+        while node.poll_transmit().is_some() {}
+        while node.poll_event().is_some() {}
+    }
+    assert_eq!(node.memory_server().map(|s| s.active_streams()), Some(0), "a transfer never ended");
+}

@@ -2,7 +2,8 @@
 //!
 //! A real device speaks several protocols at once, and streams are mostly reached through
 //! them. [`Node`] routes each received message to the protocol it belongs to: the stream
-//! endpoint of [`openlcb_stream`], the datagram service, Simple Node Information (SNIP), and
+//! endpoint of [`openlcb_stream`], the datagram service, Memory Configuration (server and
+//! client, [`memconfig`]), Simple Node Information (SNIP), and
 //! the message-network basics it answers itself (Verify Node ID, Protocol Support Inquiry, and
 //! Optional Interaction Rejected for addressed messages of protocols it lacks). Each
 //! Optional Interaction Rejected or Terminate Due To Error goes to the protocol its MTI names,
@@ -63,6 +64,48 @@
 //! assert!(events.iter().any(|e| matches!(e, NodeEvent::DatagramDelivered { id, .. } if *id == sent)));
 //! ```
 //!
+//! # Memory Configuration
+//!
+//! A node serves address spaces once it has a [`MemoryServer`] (see [`memconfig`]); any
+//! node is a client. Here B serves 256 bytes of RAM as space 0xFD; A writes four bytes by
+//! datagrams and reads the whole space back by stream. Each operation ends in one
+//! [`MemoryEvent`].
+//!
+//! ```
+//! use openlcb_node::{MemoryEvent, MemoryServer, Node, NodeConfig, NodeEvent, RamSpace, TransferPath};
+//! use openlcb_stream::{Instant, NodeId};
+//!
+//! let a_id = NodeId::new(0x05_01_01_01_22_00).unwrap();
+//! let b_id = NodeId::new(0x05_01_01_01_22_01).unwrap();
+//! let server = MemoryServer::new().with_space(0xFD, RamSpace::new(256));
+//! let mut a = Node::new(a_id, NodeConfig::default());
+//! let mut b = Node::new(b_id, NodeConfig::default()).with_memory_server(server);
+//! let now = Instant::ZERO;
+//!
+//! // Passes messages both ways until quiet; returns A's Memory Configuration events.
+//! fn pump(now: Instant, a: &mut Node, b: &mut Node) -> Vec<MemoryEvent> {
+//!     let mut events = Vec::new();
+//!     loop {
+//!         let mut moved = false;
+//!         while let Some(msg) = a.poll_transmit() { b.handle_message(now, msg.as_ref()); moved = true; }
+//!         while let Some(msg) = b.poll_transmit() { a.handle_message(now, msg.as_ref()); moved = true; }
+//!         while let Some(event) = a.poll_event() {
+//!             if let NodeEvent::Memory(event) = event { events.push(event); }
+//!         }
+//!         while b.poll_event().is_some() {}
+//!         if !moved { return events; }
+//!     }
+//! }
+//!
+//! pump(now, &mut a, &mut b);
+//! a.write_memory(now, b_id, 0xFD, 8, vec![1, 2, 3, 4], TransferPath::Datagrams).unwrap();
+//! assert!(matches!(pump(now, &mut a, &mut b)[..], [MemoryEvent::WriteDone { len: 4, .. }]));
+//! a.read_memory(now, b_id, 0xFD, 0, None, TransferPath::Stream).unwrap();
+//! let [MemoryEvent::ReadDone { data, .. }] = &pump(now, &mut a, &mut b)[..] else { panic!() };
+//! assert_eq!(data.len(), 256);
+//! assert_eq!(data[8..12], [1, 2, 3, 4]);
+//! ```
+//!
 //! # Peers known by their CAN alias
 //!
 //! On CAN a peer may be known only by its alias; the CAN link then names it with a
@@ -88,6 +131,7 @@ extern crate std;
 
 mod config;
 mod datagram;
+pub mod memconfig;
 mod node;
 mod snip;
 
@@ -99,6 +143,10 @@ pub use config::{NodeConfig, Protocols};
 pub use datagram::{
     Datagram, DatagramAnswer, DatagramConfig, DatagramError, DatagramFailure, DatagramId, DatagramStats,
     MAX_DATAGRAM_LEN, OkFlags, rejection_code,
+};
+pub use memconfig::{
+    MemoryConfigOptions, MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, MemorySpace,
+    RamSpace, ReadOnlySpace, SpaceError, TransferPath,
 };
 pub use node::{Node, NodeEvent, NodeStats};
 pub use snip::{MAX_REPLY_LEN, SnipFailure, SnipField, SnipInfo, SnipRequestError, SnipTooLong};

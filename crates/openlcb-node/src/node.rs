@@ -6,9 +6,15 @@ use alloc::vec::Vec;
 
 use bytes::Bytes;
 use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport};
-use openlcb_stream::{Event, Instant, Message, MessageRef, Mti, NodeId, StreamEndpoint};
+use openlcb_stream::{AcceptPolicy, Event, Instant, Message, MessageRef, Mti, NodeId, StreamEndpoint, StreamHandle};
 
-use crate::datagram::{Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramService, OkFlags};
+use crate::datagram::{
+    Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramService, OkFlags, rejected,
+};
+use crate::memconfig::{
+    MemoryClient, MemoryConfigOptions, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, TransferPath,
+    acdi_user_strings, wire as mc,
+};
 use crate::snip::{PendingSnip, SnipFailure, SnipInfo, SnipRequestError};
 use crate::{DatagramStats, NodeConfig, Protocols};
 
@@ -70,6 +76,9 @@ pub enum NodeEvent {
         /// Why.
         failure: SnipFailure,
     },
+    /// Memory Configuration: a client operation ended, or the server was asked to do
+    /// something the application carries out (reboot, install firmware, ...).
+    Memory(MemoryEvent),
 }
 
 /// Counters of the node's own routing; each protocol has its own too.
@@ -105,6 +114,12 @@ pub(crate) struct Outputs {
     transmits: VecDeque<Message>,
     events: VecDeque<NodeEvent>,
     answers_dropped: u64,
+    /// Datagrams Memory Configuration sent and waits on: their outcome goes to
+    /// `memory_inbox`, not to the application.
+    memory_datagrams: Vec<DatagramId>,
+    memory_inbox: VecDeque<NodeEvent>,
+    /// Streams Memory Configuration finished: their `Sent` event is its, not the application's.
+    memory_finished: Vec<StreamHandle>,
 }
 
 impl Outputs {
@@ -124,17 +139,89 @@ impl Outputs {
     }
 
     pub(crate) fn event(&mut self, event: NodeEvent) {
+        if let NodeEvent::DatagramDelivered { id, .. } | NodeEvent::DatagramFailed { id, .. } = &event {
+            if let Some(index) = self.memory_datagrams.iter().position(|d| d == id) {
+                self.memory_datagrams.swap_remove(index);
+                self.memory_inbox.push_back(event);
+                return;
+            }
+        }
         self.events.push_back(event);
     }
 }
 
-/// One local OpenLCB node: the stream endpoint, the datagram service, SNIP and the
-/// message-network basics, in the handle / command / poll shape of the stream core. See the
-/// crate documentation for the drive loop.
+/// What Memory Configuration's server and client get from the node for one call: its
+/// queues, its datagram service and its stream endpoint.
+pub(crate) struct Cx<'a> {
+    pub(crate) now: Instant,
+    pub(crate) out: &'a mut Outputs,
+    pub(crate) datagrams: &'a mut DatagramService,
+    pub(crate) streams: &'a mut StreamEndpoint,
+    pub(crate) streams_enabled: bool,
+    pub(crate) options: &'a MemoryConfigOptions,
+    /// The node must send Initialization Complete (it changed Firmware Upgrade state).
+    pub(crate) announce: bool,
+}
+
+impl Cx<'_> {
+    /// Datagram Received OK for the datagram `to` sent.
+    pub(crate) fn ok(&mut self, to: NodeId, flags: OkFlags) {
+        let ok = Message::addressed(
+            Mti::DATAGRAM_RECEIVED_OK,
+            self.out.node,
+            to,
+            Bytes::copy_from_slice(&[flags.to_byte()]),
+        );
+        self.out.reply(ok);
+    }
+
+    /// Datagram Rejected for the datagram `to` sent.
+    pub(crate) fn reject(&mut self, to: NodeId, code: ErrorCode) {
+        self.out.reply(rejected(self.out.node, to, code));
+    }
+
+    /// Sends a datagram whose outcome Memory Configuration takes.
+    pub(crate) fn send_datagram(&mut self, to: NodeId, payload: &[u8]) -> Option<DatagramId> {
+        let id = self.datagrams.send(self.now, self.out, to, payload).ok()?;
+        self.out.memory_datagrams.push(id);
+        Some(id)
+    }
+
+    /// Finishes a stream of Memory Configuration (its `Sent` event stays inside).
+    pub(crate) fn finish_stream(&mut self, handle: StreamHandle) -> bool {
+        let finished = self.streams.finish(self.now, handle).is_ok();
+        if finished {
+            self.out.memory_finished.push(handle);
+        }
+        finished
+    }
+
+    /// Sends a reply datagram (its delivery is the datagram service's business).
+    pub(crate) fn send_reply(&mut self, to: NodeId, payload: &[u8]) {
+        let _ = self.send_datagram(to, payload);
+    }
+}
+
+/// One local OpenLCB node: the stream endpoint, the datagram service, Memory
+/// Configuration, SNIP and the message-network basics, in the handle / command / poll shape
+/// of the stream core. See the crate documentation for the drive loop.
+///
+/// With [`AcceptPolicy::AcceptAll`] in [`NodeConfig::stream`] the node's endpoint runs with
+/// [`AcceptPolicy::Ask`] and the node accepts each request itself, at once, unless Memory
+/// Configuration claims it first (a Write Stream it was told of, a Read Stream it armed), so
+/// that those get the window the space can take; [`streams`](Node::streams)`().config()`
+/// shows `Ask`. With `RejectAll` no stream is taken, Memory Configuration's included.
 #[derive(Debug)]
 pub struct Node {
     config: NodeConfig,
     protocols: Protocols,
+    memory_server: Option<MemoryServer>,
+    memory_client: MemoryClient,
+    /// The application's policy is AcceptAll: the endpoint asks (so Memory Configuration
+    /// can claim its streams first) and the node accepts the rest.
+    accept_for_application: bool,
+    /// The time of the last call that gave one (for events drained by `poll_event`).
+    last_now: Instant,
     streams: StreamEndpoint,
     datagrams: DatagramService,
     snip_reply: Bytes,
@@ -153,6 +240,9 @@ impl Node {
             transmits: VecDeque::new(),
             events: VecDeque::new(),
             answers_dropped: 0,
+            memory_datagrams: Vec::new(),
+            memory_inbox: VecDeque::new(),
+            memory_finished: Vec::new(),
         };
         if config.send_initialization_complete {
             out.transmit(Message::initialization_complete(id));
@@ -161,9 +251,18 @@ impl Node {
         if config.streams_enabled {
             protocols = protocols | Protocols::STREAM;
         }
+        let mut stream_config = config.stream.clone();
+        let accept_for_application = stream_config.accept_policy == AcceptPolicy::AcceptAll;
+        if accept_for_application {
+            stream_config.accept_policy = AcceptPolicy::Ask;
+        }
         Node {
             protocols,
-            streams: StreamEndpoint::new(id, config.stream.clone()),
+            memory_server: None,
+            memory_client: MemoryClient::default(),
+            accept_for_application,
+            last_now: Instant::ZERO,
+            streams: StreamEndpoint::new(id, stream_config),
             datagrams: DatagramService::new(config.datagrams.clone()),
             snip_reply: config.snip.to_payload(),
             snip_requests: Vec::with_capacity(config.max_snip_requests),
@@ -186,9 +285,32 @@ impl Node {
     }
 
     /// The protocols this node announces in its Protocol Support Reply: exactly what it
-    /// implements.
+    /// implements. With a memory server: Memory Configuration, and with space 0xEF
+    /// Firmware Upgrade (Firmware Upgrade Active while frozen, FWU §5.3).
     pub fn protocols(&self) -> Protocols {
-        self.protocols
+        match &self.memory_server {
+            None => self.protocols,
+            Some(server) if !server.has_firmware() => self.protocols | Protocols::MEMORY_CONFIGURATION,
+            Some(server) if server.is_frozen() => {
+                self.protocols | Protocols::MEMORY_CONFIGURATION | Protocols::FIRMWARE_UPGRADE_ACTIVE
+            }
+            Some(_) => self.protocols | Protocols::MEMORY_CONFIGURATION | Protocols::FIRMWARE_UPGRADE,
+        }
+    }
+
+    /// The memory server, to read back its spaces and state.
+    pub fn memory_server(&self) -> Option<&MemoryServer> {
+        self.memory_server.as_ref()
+    }
+
+    /// The memory server, mutable (to change a space between transfers).
+    pub fn memory_server_mut(&mut self) -> Option<&mut MemoryServer> {
+        self.memory_server.as_mut()
+    }
+
+    /// Bytes an operation has moved so far (`None` once it has ended).
+    pub fn memory_progress(&self, operation: MemoryOperation) -> Option<u64> {
+        self.memory_client.progress(operation)
     }
 
     /// The stream endpoint, for its getters.
@@ -217,20 +339,34 @@ impl Node {
 
     /// The next event.
     pub fn poll_event(&mut self) -> Option<NodeEvent> {
-        self.out.events.pop_front().or_else(|| self.streams.poll_event().map(NodeEvent::Stream))
+        if self.out.events.is_empty() {
+            // Events of stream commands given through `streams_mut` wait in the endpoint.
+            self.settle(self.last_now);
+        }
+        self.out.events.pop_front()
     }
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
         let snip = self.snip_requests.iter().map(|p| p.deadline).min();
-        [self.streams.poll_timeout(), self.datagrams.poll_timeout(), snip].into_iter().flatten().min()
+        let server = self.memory_server.as_ref().and_then(MemoryServer::poll_timeout);
+        let client = self.memory_client.poll_timeout();
+        [self.streams.poll_timeout(), self.datagrams.poll_timeout(), snip, server, client].into_iter().flatten().min()
     }
 
     // ----- inputs -----
 
     /// Feeds one received message; it goes to the protocol it belongs to.
     pub fn handle_message(&mut self, now: Instant, msg: MessageRef<'_>) {
+        self.route(now, msg);
+        self.settle(now);
+    }
+
+    fn route(&mut self, now: Instant, msg: MessageRef<'_>) {
+        self.last_now = now;
         self.stats.messages_in += 1;
+        let protocols = self.protocols();
+        let memory_datagram = msg.mti == Mti::DATAGRAM && self.is_memory_datagram(msg.source, msg.payload);
         if msg.source == self.out.node {
             self.stats.own_echoes += 1;
             return;
@@ -253,7 +389,12 @@ impl Node {
             Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => {
                 self.streams.handle_message(now, msg);
                 self.datagrams.peer_restarted(now, out, peer);
+                if let Some(server) = &mut self.memory_server {
+                    server.forget_peer(Some(peer));
+                }
+                self.with_memory(now, |cx, _, client| client.peer_restarted(cx, peer));
             }
+            Mti::DATAGRAM if memory_datagram => self.on_memory_datagram(now, peer, msg.payload),
             Mti::OPTIONAL_INTERACTION_REJECTED | Mti::TERMINATE_DUE_TO_ERROR => self.on_error_report(now, msg),
             Mti::DATAGRAM => self.datagrams.on_datagram(now, out, peer, msg.payload),
             Mti::DATAGRAM_RECEIVED_OK => self.datagrams.on_received_ok(now, out, peer, msg.payload),
@@ -265,6 +406,10 @@ impl Node {
                 out.reply(Message::addressed(Mti::SIMPLE_NODE_INFO_REPLY, out.node, peer, self.snip_reply.clone()));
             }
             Mti::SIMPLE_NODE_INFO_REPLY => self.on_snip_reply(peer, msg.payload),
+            Mti::PROTOCOL_SUPPORT_REPLY if self.memory_client.wants_protocols(peer) => {
+                let protocols = Protocols::from_payload(msg.payload);
+                self.with_memory(now, |cx, _, client| client.on_protocols(cx, peer, protocols));
+            }
             Mti::PROTOCOL_SUPPORT_REPLY => {
                 out.event(NodeEvent::ProtocolsReceived { peer, protocols: Protocols::from_payload(msg.payload) });
             }
@@ -281,7 +426,7 @@ impl Node {
             }
             Mti::VERIFY_NODE_ID_ADDRESSED => out.reply(Message::verified_node_id(out.node)),
             Mti::PROTOCOL_SUPPORT_INQUIRY => {
-                let flags = Bytes::copy_from_slice(&self.protocols.to_bytes());
+                let flags = Bytes::copy_from_slice(&protocols.to_bytes());
                 out.reply(Message::addressed(Mti::PROTOCOL_SUPPORT_REPLY, out.node, peer, flags));
             }
             mti if mti.is_addressed() && !is_answer(mti) => {
@@ -339,8 +484,13 @@ impl Node {
 
     /// Runs every timer due at `now`. Early or repeated calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
+        self.last_now = now;
         self.streams.handle_timeout(now);
         self.datagrams.handle_timeout(now, &mut self.out);
+        if let Some(server) = &mut self.memory_server {
+            server.handle_timeout(now);
+        }
+        self.with_memory(now, |cx, _, client| client.handle_timeout(cx));
         while let Some(index) = self.snip_requests.iter().position(|p| p.deadline <= now) {
             let expired = self.snip_requests.swap_remove(index);
             // A partial reply is still worth having (SNIP-TN §2.6: be liberal).
@@ -351,6 +501,7 @@ impl Node {
             };
             self.out.event(event);
         }
+        self.settle(now);
     }
 
     /// The transport now names a peer differently (on CAN: its Node ID was learnt, or its
@@ -359,6 +510,10 @@ impl Node {
     pub fn rename_peer(&mut self, from: NodeId, to: NodeId) {
         self.streams.rename_peer(from, to);
         self.datagrams.rename_peer(from, to);
+        self.memory_client.rename_peer(from, to);
+        if let Some(server) = &mut self.memory_server {
+            server.rename_peer(from, to);
+        }
         for pending in self.snip_requests.iter_mut().filter(|p| p.peer == from) {
             pending.peer = to;
         }
@@ -370,6 +525,7 @@ impl Node {
         self.streams.peer_lost(peer);
         self.datagrams.peer_lost(&mut self.out, Some(peer));
         self.fail_snip(Some(peer));
+        self.forget_memory_peer(Some(peer));
     }
 
     /// The transport lost its link (e.g. this node's CAN alias): everything open ends.
@@ -377,6 +533,16 @@ impl Node {
         self.streams.link_lost();
         self.datagrams.peer_lost(&mut self.out, None);
         self.fail_snip(None);
+        self.forget_memory_peer(None);
+    }
+
+    fn forget_memory_peer(&mut self, peer: Option<NodeId>) {
+        if let Some(server) = &mut self.memory_server {
+            server.forget_peer(peer);
+        }
+        let now = self.last_now;
+        self.with_memory(now, |cx, _, client| client.peer_lost(cx, peer));
+        self.settle(now);
     }
 
     fn fail_snip(&mut self, peer: Option<NodeId>) {
@@ -425,6 +591,188 @@ impl Node {
     /// Asks `peer` which protocols it supports; `ProtocolsReceived` follows if it answers.
     pub fn request_protocols(&mut self, peer: NodeId) {
         self.out.transmit(Message::addressed(Mti::PROTOCOL_SUPPORT_INQUIRY, self.out.node, peer, Bytes::new()));
+    }
+}
+
+/// Memory Configuration: the server, the client, and the routing of their datagrams and
+/// streams.
+impl Node {
+    /// Serves `server`'s spaces from now on: datagrams with content ID 0x20 that are
+    /// commands go to it, and the PIP announces Memory Configuration (and Firmware Upgrade
+    /// with space 0xEF). Its ACDI spaces mirror this node's SNIP strings.
+    pub fn set_memory_server(&mut self, mut server: MemoryServer) {
+        server.mirror_snip(&self.config.snip);
+        self.memory_server = Some(server);
+    }
+
+    /// [`set_memory_server`](Self::set_memory_server), builder style.
+    pub fn with_memory_server(mut self, server: MemoryServer) -> Self {
+        self.set_memory_server(server);
+        self
+    }
+
+    /// Reads `len` bytes (`None`: to the end of the space) of `space` from `address` on
+    /// `peer`. Progress with [`memory_progress`](Self::memory_progress); `ReadDone` or
+    /// `Failed` follows.
+    pub fn read_memory(
+        &mut self,
+        now: Instant,
+        peer: NodeId,
+        space: u8,
+        address: u32,
+        len: Option<u32>,
+        path: TransferPath,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        self.last_now = now;
+        let started = self.with_memory(now, |cx, _, client| client.read(cx, peer, space, address, len, path));
+        self.settle(now);
+        started
+    }
+
+    /// Writes `data` into `space` from `address` on `peer`; `WriteDone` or `Failed` follows.
+    pub fn write_memory(
+        &mut self,
+        now: Instant,
+        peer: NodeId,
+        space: u8,
+        address: u32,
+        data: impl Into<Bytes>,
+        path: TransferPath,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        self.last_now = now;
+        let data = data.into();
+        let started = self.with_memory(now, |cx, _, client| client.write(cx, peer, space, address, data, path));
+        self.settle(now);
+        started
+    }
+
+    /// Upgrades `peer`'s firmware with `image` (FWU §5.5): Freeze, Protocol Support
+    /// Inquiry, the image to space 0xEF from address 0 by stream (when the target's PIP has
+    /// the Stream bit) or by 64-byte datagram writes, Unfreeze. `WriteDone` or `Failed`
+    /// follows; the target rebooting at Unfreeze counts as success.
+    pub fn upgrade_firmware(
+        &mut self,
+        now: Instant,
+        peer: NodeId,
+        image: impl Into<Bytes>,
+        path: TransferPath,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        self.last_now = now;
+        let image = image.into();
+        let started = self.with_memory(now, |cx, _, client| client.upgrade(cx, peer, image, path));
+        self.settle(now);
+        started
+    }
+
+    /// Runs `f` on the memory server and client with the node's parts lent to them.
+    fn with_memory<T>(
+        &mut self,
+        now: Instant,
+        f: impl FnOnce(&mut Cx<'_>, Option<&mut MemoryServer>, &mut MemoryClient) -> T,
+    ) -> T {
+        let Node { config, out, datagrams, streams, memory_server, memory_client, .. } = self;
+        let mut cx = Cx {
+            now,
+            out,
+            datagrams,
+            streams,
+            streams_enabled: config.streams_enabled,
+            options: &config.memory,
+            announce: false,
+        };
+        let result = f(&mut cx, memory_server.as_mut(), memory_client);
+        if cx.announce {
+            // FWU §5.2: every change of state ends with a new Initialization Complete.
+            let node = out.node;
+            out.transmit(Message::initialization_complete(node));
+        }
+        result
+    }
+
+    /// A datagram with content ID 0x20 that Memory Configuration takes: a command when a
+    /// server is configured; a reply when the client has an operation with the sender (or
+    /// the application does not claim 0x20).
+    fn is_memory_datagram(&self, peer: NodeId, payload: &[u8]) -> bool {
+        match payload {
+            [mc::CONTENT_ID, command, ..] if mc::is_reply(*command) => {
+                self.memory_client.has_operation_with(peer) || !self.datagrams.claims(mc::CONTENT_ID)
+            }
+            [mc::CONTENT_ID, ..] => self.memory_server.is_some(),
+            _ => false,
+        }
+    }
+
+    fn on_memory_datagram(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
+        let is_reply = payload.get(1).is_some_and(|c| mc::is_reply(*c));
+        self.with_memory(now, |cx, server, client| {
+            if is_reply {
+                // Acknowledge a reply before anything else is sent (MC-TN §3.1.3.3).
+                cx.ok(peer, OkFlags::default());
+                client.on_reply(cx, peer, payload);
+            } else if let Some(server) = server {
+                server.on_command(cx, peer, payload);
+            }
+        });
+        self.update_user_info();
+    }
+
+    /// A write to space 0xFB changed the user strings: SNIP follows them.
+    fn update_user_info(&mut self) {
+        let Some(server) = &mut self.memory_server else { return };
+        if !core::mem::take(&mut server.user_info_changed) {
+            return;
+        }
+        let (name, description) = acdi_user_strings(server.acdi_user());
+        self.config.snip.user_name = name;
+        self.config.snip.user_description = description;
+        self.snip_reply = self.config.snip.to_payload();
+        self.out.event(NodeEvent::Memory(MemoryEvent::UserInfoChanged));
+    }
+
+    /// Feeds Memory Configuration what waits for it (its datagrams' outcomes, the stream
+    /// events), raises the rest, and applies the application's accept policy to streams
+    /// nobody here claimed. Runs after every input and command.
+    fn settle(&mut self, now: Instant) {
+        let accept_for_application = self.accept_for_application;
+        loop {
+            let mut moved = false;
+            while let Some(event) = self.out.memory_inbox.pop_front() {
+                moved = true;
+                let (id, result) = match event {
+                    NodeEvent::DatagramDelivered { id, flags, .. } => (id, Ok(flags)),
+                    NodeEvent::DatagramFailed { id, failure, .. } => (id, Err(failure)),
+                    _ => continue,
+                };
+                // Outcomes of the server's reply datagrams need nothing more.
+                self.with_memory(now, |cx, _, client| client.on_datagram_outcome(cx, id, result));
+            }
+            while let Some(event) = self.streams.poll_event() {
+                moved = true;
+                let claimed = self.with_memory(now, |cx, server, client| {
+                    server.is_some_and(|s| s.on_stream_event(cx, &event)) || client.on_stream_event(cx, &event)
+                });
+                let ours_sent = match event {
+                    Event::Sent { handle, .. } => self.out.memory_finished.iter().position(|h| *h == handle),
+                    _ => None,
+                };
+                match event {
+                    _ if claimed => {}
+                    Event::Sent { .. } if ours_sent.is_some() => {
+                        if let Some(index) = ours_sent {
+                            self.out.memory_finished.swap_remove(index);
+                        }
+                    }
+                    Event::IncomingRequest { handle, .. } if accept_for_application => {
+                        let _ = self.streams.accept(now, handle, None);
+                    }
+                    event => self.out.events.push_back(NodeEvent::Stream(event)),
+                }
+            }
+            self.with_memory(now, |cx, _, client| client.poll_streams(cx));
+            if !moved {
+                break;
+            }
+        }
     }
 }
 

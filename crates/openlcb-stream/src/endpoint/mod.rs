@@ -285,6 +285,12 @@ impl StreamEndpoint {
         }
     }
 
+    /// The DID this endpoint will assign to the next request from `peer` that proposes
+    /// none (Memory Configuration's Write Stream Reply names it before the request comes).
+    pub fn next_destination_id(&self, peer: NodeId) -> Option<StreamId> {
+        self.free_id(peer, Role::Destination).ok()
+    }
+
     /// Every live handle, in slot order.
     pub fn handles(&self) -> impl Iterator<Item = StreamHandle> + '_ {
         self.slots

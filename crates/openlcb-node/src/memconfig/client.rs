@@ -1,0 +1,771 @@
+//! The client side: reads, writes and firmware upgrades of another node's spaces, by
+//! datagrams (64-byte chunks, one outstanding) and by streams, each an operation that ends
+//! in one [`MemoryEvent`].
+
+use alloc::vec::Vec;
+
+use bytes::Bytes;
+use openlcb_stream::wire::ErrorCode;
+use openlcb_stream::{Event, Instant, Message, Mti, NodeId, OpenOptions, Role, StreamHandle, StreamId, Termination};
+
+use super::wire::{Command, FailedKind, MAX_DATA_LEN, Reply, SPACE_FIRMWARE, codes};
+use super::{MemoryError, MemoryEvent};
+use crate::node::Cx;
+use crate::{DatagramFailure, DatagramId, NodeEvent, OkFlags, Protocols};
+
+/// Names one client operation ([`Node::read_memory`](crate::Node::read_memory) and the
+/// others); its final [`MemoryEvent`] carries it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct MemoryOperation(pub u32);
+
+/// How a client operation moves its bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum TransferPath {
+    /// By stream when the node says it can (its Configuration Options for reads and writes,
+    /// either bit of C-5; its PIP Stream bit for a firmware upgrade, FWU §5.5), by datagrams
+    /// otherwise.
+    #[default]
+    Auto,
+    /// Datagrams only (64-byte chunks).
+    Datagrams,
+    /// Stream only (Read Stream / Write Stream), no Options query first.
+    Stream,
+}
+
+/// Why a client operation could not start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum MemoryRequestError {
+    /// [`MemoryConfigOptions::max_operations`](super::MemoryConfigOptions::max_operations)
+    /// operations are running.
+    #[error("too many memory operations are running")]
+    TooMany,
+    /// An operation with that node is running (its replies could not be told apart).
+    #[error("an operation with that node is running")]
+    Busy,
+    /// The node is this node.
+    #[error("a node cannot configure itself over the network")]
+    SelfAddressed,
+    /// A read longer than [`MemoryConfigOptions::max_read_len`](super::MemoryConfigOptions::max_read_len),
+    /// or a write or image of 0 bytes or more than 4 GiB.
+    #[error("the length is out of range")]
+    BadLength,
+    /// A stream path was asked for, and this node has streams off.
+    #[error("streams are off on this node")]
+    NoStreams,
+}
+
+#[derive(Debug)]
+enum Kind {
+    /// `len: None` reads to the end of the space.
+    Read {
+        data: Vec<u8>,
+        len: Option<u32>,
+    },
+    Write {
+        data: Bytes,
+    },
+    Firmware {
+        image: Bytes,
+    },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Step {
+    /// Get Configuration Options sent; its reply decides the path.
+    Options,
+    /// Get Address Space Information sent: a datagram read to the end needs the size.
+    SpaceInfo,
+    /// One datagram Read or Write of `len` bytes at offset `at` of the operation.
+    Chunk { at: u32, len: u32 },
+    /// Read Stream sent with `did` armed.
+    ReadStream { did: StreamId, handle: Option<StreamHandle> },
+    /// Write Stream sent with `sid`; the stream opens after the Datagram OK.
+    WriteStream { sid: StreamId, handle: Option<StreamHandle>, sent: u64, finished: bool, replied: bool },
+    /// Firmware: Freeze sent; waiting for OK or Initialization Complete (C-11).
+    Freeze,
+    /// Firmware: Protocol Support Inquiry sent; its Stream bit decides the path.
+    Protocols,
+    /// Firmware: Unfreeze sent; OK or a reboot ends the upgrade.
+    Unfreeze,
+}
+
+#[derive(Debug)]
+struct Operation {
+    id: MemoryOperation,
+    peer: NodeId,
+    space: u8,
+    address: u32,
+    kind: Kind,
+    path: TransferPath,
+    step: Step,
+    /// The command datagram waiting for its OK or Rejected.
+    datagram: Option<DatagramId>,
+    /// The OK came with Reply Pending: a reply datagram is due by `deadline`.
+    awaiting_reply: bool,
+    deadline: Option<Instant>,
+    retries: u8,
+    progress: u64,
+    /// A Read Reply shorter than asked for, at (offset, length): trusted only once a second
+    /// read says the same, since a CAN datagram that lost a middle frame looks just like one.
+    short_reply: Option<(u32, usize)>,
+}
+
+impl Operation {
+    fn total(&self) -> u64 {
+        match &self.kind {
+            Kind::Read { len, .. } => len.map_or(0, u64::from),
+            Kind::Write { data } => data.len() as u64,
+            Kind::Firmware { image } => image.len() as u64,
+        }
+    }
+
+    fn payload(&self) -> &[u8] {
+        match &self.kind {
+            Kind::Write { data } => data,
+            Kind::Firmware { image } => image,
+            Kind::Read { .. } => &[],
+        }
+    }
+
+    fn stream_handle(&self) -> Option<StreamHandle> {
+        match self.step {
+            Step::ReadStream { handle, .. } | Step::WriteStream { handle, .. } => handle,
+            _ => None,
+        }
+    }
+}
+
+/// Every operation this node runs as a Memory Configuration client.
+#[derive(Debug, Default)]
+pub(crate) struct MemoryClient {
+    operations: Vec<Operation>,
+    next_id: u32,
+    next_stream: u8,
+}
+
+enum Outcome {
+    Done,
+    Fail(MemoryError),
+}
+
+impl MemoryClient {
+    pub(crate) fn has_operation_with(&self, peer: NodeId) -> bool {
+        self.operations.iter().any(|o| o.peer == peer)
+    }
+
+    pub(crate) fn progress(&self, id: MemoryOperation) -> Option<u64> {
+        self.operations.iter().find(|o| o.id == id).map(|o| o.progress)
+    }
+
+    pub(crate) fn wants_protocols(&self, peer: NodeId) -> bool {
+        self.operations.iter().any(|o| o.peer == peer && o.step == Step::Protocols)
+    }
+
+    pub(crate) fn poll_timeout(&self) -> Option<Instant> {
+        self.operations.iter().filter_map(|o| o.deadline).min()
+    }
+
+    // ----- starting -----
+
+    pub(crate) fn read(
+        &mut self,
+        cx: &mut Cx<'_>,
+        peer: NodeId,
+        space: u8,
+        address: u32,
+        len: Option<u32>,
+        path: TransferPath,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        if len.is_some_and(|n| n == 0 || n > cx.options.max_read_len) {
+            return Err(MemoryRequestError::BadLength);
+        }
+        self.start(cx, peer, space, address, Kind::Read { data: Vec::new(), len }, path)
+    }
+
+    pub(crate) fn write(
+        &mut self,
+        cx: &mut Cx<'_>,
+        peer: NodeId,
+        space: u8,
+        address: u32,
+        data: Bytes,
+        path: TransferPath,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        if data.is_empty() || u32::try_from(data.len()).is_err() {
+            return Err(MemoryRequestError::BadLength);
+        }
+        self.start(cx, peer, space, address, Kind::Write { data }, path)
+    }
+
+    pub(crate) fn upgrade(
+        &mut self,
+        cx: &mut Cx<'_>,
+        peer: NodeId,
+        image: Bytes,
+        path: TransferPath,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        if image.is_empty() || u32::try_from(image.len()).is_err() {
+            return Err(MemoryRequestError::BadLength);
+        }
+        self.start(cx, peer, SPACE_FIRMWARE, 0, Kind::Firmware { image }, path)
+    }
+
+    fn start(
+        &mut self,
+        cx: &mut Cx<'_>,
+        peer: NodeId,
+        space: u8,
+        address: u32,
+        kind: Kind,
+        path: TransferPath,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        if peer == cx.out.node {
+            return Err(MemoryRequestError::SelfAddressed);
+        }
+        if path == TransferPath::Stream && !cx.streams_enabled {
+            return Err(MemoryRequestError::NoStreams);
+        }
+        if self.has_operation_with(peer) {
+            return Err(MemoryRequestError::Busy);
+        }
+        if self.operations.len() >= cx.options.max_operations {
+            return Err(MemoryRequestError::TooMany);
+        }
+        let id = MemoryOperation(self.next_id);
+        self.next_id = self.next_id.wrapping_add(1);
+        let firmware = matches!(kind, Kind::Firmware { .. });
+        self.operations.push(Operation {
+            id,
+            peer,
+            space,
+            address,
+            kind,
+            path,
+            step: Step::Options,
+            datagram: None,
+            awaiting_reply: false,
+            deadline: None,
+            retries: 0,
+            progress: 0,
+            short_reply: None,
+        });
+        let index = self.operations.len() - 1;
+        let outcome = match path {
+            // FWU §5.5: Freeze first; the PIP asked after it decides the path.
+            _ if firmware => self.send(cx, index, Step::Freeze, &Command::Freeze { space: SPACE_FIRMWARE }),
+            TransferPath::Auto if cx.streams_enabled => self.send(cx, index, Step::Options, &Command::GetOptions),
+            TransferPath::Stream => self.begin_transfer(cx, index, true),
+            _ => self.begin_transfer(cx, index, false),
+        };
+        self.settle(cx, index, outcome);
+        Ok(id)
+    }
+
+    /// Sends `command` as the operation's next step.
+    fn send(&mut self, cx: &mut Cx<'_>, index: usize, step: Step, command: &Command) -> Option<Outcome> {
+        let op = self.operations.get_mut(index)?;
+        op.step = step;
+        op.awaiting_reply = false;
+        op.deadline = None;
+        match cx.send_datagram(op.peer, &command.to_bytes()) {
+            Some(id) => {
+                op.datagram = Some(id);
+                None
+            }
+            None => Some(Outcome::Fail(MemoryError::Rejected(codes::BUSY))),
+        }
+    }
+
+    /// Starts moving bytes, by stream or by datagrams.
+    fn begin_transfer(&mut self, cx: &mut Cx<'_>, index: usize, by_stream: bool) -> Option<Outcome> {
+        let op = self.operations.get(index)?;
+        let (peer, space, address) = (op.peer, op.space, op.address);
+        let read_len = match &op.kind {
+            Kind::Read { len, .. } => Some(*len),
+            _ => None,
+        };
+        match (read_len, by_stream) {
+            (Some(len), true) => {
+                let did = self.free_stream_id(cx, peer, Role::Destination)?;
+                let count = len.unwrap_or(u32::MAX);
+                let command = Command::ReadStream { space, address, destination_stream: did.as_raw(), count };
+                self.send(cx, index, Step::ReadStream { did, handle: None }, &command)
+            }
+            (Some(None), false) => self.send(cx, index, Step::SpaceInfo, &Command::GetSpaceInfo { space }),
+            (Some(Some(_)), false) => self.next_chunk(cx, index, 0),
+            (_, true) => {
+                let sid = self.free_stream_id(cx, peer, Role::Source)?;
+                let step = Step::WriteStream { sid, handle: None, sent: 0, finished: false, replied: false };
+                self.send(cx, index, step, &Command::WriteStream { space, address, source_stream: sid.as_raw() })
+            }
+            (_, false) => self.next_chunk(cx, index, 0),
+        }
+    }
+
+    /// A stream ID not in use with `peer` in `role` on this node's endpoint, rotating.
+    fn free_stream_id(&mut self, cx: &Cx<'_>, peer: NodeId, role: Role) -> Option<StreamId> {
+        let used: Vec<u8> = cx
+            .streams
+            .handles()
+            .filter_map(|h| cx.streams.stream_info(h))
+            .filter(|i| i.peer == peer && i.role == role)
+            .filter_map(|i| match role {
+                Role::Source => Some(i.source_stream.as_raw()),
+                Role::Destination => i.destination_stream.map(StreamId::as_raw),
+            })
+            .collect();
+        for _ in 0..255 {
+            let candidate = self.next_stream;
+            self.next_stream = if candidate >= 0xFE { 0 } else { candidate + 1 };
+            if !used.contains(&candidate) {
+                return StreamId::new(candidate);
+            }
+        }
+        None
+    }
+
+    /// The datagram chunk at offset `at`, or the end of the transfer.
+    fn next_chunk(&mut self, cx: &mut Cx<'_>, index: usize, at: u32) -> Option<Outcome> {
+        let op = self.operations.get(index)?;
+        let total = u32::try_from(op.total()).unwrap_or(u32::MAX);
+        if at >= total {
+            return self.transfer_done(cx, index);
+        }
+        let len = (total - at).min(MAX_DATA_LEN as u32);
+        let address = op.address.saturating_add(at);
+        let command = match &op.kind {
+            Kind::Read { .. } => Command::Read { space: op.space, address, count: len as u8 },
+            _ => {
+                let data = op.payload().get(at as usize..(at + len) as usize).unwrap_or_default().to_vec();
+                Command::Write { space: op.space, address, data }
+            }
+        };
+        self.send(cx, index, Step::Chunk { at, len }, &command)
+    }
+
+    /// Every byte moved: a firmware upgrade goes on with Unfreeze; the rest are done.
+    fn transfer_done(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
+        let op = self.operations.get(index)?;
+        if matches!(op.kind, Kind::Firmware { .. }) && op.step != Step::Unfreeze {
+            return self.send(cx, index, Step::Unfreeze, &Command::Unfreeze { space: SPACE_FIRMWARE });
+        }
+        Some(Outcome::Done)
+    }
+
+    /// Ends the operation when `outcome` says so.
+    fn settle(&mut self, cx: &mut Cx<'_>, index: usize, outcome: Option<Outcome>) {
+        let Some(outcome) = outcome else { return };
+        if index >= self.operations.len() {
+            return;
+        }
+        let op = self.operations.swap_remove(index);
+        if let (Outcome::Fail(_), Some(handle)) = (&outcome, op.stream_handle()) {
+            let _ = cx.streams.abort(cx.now, handle, ErrorCode::PERMANENT);
+        }
+        let event = match (outcome, op.kind) {
+            (Outcome::Fail(error), _) => MemoryEvent::Failed { operation: op.id, peer: op.peer, error },
+            (Outcome::Done, Kind::Read { data, .. }) => MemoryEvent::ReadDone { operation: op.id, peer: op.peer, data },
+            (Outcome::Done, _) => MemoryEvent::WriteDone { operation: op.id, peer: op.peer, len: op.progress },
+        };
+        cx.out.event(NodeEvent::Memory(event));
+    }
+
+    fn find(&self, peer: NodeId) -> Option<usize> {
+        self.operations.iter().position(|o| o.peer == peer)
+    }
+
+    // ----- inputs -----
+
+    /// The command datagram `id` was answered (OK or not); false when it is not ours.
+    pub(crate) fn on_datagram_outcome(
+        &mut self,
+        cx: &mut Cx<'_>,
+        id: DatagramId,
+        result: Result<OkFlags, DatagramFailure>,
+    ) -> bool {
+        let Some(index) = self.operations.iter().position(|o| o.datagram == Some(id)) else { return false };
+        let outcome = self.datagram_outcome(cx, index, result);
+        self.settle(cx, index, outcome);
+        true
+    }
+
+    fn datagram_outcome(
+        &mut self,
+        cx: &mut Cx<'_>,
+        index: usize,
+        result: Result<OkFlags, DatagramFailure>,
+    ) -> Option<Outcome> {
+        let reply_timeout = cx.options.reply_timeout;
+        let reboot_timeout = cx.options.reboot_timeout;
+        let op = self.operations.get_mut(index)?;
+        op.datagram = None;
+        let step = op.step;
+        match (step, result) {
+            // C-11: Freeze and Unfreeze succeed by OK or by the target restarting.
+            (Step::Freeze, Ok(_) | Err(DatagramFailure::PeerRestarted)) => self.ask_protocols(cx, index),
+            (Step::Unfreeze, Ok(_) | Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Done),
+            (Step::Freeze | Step::Unfreeze, Err(DatagramFailure::TimedOut)) => {
+                // The OpenMRN Bootloader sends no OK: wait on for its Initialization Complete.
+                op.deadline = Some(cx.now + reboot_timeout);
+                None
+            }
+            (Step::Chunk { at, len }, Ok(flags)) if !flags.reply_pending && !matches!(op.kind, Kind::Read { .. }) => {
+                // C-9: a write done at once has no Write Reply.
+                op.progress = u64::from(at.saturating_add(len));
+                op.retries = 0;
+                self.next_chunk(cx, index, at.saturating_add(len))
+            }
+            (Step::WriteStream { sid, .. }, Ok(flags)) => {
+                // C-2: open the stream at once; the reply comes whenever it comes.
+                let options = OpenOptions::new(op.peer, cx.options.stream_window.max(1)).source_stream(sid);
+                match cx.streams.open(cx.now, options) {
+                    Ok(handle) => {
+                        if let Step::WriteStream { handle: slot, .. } = &mut op.step {
+                            *slot = Some(handle);
+                        }
+                        op.awaiting_reply = flags.reply_pending;
+                        op.deadline = Some(cx.now + cx.options.stream_timeout);
+                        None
+                    }
+                    Err(_) => Some(Outcome::Fail(MemoryError::StreamRejected(codes::BUSY))),
+                }
+            }
+            (Step::ReadStream { .. }, Ok(_)) => {
+                op.awaiting_reply = true;
+                op.deadline = Some(cx.now + cx.options.stream_timeout);
+                None
+            }
+            (_, Ok(_)) => {
+                op.awaiting_reply = true;
+                op.deadline = Some(cx.now + reply_timeout);
+                None
+            }
+            (_, Err(DatagramFailure::TimedOut)) => self.retry(cx, index),
+            (_, Err(DatagramFailure::Rejected(code))) => Some(Outcome::Fail(MemoryError::Rejected(code))),
+            (_, Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Fail(MemoryError::PeerRestarted)),
+            (_, Err(_)) => Some(Outcome::Fail(MemoryError::PeerLost)),
+        }
+    }
+
+    fn ask_protocols(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
+        let op = self.operations.get_mut(index)?;
+        // A Freeze still waiting for its OK is answered by the restart: its outcome is moot.
+        op.datagram = None;
+        op.step = Step::Protocols;
+        op.deadline = Some(cx.now + cx.options.reply_timeout);
+        let inquiry = Message::addressed(Mti::PROTOCOL_SUPPORT_INQUIRY, cx.out.node, op.peer, Bytes::new());
+        cx.out.transmit(inquiry);
+        None
+    }
+
+    /// The step's answer did not come: ask again (a lost reply, MC §4.4), or give up.
+    fn retry(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
+        let max = cx.options.max_retries;
+        let op = self.operations.get_mut(index)?;
+        if op.retries >= max {
+            return Some(Outcome::Fail(MemoryError::TimedOut));
+        }
+        op.retries += 1;
+        match op.step {
+            Step::Options => self.send(cx, index, Step::Options, &Command::GetOptions),
+            Step::SpaceInfo => {
+                let space = op.space;
+                self.send(cx, index, Step::SpaceInfo, &Command::GetSpaceInfo { space })
+            }
+            Step::Chunk { at, .. } => self.next_chunk(cx, index, at),
+            Step::Protocols => self.ask_protocols(cx, index),
+            _ => Some(Outcome::Fail(MemoryError::TimedOut)),
+        }
+    }
+
+    /// A reply datagram from `peer` (already acknowledged by the node).
+    pub(crate) fn on_reply(&mut self, cx: &mut Cx<'_>, peer: NodeId, bytes: &[u8]) {
+        let Some(index) = self.find(peer) else { return };
+        let Ok(reply) = Reply::parse(bytes) else { return };
+        let outcome = self.reply_outcome(cx, index, reply);
+        self.settle(cx, index, outcome);
+    }
+
+    fn reply_outcome(&mut self, cx: &mut Cx<'_>, index: usize, reply: Reply) -> Option<Outcome> {
+        let max_read = cx.options.max_read_len;
+        let op = self.operations.get_mut(index)?;
+        match (op.step, reply) {
+            (Step::Options, Reply::Options(options)) => {
+                let by_stream = options.streams() && cx.streams_enabled;
+                self.begin_transfer(cx, index, by_stream)
+            }
+            (Step::SpaceInfo, Reply::SpaceInfo(info)) if info.space == op.space => {
+                let highest = info.highest_address.filter(|_| info.present);
+                let Some(highest) = highest else {
+                    return Some(Outcome::Fail(MemoryError::Failed(codes::UNKNOWN_SPACE)));
+                };
+                let len = highest.checked_sub(op.address).and_then(|n| n.checked_add(1));
+                match (len, &mut op.kind) {
+                    (Some(len), Kind::Read { len: want, .. }) if len <= max_read => {
+                        *want = Some(len);
+                        self.next_chunk(cx, index, 0)
+                    }
+                    (None, _) => Some(Outcome::Fail(MemoryError::Failed(codes::OUT_OF_BOUNDS))),
+                    _ => Some(Outcome::Fail(MemoryError::TooLong)),
+                }
+            }
+            (Step::Chunk { at, len }, Reply::ReadOk { address, data, .. })
+                if address == op.address.saturating_add(at) =>
+            {
+                // MC §4.5: a reply may carry fewer bytes than asked for.
+                let n = data.len().min(len as usize);
+                if n < len as usize && op.short_reply != Some((at, n)) {
+                    op.short_reply = Some((at, n));
+                    return self.next_chunk(cx, index, at);
+                }
+                op.short_reply = None;
+                if let Kind::Read { data: buf, .. } = &mut op.kind {
+                    buf.extend_from_slice(data.get(..n).unwrap_or_default());
+                }
+                let next = at.saturating_add(n as u32);
+                op.progress = u64::from(next);
+                op.retries = 0;
+                self.next_chunk(cx, index, next)
+            }
+            (Step::Chunk { at, len }, Reply::WriteOk { address, .. }) if address == op.address.saturating_add(at) => {
+                op.progress = u64::from(at.saturating_add(len));
+                op.retries = 0;
+                self.next_chunk(cx, index, at.saturating_add(len))
+            }
+            (Step::Chunk { .. }, Reply::Failed { kind: FailedKind::Read | FailedKind::Write, code, .. })
+            | (Step::ReadStream { .. }, Reply::Failed { kind: FailedKind::ReadStream, code, .. })
+            | (Step::WriteStream { .. }, Reply::Failed { kind: FailedKind::WriteStream, code, .. }) => {
+                Some(Outcome::Fail(MemoryError::Failed(code)))
+            }
+            (Step::ReadStream { .. }, Reply::ReadStreamOk { .. }) => {
+                op.awaiting_reply = false;
+                None
+            }
+            (Step::WriteStream { sid, handle, sent, finished, .. }, Reply::WriteStreamOk { .. }) => {
+                op.step = Step::WriteStream { sid, handle, sent, finished, replied: true };
+                op.awaiting_reply = false;
+                if finished { self.transfer_done(cx, index) } else { None }
+            }
+            _ => None,
+        }
+    }
+
+    /// `peer` sent Initialization Complete.
+    pub(crate) fn peer_restarted(&mut self, cx: &mut Cx<'_>, peer: NodeId) {
+        let Some(index) = self.find(peer) else { return };
+        let outcome = match self.operations.get(index).map(|o| o.step) {
+            // C-11: a Freeze answered by the target's restart (the OpenMRN Bootloader's way).
+            Some(Step::Freeze) => self.ask_protocols(cx, index),
+            // The Initialization Complete that follows our Freeze's OK: the inquiry sent after
+            // the OK reaches the restarted target (a lost one is asked again at the deadline).
+            Some(Step::Unfreeze) => Some(Outcome::Done),
+            // Streams and datagrams in flight end through their own events.
+            _ => None,
+        };
+        self.settle(cx, index, outcome);
+    }
+
+    /// A Protocol Support Reply from `peer` while a firmware upgrade waits for it.
+    pub(crate) fn on_protocols(&mut self, cx: &mut Cx<'_>, peer: NodeId, protocols: Protocols) {
+        let Some(index) = self.find(peer) else { return };
+        let Some(op) = self.operations.get_mut(index) else { return };
+        if op.step != Step::Protocols {
+            return;
+        }
+        op.deadline = None;
+        let by_stream =
+            protocols.contains(Protocols::STREAM) && op.path != TransferPath::Datagrams && cx.streams_enabled;
+        let outcome = if op.path == TransferPath::Stream && !by_stream {
+            Some(Outcome::Fail(MemoryError::NoStreams))
+        } else {
+            self.begin_transfer(cx, index, by_stream)
+        };
+        self.settle(cx, index, outcome);
+    }
+
+    /// The transport lost `peer` (`None`: every peer).
+    pub(crate) fn peer_lost(&mut self, cx: &mut Cx<'_>, peer: Option<NodeId>) {
+        while let Some(index) = self.operations.iter().position(|o| peer.is_none_or(|p| p == o.peer)) {
+            self.settle(cx, index, Some(Outcome::Fail(MemoryError::PeerLost)));
+        }
+    }
+
+    pub(crate) fn rename_peer(&mut self, from: NodeId, to: NodeId) {
+        for op in self.operations.iter_mut().filter(|o| o.peer == from) {
+            op.peer = to;
+        }
+    }
+
+    pub(crate) fn handle_timeout(&mut self, cx: &mut Cx<'_>) {
+        while let Some(index) = self.operations.iter().position(|o| o.deadline.is_some_and(|d| d <= cx.now)) {
+            let outcome = match self.operations.get_mut(index) {
+                Some(op) => {
+                    op.deadline = None;
+                    match op.step {
+                        Step::Freeze | Step::Unfreeze => Some(Outcome::Fail(MemoryError::TimedOut)),
+                        Step::ReadStream { .. } | Step::WriteStream { .. } => {
+                            Some(Outcome::Fail(MemoryError::TimedOut))
+                        }
+                        _ => self.retry(cx, index),
+                    }
+                }
+                None => None,
+            };
+            self.settle(cx, index, outcome);
+        }
+    }
+
+    // ----- streams -----
+
+    /// Takes a stream event of one of this client's transfers; false for any other.
+    pub(crate) fn on_stream_event(&mut self, cx: &mut Cx<'_>, event: &Event) -> bool {
+        if let Event::IncomingRequest { handle, info } = event {
+            // C-4: the DID was armed before the Read Stream went out; the server's Initiate
+            // Request may come before our command's OK.
+            let armed = self.operations.iter_mut().find(|o| {
+                o.peer == info.peer
+                    && matches!(o.step, Step::ReadStream { did, handle: None } if Some(did) == info.destination_stream)
+            });
+            let Some(op) = armed else { return false };
+            if cx.streams.accept(cx.now, *handle, None).is_ok() {
+                if let Step::ReadStream { handle: slot, .. } = &mut op.step {
+                    *slot = Some(*handle);
+                }
+                op.deadline = Some(cx.now + cx.options.stream_timeout);
+            }
+            return true;
+        }
+        let handle = match event {
+            Event::Opened { handle, .. }
+            | Event::Rejected { handle, .. }
+            | Event::Readable { handle }
+            | Event::Writable { handle }
+            | Event::Finished { handle, .. }
+            | Event::Terminated { handle, .. }
+            | Event::TimedOut { handle, .. } => *handle,
+            _ => return false,
+        };
+        let Some(index) = self.operations.iter().position(|o| o.stream_handle() == Some(handle)) else {
+            return false;
+        };
+        let stream_timeout = cx.options.stream_timeout;
+        if let Some(op) = self.operations.get_mut(index) {
+            op.deadline = Some(cx.now + stream_timeout);
+        }
+        let outcome = match event {
+            Event::Opened { .. } | Event::Writable { .. } => self.pump_write(cx, index),
+            Event::Readable { .. } => self.drain_read(cx, index),
+            Event::Finished { total, .. } => {
+                let drained = self.drain_read(cx, index);
+                drained.or_else(|| self.read_finished(index, *total))
+            }
+            Event::Rejected { code, .. } => Some(Outcome::Fail(MemoryError::StreamRejected(ErrorCode(code.0)))),
+            Event::Terminated { cause, .. } => Some(Outcome::Fail(match cause {
+                Termination::ByPeer(code) => MemoryError::StreamEnded(*code),
+                Termination::PeerRestarted => MemoryError::PeerRestarted,
+                Termination::PeerLost | Termination::LinkLost => MemoryError::PeerLost,
+                _ => MemoryError::StreamEnded(ErrorCode::PERMANENT),
+            })),
+            Event::TimedOut { kind, .. } => Some(Outcome::Fail(MemoryError::StreamTimedOut(*kind))),
+            _ => None,
+        };
+        self.settle(cx, index, outcome);
+        true
+    }
+
+    fn drain_read(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
+        let max_read = cx.options.max_read_len as usize;
+        let op = self.operations.get_mut(index)?;
+        let handle = op.stream_handle()?;
+        let Kind::Read { data, len } = &mut op.kind else { return None };
+        let limit = len.map_or(max_read, |n| n as usize);
+        let mut buf = [0u8; 512];
+        loop {
+            let n = cx.streams.read(cx.now, handle, &mut buf).unwrap_or(0);
+            if n == 0 {
+                break;
+            }
+            if data.len().saturating_add(n) > limit {
+                return Some(Outcome::Fail(MemoryError::TooLong));
+            }
+            data.extend_from_slice(buf.get(..n).unwrap_or_default());
+        }
+        op.progress = data.len() as u64;
+        None
+    }
+
+    fn read_finished(&mut self, index: usize, total: u64) -> Option<Outcome> {
+        let op = self.operations.get(index)?;
+        let Kind::Read { data, len } = &op.kind else { return None };
+        let received = data.len() as u64;
+        match len {
+            Some(want) if u64::from(*want) != received || received != total => {
+                Some(Outcome::Fail(MemoryError::WrongLength { expected: u64::from(*want), received }))
+            }
+            _ if received != total => Some(Outcome::Fail(MemoryError::WrongLength { expected: total, received })),
+            // MC §4.7: a transfer is complete when the stream closes after at least one byte.
+            _ if received == 0 => Some(Outcome::Fail(MemoryError::WrongLength { expected: 1, received })),
+            _ => Some(Outcome::Done),
+        }
+    }
+
+    /// Writes what the credit allows; once every byte is out and the last window has been
+    /// acknowledged (FWU §5.4.1), finishes the stream.
+    fn pump_write(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
+        let op = self.operations.get_mut(index)?;
+        let Step::WriteStream { sid, handle: Some(handle), sent, finished: false, replied } = op.step else {
+            return None;
+        };
+        let payload = match &op.kind {
+            Kind::Write { data } => data.clone(),
+            Kind::Firmware { image } => image.clone(),
+            Kind::Read { .. } => return None,
+        };
+        let mut sent = sent;
+        while let Some(rest) = payload.get(sent as usize..).filter(|r| !r.is_empty()) {
+            let taken = cx.streams.write(cx.now, handle, rest).unwrap_or(0);
+            if taken == 0 {
+                break;
+            }
+            sent = sent.saturating_add(taken as u64);
+        }
+        op.progress = sent;
+        let all_out = sent >= payload.len() as u64;
+        let acknowledged = cx.streams.credit(handle).is_some_and(|c| c > 0);
+        let finished = all_out && acknowledged && cx.finish_stream(handle);
+        op.step =
+            Step::WriteStream { sid, handle: if finished { None } else { Some(handle) }, sent, finished, replied };
+        if !finished {
+            return None;
+        }
+        if replied {
+            return self.transfer_done(cx, index);
+        }
+        // C-2: the reply may come after the stream; wait for it as for a datagram reply.
+        op.awaiting_reply = true;
+        op.deadline = Some(cx.now + cx.options.reply_timeout);
+        None
+    }
+
+    /// Streams whose last window may have been acknowledged since: finish them.
+    pub(crate) fn poll_streams(&mut self, cx: &mut Cx<'_>) {
+        let mut index = 0;
+        while index < self.operations.len() {
+            let waiting = self.operations.get(index).is_some_and(|o| {
+                matches!(o.step, Step::WriteStream { handle: Some(h), sent, finished: false, .. }
+                    if sent >= o.payload().len() as u64 && cx.streams.credit(h).is_some_and(|c| c > 0))
+            });
+            if waiting {
+                let outcome = self.pump_write(cx, index);
+                let before = self.operations.len();
+                self.settle(cx, index, outcome);
+                if self.operations.len() < before {
+                    continue;
+                }
+            }
+            index += 1;
+        }
+    }
+}

@@ -1,0 +1,684 @@
+//! [`MemoryServer`]: the address spaces a node serves, and the server side of every
+//! command, Read Stream (this node the source) and Write Stream (this node the destination).
+
+use alloc::boxed::Box;
+use alloc::collections::VecDeque;
+use alloc::vec::Vec;
+use core::fmt;
+
+use openlcb_stream::wire::ErrorCode;
+use openlcb_stream::{AcceptOptions, Event, Instant, NodeId, OpenOptions, StreamHandle, StreamId};
+
+use super::space::{MemorySpace, SpaceError, acdi_manufacturer_bytes, acdi_user_bytes, read_slice};
+use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceInfoReply, codes};
+use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_FIRMWARE};
+use super::{MemoryEvent, MemoryEvent as E};
+use crate::node::Cx;
+use crate::{OkFlags, SnipInfo};
+
+/// Bytes read from or written to a space at once on the stream paths.
+const CHUNK: usize = 256;
+
+/// Counters of the server.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct MemoryServerStats {
+    /// Commands answered.
+    pub commands: u64,
+    /// Commands refused with Datagram Rejected.
+    pub rejected: u64,
+    /// Stream transfers finished (both directions).
+    pub streams_done: u64,
+    /// Stream transfers that ended early (terminated, timed out, refused, a space error).
+    pub streams_failed: u64,
+}
+
+#[derive(Debug)]
+enum Job {
+    /// Read Stream: this node is the source.
+    Read { handle: StreamHandle, space: u8, address: u32, next: u32, end: u32, count: u32, opened: bool },
+    /// Write Stream: this node is the destination, once the request arrives.
+    Write { sid: u8, handle: Option<StreamHandle>, space: u8, next: u32, deadline: Instant },
+}
+
+#[derive(Debug)]
+struct Transfer {
+    peer: NodeId,
+    job: Job,
+}
+
+/// The memory spaces of one node and the state of Memory Configuration's server side:
+/// the lock, the Unique ID pool, the Firmware Upgrade state, the stream transfers running.
+///
+/// Build it with the `with_*` methods and hand it to
+/// [`Node::set_memory_server`](crate::Node::set_memory_server); the node then announces
+/// Memory Configuration in its PIP (and Firmware Upgrade when space 0xEF is served), and
+/// every datagram with content ID 0x20 that is a command goes here.
+pub struct MemoryServer {
+    spaces: Vec<(u8, Box<dyn MemorySpace + Send>)>,
+    acdi: bool,
+    acdi_manufacturer: Vec<u8>,
+    acdi_user: Vec<u8>,
+    unique_ids: VecDeque<[u8; 8]>,
+    lock: u64,
+    frozen: bool,
+    firmware_written: u32,
+    transfers: Vec<Transfer>,
+    pub(crate) user_info_changed: bool,
+    stats: MemoryServerStats,
+}
+
+impl fmt::Debug for MemoryServer {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let spaces: Vec<u8> = self.spaces.iter().map(|(n, _)| *n).collect();
+        f.debug_struct("MemoryServer")
+            .field("spaces", &spaces)
+            .field("acdi", &self.acdi)
+            .field("frozen", &self.frozen)
+            .field("transfers", &self.transfers)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Default for MemoryServer {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl MemoryServer {
+    /// A server with no spaces.
+    pub fn new() -> Self {
+        MemoryServer {
+            spaces: Vec::new(),
+            acdi: false,
+            acdi_manufacturer: Vec::new(),
+            acdi_user: Vec::new(),
+            unique_ids: VecDeque::new(),
+            lock: 0,
+            frozen: false,
+            firmware_written: 0,
+            transfers: Vec::new(),
+            user_info_changed: false,
+            stats: MemoryServerStats::default(),
+        }
+    }
+
+    /// Serves `space` as address space number `number` (replacing one of that number).
+    /// Number 0xEF is the firmware target: writable only while frozen.
+    pub fn with_space(mut self, number: u8, space: impl MemorySpace + Send + 'static) -> Self {
+        self.spaces.retain(|(n, _)| *n != number);
+        self.spaces.push((number, Box::new(space)));
+        self
+    }
+
+    /// Serves the ACDI spaces 0xFC (read-only) and 0xFB (read/write) at the offsets of
+    /// node-protocols.md §5.4, filled from the node's SNIP strings; a write to 0xFB changes
+    /// the node's SNIP user name and description.
+    pub fn with_acdi(mut self) -> Self {
+        self.acdi = true;
+        self
+    }
+
+    /// Event IDs Get Unique ID hands out, each once (MC §4.19). Without any, the command is
+    /// refused with 0x1041.
+    pub fn with_unique_ids(mut self, ids: impl IntoIterator<Item = [u8; 8]>) -> Self {
+        self.unique_ids.extend(ids);
+        self
+    }
+
+    /// The space numbered `number`, to read back what was written (ACDI spaces excluded).
+    pub fn space(&self, number: u8) -> Option<&(dyn MemorySpace + Send)> {
+        self.spaces.iter().find(|(n, _)| *n == number).map(|(_, s)| s.as_ref())
+    }
+
+    /// The space numbered `number`, mutable.
+    pub fn space_mut(&mut self, number: u8) -> Option<&mut (dyn MemorySpace + Send + 'static)> {
+        self.spaces.iter_mut().find(|(n, _)| *n == number).map(|(_, s)| s.as_mut())
+    }
+
+    /// In the Firmware Upgrade state (after Freeze of space 0xEF).
+    pub fn is_frozen(&self) -> bool {
+        self.frozen
+    }
+
+    /// Serves a firmware target (space 0xEF).
+    pub fn has_firmware(&self) -> bool {
+        self.space(SPACE_FIRMWARE).is_some()
+    }
+
+    /// Who holds the lock (0: nobody).
+    pub fn lock_owner(&self) -> u64 {
+        self.lock
+    }
+
+    /// Stream transfers running (or waiting for their stream).
+    pub fn active_streams(&self) -> usize {
+        self.transfers.len()
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> MemoryServerStats {
+        self.stats
+    }
+
+    /// The node's SNIP strings, to mirror in the ACDI spaces.
+    pub(crate) fn mirror_snip(&mut self, snip: &SnipInfo) {
+        self.acdi_manufacturer = acdi_manufacturer_bytes(snip);
+        self.acdi_user = acdi_user_bytes(snip);
+    }
+
+    pub(crate) fn acdi_user(&self) -> &[u8] {
+        &self.acdi_user
+    }
+
+    // ----- spaces, ACDI included -----
+
+    fn is_acdi(&self, space: u8) -> bool {
+        self.acdi && (space == SPACE_ACDI_MANUFACTURER || space == SPACE_ACDI_USER)
+    }
+
+    fn space_len(&self, space: u8) -> Option<u32> {
+        match space {
+            SPACE_ACDI_MANUFACTURER if self.acdi => u32::try_from(self.acdi_manufacturer.len()).ok(),
+            SPACE_ACDI_USER if self.acdi => u32::try_from(self.acdi_user.len()).ok(),
+            _ => self.space(space).map(|s| s.len()),
+        }
+    }
+
+    /// Read-only now: by nature, or the firmware space outside the Firmware Upgrade state.
+    fn read_only(&self, space: u8) -> bool {
+        match space {
+            SPACE_ACDI_MANUFACTURER if self.acdi => true,
+            SPACE_ACDI_USER if self.acdi => false,
+            SPACE_FIRMWARE => !self.frozen,
+            _ => self.space(space).is_none_or(|s| s.read_only()),
+        }
+    }
+
+    fn read_space(&mut self, space: u8, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        let len = self.space_len(space).ok_or(SpaceError::OutOfBounds)?;
+        if address >= len {
+            return Err(SpaceError::OutOfBounds);
+        }
+        let room = usize::try_from(len - address).unwrap_or(usize::MAX).min(buf.len());
+        let buf = buf.get_mut(..room).unwrap_or_default();
+        let acdi = match space {
+            SPACE_ACDI_MANUFACTURER if self.acdi => Some(&self.acdi_manufacturer),
+            SPACE_ACDI_USER if self.acdi => Some(&self.acdi_user),
+            _ => None,
+        };
+        if let Some(bytes) = acdi {
+            return read_slice(bytes, address, buf);
+        }
+        self.space_mut(space).ok_or(SpaceError::OutOfBounds)?.read(address, buf)
+    }
+
+    fn write_space(&mut self, space: u8, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        let len = self.space_len(space).ok_or(SpaceError::OutOfBounds)?;
+        if self.read_only(space) {
+            return Err(SpaceError::ReadOnly);
+        }
+        let end = u32::try_from(data.len()).ok().and_then(|n| address.checked_add(n)).ok_or(SpaceError::OutOfBounds)?;
+        if end > len {
+            return Err(SpaceError::OutOfBounds);
+        }
+        if self.is_acdi(space) {
+            let slot = self.acdi_user.get_mut(address as usize..end as usize).ok_or(SpaceError::OutOfBounds)?;
+            slot.copy_from_slice(data);
+            self.user_info_changed = true;
+            return Ok(());
+        }
+        self.space_mut(space).ok_or(SpaceError::OutOfBounds)?.write(address, data)?;
+        if space == SPACE_FIRMWARE {
+            self.firmware_written = self.firmware_written.max(end);
+        }
+        Ok(())
+    }
+
+    /// The Options reply (node-protocols.md §3.7): stream bit 0x01 only with streams (C-5).
+    fn options(&self, streams: bool) -> OptionsReply {
+        let mut commands =
+            OptionsReply::WRITE_UNDER_MASK | OptionsReply::UNALIGNED_READS | OptionsReply::UNALIGNED_WRITES;
+        if self.acdi {
+            commands |=
+                OptionsReply::ACDI_MANUFACTURER_READ | OptionsReply::ACDI_USER_READ | OptionsReply::ACDI_USER_WRITE;
+        }
+        let numbers = self.spaces.iter().map(|(n, _)| *n);
+        let acdi: &[u8] = if self.acdi { &[SPACE_ACDI_USER, SPACE_ACDI_MANUFACTURER] } else { &[] };
+        let all = || numbers.clone().chain(acdi.iter().copied());
+        OptionsReply {
+            commands,
+            write_lengths: OptionsReply::BASE_WRITE_LENGTHS | if streams { OptionsReply::STREAMS } else { 0 },
+            highest_space: all().max().unwrap_or(0xFF),
+            lowest_space: Some(all().min().unwrap_or(0xFD)),
+            name: Vec::new(),
+        }
+    }
+
+    fn space_info(&self, space: u8) -> SpaceInfoReply {
+        match self.space_len(space) {
+            Some(len) => SpaceInfoReply {
+                space,
+                present: true,
+                highest_address: Some(len.saturating_sub(1)),
+                read_only: self.read_only(space),
+                lowest_address: None,
+                description: Vec::new(),
+            },
+            None => SpaceInfoReply {
+                space,
+                present: false,
+                highest_address: None,
+                read_only: false,
+                lowest_address: None,
+                description: Vec::new(),
+            },
+        }
+    }
+
+    // ----- commands -----
+
+    /// A command datagram from `peer`: answers it with Datagram OK or Rejected and, where
+    /// the command has one, a reply datagram.
+    pub(crate) fn on_command(&mut self, cx: &mut Cx<'_>, peer: NodeId, bytes: &[u8]) {
+        self.stats.commands += 1;
+        let command = match Command::parse(bytes) {
+            Ok(command) => command,
+            Err(DecodeError::UnknownCommand(_) | DecodeError::NotMemoryConfiguration) => {
+                return self.reject(cx, peer, codes::UNKNOWN_COMMAND);
+            }
+            Err(_) => return self.reject(cx, peer, codes::INVALID_ARGUMENTS),
+        };
+        let pending = OkFlags { reply_pending: true, timeout_exponent: 0 };
+        match command {
+            Command::Read { space, address, count } => {
+                if self.space_len(space).is_none() {
+                    return self.reject(cx, peer, codes::UNKNOWN_SPACE);
+                }
+                let mut buf = [0u8; MAX_DATA_LEN];
+                let want = usize::from(count).clamp(1, MAX_DATA_LEN);
+                let reply = match self.read_space(space, address, buf.get_mut(..want).unwrap_or_default()) {
+                    Ok(n) if n > 0 => Reply::ReadOk { space, address, data: buf.get(..n).unwrap_or_default().to_vec() },
+                    Ok(_) => failed(FailedKind::Read, space, address, codes::OUT_OF_BOUNDS),
+                    Err(e) => failed(FailedKind::Read, space, address, e.code()),
+                };
+                cx.ok(peer, pending);
+                cx.send_reply(peer, &reply.to_bytes());
+            }
+            Command::Write { space, address, data } => self.write(cx, peer, space, address, &data, None),
+            Command::WriteUnderMask { space, address, mask, data } => {
+                self.write(cx, peer, space, address, &data, Some(&mask));
+            }
+            Command::ReadStream { space, address, destination_stream, count } => {
+                self.read_stream(cx, peer, space, address, destination_stream, count);
+            }
+            Command::WriteStream { space, address, source_stream } => {
+                self.write_stream(cx, peer, space, address, source_stream);
+            }
+            Command::GetOptions => {
+                cx.ok(peer, pending);
+                cx.send_reply(peer, &Reply::Options(self.options(cx.streams_enabled)).to_bytes());
+            }
+            Command::GetSpaceInfo { space } => {
+                cx.ok(peer, pending);
+                cx.send_reply(peer, &Reply::SpaceInfo(self.space_info(space)).to_bytes());
+            }
+            Command::Lock { node } => {
+                // MC §4.17: test-and-set; a Node ID of 0 releases.
+                if self.lock == 0 || node == 0 {
+                    self.lock = node;
+                }
+                cx.ok(peer, pending);
+                cx.send_reply(peer, &Reply::Lock { owner: self.lock }.to_bytes());
+            }
+            Command::GetUniqueId { count } => {
+                if self.unique_ids.is_empty() {
+                    return self.reject(cx, peer, codes::UNKNOWN_COMMAND);
+                }
+                let n = usize::from(count.max(1)).min(self.unique_ids.len());
+                let ids = self.unique_ids.drain(..n).collect();
+                cx.ok(peer, pending);
+                cx.send_reply(peer, &Reply::UniqueIds { ids }.to_bytes());
+            }
+            Command::Freeze { space } => {
+                if space != SPACE_FIRMWARE || !self.has_firmware() {
+                    return self.reject(cx, peer, codes::UNKNOWN_SPACE);
+                }
+                // C-11: the OK, then Initialization Complete in the new state (FWU §5.2). A
+                // Freeze while frozen gets the same answer (FWU-TN §2.6.2).
+                self.frozen = true;
+                self.firmware_written = 0;
+                cx.ok(peer, OkFlags::default());
+                cx.announce = true;
+                cx.out.event(crate::NodeEvent::Memory(E::Frozen { by: peer }));
+            }
+            Command::Unfreeze { space } => {
+                if space != SPACE_FIRMWARE || !self.has_firmware() {
+                    return self.reject(cx, peer, codes::UNKNOWN_SPACE);
+                }
+                cx.ok(peer, OkFlags::default());
+                if self.frozen {
+                    self.frozen = false;
+                    cx.announce = true;
+                    let image_len = self.firmware_written;
+                    cx.out.event(crate::NodeEvent::Memory(E::Unfrozen { by: peer, image_len }));
+                }
+            }
+            Command::UpdateComplete => self.acknowledge(cx, peer, E::UpdateComplete { by: peer }),
+            Command::Reset => self.acknowledge(cx, peer, E::ResetRequested { by: peer }),
+            Command::FactoryReset { node } => {
+                if node != cx.out.node.as_raw() {
+                    return self.reject(cx, peer, codes::INVALID_ARGUMENTS);
+                }
+                self.acknowledge(cx, peer, E::FactoryResetRequested { by: peer });
+            }
+        }
+    }
+
+    fn acknowledge(&mut self, cx: &mut Cx<'_>, peer: NodeId, event: MemoryEvent) {
+        cx.ok(peer, OkFlags::default());
+        cx.out.event(crate::NodeEvent::Memory(event));
+    }
+
+    fn reject(&mut self, cx: &mut Cx<'_>, peer: NodeId, code: ErrorCode) {
+        self.stats.rejected += 1;
+        cx.reject(peer, code);
+    }
+
+    /// Write and Write Under Mask: an unknown space or a read-only one is refused; a write
+    /// done at once gets the OK without Reply Pending (C-9); a write that fails gets the OK
+    /// with Reply Pending and a Failed reply.
+    fn write(&mut self, cx: &mut Cx<'_>, peer: NodeId, space: u8, address: u32, data: &[u8], mask: Option<&[u8]>) {
+        if self.space_len(space).is_none() {
+            return self.reject(cx, peer, codes::UNKNOWN_SPACE);
+        }
+        if self.read_only(space) {
+            return self.reject(cx, peer, codes::READ_ONLY);
+        }
+        let mut merged = [0u8; MAX_DATA_LEN];
+        let result = match mask {
+            None => self.write_space(space, address, data),
+            Some(mask) => {
+                let merged = merged.get_mut(..data.len()).unwrap_or_default();
+                self.read_space(space, address, merged).and_then(|n| {
+                    if n < merged.len() {
+                        return Err(SpaceError::OutOfBounds);
+                    }
+                    for ((old, new), m) in merged.iter_mut().zip(data).zip(mask) {
+                        *old = (*old & !m) | (new & m);
+                    }
+                    self.write_space(space, address, merged)
+                })
+            }
+        };
+        match result {
+            Ok(()) => cx.ok(peer, OkFlags::default()),
+            Err(e) => {
+                cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
+                cx.send_reply(peer, &failed(FailedKind::Write, space, address, e.code()).to_bytes());
+            }
+        }
+    }
+
+    /// The checks a stream command passes before its OK: space known, address inside,
+    /// writable for a Write Stream, streams on, room for one more transfer.
+    fn check_stream(&self, cx: &Cx<'_>, space: u8, address: u32, write: bool) -> Result<(), ErrorCode> {
+        if !cx.streams_enabled {
+            return Err(codes::UNKNOWN_COMMAND);
+        }
+        let len = self.space_len(space).ok_or(codes::UNKNOWN_SPACE)?;
+        if write && self.read_only(space) {
+            return Err(codes::READ_ONLY);
+        }
+        if address >= len {
+            return Err(codes::OUT_OF_BOUNDS);
+        }
+        if self.transfers.len() >= cx.options.max_server_streams {
+            return Err(codes::BUSY);
+        }
+        Ok(())
+    }
+
+    /// Read Stream in the order of C-4: Datagram OK (Reply Pending) at once, the Initiate
+    /// Request proposing the command's DID, the Reply once the stream is open, then data.
+    fn read_stream(&mut self, cx: &mut Cx<'_>, peer: NodeId, space: u8, address: u32, did: u8, count: u32) {
+        if let Err(code) = self.check_stream(cx, space, address, false) {
+            return self.reject(cx, peer, code);
+        }
+        let Some(did_id) = StreamId::new(did) else { return self.reject(cx, peer, codes::INVALID_ARGUMENTS) };
+        cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
+        let len = self.space_len(space).unwrap_or(0);
+        // C-6: 0 and 0xFFFFFFFF both read to the end of the space.
+        let available = len.saturating_sub(address);
+        let want = if count == 0 || count == u32::MAX { available } else { count.min(available) };
+        let options = OpenOptions::new(peer, cx.options.stream_window.max(1)).proposed_destination(did_id);
+        match cx.streams.open(cx.now, options) {
+            Ok(handle) => self.transfers.push(Transfer {
+                peer,
+                job: Job::Read {
+                    handle,
+                    space,
+                    address,
+                    next: address,
+                    end: address.saturating_add(want),
+                    count,
+                    opened: false,
+                },
+            }),
+            Err(_) => {
+                self.stats.streams_failed += 1;
+                cx.send_reply(peer, &failed(FailedKind::ReadStream, space, address, codes::BUSY).to_bytes());
+            }
+        }
+    }
+
+    /// Write Stream (C-2, as target): Datagram OK (Reply Pending), then at once the Write
+    /// Stream Reply naming the SID and the DID this node will assign, before the stream;
+    /// later errors end the stream with TDE.
+    fn write_stream(&mut self, cx: &mut Cx<'_>, peer: NodeId, space: u8, address: u32, sid: u8) {
+        if let Err(code) = self.check_stream(cx, space, address, true) {
+            return self.reject(cx, peer, code);
+        }
+        if StreamId::new(sid).is_none() {
+            return self.reject(cx, peer, codes::INVALID_ARGUMENTS);
+        }
+        cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
+        let did = cx.streams.next_destination_id(peer).map_or(0xFF, StreamId::as_raw);
+        let reply = Reply::WriteStreamOk { space: Some(space), address, streams: Some((sid, did)) };
+        cx.send_reply(peer, &reply.to_bytes());
+        // A repeated command (its OK lost) replaces the transfer waiting for the same SID.
+        self.transfers
+            .retain(|t| !(t.peer == peer && matches!(t.job, Job::Write { sid: s, handle: None, .. } if s == sid)));
+        let deadline = cx.now + cx.options.stream_timeout;
+        self.transfers.push(Transfer { peer, job: Job::Write { sid, handle: None, space, next: address, deadline } });
+    }
+
+    // ----- streams -----
+
+    fn position(&self, handle: StreamHandle) -> Option<usize> {
+        self.transfers.iter().position(|t| match t.job {
+            Job::Read { handle: h, .. } => h == handle,
+            Job::Write { handle: h, .. } => h == Some(handle),
+        })
+    }
+
+    /// Takes a stream event that belongs to one of this server's transfers; returns false
+    /// for any other.
+    pub(crate) fn on_stream_event(&mut self, cx: &mut Cx<'_>, event: &Event) -> bool {
+        if let Event::IncomingRequest { handle, info } = event {
+            let waiting = self.transfers.iter_mut().find(|t| {
+                t.peer == info.peer
+                    && matches!(t.job, Job::Write { sid, handle: None, .. } if sid == info.source_stream.as_raw())
+            });
+            let Some(transfer) = waiting else { return false };
+            let Job::Write { handle: slot, space, .. } = &mut transfer.job else { return false };
+            let space_window = self.spaces.iter().find(|(n, _)| n == space).and_then(|(_, s)| s.write_window());
+            let window = space_window.unwrap_or(cx.options.write_stream_window).max(1);
+            if cx.streams.accept_with(cx.now, *handle, AcceptOptions::new(Some(window), false)).is_ok() {
+                *slot = Some(*handle);
+            }
+            return true;
+        }
+        let handle = match event {
+            Event::Opened { handle, .. }
+            | Event::Rejected { handle, .. }
+            | Event::Readable { handle }
+            | Event::Writable { handle }
+            | Event::Finished { handle, .. }
+            | Event::Terminated { handle, .. }
+            | Event::TimedOut { handle, .. } => *handle,
+            _ => return false,
+        };
+        let Some(index) = self.position(handle) else { return false };
+        match event {
+            Event::Opened { info, .. } => {
+                if let Some(Transfer { peer, job: Job::Read { space, address, count, opened, .. } }) =
+                    self.transfers.get_mut(index)
+                {
+                    *opened = true;
+                    let reply = Reply::ReadStreamOk {
+                        space: Some(*space),
+                        address: *address,
+                        source_stream: info.source_stream.as_raw(),
+                        destination_stream: info.destination_stream.map_or(0xFF, StreamId::as_raw),
+                        count: Some(*count),
+                    };
+                    let peer = *peer;
+                    cx.send_reply(peer, &reply.to_bytes());
+                }
+                self.pump_read(cx, index);
+            }
+            Event::Writable { .. } => self.pump_read(cx, index),
+            Event::Readable { .. } => self.drain_write(cx, index, false),
+            Event::Finished { .. } => self.drain_write(cx, index, true),
+            Event::Rejected { code, .. } => {
+                if let Some(Transfer { peer, job: Job::Read { space, address, .. } }) = self.transfers.get(index) {
+                    let reply = failed(FailedKind::ReadStream, *space, *address, ErrorCode(code.0));
+                    let peer = *peer;
+                    cx.send_reply(peer, &reply.to_bytes());
+                }
+                self.end(index, false);
+            }
+            _ => self.end(index, false),
+        }
+        true
+    }
+
+    fn end(&mut self, index: usize, done: bool) {
+        if index < self.transfers.len() {
+            self.transfers.swap_remove(index);
+            if done {
+                self.stats.streams_done += 1;
+            } else {
+                self.stats.streams_failed += 1;
+            }
+        }
+    }
+
+    /// Sends as much of a Read Stream as the credit allows; finishes at the end.
+    fn pump_read(&mut self, cx: &mut Cx<'_>, index: usize) {
+        let mut buf = [0u8; CHUNK];
+        loop {
+            let Some(Transfer { job: Job::Read { handle, space, next, end, opened: true, .. }, .. }) =
+                self.transfers.get(index)
+            else {
+                return;
+            };
+            let (handle, space, next, end) = (*handle, *space, *next, *end);
+            if next >= end {
+                cx.finish_stream(handle);
+                return self.end(index, true);
+            }
+            // Without credit, one byte still goes to `write`: coming up short is what makes
+            // the endpoint raise `Writable` when the next Proceed arrives.
+            let credit = (cx.streams.credit(handle).unwrap_or(0) as usize).max(1);
+            let n = credit.min(CHUNK).min(usize::try_from(end - next).unwrap_or(CHUNK));
+            let chunk = buf.get_mut(..n).unwrap_or_default();
+            let read = match self.read_space(space, next, chunk) {
+                Ok(0) | Err(_) => {
+                    let _ = cx.streams.abort(cx.now, handle, codes::OUT_OF_BOUNDS);
+                    return self.end(index, false);
+                }
+                Ok(read) => read,
+            };
+            let taken = cx.streams.write(cx.now, handle, buf.get(..read).unwrap_or_default()).unwrap_or(0);
+            if let Some(Transfer { job: Job::Read { next, .. }, .. }) = self.transfers.get_mut(index) {
+                *next = next.saturating_add(u32::try_from(taken).unwrap_or(0));
+            }
+            if taken < read {
+                return;
+            }
+        }
+    }
+
+    /// Writes what a Write Stream has delivered into the space; a space error ends the
+    /// stream with TDE carrying its code.
+    fn drain_write(&mut self, cx: &mut Cx<'_>, index: usize, finished: bool) {
+        let mut buf = [0u8; CHUNK];
+        loop {
+            let Some(Transfer { job: Job::Write { handle: Some(handle), space, next, .. }, .. }) =
+                self.transfers.get(index)
+            else {
+                return;
+            };
+            let (handle, space, at) = (*handle, *space, *next);
+            let n = cx.streams.read(cx.now, handle, &mut buf).unwrap_or(0);
+            if n == 0 {
+                break;
+            }
+            if let Err(e) = self.write_space(space, at, buf.get(..n).unwrap_or_default()) {
+                let _ = cx.streams.abort(cx.now, handle, e.code());
+                return self.end(index, false);
+            }
+            let deadline = cx.now + cx.options.stream_timeout;
+            if let Some(Transfer { job: Job::Write { next, deadline: d, .. }, .. }) = self.transfers.get_mut(index) {
+                *next = next.saturating_add(n as u32);
+                *d = deadline;
+            }
+        }
+        if finished {
+            self.end(index, true);
+        }
+    }
+
+    pub(crate) fn poll_timeout(&self) -> Option<Instant> {
+        self.transfers
+            .iter()
+            .filter_map(|t| match t.job {
+                Job::Write { handle: None, deadline, .. } => Some(deadline),
+                _ => None,
+            })
+            .min()
+    }
+
+    /// A Write Stream whose stream never came is forgotten (the streams themselves have the
+    /// endpoint's timers).
+    pub(crate) fn handle_timeout(&mut self, now: Instant) {
+        while let Some(index) = self
+            .transfers
+            .iter()
+            .position(|t| matches!(t.job, Job::Write { handle: None, deadline, .. } if deadline <= now))
+        {
+            self.end(index, false);
+        }
+    }
+
+    /// `peer` restarted or is gone: its transfers waiting for a stream are dropped (open
+    /// streams end through the endpoint's events).
+    pub(crate) fn forget_peer(&mut self, peer: Option<NodeId>) {
+        self.transfers
+            .retain(|t| !(peer.is_none_or(|p| p == t.peer) && matches!(t.job, Job::Write { handle: None, .. })));
+    }
+
+    /// Moves what is open with `from` to `to` (the transport renamed the peer).
+    pub(crate) fn rename_peer(&mut self, from: NodeId, to: NodeId) {
+        for t in self.transfers.iter_mut().filter(|t| t.peer == from) {
+            t.peer = to;
+        }
+    }
+}
+
+fn failed(kind: FailedKind, space: u8, address: u32, code: ErrorCode) -> Reply {
+    Reply::Failed { kind, space: Some(space), address, code }
+}

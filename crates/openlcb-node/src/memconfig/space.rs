@@ -1,0 +1,233 @@
+//! [`MemorySpace`]: what a server serves, and the ready-made spaces: RAM, a read-only blob
+//! (the CDI), the ACDI layouts of SNIP (node-protocols.md §5.4).
+
+use alloc::vec;
+use alloc::vec::Vec;
+
+use openlcb_stream::wire::ErrorCode;
+
+use super::wire::codes;
+use crate::SnipInfo;
+
+/// Why a space refused a read or a write. The server turns it into the standard's code.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SpaceError {
+    /// The address lies beyond the space (0x1082).
+    #[error("the address lies outside the space")]
+    OutOfBounds,
+    /// The space cannot be written (0x1083).
+    #[error("the space is read-only")]
+    ReadOnly,
+    /// Anything else the medium reports, with the code to send (e.g. 0x2000 while flash is
+    /// busy, 0x1089 for a corrupted image).
+    #[error("the space failed with code 0x{:04X}", .0.0)]
+    Failed(ErrorCode),
+}
+
+impl SpaceError {
+    /// The error code the server sends for it.
+    pub fn code(self) -> ErrorCode {
+        match self {
+            SpaceError::OutOfBounds => codes::OUT_OF_BOUNDS,
+            SpaceError::ReadOnly => codes::READ_ONLY,
+            SpaceError::Failed(code) => code,
+        }
+    }
+}
+
+/// One address space a node serves: flash, EEPROM, a file, a RAM buffer. The server asks
+/// no more than this; it checks bounds and read-only itself before calling `read`/`write`,
+/// so an implementation may stay simple, and a space may still refuse with a
+/// [`SpaceError`].
+pub trait MemorySpace {
+    /// The size in bytes. Addresses `0..len` exist; a Get Address Space Information reply
+    /// gives `len - 1` as the highest address.
+    fn len(&self) -> u32;
+
+    /// A space of no bytes (reads fail with out of bounds).
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Writes are refused with 0x1083 (a space is wholly read-only or not, MC §4.1).
+    fn read_only(&self) -> bool;
+
+    /// Fills `buf` from `address` and returns how many bytes it filled (fewer only at the
+    /// end of the space). The server calls it with `address < len`.
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError>;
+
+    /// Stores `data` at `address`. The server calls it with the whole range inside the space.
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError>;
+
+    /// The most bytes a Write Stream to this space may have in flight (the window the server
+    /// grants), for a medium that takes data in blocks (one flash page). `None`: the
+    /// server's [`MemoryConfigOptions::write_stream_window`](super::MemoryConfigOptions::write_stream_window).
+    fn write_window(&self) -> Option<u16> {
+        None
+    }
+}
+
+/// Copies as much of `from` as fits into `to`; returns how many bytes.
+pub(crate) fn copy_prefix(to: &mut [u8], from: &[u8]) -> usize {
+    let n = to.len().min(from.len());
+    if let (Some(to), Some(from)) = (to.get_mut(..n), from.get(..n)) {
+        to.copy_from_slice(from);
+    }
+    n
+}
+
+/// Copies from `bytes` at `address` into `buf`, as a read of a byte-slice space.
+pub(crate) fn read_slice(bytes: &[u8], address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+    let tail = usize::try_from(address).ok().and_then(|at| bytes.get(at..)).ok_or(SpaceError::OutOfBounds)?;
+    Ok(copy_prefix(buf, tail))
+}
+
+/// Copies `data` into `bytes` at `address`, as a write of a byte-slice space.
+fn write_slice(bytes: &mut [u8], address: u32, data: &[u8]) -> Result<(), SpaceError> {
+    let at = usize::try_from(address).map_err(|_| SpaceError::OutOfBounds)?;
+    let end = at.checked_add(data.len()).ok_or(SpaceError::OutOfBounds)?;
+    bytes.get_mut(at..end).ok_or(SpaceError::OutOfBounds)?.copy_from_slice(data);
+    Ok(())
+}
+
+fn len_u32(bytes: &[u8]) -> u32 {
+    u32::try_from(bytes.len()).unwrap_or(u32::MAX)
+}
+
+/// A read/write space in RAM, of a size fixed when it is made (so it is bounded): a
+/// configuration space for tests and tools, or the receiving buffer of a firmware target.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RamSpace {
+    bytes: Vec<u8>,
+    written: u32,
+}
+
+impl RamSpace {
+    /// `size` bytes of zeros.
+    pub fn new(size: u32) -> Self {
+        RamSpace { bytes: vec![0; size as usize], written: 0 }
+    }
+
+    /// A space holding `bytes` (its size is theirs).
+    pub fn from_bytes(bytes: Vec<u8>) -> Self {
+        RamSpace { bytes, written: 0 }
+    }
+
+    /// The contents.
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.bytes
+    }
+
+    /// One past the highest address written so far (a firmware image's length).
+    pub fn written_len(&self) -> u32 {
+        self.written
+    }
+}
+
+impl MemorySpace for RamSpace {
+    fn len(&self) -> u32 {
+        len_u32(&self.bytes)
+    }
+    fn read_only(&self) -> bool {
+        false
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        read_slice(&self.bytes, address, buf)
+    }
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        write_slice(&mut self.bytes, address, data)?;
+        let end = address.saturating_add(len_u32(data));
+        self.written = self.written.max(end);
+        Ok(())
+    }
+}
+
+/// A read-only space over fixed bytes: the CDI XML (space 0xFF), an FDI, a version blob.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReadOnlySpace {
+    bytes: Vec<u8>,
+}
+
+impl ReadOnlySpace {
+    /// A space holding `bytes`.
+    pub fn new(bytes: Vec<u8>) -> Self {
+        ReadOnlySpace { bytes }
+    }
+
+    /// A CDI space: the XML text followed by the NUL that ends it (CDI §5.1).
+    pub fn cdi(xml: &str) -> Self {
+        let mut bytes = Vec::with_capacity(xml.len() + 1);
+        bytes.extend_from_slice(xml.as_bytes());
+        bytes.push(0);
+        ReadOnlySpace { bytes }
+    }
+}
+
+impl MemorySpace for ReadOnlySpace {
+    fn len(&self) -> u32 {
+        len_u32(&self.bytes)
+    }
+    fn read_only(&self) -> bool {
+        true
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        read_slice(&self.bytes, address, buf)
+    }
+    fn write(&mut self, _address: u32, _data: &[u8]) -> Result<(), SpaceError> {
+        Err(SpaceError::ReadOnly)
+    }
+}
+
+/// Layout of the ACDI spaces (node-protocols.md §5.4): (offset, size) of each string slot.
+const ACDI_MANUFACTURER_SLOTS: [(usize, usize); 4] = [(1, 41), (42, 41), (83, 21), (104, 21)];
+const ACDI_USER_SLOTS: [(usize, usize); 2] = [(1, 63), (64, 64)];
+/// Size of space 0xFC.
+pub const ACDI_MANUFACTURER_LEN: usize = 125;
+/// Size of space 0xFB.
+pub const ACDI_USER_LEN: usize = 128;
+
+fn put_slot(bytes: &mut [u8], (at, size): (usize, usize), value: &str) {
+    let Some(slot) = bytes.get_mut(at..at + size) else { return };
+    slot.fill(0);
+    // The last byte of a slot is always the NUL.
+    copy_prefix(slot.get_mut(..size.saturating_sub(1)).unwrap_or_default(), value.as_bytes());
+}
+
+fn get_slot(bytes: &[u8], (at, size): (usize, usize)) -> alloc::string::String {
+    let slot = bytes.get(at..at + size).unwrap_or_default();
+    let text: Vec<u8> = slot.iter().take_while(|b| **b != 0).copied().collect();
+    alloc::string::String::from_utf8_lossy(&text).into_owned()
+}
+
+/// Space 0xFC as SNIP's manufacturer strings fill it: version 4, then manufacturer, model,
+/// hardware and software version at their fixed offsets.
+pub fn acdi_manufacturer_bytes(snip: &SnipInfo) -> Vec<u8> {
+    let mut bytes = vec![0; ACDI_MANUFACTURER_LEN];
+    if let Some(version) = bytes.first_mut() {
+        *version = 4;
+    }
+    let values = [&snip.manufacturer, &snip.model, &snip.hardware_version, &snip.software_version];
+    for (slot, value) in ACDI_MANUFACTURER_SLOTS.into_iter().zip(values) {
+        put_slot(&mut bytes, slot, value);
+    }
+    bytes
+}
+
+/// Space 0xFB as SNIP's user strings fill it: version 2, user name, user description.
+pub fn acdi_user_bytes(snip: &SnipInfo) -> Vec<u8> {
+    let mut bytes = vec![0; ACDI_USER_LEN];
+    if let Some(version) = bytes.first_mut() {
+        *version = 2;
+    }
+    for (slot, value) in ACDI_USER_SLOTS.into_iter().zip([&snip.user_name, &snip.user_description]) {
+        put_slot(&mut bytes, slot, value);
+    }
+    bytes
+}
+
+/// The user name and description space 0xFB holds.
+pub fn acdi_user_strings(bytes: &[u8]) -> (alloc::string::String, alloc::string::String) {
+    let [name, description] = ACDI_USER_SLOTS;
+    (get_slot(bytes, name), get_slot(bytes, description))
+}

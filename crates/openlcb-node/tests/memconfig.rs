@@ -1,0 +1,615 @@
+//! Memory Configuration server and client back to back, messages passed directly (the
+//! loopback harness tests the same over CAN, OpenLCB-TCP and a gateway).
+
+use openlcb_node::memconfig::wire::{Command, Reply};
+use openlcb_node::{
+    MemoryError, MemoryEvent, MemoryServer, Node, NodeConfig, NodeEvent, Protocols, RamSpace, ReadOnlySpace,
+    TransferPath,
+};
+use openlcb_stream::{Duration, Instant, Message, Mti, NodeId};
+
+const CLIENT: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 1]);
+const SERVER: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 2]);
+
+fn pattern(len: usize, key: u8) -> Vec<u8> {
+    (0..len).map(|i| (i as u8).wrapping_mul(31).wrapping_add(key) ^ (i >> 8) as u8).collect()
+}
+
+fn server_with(config: NodeConfig, space_len: u32) -> Node {
+    let server = MemoryServer::new()
+        .with_space(0xFD, RamSpace::from_bytes(pattern(space_len as usize, 7)))
+        .with_space(0xFF, ReadOnlySpace::cdi("<?xml version=\"1.0\"?><cdi/>"))
+        .with_space(0xEF, RamSpace::new(128 * 1024))
+        .with_acdi()
+        .with_unique_ids([[5, 1, 1, 1, 0x40, 2, 0, 1], [5, 1, 1, 1, 0x40, 2, 0, 2]]);
+    Node::new(SERVER, config).with_memory_server(server)
+}
+
+/// Two nodes passing messages back and forth on a clock that jumps to the next timer when
+/// nothing moves.
+struct Pair {
+    now: Instant,
+    client: Node,
+    server: Node,
+    events: Vec<NodeEvent>,
+    server_events: Vec<NodeEvent>,
+    /// Drop the n-th message the server sends (counting from 1), once.
+    drop_server_message: Option<(usize, Mti)>,
+    server_sent: usize,
+}
+
+impl Pair {
+    fn new(client: NodeConfig, server: Node) -> Self {
+        Pair {
+            now: Instant::ZERO,
+            client: Node::new(CLIENT, client),
+            server,
+            events: Vec::new(),
+            server_events: Vec::new(),
+            drop_server_message: None,
+            server_sent: 0,
+        }
+    }
+
+    fn pump(&mut self) {
+        for _ in 0..1_000_000 {
+            let mut moved = false;
+            while let Some(m) = self.client.poll_transmit() {
+                self.server.handle_message(self.now, m.as_ref());
+                moved = true;
+            }
+            while let Some(m) = self.server.poll_transmit() {
+                moved = true;
+                if let Some((n, mti)) = self.drop_server_message {
+                    if m.mti == mti {
+                        self.server_sent += 1;
+                        if self.server_sent == n {
+                            continue;
+                        }
+                    }
+                }
+                self.client.handle_message(self.now, m.as_ref());
+            }
+            self.events.extend(std::iter::from_fn(|| self.client.poll_event()));
+            self.server_events.extend(std::iter::from_fn(|| self.server.poll_event()));
+            if !moved {
+                return;
+            }
+        }
+        panic!("never idle");
+    }
+
+    /// Runs until the client raises a final memory event, or a minute of virtual time.
+    fn finish(&mut self) -> MemoryEvent {
+        let end = self.now + Duration::from_secs(120);
+        loop {
+            self.pump();
+            if let Some(i) = self.events.iter().position(|e| {
+                matches!(
+                    e,
+                    NodeEvent::Memory(
+                        MemoryEvent::ReadDone { .. } | MemoryEvent::WriteDone { .. } | MemoryEvent::Failed { .. }
+                    )
+                )
+            }) {
+                let NodeEvent::Memory(event) = self.events.remove(i) else { unreachable!() };
+                return event;
+            }
+            let next = [self.client.poll_timeout(), self.server.poll_timeout()].into_iter().flatten().min();
+            match next {
+                Some(t) if t <= end => {
+                    self.now = self.now.max(t);
+                    self.client.handle_timeout(self.now);
+                    self.server.handle_timeout(self.now);
+                }
+                _ => panic!("hang: nothing ended by {:?}; events {:?}", self.now, self.events),
+            }
+        }
+    }
+}
+
+fn read_back(node: &mut Node, space: u8) -> Vec<u8> {
+    let s = node.memory_server_mut().unwrap().space_mut(space).unwrap();
+    let mut buf = vec![0; s.len() as usize];
+    let n = s.read(0, &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+impl Pair {
+    /// No stream event of Memory Configuration's transfers reached either application.
+    fn assert_no_stream_events(&self) {
+        let leaked = self.events.iter().chain(&self.server_events).find(|e| matches!(e, NodeEvent::Stream(_)));
+        assert!(leaked.is_none(), "{leaked:?}");
+    }
+}
+
+fn read_all(path: TransferPath, len: Option<u32>) -> MemoryEvent {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 4096));
+    pair.pump();
+    pair.client.read_memory(pair.now, SERVER, 0xFD, 0, len, path).unwrap();
+    let end = pair.finish();
+    pair.pump();
+    pair.assert_no_stream_events();
+    end
+}
+
+#[test]
+fn read_by_datagrams_to_the_end_of_the_space() {
+    match read_all(TransferPath::Datagrams, None) {
+        MemoryEvent::ReadDone { data, .. } => assert_eq!(data, pattern(4096, 7)),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn read_by_stream_to_the_end_of_the_space() {
+    match read_all(TransferPath::Stream, None) {
+        MemoryEvent::ReadDone { data, .. } => assert_eq!(data, pattern(4096, 7)),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn read_auto_takes_the_stream_path_and_a_partial_range() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 4096));
+    pair.pump();
+    pair.client.read_memory(pair.now, SERVER, 0xFD, 100, Some(1000), TransferPath::Auto).unwrap();
+    match pair.finish() {
+        MemoryEvent::ReadDone { data, .. } => assert_eq!(data, pattern(4096, 7)[100..1100]),
+        other => panic!("{other:?}"),
+    }
+    assert!(pair.server.memory_server().unwrap().stats().streams_done == 1, "the stream path was taken");
+}
+
+#[test]
+fn read_auto_falls_back_to_datagrams_without_server_streams() {
+    let mut config = NodeConfig::default();
+    config.streams_enabled = false;
+    let mut pair = Pair::new(NodeConfig::default(), server_with(config, 300));
+    pair.pump();
+    pair.client.read_memory(pair.now, SERVER, 0xFD, 0, None, TransferPath::Auto).unwrap();
+    match pair.finish() {
+        MemoryEvent::ReadDone { data, .. } => assert_eq!(data, pattern(300, 7)),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(pair.server.memory_server().unwrap().stats().streams_done, 0);
+}
+
+fn write_then_verify(path: TransferPath) {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 8192));
+    pair.pump();
+    let data = pattern(5000, 99);
+    pair.client.write_memory(pair.now, SERVER, 0xFD, 1000, data.clone(), path).unwrap();
+    match pair.finish() {
+        MemoryEvent::WriteDone { len, .. } => assert_eq!(len, 5000),
+        other => panic!("{other:?}"),
+    }
+    pair.pump();
+    pair.assert_no_stream_events();
+    let space = read_back(&mut pair.server, 0xFD);
+    assert_eq!(&space[1000..6000], &data[..]);
+    assert_eq!(&space[..1000], &pattern(8192, 7)[..1000]);
+}
+
+#[test]
+fn write_by_datagrams_is_verified() {
+    write_then_verify(TransferPath::Datagrams);
+}
+
+#[test]
+fn write_by_stream_is_verified() {
+    write_then_verify(TransferPath::Stream);
+}
+
+#[test]
+fn firmware_upgrade_by_stream_and_by_datagrams() {
+    for path in [TransferPath::Auto, TransferPath::Datagrams] {
+        let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
+        pair.pump();
+        assert!(pair.server.protocols().contains(Protocols::FIRMWARE_UPGRADE));
+        let image = pattern(64 * 1024, 3);
+        pair.client.upgrade_firmware(pair.now, SERVER, image.clone(), path).unwrap();
+        match pair.finish() {
+            MemoryEvent::WriteDone { len, .. } => assert_eq!(len, 64 * 1024),
+            other => panic!("{other:?}"),
+        }
+        pair.pump();
+        assert_eq!(&read_back(&mut pair.server, 0xEF)[..image.len()], &image[..]);
+        assert!(!pair.server.memory_server().unwrap().is_frozen());
+        assert!(pair.server.protocols().contains(Protocols::FIRMWARE_UPGRADE));
+        let frozen = pair.server_events.iter().any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::Frozen { .. })));
+        let unfrozen = pair.server_events.iter().find_map(|e| match e {
+            NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) => Some(*image_len),
+            _ => None,
+        });
+        assert!(frozen, "{path:?}");
+        assert_eq!(unfrozen, Some(64 * 1024));
+    }
+}
+
+#[test]
+fn a_lost_read_reply_is_asked_for_again() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 640));
+    pair.pump();
+    // The server's third datagram (a Read Reply) is lost on the way.
+    pair.drop_server_message = Some((3, Mti::DATAGRAM));
+    pair.client.read_memory(pair.now, SERVER, 0xFD, 0, Some(640), TransferPath::Datagrams).unwrap();
+    match pair.finish() {
+        MemoryEvent::ReadDone { data, .. } => assert_eq!(data, pattern(640, 7)),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn errors_the_standard_names() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+    pair.pump();
+    pair.client.read_memory(pair.now, SERVER, 0x33, 0, Some(8), TransferPath::Datagrams).unwrap();
+    assert!(matches!(pair.finish(), MemoryEvent::Failed { error: MemoryError::Rejected(c), .. } if c.0 == 0x1081));
+    pair.client.write_memory(pair.now, SERVER, 0xFF, 0, vec![1], TransferPath::Datagrams).unwrap();
+    assert!(matches!(pair.finish(), MemoryEvent::Failed { error: MemoryError::Rejected(c), .. } if c.0 == 0x1083));
+    pair.client.read_memory(pair.now, SERVER, 0xFD, 64, Some(8), TransferPath::Datagrams).unwrap();
+    assert!(matches!(pair.finish(), MemoryEvent::Failed { error: MemoryError::Failed(c), .. } if c.0 == 0x1082));
+    pair.client.write_memory(pair.now, SERVER, 0xFD, 60, vec![1; 8], TransferPath::Datagrams).unwrap();
+    assert!(matches!(pair.finish(), MemoryEvent::Failed { error: MemoryError::Failed(c), .. } if c.0 == 0x1082));
+    // The firmware space is read-only outside the Firmware Upgrade state.
+    pair.client.write_memory(pair.now, SERVER, 0xEF, 0, vec![1; 8], TransferPath::Stream).unwrap();
+    assert!(matches!(pair.finish(), MemoryEvent::Failed { error: MemoryError::Rejected(c), .. } if c.0 == 0x1083));
+    pair.client.read_memory(pair.now, SERVER, 0xFD, 60, Some(8), TransferPath::Stream).unwrap();
+    assert!(matches!(pair.finish(), MemoryEvent::Failed { error: MemoryError::WrongLength { .. }, .. }));
+}
+
+#[test]
+fn acdi_spaces_mirror_snip() {
+    let mut config = NodeConfig::default();
+    config.snip.manufacturer = "Acme".into();
+    config.snip.user_name = "Yard".into();
+    let mut pair = Pair::new(NodeConfig::default(), server_with(config, 64));
+    pair.pump();
+    pair.client.read_memory(pair.now, SERVER, 0xFC, 0, None, TransferPath::Datagrams).unwrap();
+    let MemoryEvent::ReadDone { data, .. } = pair.finish() else { panic!() };
+    assert_eq!(data.len(), 125);
+    assert_eq!(&data[..6], b"\x04Acme\0");
+    let mut name = b"West end".to_vec();
+    name.push(0);
+    pair.client.write_memory(pair.now, SERVER, 0xFB, 1, name, TransferPath::Datagrams).unwrap();
+    assert!(matches!(pair.finish(), MemoryEvent::WriteDone { .. }));
+    assert_eq!(pair.server.config().snip.user_name, "West end");
+    pair.client.write_memory(pair.now, SERVER, 0xFC, 1, vec![0x41], TransferPath::Datagrams).unwrap();
+    assert!(matches!(pair.finish(), MemoryEvent::Failed { error: MemoryError::Rejected(c), .. } if c.0 == 0x1083));
+}
+
+/// Sends one raw command from the client's node and returns the server's answers.
+fn exchange(pair: &mut Pair, command: &[u8]) -> Vec<Message> {
+    pair.pump();
+    let now = pair.now;
+    let msg = Message::addressed(Mti::DATAGRAM, CLIENT, SERVER, command.to_vec());
+    pair.server.handle_message(now, msg.as_ref());
+    let answers: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    // The client's node acknowledges the reply datagrams, so the next one can come.
+    for answer in &answers {
+        pair.client.handle_message(now, answer.as_ref());
+    }
+    pair.pump();
+    answers
+}
+
+fn reply_of(answers: &[Message]) -> Option<Reply> {
+    answers.iter().find(|m| m.mti == Mti::DATAGRAM).and_then(|m| Reply::parse(&m.payload).ok())
+}
+
+#[test]
+fn server_control_commands() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+    // Options: the stream bit only with streams (C-5).
+    let answers = exchange(&mut pair, &Command::GetOptions.to_bytes());
+    assert_eq!(answers[0].mti, Mti::DATAGRAM_RECEIVED_OK);
+    assert_eq!(answers[0].payload[..], [0x80]);
+    let Some(Reply::Options(options)) = reply_of(&answers) else { panic!() };
+    assert_eq!(options.write_lengths, 0xE3);
+    assert_eq!((options.highest_space, options.lowest_space), (0xFF, Some(0xEF)));
+    // Lock: test-and-set, 0 releases.
+    let lock = |node| Command::Lock { node }.to_bytes();
+    assert_eq!(reply_of(&exchange(&mut pair, &lock(0x0501_0101_4001))), Some(Reply::Lock { owner: 0x0501_0101_4001 }));
+    assert_eq!(reply_of(&exchange(&mut pair, &lock(0x0501_0101_4009))), Some(Reply::Lock { owner: 0x0501_0101_4001 }));
+    assert_eq!(reply_of(&exchange(&mut pair, &lock(0))), Some(Reply::Lock { owner: 0 }));
+    // Unique IDs from the pool, then 0x1041.
+    let ids = reply_of(&exchange(&mut pair, &Command::GetUniqueId { count: 7 }.to_bytes()));
+    assert!(matches!(ids, Some(Reply::UniqueIds { ids }) if ids.len() == 2));
+    let none = exchange(&mut pair, &Command::GetUniqueId { count: 1 }.to_bytes());
+    assert_eq!((none[0].mti, &none[0].payload[..]), (Mti::DATAGRAM_REJECTED, &[0x10, 0x41][..]));
+    // Unknown command: 0x1041 (C-14).
+    let unknown = exchange(&mut pair, &[0x20, 0xAB]);
+    assert_eq!(&unknown[0].payload[..], [0x10, 0x41]);
+    // Factory reset checks the Node ID.
+    let wrong = exchange(&mut pair, &Command::FactoryReset { node: 0x0501_0101_4001 }.to_bytes());
+    assert_eq!(&wrong[0].payload[..], [0x10, 0x80]);
+    let right = exchange(&mut pair, &Command::FactoryReset { node: SERVER.as_raw() }.to_bytes());
+    assert_eq!((right[0].mti, &right[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0][..]));
+    let reset = exchange(&mut pair, &Command::Reset.to_bytes());
+    assert_eq!(reset[0].mti, Mti::DATAGRAM_RECEIVED_OK);
+    let events = &pair.server_events;
+    assert!(events.iter().any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::FactoryResetRequested { .. }))));
+    assert!(events.iter().any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::ResetRequested { .. }))));
+    // Freeze: OK, then Initialization Complete, and PIP says Firmware Upgrade Active.
+    let frozen = exchange(&mut pair, &Command::Freeze { space: 0xEF }.to_bytes());
+    assert_eq!(frozen[0].mti, Mti::DATAGRAM_RECEIVED_OK);
+    assert_eq!(frozen[1].mti, Mti::INITIALIZATION_COMPLETE);
+    assert!(pair.server.protocols().contains(Protocols::FIRMWARE_UPGRADE_ACTIVE));
+    assert!(!pair.server.protocols().contains(Protocols::FIRMWARE_UPGRADE));
+    let info = reply_of(&exchange(&mut pair, &Command::GetSpaceInfo { space: 0x99 }.to_bytes()));
+    assert_eq!(info.map(|r| r.to_bytes()), Some(vec![0x20, 0x86, 0x99]));
+    let unfrozen = exchange(&mut pair, &Command::Unfreeze { space: 0xEF }.to_bytes());
+    assert_eq!(unfrozen[1].mti, Mti::INITIALIZATION_COMPLETE);
+    assert!(pair.server.protocols().contains(Protocols::FIRMWARE_UPGRADE | Protocols::MEMORY_CONFIGURATION));
+}
+
+#[test]
+fn immediate_write_is_answered_by_ok_alone() {
+    // C-9 and worked example 9.1: OK without Reply Pending, no Write Reply.
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+    let answers = exchange(&mut pair, &[0x20, 0x01, 0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8]);
+    assert_eq!(answers.len(), 1);
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0][..]));
+    assert_eq!(&read_back(&mut pair.server, 0xFD)[..8], [1, 2, 3, 4, 5, 6, 7, 8]);
+}
+
+#[test]
+fn read_stream_server_order_is_ok_then_initiate_then_reply() {
+    // C-4, as server: Datagram OK with Reply Pending at once, the Initiate Request proposing
+    // the command's DID; the Reply only after the Initiate Reply.
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 200));
+    let _ = std::iter::from_fn(|| pair.server.poll_transmit()).count();
+    let command =
+        Message::addressed(Mti::DATAGRAM, CLIENT, SERVER, vec![0x20, 0x61, 0, 0, 0, 0, 0xFF, 0x01, 0, 0, 0, 0xC8]);
+    pair.server.handle_message(pair.now, command.as_ref());
+    let answers: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    assert_eq!(answers.len(), 2, "{answers:?}");
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0x80][..]));
+    assert_eq!(answers[1].mti, Mti::STREAM_INITIATE_REQUEST);
+    assert_eq!(answers[1].payload[5], 0x01, "the proposed DID is the command's");
+    let sid = answers[1].payload[4];
+    let reply = Message::addressed(Mti::STREAM_INITIATE_REPLY, CLIENT, SERVER, vec![0x01, 0x00, 0x80, 0x00, sid, 0x01]);
+    pair.server.handle_message(pair.now, reply.as_ref());
+    let after: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    assert_eq!(after[0].mti, Mti::DATAGRAM);
+    assert_eq!(&after[0].payload[..], [0x20, 0x71, 0, 0, 0, 0, sid, 0x01, 0, 0, 0, 0xC8]);
+    assert_eq!(after[1].mti, Mti::STREAM_DATA_SEND);
+    let sent: usize = after.iter().filter(|m| m.mti == Mti::STREAM_DATA_SEND).map(|m| m.payload.len() - 1).sum();
+    assert_eq!(sent, 200);
+    assert_eq!(after.last().map(|m| m.mti), Some(Mti::STREAM_DATA_COMPLETE));
+}
+
+#[test]
+fn read_stream_against_a_scripted_server_in_openmrn_order() {
+    // OpenMRN's order (§3.10): Initiate Request first, the OK only after the Initiate Reply.
+    let mut client = Node::new(CLIENT, NodeConfig::default());
+    let now = Instant::ZERO;
+    let _ = std::iter::from_fn(|| client.poll_transmit()).count();
+    let op = client.read_memory(now, SERVER, 0xFD, 0, Some(200), TransferPath::Stream).unwrap();
+    let command: Vec<Message> = std::iter::from_fn(|| client.poll_transmit()).collect();
+    let Ok(Command::ReadStream { destination_stream: did, .. }) = Command::parse(&command[0].payload) else { panic!() };
+    let from_server = |mti, payload: Vec<u8>| Message::addressed(mti, SERVER, CLIENT, payload);
+    let initiate = from_server(Mti::STREAM_INITIATE_REQUEST, vec![0xFF, 0xFF, 0, 0, 0x02, did]);
+    client.handle_message(now, initiate.as_ref());
+    let answer: Vec<Message> = std::iter::from_fn(|| client.poll_transmit()).collect();
+    assert_eq!(answer[0].mti, Mti::STREAM_INITIATE_REPLY);
+    assert_eq!(&answer[0].payload[2..], [0x80, 0x00, 0x02, did]);
+    client.handle_message(now, from_server(Mti::DATAGRAM_RECEIVED_OK, vec![0x80]).as_ref());
+    let mut reply = vec![0x20, 0x71, 0, 0, 0, 0, 0x02, did, 0, 0, 0, 200];
+    client.handle_message(now, from_server(Mti::DATAGRAM, std::mem::take(&mut reply)).as_ref());
+    let data = pattern(200, 1);
+    for chunk in data.chunks(64) {
+        let mut payload = vec![did];
+        payload.extend_from_slice(chunk);
+        client.handle_message(now, from_server(Mti::STREAM_DATA_SEND, payload).as_ref());
+    }
+    client.handle_message(now, from_server(Mti::STREAM_DATA_COMPLETE, vec![0x02, did, 0, 0, 0, 200]).as_ref());
+    let events: Vec<NodeEvent> = std::iter::from_fn(|| client.poll_event()).collect();
+    assert!(
+        events.iter().any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::ReadDone { operation, data: d, .. })
+            if *operation == op && *d == data)),
+        "{events:?}"
+    );
+    assert!(!events.iter().any(|e| matches!(e, NodeEvent::Stream(_))), "the read's stream events stay inside");
+}
+
+/// A scripted stand-in for OpenMRN's `Bootloader.hxx`, stream build, as node-protocols.md
+/// §4.5 reads it: no OK to Freeze (it logs in again), PIP `70 00 10 ..`, Write Stream Reply
+/// `20 30 addr EF` without stream IDs sent before the Initiate, a window of the largest
+/// power of two <= min(proposal, 1024), DID 0x5A always, 4-byte Proceeds sent only after a
+/// "flash write" of `flash_delay`, no Write Stream Reply after Complete, OK without flags
+/// to Unfreeze.
+struct OpenMrnBootloader {
+    flash_delay: Duration,
+    sid: u8,
+    window: usize,
+    received: Vec<u8>,
+    in_window: usize,
+    /// Proceeds waiting for their flash write to finish.
+    proceeds_due: Vec<Instant>,
+    completed: bool,
+    unfrozen: bool,
+}
+
+/// A peer played by a script: it answers each message, and may have answers due later.
+trait Scripted {
+    fn handle(&mut self, now: Instant, msg: &Message, out: &mut Vec<Message>);
+    /// Answers due by `now` (a Proceed after a flash write).
+    fn due(&mut self, _now: Instant, _out: &mut Vec<Message>) {}
+    fn next_due(&self) -> Option<Instant> {
+        None
+    }
+}
+
+/// Runs `client` against `target` until the client's operation ends; fails on a hang or
+/// on a stream event reaching the application.
+fn run_scripted(client: &mut Node, target: &mut dyn Scripted) -> Option<MemoryEvent> {
+    let mut now = Instant::ZERO;
+    for _ in 0..100_000 {
+        let mut answers = Vec::new();
+        while let Some(m) = client.poll_transmit() {
+            target.handle(now, &m, &mut answers);
+        }
+        target.due(now, &mut answers);
+        for a in &answers {
+            client.handle_message(now, a.as_ref());
+        }
+        for event in std::iter::from_fn(|| client.poll_event()) {
+            match event {
+                NodeEvent::Memory(e) => return Some(e),
+                NodeEvent::Stream(e) => panic!("a stream event of the operation leaked: {e:?}"),
+                _ => {}
+            }
+        }
+        if answers.is_empty() {
+            let next = [client.poll_timeout(), target.next_due()].into_iter().flatten().min();
+            now = next.expect("nothing to wait for: a hang").max(now);
+            client.handle_timeout(now);
+        }
+    }
+    None
+}
+
+impl Scripted for OpenMrnBootloader {
+    fn due(&mut self, now: Instant, out: &mut Vec<Message>) {
+        while self.proceeds_due.first().is_some_and(|t| *t <= now) {
+            self.proceeds_due.remove(0);
+            out.push(Message::addressed(Mti::STREAM_DATA_PROCEED, SERVER, CLIENT, vec![self.sid, 0x5A, 0, 0]));
+        }
+    }
+
+    fn next_due(&self) -> Option<Instant> {
+        self.proceeds_due.first().copied()
+    }
+
+    fn handle(&mut self, now: Instant, msg: &Message, out: &mut Vec<Message>) {
+        let send =
+            |out: &mut Vec<Message>, mti, payload: Vec<u8>| out.push(Message::addressed(mti, SERVER, CLIENT, payload));
+        match msg.mti {
+            Mti::DATAGRAM => match &msg.payload[..] {
+                [0x20, 0xA1, 0xEF] => send(out, Mti::INITIALIZATION_COMPLETE, SERVER.to_bytes().to_vec()),
+                [0x20, 0x20, a, b, c, d, 0xEF, sid] => {
+                    self.sid = *sid;
+                    send(out, Mti::DATAGRAM_RECEIVED_OK, vec![0x80]);
+                    send(out, Mti::DATAGRAM, vec![0x20, 0x30, *a, *b, *c, *d, 0xEF]);
+                }
+                [0x20, 0xA0, 0xEF] => {
+                    self.unfrozen = true;
+                    send(out, Mti::DATAGRAM_RECEIVED_OK, vec![]);
+                }
+                other => panic!("the bootloader got {other:02X?}"),
+            },
+            Mti::PROTOCOL_SUPPORT_INQUIRY => send(out, Mti::PROTOCOL_SUPPORT_REPLY, vec![0x70, 0, 0x10, 0, 0, 0]),
+            Mti::DATAGRAM_RECEIVED_OK => {}
+            Mti::STREAM_INITIATE_REQUEST => {
+                let proposal = usize::from(u16::from_be_bytes([msg.payload[0], msg.payload[1]]));
+                assert_eq!(msg.payload[4], self.sid);
+                let mut window = 1024;
+                while window > proposal {
+                    window /= 2;
+                }
+                self.window = window;
+                let w = (window as u16).to_be_bytes();
+                send(out, Mti::STREAM_INITIATE_REPLY, vec![w[0], w[1], 0x80, 0x00, self.sid, 0x5A]);
+            }
+            Mti::STREAM_DATA_SEND => {
+                assert_eq!(msg.payload[0], 0x5A);
+                let data = &msg.payload[1..];
+                self.received.extend_from_slice(data);
+                self.in_window += data.len();
+                assert!(self.in_window <= self.window, "window overrun");
+                if self.in_window == self.window {
+                    self.in_window = 0;
+                    self.proceeds_due.push(now + self.flash_delay);
+                }
+            }
+            Mti::STREAM_DATA_COMPLETE => {
+                assert_eq!(&msg.payload[..2], [self.sid, 0x5A]);
+                self.completed = true;
+            }
+            _ => {}
+        }
+    }
+}
+
+#[test]
+fn firmware_upgrade_against_a_scripted_openmrn_bootloader() {
+    for flash_delay in [Duration::from_millis(0), Duration::from_secs(5)] {
+        let mut client = Node::new(CLIENT, NodeConfig::default());
+        let mut target = OpenMrnBootloader {
+            flash_delay,
+            sid: 0,
+            window: 0,
+            received: Vec::new(),
+            in_window: 0,
+            proceeds_due: Vec::new(),
+            completed: false,
+            unfrozen: false,
+        };
+        let image = pattern(3000, 42);
+        client.upgrade_firmware(Instant::ZERO, SERVER, image.clone(), TransferPath::Auto).unwrap();
+        let done = run_scripted(&mut client, &mut target);
+        assert!(matches!(done, Some(MemoryEvent::WriteDone { len: 3000, .. })), "{done:?}");
+        assert_eq!(target.window, 1024);
+        assert!(target.completed && target.unfrozen);
+        assert_eq!(target.received, image);
+    }
+}
+
+#[test]
+fn pip_has_memory_configuration_exactly_with_a_server() {
+    let plain = Node::new(SERVER, NodeConfig::default());
+    assert!(!plain.protocols().contains(Protocols::MEMORY_CONFIGURATION));
+    let config_only = Node::new(SERVER, NodeConfig::default())
+        .with_memory_server(MemoryServer::new().with_space(0xFD, RamSpace::new(16)));
+    let bits = config_only.protocols();
+    assert!(bits.contains(Protocols::MEMORY_CONFIGURATION | Protocols::DATAGRAM | Protocols::STREAM));
+    assert!(!bits.contains(Protocols::FIRMWARE_UPGRADE) && !bits.contains(Protocols::FIRMWARE_UPGRADE_ACTIVE));
+    let firmware = server_with(NodeConfig::default(), 16);
+    assert!(firmware.protocols().contains(Protocols::FIRMWARE_UPGRADE));
+}
+
+/// An OpenLcbCLib-style target as node-protocols.md §3.11 reads it: Datagram OK 0x80 to
+/// Write Stream, the Write Stream Reply only after Complete and without the space byte
+/// (`20 30 addr SID DID`, C-2, C-8).
+struct ReplyAfterComplete {
+    sid: u8,
+    received: Vec<u8>,
+}
+
+impl Scripted for ReplyAfterComplete {
+    fn handle(&mut self, _now: Instant, msg: &Message, out: &mut Vec<Message>) {
+        let send =
+            |out: &mut Vec<Message>, mti, payload: Vec<u8>| out.push(Message::addressed(mti, SERVER, CLIENT, payload));
+        match msg.mti {
+            Mti::DATAGRAM if msg.payload[1] == 0x20 => {
+                self.sid = msg.payload[7];
+                send(out, Mti::DATAGRAM_RECEIVED_OK, vec![0x80]);
+            }
+            Mti::STREAM_INITIATE_REQUEST => {
+                send(out, Mti::STREAM_INITIATE_REPLY, vec![0x01, 0x00, 0x80, 0x00, self.sid, 0x03]);
+            }
+            Mti::STREAM_DATA_SEND => {
+                self.received.extend_from_slice(&msg.payload[1..]);
+                if self.received.len() % 256 == 0 {
+                    send(out, Mti::STREAM_DATA_PROCEED, vec![self.sid, 0x03]);
+                }
+            }
+            Mti::STREAM_DATA_COMPLETE => send(out, Mti::DATAGRAM, vec![0x20, 0x30, 0, 0, 0, 0, self.sid, 0x03]),
+            _ => {}
+        }
+    }
+}
+
+#[test]
+fn write_stream_reply_after_complete_without_the_space_byte() {
+    let mut client = Node::new(CLIENT, NodeConfig::default());
+    let mut target = ReplyAfterComplete { sid: 0, received: Vec::new() };
+    let data = pattern(1000, 8);
+    client.write_memory(Instant::ZERO, SERVER, 0x10, 0, data.clone(), TransferPath::Stream).unwrap();
+    let done = run_scripted(&mut client, &mut target);
+    assert!(matches!(done, Some(MemoryEvent::WriteDone { len: 1000, .. })), "{done:?}");
+    assert_eq!(target.received, data);
+}
