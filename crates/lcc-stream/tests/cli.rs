@@ -591,3 +591,86 @@ async fn a_second_recv_with_a_taken_node_id_exits_10_and_the_first_keeps_running
     assert_eq!(std::fs::read(&output).unwrap(), data(5000));
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// Resident memory of a process in KiB (Linux), 0 where unknown.
+fn resident_kib(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    let line = status.lines().find(|l| l.starts_with("VmRSS:")).unwrap_or("VmRSS: 0 kB");
+    line.split_whitespace().nth(1).and_then(|n| n.parse().ok()).unwrap_or(0)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs the CAN link to answer by alias without a bounded alias cache in the way \
+            (alias work in progress): replies to aliases evicted from the 64-entry cache wait \
+            for resolution and overflow the link's transmit queue"]
+async fn a_flood_of_requests_from_a_thousand_aliases_is_answered_and_memory_stays_flat() {
+    use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
+    const ALIASES: u16 = 1000;
+    const PER_ALIAS: u8 = 10;
+    let dir = scratch("flood");
+    let (_hub, gridconnect, _) = start_hub_binary().await;
+    let mut flood = bounded("connect", tokio::net::TcpStream::connect(&gridconnect)).await.unwrap();
+    let mut recv = spawn(&["recv", "--connect", &gridconnect, "--out", dir.to_str().unwrap()]);
+    wait_for_line(&mut recv, "listening").await;
+    let pid = recv.id().unwrap();
+    // Learn recv's alias from its AMD (it is 05.01.01.01.22.F1).
+    let mut seen = String::new();
+    let mut buf = vec![0u8; 64 * 1024];
+    let recv_alias = bounded("recv's AMD", async {
+        loop {
+            let n = flood.read(&mut buf).await.unwrap();
+            assert!(n > 0);
+            seen.push_str(&String::from_utf8_lossy(&buf[..n]));
+            let amd = seen.lines().find(|l| l.starts_with(":X10701") && l.ends_with("N0501010122F1;"));
+            if let Some(amd) = amd {
+                return u16::from_str_radix(&amd[7..10], 16).unwrap();
+            }
+        }
+    })
+    .await;
+    let before = resident_kib(pid);
+    let alias = |i: u16| 0x100 + i;
+    let (mut reader, mut writer) = flood.into_split();
+    let writing = tokio::spawn(async move {
+        for i in 0..ALIASES {
+            let mut text = format!(":X10701{:03X}N050101013{:03X};\n", alias(i), i);
+            for sid in 0..PER_ALIAS {
+                text += &format!(":X19CC8{:03X}N{:04X}FFFF0000{:02X};\n", alias(i), recv_alias, sid);
+            }
+            writer.write_all(text.as_bytes()).await.unwrap();
+        }
+        writer
+    });
+    // Count the Initiate Replies addressed to each alias.
+    let mut answered = vec![0u8; usize::from(ALIASES)];
+    let mut total = 0usize;
+    let mut pending = String::new();
+    let prefix = format!(":X19868{recv_alias:03X}N");
+    bounded("every reply", async {
+        while total < usize::from(ALIASES) * usize::from(PER_ALIAS) {
+            let n = reader.read(&mut buf).await.unwrap();
+            assert!(n > 0, "the hub closed the connection after {total} replies");
+            pending.push_str(&String::from_utf8_lossy(&buf[..n]));
+            let last = pending.rfind('\n').map_or(0, |i| i + 1);
+            for line in pending[..last].lines() {
+                if let Some(data) = line.strip_prefix(&prefix) {
+                    let to = u16::from_str_radix(&data[1..4], 16).unwrap();
+                    let code = &data[8..12];
+                    assert!(code == "8000" || code == "2020", "reply code {code}: {line}");
+                    if let Some(count) = to.checked_sub(0x100).and_then(|i| answered.get_mut(usize::from(i))) {
+                        *count += 1;
+                        total += 1;
+                    }
+                }
+            }
+            pending.drain(..last);
+        }
+    })
+    .await;
+    let _writer = writing.await.unwrap();
+    assert!(answered.iter().all(|&n| n == PER_ALIAS), "some aliases were not answered");
+    let after = resident_kib(pid);
+    assert!(after < before + 32 * 1024, "recv grew from {before} KiB to {after} KiB");
+    drop(recv);
+    let _ = std::fs::remove_dir_all(dir);
+}
