@@ -91,7 +91,7 @@ pub enum Op {
     Read { on_b: bool, stream: u8, len: u16 },
     /// Let time pass and run timers.
     Advance { millis: u16 },
-    /// The transport says the peer is gone, or the link is.
+    /// A node loses its link: A (or B) itself with `whole_link`, else its peer.
     Lost { on_b: bool, whole_link: bool },
 }
 
@@ -325,11 +325,17 @@ pub fn endpoint_ops(ops: &[Op]) {
                 }
             }
             Op::Lost { on_b, whole_link } => {
+                // One node lost its link (its CAN alias): it ends every stream, its peer hears
+                // it go (AMR) and ends its streams with it, and the transport drops what was
+                // queued between them (it was addressed to an alias that is gone). Data Send
+                // carries no SID: a peer that forgot a stream the other still sends on would
+                // mix two streams, which a real link loss never lets happen.
                 let side = usize::from(*on_b);
-                if *whole_link {
-                    pair[side].link_lost();
-                } else {
-                    pair[side].peer_lost(ids[1 - side]);
+                let lost = if *whole_link { side } else { 1 - side };
+                pair[lost].link_lost();
+                pair[1 - lost].peer_lost(ids[lost]);
+                for endpoint in &mut pair {
+                    while endpoint.poll_transmit().is_some() {}
                 }
             }
         }
