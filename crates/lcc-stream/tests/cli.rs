@@ -674,3 +674,16 @@ async fn a_flood_of_requests_from_a_thousand_aliases_is_answered_and_memory_stay
     drop(recv);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_duplicate_announced_later_stops_recv_with_exit_10() {
+    use tokio::io::AsyncWriteExt as _;
+    let (_hub, gridconnect, _) = start_hub_binary().await;
+    let mut recv = spawn(&["recv", "--connect", &gridconnect]);
+    wait_for_line(&mut recv, "listening").await;
+    // A node that does not ask first (as OpenMRN's nodes do) announces the same Node ID.
+    let mut other = bounded("connect", tokio::net::TcpStream::connect(&gridconnect)).await.unwrap();
+    other.write_all(b":X10701ABCN0501010122F1;\n").await.unwrap();
+    let (status, _, _) = finish(recv).await;
+    assert_eq!(status.code(), Some(10), "wire-spec 7.5: the node stops and says why");
+}

@@ -52,11 +52,13 @@ pub struct Config {
     pub idle_timeout: Option<Duration>,
     /// As destination, terminate (TDE 0x2010) an accepted stream that has brought no payload
     /// byte for this long (never longer than `idle_timeout`). `None` leaves only the idle
-    /// timeout. Default 5 s: a source sends its first data right after the Reply (one round
-    /// trip through a hub, well under a second, plus opening a file), so 5 s never cuts off a
-    /// real sender, while a peer that opens streams and sends nothing holds receive slots for
-    /// 5 s instead of the whole idle timeout (60 s). Keep-alives are not data: they keep a
-    /// stream that has started alive, not one that never did.
+    /// timeout. Default 15 s: a source sends its first data right after the Reply, but on a
+    /// busy slow bus the frames queue behind everyone else's (50 nodes each sending to another
+    /// on one 125 kbit/s bus, in the harness, took up to 5.5 s to deliver a stream's first
+    /// byte), so 15 s is about three times that; a peer that opens streams and sends nothing
+    /// then holds receive slots for 15 s instead of the whole idle timeout (60 s).
+    /// Keep-alives are not data: they keep a stream that has started alive, not one that
+    /// never did.
     pub first_data_timeout: Option<Duration>,
     /// As destination, how long a Complete that states more bytes than have arrived waits
     /// for data still in flight before the stream ends with a count mismatch. In-flight data
@@ -93,7 +95,7 @@ impl Default for Config {
             proceed_timeout: Duration::from_secs(30),
             keepalive_interval: Some(Duration::from_secs(15)),
             idle_timeout: Some(Duration::from_secs(60)),
-            first_data_timeout: Some(Duration::from_secs(5)),
+            first_data_timeout: Some(Duration::from_secs(15)),
             complete_grace: Duration::from_secs(2),
             decision_timeout: Duration::from_millis(500),
             transmit_queue_limit: 256,
