@@ -53,7 +53,8 @@ pub(crate) struct SendArgs {
     /// Stream Content UID to send with the request (six bytes, like a Node ID).
     #[arg(long, value_name = "UID")]
     content_uid: Option<ContentUid>,
-    /// Seconds to wait for the receiver's answer and, later, for each grant of credit.
+    /// Seconds to wait for the receiver's answer, for credit once it has run out (one deadline
+    /// from that moment), and for the hub to take data the socket holds.
     #[arg(long, value_name = "SECS", default_value_t = 20)]
     timeout: u64,
     /// Print one JSON object instead of text.
@@ -90,6 +91,7 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
     options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::STREAMS_NOT_SUPPORTED);
     options.node.stream.reply_timeout = Duration::from_secs(args.timeout).into();
     options.node.stream.proceed_timeout = Duration::from_secs(args.timeout).into();
+    options.write_timeout = Duration::from_secs(args.timeout);
     let report_error = |error: &Error, bytes: u64, elapsed: Duration| {
         if args.json {
             let json = Json::default()

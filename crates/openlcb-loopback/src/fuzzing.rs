@@ -64,6 +64,8 @@ pub fn loopback_ops(seed: u64, window: u16, early_proceed: bool, ops: &[Op]) {
         if !lossy {
             assert_ne!(report.outcome, Outcome::SilentCorruption, "{report:?}");
         }
+        // Ten virtual minutes of quiet later every transfer has an outcome: none hangs.
+        assert_ne!(report.outcome, Outcome::Pending, "a transfer never ended: {report:?}");
         if report.outcome == Outcome::Completed {
             assert_eq!(report.verified_prefix, report.spec.bytes, "{report:?}");
         }

@@ -52,13 +52,13 @@ pub struct Config {
     pub idle_timeout: Option<Duration>,
     /// As destination, terminate (TDE 0x2010) an accepted stream that has brought no payload
     /// byte for this long (never longer than `idle_timeout`). `None` leaves only the idle
-    /// timeout. Default 20 s. A source sends its first data right after the Reply, but on a
-    /// busy CAN bus arbitration by identifier can hold a low-priority node's frames back for
-    /// seconds: in the harness, 50 nodes sharing a 125 kbit/s bus delivered some streams' first
-    /// byte only after 5 s. 20 s, a third of the idle timeout, never cut off such a sender
-    /// there, while a peer that opens streams and sends nothing holds receive slots for 20 s
-    /// instead of 60 s (and [`Config::max_streams_per_peer`] bounds how many). Keep-alives are
-    /// not data: they keep a stream that has started alive, not one that never did.
+    /// timeout. Default 15 s: a source sends its first data right after the Reply, but on a
+    /// busy slow bus the frames queue behind everyone else's (50 nodes each sending to another
+    /// on one 125 kbit/s bus, in the harness, took up to 5.5 s to deliver a stream's first
+    /// byte), so 15 s is about three times that; a peer that opens streams and sends nothing
+    /// then holds receive slots for 15 s instead of the whole idle timeout (60 s).
+    /// Keep-alives are not data: they keep a stream that has started alive, not one that
+    /// never did.
     pub first_data_timeout: Option<Duration>,
     /// As destination, how long a Complete that states more bytes than have arrived waits
     /// for data still in flight before the stream ends with a count mismatch. In-flight data
@@ -83,7 +83,7 @@ impl Default for Config {
             proceed_timeout: Duration::from_secs(30),
             keepalive_interval: Some(Duration::from_secs(15)),
             idle_timeout: Some(Duration::from_secs(60)),
-            first_data_timeout: Some(Duration::from_secs(20)),
+            first_data_timeout: Some(Duration::from_secs(15)),
             complete_grace: Duration::from_secs(2),
             decision_timeout: Duration::from_millis(500),
         }

@@ -570,7 +570,7 @@ fn open_source_silent_times_out() {
 fn open_no_first_data_times_out_early() {
     let mut b = Bench::new(config());
     let (h, did) = b.open_destination();
-    b.advance(Duration::from_secs(19));
+    b.advance(Duration::from_secs(14));
     b.peer(Mti::STREAM_DATA_SEND, &[did]); // a keep-alive is not data
     assert!(b.events().is_empty());
     b.advance(Duration::from_secs(1));

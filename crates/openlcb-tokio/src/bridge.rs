@@ -43,6 +43,10 @@ pub(crate) async fn run(can: Side, tcp: Side, state: Arc<State>) {
             sleep.as_mut().reset(start + std::time::Duration::from_micros(at.as_micros()));
         }
         tokio::select! {
+            // CAN side first when both have input: the hub's own AMRs for a client that left
+            // are queued here before anything a client connecting after that can send, and
+            // the gateway must forget the old node before it sees a new one with its Node ID.
+            biased;
             chunk = can_rx.recv() => {
                 let Some(chunk) = chunk else { return };
                 let now = now();

@@ -1,7 +1,6 @@
 //! End-to-end: a hub and nodes on 127.0.0.1 (ephemeral ports), real sockets, every wait
 //! bounded by a timeout.
 
-use std::future::Future;
 use std::time::Duration;
 
 use openlcb_stream::wire::ReplyCode;
@@ -9,15 +8,8 @@ use openlcb_stream::{AcceptPolicy, NodeId, OpenOptions};
 use openlcb_tokio::{Error, Hub, HubEvent, HubOptions, Node, NodeOptions, Protocol};
 use tokio::io::AsyncWriteExt;
 
-/// No single step of a test may take longer than this.
-const LIMIT: Duration = Duration::from_secs(120);
-
-async fn bounded<T>(what: &str, future: impl Future<Output = T>) -> T {
-    match tokio::time::timeout(LIMIT, future).await {
-        Ok(value) => value,
-        Err(_) => panic!("{what} did not finish within {LIMIT:?}"),
-    }
-}
+mod common;
+use common::bounded;
 
 fn id(last: u8) -> NodeId {
     NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, last])

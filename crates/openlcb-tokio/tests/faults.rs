@@ -2,7 +2,6 @@
 //! and a relay with the socket options of OpenMRN's `hub`. Every wait is bounded; every
 //! loop stops by itself.
 
-use std::future::Future;
 use std::time::Duration;
 
 use bytes::BytesMut;
@@ -12,15 +11,8 @@ use openlcb_tokio::{Error, Node, NodeOptions, Protocol};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
-/// No single step of a test may take longer than this.
-const LIMIT: Duration = Duration::from_secs(120);
-
-async fn bounded<T>(what: &str, future: impl Future<Output = T>) -> T {
-    match tokio::time::timeout(LIMIT, future).await {
-        Ok(value) => value,
-        Err(_) => panic!("{what} did not finish within {LIMIT:?}"),
-    }
-}
+mod common;
+use common::{LIMIT, bounded};
 
 fn id(last: u8) -> NodeId {
     NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, last])
@@ -158,23 +150,7 @@ async fn a_large_window_crosses_a_relay_with_small_socket_buffers() {
     let mss = bounded("the relay", relay).await.unwrap();
     assert!(mss.iter().all(|&m| m <= 8192), "segment sizes {mss:?} exceed a small hub's window");
 
-    let payload = data(1 << 20);
-    let send = async {
-        let mut stream = sender.open(OpenOptions::new(receiver_id, 65535)).await?;
-        stream.write_all(payload.clone()).await?;
-        stream.finish().await
-    };
-    let receive = async {
-        let mut stream = receiver.accept().await?;
-        let mut got = Vec::new();
-        while let Some(chunk) = stream.read().await? {
-            got.extend_from_slice(&chunk);
-        }
-        Ok::<_, Error>(got)
-    };
-    let (sent, got) = bounded("the transfer", async { tokio::try_join!(send, receive) }).await.unwrap();
-    assert_eq!(sent, payload.len() as u64);
-    assert!(got == payload, "the data arrived changed");
+    transfer(&sender, &mut receiver, 1 << 20, 65535).await;
 }
 
 // ----- the hub and its bridge -----
@@ -185,12 +161,12 @@ async fn start_hub(options: HubOptions) -> Hub {
     bounded("binding the hub", Hub::bind("127.0.0.1:0", Some("127.0.0.1:0"), options)).await.unwrap()
 }
 
-/// Moves `len` bytes from `sender` to `destination` and returns what `receiver` got.
-async fn small_transfer(sender: &Node, receiver: &mut Node, len: usize) -> Vec<u8> {
+/// Moves `len` bytes from `sender` to `receiver` with `window` and checks they arrived intact.
+async fn transfer(sender: &Node, receiver: &mut Node, len: usize, window: u16) {
     let destination = receiver.node_id();
     let payload = data(len);
     let send = async {
-        let mut stream = sender.open(OpenOptions::new(destination, 2048)).await?;
+        let mut stream = sender.open(OpenOptions::new(destination, window)).await?;
         stream.write_all(payload.clone()).await?;
         stream.finish().await
     };
@@ -202,9 +178,9 @@ async fn small_transfer(sender: &Node, receiver: &mut Node, len: usize) -> Vec<u
         }
         Ok::<_, Error>(got)
     };
-    let (_, got) = bounded("a transfer", async { tokio::try_join!(send, receive) }).await.unwrap();
+    let (sent, got) = bounded("a transfer", async { tokio::try_join!(send, receive) }).await.unwrap();
+    assert_eq!(sent, payload.len() as u64);
     assert!(got == payload, "the data arrived changed");
-    got
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -217,7 +193,7 @@ async fn a_second_node_with_a_taken_node_id_refuses_to_join_and_the_first_keeps_
     let second = bounded("joining again", join(taken)).await;
     assert!(matches!(second, Err(Error::DuplicateNodeId { at_login: true, .. })), "got {second:?}");
     let sender = bounded("joining", join(id(0x21))).await.unwrap();
-    small_transfer(&sender, &mut first, 10_000).await;
+    transfer(&sender, &mut first, 10_000, 2048).await;
 }
 
 /// Waits (bounded in rounds) until the hub has `n` clients.
@@ -233,7 +209,9 @@ async fn until_clients(hub: &Hub, n: usize) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_node_id_that_left_the_gridconnect_side_can_join_over_openlcb_tcp() {
-    let mut hub = start_hub(HubOptions::default()).await;
+    let mut options = HubOptions::default();
+    options.trace = true;
+    let mut hub = start_hub(options).await;
     let gridconnect = hub.local_addr().to_string();
     let tcp = hub.tcp_local_addr().unwrap().to_string();
     let roaming = id(0x22);
@@ -244,7 +222,7 @@ async fn a_node_id_that_left_the_gridconnect_side_can_join_over_openlcb_tcp() {
         bounded("joining", Node::connect(&gridconnect, Protocol::GridConnect, NodeOptions::new(roaming)))
             .await
             .unwrap();
-    small_transfer(&sender, &mut was_here, 1000).await;
+    transfer(&sender, &mut was_here, 1000, 2048).await;
     // It leaves without a word (no AMR), like a program that was killed.
     was_here.abort();
     bounded("the hub noticing", async {
@@ -254,7 +232,18 @@ async fn a_node_id_that_left_the_gridconnect_side_can_join_over_openlcb_tcp() {
     let mut back = bounded("joining over OpenLCB-TCP", Node::connect(&tcp, Protocol::Tcp, NodeOptions::new(roaming)))
         .await
         .unwrap();
-    small_transfer(&sender, &mut back, 10_000).await;
+    // The gateway gives it a CAN alias (a proxy) once it has forgotten the old one.
+    bounded("a proxy alias for the node", async {
+        loop {
+            match hub.next_event().await {
+                Some(HubEvent::Frame { text, .. }) if text.contains("ProxyPermitted") => break,
+                Some(_) => {}
+                None => panic!("the hub stopped"),
+            }
+        }
+    })
+    .await;
+    transfer(&sender, &mut back, 10_000, 2048).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
