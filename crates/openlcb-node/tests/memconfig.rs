@@ -70,8 +70,10 @@ impl Pair {
                 }
                 self.client.handle_message(self.now, m.as_ref());
             }
+            let before = self.events.len() + self.server_events.len();
             self.events.extend(std::iter::from_fn(|| self.client.poll_event()));
             self.server_events.extend(std::iter::from_fn(|| self.server.poll_event()));
+            moved |= self.events.len() + self.server_events.len() > before;
             if !moved {
                 return;
             }
@@ -372,6 +374,7 @@ fn read_stream_server_order_is_ok_then_initiate_then_reply() {
     let sid = answers[1].payload[4];
     let reply = Message::addressed(Mti::STREAM_INITIATE_REPLY, CLIENT, SERVER, vec![0x01, 0x00, 0x80, 0x00, sid, 0x01]);
     pair.server.handle_message(pair.now, reply.as_ref());
+    while pair.server.poll_event().is_some() {}
     let after: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
     assert_eq!(after[0].mti, Mti::DATAGRAM);
     assert_eq!(&after[0].payload[..], [0x20, 0x71, 0, 0, 0, 0, sid, 0x01, 0, 0, 0, 0xC8]);
@@ -449,7 +452,9 @@ fn run_scripted(client: &mut Node, target: &mut dyn Scripted) -> Option<MemoryEv
     let mut now = Instant::ZERO;
     for _ in 0..100_000 {
         let mut answers = Vec::new();
+        let mut sent = false;
         while let Some(m) = client.poll_transmit() {
+            sent = true;
             target.handle(now, &m, &mut answers);
         }
         target.due(now, &mut answers);
@@ -463,7 +468,7 @@ fn run_scripted(client: &mut Node, target: &mut dyn Scripted) -> Option<MemoryEv
                 _ => {}
             }
         }
-        if answers.is_empty() {
+        if answers.is_empty() && !sent {
             let next = [client.poll_timeout(), target.next_due()].into_iter().flatten().min();
             now = next.expect("nothing to wait for: a hang").max(now);
             client.handle_timeout(now);
