@@ -622,8 +622,7 @@ impl Node {
         path: TransferPath,
     ) -> Result<MemoryOperation, MemoryRequestError> {
         self.last_now = now;
-        let started = self.with_memory(now, |cx, _, client| client.read(cx, peer, space, address, len, path));
-        started
+        self.with_memory(now, |cx, _, client| client.read(cx, peer, space, address, len, path))
     }
 
     /// Writes `data` into `space` from `address` on `peer`; `WriteDone` or `Failed` follows.
@@ -638,8 +637,7 @@ impl Node {
     ) -> Result<MemoryOperation, MemoryRequestError> {
         self.last_now = now;
         let data = data.into();
-        let started = self.with_memory(now, |cx, _, client| client.write(cx, peer, space, address, data, path));
-        started
+        self.with_memory(now, |cx, _, client| client.write(cx, peer, space, address, data, path))
     }
 
     /// Upgrades `peer`'s firmware with `image` (FWU §5.5): Freeze, Protocol Support
@@ -655,8 +653,7 @@ impl Node {
     ) -> Result<MemoryOperation, MemoryRequestError> {
         self.last_now = now;
         let image = image.into();
-        let started = self.with_memory(now, |cx, _, client| client.upgrade(cx, peer, image, path));
-        started
+        self.with_memory(now, |cx, _, client| client.upgrade(cx, peer, image, path))
     }
 
     /// Runs `f` on the memory server and client with the node's parts lent to them.
