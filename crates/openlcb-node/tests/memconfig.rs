@@ -618,3 +618,26 @@ fn write_stream_reply_after_complete_without_the_space_byte() {
     assert!(matches!(done, Some(MemoryEvent::WriteDone { len: 1000, .. })), "{done:?}");
     assert_eq!(target.received, data);
 }
+
+#[test]
+fn write_stream_reply_names_the_did_the_server_then_assigns() {
+    // C-2, as target: OK with Reply Pending, then at once `20 3x addr [space] SID DID`, the
+    // DID being the one the Initiate Reply then carries; the window is the server's bound.
+    let mut config = NodeConfig::default();
+    config.memory.write_stream_window = 512;
+    let mut pair = Pair::new(NodeConfig::default(), server_with(config, 4096));
+    let _ = std::iter::from_fn(|| pair.server.poll_transmit()).count();
+    let command = Message::addressed(Mti::DATAGRAM, CLIENT, SERVER, vec![0x20, 0x21, 0, 0, 0, 0x10, 0x42]);
+    pair.server.handle_message(pair.now, command.as_ref());
+    let answers: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0x80][..]));
+    let Ok(Reply::WriteStreamOk { streams: Some((0x42, did)), .. }) = Reply::parse(&answers[1].payload) else {
+        panic!("{answers:?}")
+    };
+    let initiate = Message::addressed(Mti::STREAM_INITIATE_REQUEST, CLIENT, SERVER, vec![0xFF, 0xFF, 0, 0, 0x42, 0xFF]);
+    pair.server.handle_message(pair.now, initiate.as_ref());
+    while pair.server.poll_event().is_some() {}
+    let reply: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    assert_eq!(reply[0].mti, Mti::STREAM_INITIATE_REPLY);
+    assert_eq!(&reply[0].payload[..], [0x02, 0x00, 0x80, 0x00, 0x42, did]);
+}
