@@ -641,3 +641,21 @@ fn write_stream_reply_names_the_did_the_server_then_assigns() {
     assert_eq!(reply[0].mti, Mti::STREAM_INITIATE_REPLY);
     assert_eq!(&reply[0].payload[..], [0x02, 0x00, 0x80, 0x00, 0x42, did]);
 }
+
+#[test]
+fn write_under_mask_changes_only_the_masked_bits() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+    let before = read_back(&mut pair.server, 0xFD);
+    let command = Command::WriteUnderMask { space: 0xFD, address: 2, mask: vec![0xF0, 0x0F], data: vec![0xAB, 0xCD] };
+    let answers = exchange(&mut pair, &command.to_bytes());
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0][..]));
+    let after = read_back(&mut pair.server, 0xFD);
+    assert_eq!(after[2], (before[2] & 0x0F) | 0xA0);
+    assert_eq!(after[3], (before[3] & 0xF0) | 0x0D);
+    assert_eq!(after[4..], before[4..]);
+    // Past the end: OK with Reply Pending and a Failed reply 0x1082.
+    let past = Command::WriteUnderMask { space: 0xFD, address: 63, mask: vec![1, 1], data: vec![1, 1] };
+    let answers = exchange(&mut pair, &past.to_bytes());
+    assert_eq!(&answers[0].payload[..], [0x80]);
+    assert!(matches!(reply_of(&answers), Some(Reply::Failed { code, .. }) if code.0 == 0x1082));
+}
