@@ -89,10 +89,12 @@
 //!         let mut moved = false;
 //!         while let Some(msg) = a.poll_transmit() { b.handle_message(now, msg.as_ref()); moved = true; }
 //!         while let Some(msg) = b.poll_transmit() { a.handle_message(now, msg.as_ref()); moved = true; }
+//!         // Events come after transmits and may queue more of them.
 //!         while let Some(event) = a.poll_event() {
 //!             if let NodeEvent::Memory(event) = event { events.push(event); }
+//!             moved = true;
 //!         }
-//!         while b.poll_event().is_some() {}
+//!         while b.poll_event().is_some() { moved = true; }
 //!         if !moved { return events; }
 //!     }
 //! }

@@ -206,11 +206,12 @@ impl Cx<'_> {
 /// Configuration, SNIP and the message-network basics, in the handle / command / poll shape
 /// of the stream core. See the crate documentation for the drive loop.
 ///
-/// With [`AcceptPolicy::AcceptAll`] in [`NodeConfig::stream`] the node's endpoint runs with
-/// [`AcceptPolicy::Ask`] and the node accepts each request itself, at once, unless Memory
-/// Configuration claims it first (a Write Stream it was told of, a Read Stream it armed), so
-/// that those get the window the space can take; [`streams`](Node::streams)`().config()`
-/// shows `Ask`. With `RejectAll` no stream is taken, Memory Configuration's included.
+/// Once a memory server is set, an `AcceptAll` policy in [`NodeConfig::stream`] becomes
+/// [`AcceptPolicy::Ask`] in the endpoint and the node accepts each request itself, at once,
+/// unless the server claims it first (a Write Stream it was told of), so that its window is
+/// what the space can take. With `RejectAll` no stream is taken, Memory Configuration's
+/// included. While Memory Configuration has something running, take stream events from
+/// [`poll_event`](Node::poll_event), not from the endpoint: it keeps its own.
 #[derive(Debug)]
 pub struct Node {
     config: NodeConfig,
@@ -251,18 +252,13 @@ impl Node {
         if config.streams_enabled {
             protocols = protocols | Protocols::STREAM;
         }
-        let mut stream_config = config.stream.clone();
-        let accept_for_application = stream_config.accept_policy == AcceptPolicy::AcceptAll;
-        if accept_for_application {
-            stream_config.accept_policy = AcceptPolicy::Ask;
-        }
         Node {
             protocols,
             memory_server: None,
             memory_client: MemoryClient::default(),
-            accept_for_application,
+            accept_for_application: false,
             last_now: Instant::ZERO,
-            streams: StreamEndpoint::new(id, stream_config),
+            streams: StreamEndpoint::new(id, config.stream.clone()),
             datagrams: DatagramService::new(config.datagrams.clone()),
             snip_reply: config.snip.to_payload(),
             snip_requests: Vec::with_capacity(config.max_snip_requests),
@@ -338,9 +334,12 @@ impl Node {
     }
 
     /// The next event.
+    ///
+    /// Memory Configuration works here: the stream events and datagram outcomes of its
+    /// transfers are taken in and acted on (which may queue messages for `poll_transmit`),
+    /// so drain both, as the drive loop says, until neither has anything.
     pub fn poll_event(&mut self) -> Option<NodeEvent> {
         if self.out.events.is_empty() {
-            // Events of stream commands given through `streams_mut` wait in the endpoint.
             self.settle(self.last_now);
         }
         self.out.events.pop_front()
@@ -358,11 +357,6 @@ impl Node {
 
     /// Feeds one received message; it goes to the protocol it belongs to.
     pub fn handle_message(&mut self, now: Instant, msg: MessageRef<'_>) {
-        self.route(now, msg);
-        self.settle(now);
-    }
-
-    fn route(&mut self, now: Instant, msg: MessageRef<'_>) {
         self.last_now = now;
         self.stats.messages_in += 1;
         let protocols = self.protocols();
@@ -501,7 +495,6 @@ impl Node {
             };
             self.out.event(event);
         }
-        self.settle(now);
     }
 
     /// The transport now names a peer differently (on CAN: its Node ID was learnt, or its
@@ -542,7 +535,6 @@ impl Node {
         }
         let now = self.last_now;
         self.with_memory(now, |cx, _, client| client.peer_lost(cx, peer));
-        self.settle(now);
     }
 
     fn fail_snip(&mut self, peer: Option<NodeId>) {
@@ -603,6 +595,12 @@ impl Node {
     pub fn set_memory_server(&mut self, mut server: MemoryServer) {
         server.mirror_snip(&self.config.snip);
         self.memory_server = Some(server);
+        if self.config.stream.accept_policy == AcceptPolicy::AcceptAll {
+            // The server claims its Write Streams before anything is accepted, to grant
+            // them the window their space can take; the node accepts the rest itself.
+            self.streams.set_accept_policy(AcceptPolicy::Ask);
+            self.accept_for_application = true;
+        }
     }
 
     /// [`set_memory_server`](Self::set_memory_server), builder style.
@@ -624,9 +622,7 @@ impl Node {
         path: TransferPath,
     ) -> Result<MemoryOperation, MemoryRequestError> {
         self.last_now = now;
-        let started = self.with_memory(now, |cx, _, client| client.read(cx, peer, space, address, len, path));
-        self.settle(now);
-        started
+        self.with_memory(now, |cx, _, client| client.read(cx, peer, space, address, len, path))
     }
 
     /// Writes `data` into `space` from `address` on `peer`; `WriteDone` or `Failed` follows.
@@ -641,9 +637,7 @@ impl Node {
     ) -> Result<MemoryOperation, MemoryRequestError> {
         self.last_now = now;
         let data = data.into();
-        let started = self.with_memory(now, |cx, _, client| client.write(cx, peer, space, address, data, path));
-        self.settle(now);
-        started
+        self.with_memory(now, |cx, _, client| client.write(cx, peer, space, address, data, path))
     }
 
     /// Upgrades `peer`'s firmware with `image` (FWU §5.5): Freeze, Protocol Support
@@ -659,9 +653,7 @@ impl Node {
     ) -> Result<MemoryOperation, MemoryRequestError> {
         self.last_now = now;
         let image = image.into();
-        let started = self.with_memory(now, |cx, _, client| client.upgrade(cx, peer, image, path));
-        self.settle(now);
-        started
+        self.with_memory(now, |cx, _, client| client.upgrade(cx, peer, image, path))
     }
 
     /// Runs `f` on the memory server and client with the node's parts lent to them.
@@ -731,7 +723,8 @@ impl Node {
 
     /// Feeds Memory Configuration what waits for it (its datagrams' outcomes, the stream
     /// events), raises the rest, and applies the application's accept policy to streams
-    /// nobody here claimed. Runs after every input and command.
+    /// nobody here claimed. Runs from `poll_event`, at the time of the last input (the
+    /// time those events arose).
     fn settle(&mut self, now: Instant) {
         let accept_for_application = self.accept_for_application;
         loop {

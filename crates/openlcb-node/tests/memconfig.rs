@@ -70,8 +70,10 @@ impl Pair {
                 }
                 self.client.handle_message(self.now, m.as_ref());
             }
+            let before = self.events.len() + self.server_events.len();
             self.events.extend(std::iter::from_fn(|| self.client.poll_event()));
             self.server_events.extend(std::iter::from_fn(|| self.server.poll_event()));
+            moved |= self.events.len() + self.server_events.len() > before;
             if !moved {
                 return;
             }
@@ -372,6 +374,7 @@ fn read_stream_server_order_is_ok_then_initiate_then_reply() {
     let sid = answers[1].payload[4];
     let reply = Message::addressed(Mti::STREAM_INITIATE_REPLY, CLIENT, SERVER, vec![0x01, 0x00, 0x80, 0x00, sid, 0x01]);
     pair.server.handle_message(pair.now, reply.as_ref());
+    while pair.server.poll_event().is_some() {}
     let after: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
     assert_eq!(after[0].mti, Mti::DATAGRAM);
     assert_eq!(&after[0].payload[..], [0x20, 0x71, 0, 0, 0, 0, sid, 0x01, 0, 0, 0, 0xC8]);
@@ -449,7 +452,9 @@ fn run_scripted(client: &mut Node, target: &mut dyn Scripted) -> Option<MemoryEv
     let mut now = Instant::ZERO;
     for _ in 0..100_000 {
         let mut answers = Vec::new();
+        let mut sent = false;
         while let Some(m) = client.poll_transmit() {
+            sent = true;
             target.handle(now, &m, &mut answers);
         }
         target.due(now, &mut answers);
@@ -463,7 +468,7 @@ fn run_scripted(client: &mut Node, target: &mut dyn Scripted) -> Option<MemoryEv
                 _ => {}
             }
         }
-        if answers.is_empty() {
+        if answers.is_empty() && !sent {
             let next = [client.poll_timeout(), target.next_due()].into_iter().flatten().min();
             now = next.expect("nothing to wait for: a hang").max(now);
             client.handle_timeout(now);
@@ -612,4 +617,45 @@ fn write_stream_reply_after_complete_without_the_space_byte() {
     let done = run_scripted(&mut client, &mut target);
     assert!(matches!(done, Some(MemoryEvent::WriteDone { len: 1000, .. })), "{done:?}");
     assert_eq!(target.received, data);
+}
+
+#[test]
+fn write_stream_reply_names_the_did_the_server_then_assigns() {
+    // C-2, as target: OK with Reply Pending, then at once `20 3x addr [space] SID DID`, the
+    // DID being the one the Initiate Reply then carries; the window is the server's bound.
+    let mut config = NodeConfig::default();
+    config.memory.write_stream_window = 512;
+    let mut pair = Pair::new(NodeConfig::default(), server_with(config, 4096));
+    let _ = std::iter::from_fn(|| pair.server.poll_transmit()).count();
+    let command = Message::addressed(Mti::DATAGRAM, CLIENT, SERVER, vec![0x20, 0x21, 0, 0, 0, 0x10, 0x42]);
+    pair.server.handle_message(pair.now, command.as_ref());
+    let answers: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0x80][..]));
+    let Ok(Reply::WriteStreamOk { streams: Some((0x42, did)), .. }) = Reply::parse(&answers[1].payload) else {
+        panic!("{answers:?}")
+    };
+    let initiate = Message::addressed(Mti::STREAM_INITIATE_REQUEST, CLIENT, SERVER, vec![0xFF, 0xFF, 0, 0, 0x42, 0xFF]);
+    pair.server.handle_message(pair.now, initiate.as_ref());
+    while pair.server.poll_event().is_some() {}
+    let reply: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    assert_eq!(reply[0].mti, Mti::STREAM_INITIATE_REPLY);
+    assert_eq!(&reply[0].payload[..], [0x02, 0x00, 0x80, 0x00, 0x42, did]);
+}
+
+#[test]
+fn write_under_mask_changes_only_the_masked_bits() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+    let before = read_back(&mut pair.server, 0xFD);
+    let command = Command::WriteUnderMask { space: 0xFD, address: 2, mask: vec![0xF0, 0x0F], data: vec![0xAB, 0xCD] };
+    let answers = exchange(&mut pair, &command.to_bytes());
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0][..]));
+    let after = read_back(&mut pair.server, 0xFD);
+    assert_eq!(after[2], (before[2] & 0x0F) | 0xA0);
+    assert_eq!(after[3], (before[3] & 0xF0) | 0x0D);
+    assert_eq!(after[4..], before[4..]);
+    // Past the end: OK with Reply Pending and a Failed reply 0x1082.
+    let past = Command::WriteUnderMask { space: 0xFD, address: 63, mask: vec![1, 1], data: vec![1, 1] };
+    let answers = exchange(&mut pair, &past.to_bytes());
+    assert_eq!(&answers[0].payload[..], [0x80]);
+    assert!(matches!(reply_of(&answers), Some(Reply::Failed { code, .. }) if code.0 == 0x1082));
 }

@@ -637,6 +637,21 @@ impl MemoryClient {
             }
             return true;
         }
+        if let Event::Opened { handle, info } = event {
+            // With `AcceptAll` the endpoint accepted the server's request itself.
+            let armed = self.operations.iter_mut().find(|o| {
+                info.role == Role::Destination
+                    && o.peer == info.peer
+                    && matches!(o.step, Step::ReadStream { did, handle: None } if Some(did) == info.destination_stream)
+            });
+            if let Some(op) = armed {
+                if let Step::ReadStream { handle: slot, .. } = &mut op.step {
+                    *slot = Some(*handle);
+                }
+                op.deadline = Some(cx.now + cx.options.stream_timeout);
+                return true;
+            }
+        }
         let handle = match event {
             Event::Opened { handle, .. }
             | Event::Rejected { handle, .. }

@@ -231,3 +231,61 @@ pub fn acdi_user_strings(bytes: &[u8]) -> (alloc::string::String, alloc::string:
     let [name, description] = ACDI_USER_SLOTS;
     (get_slot(bytes, name), get_slot(bytes, description))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use alloc::string::ToString;
+
+    #[test]
+    fn acdi_slots_sit_at_the_offsets_of_5_4() {
+        let snip = SnipInfo {
+            manufacturer: "Acme".to_string(),
+            model: "Widget".to_string(),
+            hardware_version: "1.0".to_string(),
+            software_version: "2.3".to_string(),
+            user_name: "Yard".to_string(),
+            user_description: "West end".to_string(),
+        };
+        let fixed = acdi_manufacturer_bytes(&snip);
+        assert_eq!(fixed.len(), 125);
+        assert_eq!(fixed[0], 4);
+        assert_eq!(&fixed[1..6], b"Acme\0");
+        assert_eq!(&fixed[0x2A..0x31], b"Widget\0");
+        assert_eq!(&fixed[0x53..0x57], b"1.0\0");
+        assert_eq!(&fixed[0x68..0x6C], b"2.3\0");
+        let user = acdi_user_bytes(&snip);
+        assert_eq!(user.len(), 128);
+        assert_eq!(user[0], 2);
+        assert_eq!(&user[1..6], b"Yard\0");
+        assert_eq!(&user[0x40..0x49], b"West end\0");
+        assert_eq!(acdi_user_strings(&user), ("Yard".to_string(), "West end".to_string()));
+    }
+
+    #[test]
+    fn a_long_string_keeps_its_slot_terminated() {
+        let snip = SnipInfo { manufacturer: "M".repeat(60), ..SnipInfo::default() };
+        let fixed = acdi_manufacturer_bytes(&snip);
+        assert_eq!(fixed[41], 0, "the 41st byte of the slot is the NUL");
+        assert_eq!(fixed[42], 0, "the model slot is untouched");
+    }
+
+    #[test]
+    fn ram_and_read_only_spaces_keep_their_bounds() {
+        let mut ram = RamSpace::new(10);
+        assert_eq!(ram.write(8, &[1, 2]), Ok(()));
+        assert_eq!(ram.write(9, &[1, 2]), Err(SpaceError::OutOfBounds));
+        assert_eq!(ram.write(u32::MAX, &[1]), Err(SpaceError::OutOfBounds));
+        assert_eq!(ram.written_len(), 10);
+        let mut buf = [0; 4];
+        assert_eq!(ram.read(8, &mut buf), Ok(2));
+        assert_eq!(buf[..2], [1, 2]);
+        assert_eq!(ram.read(11, &mut buf), Err(SpaceError::OutOfBounds));
+        let mut cdi = ReadOnlySpace::cdi("<cdi/>");
+        assert_eq!((cdi.len(), cdi.read_only()), (7, true));
+        assert_eq!(cdi.write(0, &[1]), Err(SpaceError::ReadOnly));
+        assert_eq!(cdi.read(5, &mut buf), Ok(2));
+        assert_eq!(buf[..2], [b'>', 0]);
+        assert_eq!(SpaceError::Failed(ErrorCode(0x1089)).code(), ErrorCode(0x1089));
+    }
+}

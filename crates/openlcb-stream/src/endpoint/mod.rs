@@ -245,6 +245,13 @@ impl StreamEndpoint {
         &self.config
     }
 
+    /// What to do with incoming requests from now on (a protocol above that claims some
+    /// streams, like Memory Configuration, switches `AcceptAll` to `Ask`). Requests already
+    /// waiting for a decision keep waiting.
+    pub fn set_accept_policy(&mut self, policy: AcceptPolicy) {
+        self.config.accept_policy = policy;
+    }
+
     /// Counters of handled, ignored and refused inputs.
     pub fn stats(&self) -> Stats {
         self.out.stats
