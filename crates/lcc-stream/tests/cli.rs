@@ -600,9 +600,6 @@ fn resident_kib(pid: u32) -> u64 {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "needs the CAN link to answer by alias without a bounded alias cache in the way \
-            (alias work in progress): replies to aliases evicted from the 64-entry cache wait \
-            for resolution and overflow the link's transmit queue"]
 async fn a_flood_of_requests_from_a_thousand_aliases_is_answered_and_memory_stays_flat() {
     use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
     const ALIASES: u16 = 1000;
