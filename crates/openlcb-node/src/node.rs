@@ -499,8 +499,11 @@ impl Node {
 
     /// The transport now names a peer differently (on CAN: its Node ID was learnt, or its
     /// mapping forgotten, and it is named by its alias). Everything open with `from` goes on
-    /// with `to`.
+    /// with `to`, queued messages included.
     pub fn rename_peer(&mut self, from: NodeId, to: NodeId) {
+        for message in self.out.transmits.iter_mut() {
+            message.rename_peer(from, to);
+        }
         self.streams.rename_peer(from, to);
         self.datagrams.rename_peer(from, to);
         self.memory_client.rename_peer(from, to);

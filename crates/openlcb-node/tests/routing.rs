@@ -465,3 +465,18 @@ fn peer_lost_fails_what_is_open_with_it() {
         events.iter().any(|e| matches!(e, NodeEvent::Stream(Event::Terminated { cause: Termination::PeerLost, .. })))
     );
 }
+
+#[test]
+fn rename_readdresses_messages_still_queued() {
+    // The driver takes the node's messages after a batch of frames; a rename in between must
+    // reach the ones already queued, or they would go to a name the transport forgot.
+    let provisional = NodeId::new(0x031).unwrap();
+    let mut b = Bench::new(config());
+    b.from(provisional, Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 4]); // the endpoint's reply
+    b.from(provisional, Mti::PROTOCOL_SUPPORT_INQUIRY, &[]); // the node's own answer
+    b.node.rename_peer(provisional, PEER);
+    let sent = b.sent();
+    let mtis: Vec<Mti> = sent.iter().map(|(mti, _, _)| *mti).collect();
+    assert_eq!(mtis, [Mti::PROTOCOL_SUPPORT_REPLY, Mti::STREAM_INITIATE_REPLY]);
+    assert!(sent.iter().all(|(_, to, _)| *to == Some(PEER)), "{sent:?}");
+}

@@ -54,6 +54,14 @@ impl Message {
         Message::global(Mti::VERIFIED_NODE_ID, node, Bytes::copy_from_slice(&node.to_bytes()))
     }
 
+    /// The transport now names the peer `from` as `to` (see `StreamEndpoint::rename_peer`): a
+    /// message queued for `from` goes to `to`.
+    pub fn rename_peer(&mut self, from: NodeId, to: NodeId) {
+        if self.destination == Some(from) {
+            self.destination = Some(to);
+        }
+    }
+
     /// A view of this message as if it had just been received.
     pub fn as_ref(&self) -> MessageRef<'_> {
         MessageRef { mti: self.mti, source: self.source, destination: self.destination, payload: &self.payload }

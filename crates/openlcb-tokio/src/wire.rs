@@ -45,7 +45,12 @@ pub(crate) const HIGH_WATER: usize = 256 * 1024;
 
 /// Drains the CAN link's events into the node. Returns an error the node cannot recover
 /// from.
-fn apply_link_events(link: &mut CanLink, permitted: &mut bool, node: &mut Node) -> Result<(), Error> {
+fn apply_link_events(
+    link: &mut CanLink,
+    permitted: &mut bool,
+    waiting: &mut VecDeque<Message>,
+    node: &mut Node,
+) -> Result<(), Error> {
     while let Some(event) = link.poll_event() {
         match event {
             LinkEvent::Permitted { .. } => *permitted = true,
@@ -58,7 +63,12 @@ fn apply_link_events(link: &mut CanLink, permitted: &mut bool, node: &mut Node) 
                 return Err(Error::DuplicateNodeId { node: link.node_id(), at_login: !*permitted });
             }
             LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
-            LinkEvent::PeerRenamed { from, to, .. } => node.rename_peer(from, to),
+            LinkEvent::PeerRenamed { from, to, .. } => {
+                node.rename_peer(from, to);
+                for message in waiting.iter_mut() {
+                    message.rename_peer(from, to);
+                }
+            }
             _ => {}
         }
     }
@@ -120,7 +130,7 @@ impl Wire {
     ) -> Result<(), Error> {
         stats.bytes_in += bytes.len() as u64;
         match self {
-            Wire::GridConnect { link, decoder, permitted, .. } => {
+            Wire::GridConnect { link, decoder, permitted, waiting, .. } => {
                 let mut result = Ok(());
                 decoder.decode_all(bytes, |decoded| match decoded {
                     Ok(frame) => {
@@ -128,7 +138,7 @@ impl Wire {
                         link.handle_frame(now, &frame, |msg| node.handle_message(now, msg));
                         // Renames must reach the node before the next frame (the rule of
                         // `CanLink::handle_frame`).
-                        let applied = apply_link_events(link, permitted, node);
+                        let applied = apply_link_events(link, permitted, waiting, node);
                         if result.is_ok() {
                             result = applied;
                         }
@@ -172,8 +182,8 @@ impl Wire {
 
     /// The link's events, for the node. Returns an error the node cannot recover from.
     pub(crate) fn poll_events(&mut self, node: &mut Node) -> Result<(), Error> {
-        let Wire::GridConnect { link, permitted, .. } = self else { return Ok(()) };
-        apply_link_events(link, permitted, node)
+        let Wire::GridConnect { link, permitted, waiting, .. } = self else { return Ok(()) };
+        apply_link_events(link, permitted, waiting, node)
     }
 
     /// The CAN alias the link knows for `node`.

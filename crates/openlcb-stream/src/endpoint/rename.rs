@@ -19,10 +19,16 @@ impl StreamEndpoint {
     /// peer reached under its new name, stays. (A superseded destination with unread data
     /// stays readable under `from` until it is read, like any closed stream.)
     ///
-    /// Renaming a peer to itself, or a peer without streams, does nothing. Sends nothing.
+    /// Queued messages addressed to `from` are addressed to `to`. Renaming a peer to itself,
+    /// or a peer without streams or queued messages, does nothing. Sends nothing.
     pub fn rename_peer(&mut self, from: NodeId, to: NodeId) {
         if from == to {
             return;
+        }
+        // Messages already queued for the old name go to the new one too: the transport may
+        // no longer know the old name by the time they leave.
+        for message in self.out.transmits.iter_mut() {
+            message.rename_peer(from, to);
         }
         let keys: Vec<StreamKey> = self
             .index
