@@ -148,3 +148,20 @@ pub enum Event {
         kind: TimeoutKind,
     },
 }
+
+impl Event {
+    /// The stream the event is about.
+    pub const fn handle(&self) -> StreamHandle {
+        match *self {
+            Event::IncomingRequest { handle, .. }
+            | Event::Opened { handle, .. }
+            | Event::Rejected { handle, .. }
+            | Event::Readable { handle }
+            | Event::Writable { handle }
+            | Event::Finished { handle, .. }
+            | Event::Sent { handle, .. }
+            | Event::Terminated { handle, .. }
+            | Event::TimedOut { handle, .. } => handle,
+        }
+    }
+}

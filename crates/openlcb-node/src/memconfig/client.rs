@@ -652,16 +652,10 @@ impl MemoryClient {
                 return true;
             }
         }
-        let handle = match event {
-            Event::Opened { handle, .. }
-            | Event::Rejected { handle, .. }
-            | Event::Readable { handle }
-            | Event::Writable { handle }
-            | Event::Finished { handle, .. }
-            | Event::Terminated { handle, .. }
-            | Event::TimedOut { handle, .. } => *handle,
-            _ => return false,
-        };
+        if matches!(event, Event::IncomingRequest { .. } | Event::Sent { .. }) {
+            return false;
+        }
+        let handle = event.handle();
         let Some(index) = self.operations.iter().position(|o| o.stream_handle() == Some(handle)) else {
             return false;
         };
