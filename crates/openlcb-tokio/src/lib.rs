@@ -79,6 +79,8 @@ pub mod hub;
 mod io;
 mod node;
 mod requests;
+#[cfg(feature = "serial")]
+pub mod serial;
 mod socket;
 mod wire;
 

@@ -154,6 +154,18 @@ async fn driver_error(driver: JoinHandle<()>, shared: &Shared) -> Error {
     shared.error()
 }
 
+/// A TCP connection to the first address `addr` (`host:port`) resolves to that answers.
+pub(crate) async fn dial(addr: &str) -> std::io::Result<TcpStream> {
+    let mut last = std::io::Error::new(std::io::ErrorKind::NotFound, "the name resolves to no address");
+    for address in lookup_host(addr).await? {
+        match connect_socket(address).await {
+            Ok(socket) => return Ok(socket),
+            Err(error) => last = error,
+        }
+    }
+    Err(last)
+}
+
 /// A TCP connection to `address` with this crate's segment limit and keep-alive.
 async fn connect_socket(address: std::net::SocketAddr) -> std::io::Result<TcpStream> {
     let socket = if address.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
@@ -196,19 +208,10 @@ impl Node {
         let connect_error =
             |source: std::io::Error| Error::Connect { addr: addr.to_string(), source: Arc::new(source) };
         let timeout = options.connect_timeout;
-        let socket = tokio::time::timeout(timeout, async {
-            let mut last = std::io::Error::new(std::io::ErrorKind::NotFound, "the name resolves to no address");
-            for address in lookup_host(addr).await? {
-                match connect_socket(address).await {
-                    Ok(socket) => return Ok(socket),
-                    Err(error) => last = error,
-                }
-            }
-            Err(last)
-        })
-        .await
-        .map_err(|_| connect_error(std::io::Error::new(std::io::ErrorKind::TimedOut, "no answer in time")))?
-        .map_err(connect_error)?;
+        let socket = tokio::time::timeout(timeout, dial(addr))
+            .await
+            .map_err(|_| connect_error(std::io::Error::new(std::io::ErrorKind::TimedOut, "no answer in time")))?
+            .map_err(connect_error)?;
         // Small frames must not wait for Nagle's algorithm: the batching is done here.
         socket.set_nodelay(true).map_err(connect_error)?;
         Node::start(crate::io::tcp_halves(socket), protocol, options).await.map_err(|error| match error {
