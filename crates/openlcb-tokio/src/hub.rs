@@ -37,6 +37,12 @@ use openlcb_stream::NodeId;
 /// A connected client, numbered from 1 in order of arrival.
 pub type ClientId = u64;
 
+/// The bridge's number as a client of the GridConnect group (numbered from the top, so that
+/// real clients count from 1).
+pub const BRIDGE_GRIDCONNECT: ClientId = ClientId::MAX;
+/// The bridge's number as a client of the OpenLCB-TCP group.
+pub const BRIDGE_TCP: ClientId = ClientId::MAX - 1;
+
 /// A client's garbage is reported at most this often (with a count of what was skipped).
 pub const GARBAGE_REPORT_INTERVAL: std::time::Duration = std::time::Duration::from_secs(10);
 
@@ -222,10 +228,9 @@ impl State {
 
     /// Registers the bridge as a client of `protocol`'s group: its id and its queue.
     fn add_bridge_client(&self, protocol: Protocol) -> (ClientId, mpsc::UnboundedReceiver<Bytes>) {
-        // Numbered from the top, so that real clients count from 1.
         let id = match protocol {
-            Protocol::GridConnect => ClientId::MAX,
-            Protocol::Tcp => ClientId::MAX - 1,
+            Protocol::GridConnect => BRIDGE_GRIDCONNECT,
+            Protocol::Tcp => BRIDGE_TCP,
         };
         let (queue, rx) = mpsc::unbounded_channel();
         let client =
