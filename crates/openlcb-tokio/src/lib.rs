@@ -73,6 +73,7 @@
 #![warn(missing_docs)]
 
 mod bridge;
+pub mod can;
 mod driver;
 mod error;
 pub mod hub;
