@@ -172,3 +172,64 @@ impl<B: FrameBus> AsyncWrite for FrameStream<B> {
         self.poll_flush(cx)
     }
 }
+
+/// Opens the SocketCAN interface `interface` (`can0`, `vcan0`) for
+/// [`FrameStream::new`]. Not run on hardware by this crate's tests (they use an in-memory
+/// [`FrameBus`]). A failure to open is [`Error::Connect`](crate::Error::Connect).
+#[cfg(feature = "socketcan")]
+pub fn open_socketcan(interface: &str) -> Result<socketcan::tokio::CanSocket, crate::Error> {
+    socketcan::tokio::CanSocket::open(interface)
+        .map_err(|source| crate::Error::Connect { addr: interface.to_string(), source: Arc::new(source) })
+}
+
+/// The same frame in another crate's type (data frames only; a remote frame is `None`).
+#[cfg(feature = "socketcan")]
+fn convert<To: embedded_can::Frame>(frame: &impl embedded_can::Frame) -> Option<To> {
+    if frame.is_remote_frame() { None } else { To::new(frame.id(), frame.data()) }
+}
+
+/// Linux's "no buffer space available": SocketCAN's answer when the interface's transmit
+/// queue is full.
+#[cfg(feature = "socketcan")]
+const ENOBUFS: i32 = 105;
+
+/// SocketCAN through `socketcan`'s tokio socket. Error frames and remote frames are skipped
+/// (OpenLCB uses neither). A full transmit queue (`ENOBUFS`, which readiness does not
+/// report) is retried at the task's next turn.
+#[cfg(feature = "socketcan")]
+impl FrameBus for socketcan::tokio::CanSocket {
+    fn poll_receive(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<CanFrame>> {
+        use futures_core::Stream;
+        loop {
+            match std::task::ready!(Pin::new(&mut *self).poll_next(cx)) {
+                Some(Ok(frame)) => {
+                    if let Some(frame) = convert(&frame) {
+                        return Poll::Ready(Ok(frame));
+                    }
+                }
+                Some(Err(socketcan::Error::Can(_))) => {}
+                Some(Err(socketcan::Error::Io(error))) => return Poll::Ready(Err(error)),
+                None => return Poll::Ready(Err(std::io::ErrorKind::BrokenPipe.into())),
+            }
+        }
+    }
+
+    fn poll_send(&mut self, cx: &mut Context<'_>, frame: &CanFrame) -> Poll<std::io::Result<()>> {
+        use futures_sink::Sink;
+        let Some(frame) = convert::<socketcan::CanFrame>(frame) else { return Poll::Ready(Ok(())) };
+        let io = |error: socketcan::Error| match error {
+            socketcan::Error::Io(error) => error,
+            socketcan::Error::Can(error) => std::io::Error::other(error),
+        };
+        std::task::ready!(Sink::poll_ready(Pin::new(&mut *self), cx)).map_err(io)?;
+        match Sink::start_send(Pin::new(&mut *self), frame).map_err(io) {
+            Err(error)
+                if matches!(error.kind(), std::io::ErrorKind::WouldBlock) || error.raw_os_error() == Some(ENOBUFS) =>
+            {
+                cx.waker().wake_by_ref();
+                Poll::Pending
+            }
+            sent => Poll::Ready(sent),
+        }
+    }
+}
