@@ -25,6 +25,11 @@ pub(crate) struct HubArgs {
     /// /dev/ttyACM0 or COM3): the clients reach the real bus through the hub.
     #[arg(long, value_name = "DEVICE")]
     serial: Option<String>,
+    /// Relay between the clients and a SocketCAN interface, e.g. can0 (Linux; built with the
+    /// `socketcan` feature).
+    #[cfg(feature = "socketcan")]
+    #[arg(long, value_name = "IFACE")]
+    can: Option<String>,
     /// The serial port's line rate in bits per second (USB adapters ignore it).
     #[arg(long, value_name = "N", default_value_t = openlcb_tokio::serial::DEFAULT_BAUD, requires = "serial")]
     baud: u32,
@@ -96,6 +101,15 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
         match openlcb_tokio::serial::open(device, args.baud) {
             Ok(port) => {
                 hub.attach(port, device);
+            }
+            Err(error) => return Ok(net::fail("hub", &error)),
+        }
+    }
+    #[cfg(feature = "socketcan")]
+    if let Some(interface) = &args.can {
+        match openlcb_tokio::can::open_socketcan(interface) {
+            Ok(socket) => {
+                hub.attach(openlcb_tokio::can::FrameStream::new(socket), interface);
             }
             Err(error) => return Ok(net::fail("hub", &error)),
         }

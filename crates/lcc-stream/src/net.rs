@@ -96,6 +96,11 @@ pub(crate) struct ConnectArgs {
     /// LCC Buffer-USB, SPROG CANISB), e.g. /dev/ttyACM0 or COM3.
     #[arg(long, value_name = "DEVICE")]
     pub(crate) serial: Option<String>,
+    /// A SocketCAN interface instead of a hub, e.g. can0 (Linux; built with the `socketcan`
+    /// feature).
+    #[cfg(feature = "socketcan")]
+    #[arg(long, value_name = "IFACE", conflicts_with_all = ["connect", "serial"])]
+    pub(crate) can: Option<String>,
     /// The serial port's line rate in bits per second (USB adapters ignore it).
     #[arg(long, value_name = "N", default_value_t = openlcb_tokio::serial::DEFAULT_BAUD, requires = "serial")]
     pub(crate) baud: u32,
@@ -107,6 +112,10 @@ pub(crate) struct ConnectArgs {
 impl ConnectArgs {
     /// Where the node connects: the serial device, or the hub's address.
     pub(crate) fn addr(&self) -> &str {
+        #[cfg(feature = "socketcan")]
+        if let Some(interface) = &self.can {
+            return interface;
+        }
         match (&self.serial, &self.connect, self.protocol) {
             (Some(device), _, _) => device,
             (None, Some(addr), _) => addr,
@@ -117,6 +126,11 @@ impl ConnectArgs {
 
     /// Joins the network as a node with `options`: through the serial port, or the hub.
     pub(crate) async fn node(&self, options: NodeOptions) -> Result<Node, Error> {
+        #[cfg(feature = "socketcan")]
+        if let Some(interface) = &self.can {
+            let bus = openlcb_tokio::can::FrameStream::new(openlcb_tokio::can::open_socketcan(interface)?);
+            return Node::over(bus, Protocol::GridConnect, options).await;
+        }
         match &self.serial {
             Some(device) => {
                 Node::over(openlcb_tokio::serial::open(device, self.baud)?, self.protocol.into(), options).await
