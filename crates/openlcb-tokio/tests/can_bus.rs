@@ -7,14 +7,17 @@ use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 
 use openlcb_can::CanFrame;
-use openlcb_stream::{NodeId, OpenOptions};
+use openlcb_stream::NodeId;
 use openlcb_tokio::can::{FrameBus, FrameStream};
-use openlcb_tokio::{Error, Hub, HubOptions, Node, NodeOptions, Protocol};
+use openlcb_tokio::{Hub, HubOptions, Node, NodeOptions, Protocol};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::mpsc;
 
 mod common;
 use common::bounded;
+#[path = "common/transfer.rs"]
+mod transfer;
+use transfer::moves;
 
 /// One controller on a [`MemoryBus`]: what it sends reaches every controller, itself included.
 struct Controller {
@@ -55,27 +58,6 @@ fn pattern(len: usize) -> Vec<u8> {
     (0..len).map(|i| (i as u32).wrapping_mul(2_654_435_761).rotate_right(5) as u8).collect()
 }
 
-/// `payload` from `sender` to `receiver`; what arrived.
-async fn move_stream(sender: &Node, receiver: &mut Node, payload: &[u8]) -> Vec<u8> {
-    let destination = receiver.node_id();
-    let send = async {
-        let mut stream = sender.open(OpenOptions::new(destination, 2048)).await?;
-        stream.write_all(payload.to_vec()).await?;
-        stream.finish().await
-    };
-    let receive = async {
-        let mut stream = receiver.accept().await?;
-        let mut received = Vec::new();
-        while let Some(chunk) = stream.read().await? {
-            received.extend_from_slice(&chunk);
-        }
-        Ok::<_, Error>(received)
-    };
-    let (sent, received) = bounded("a transfer on the bus", async { tokio::try_join!(send, receive) }).await.unwrap();
-    assert_eq!(sent, payload.len() as u64);
-    received
-}
-
 #[tokio::test]
 async fn nodes_on_an_echoing_bus_log_in_and_move_a_stream() {
     let bus = MemoryBus::default();
@@ -90,8 +72,7 @@ async fn nodes_on_an_echoing_bus_log_in_and_move_a_stream() {
     .await
     .unwrap();
     let payload = pattern(256 * 1024);
-    let received = move_stream(&sender, &mut receiver, &payload).await;
-    assert!(received == payload, "the data differs after {} bytes", received.len());
+    moves(&sender, &mut receiver, &payload, 2048).await;
     // Each heard its own login and data back and dropped it.
     for echoes in echoes {
         assert!(echoes.load(Ordering::Relaxed) > 4, "echoes were not dropped");
@@ -116,8 +97,7 @@ async fn a_hub_attached_to_the_bus_relays_between_a_bus_node_and_a_tcp_node() {
     .await
     .unwrap();
     let payload = pattern(100_000);
-    let received = move_stream(&on_tcp, &mut on_bus, &payload).await;
-    assert!(received == payload, "the data differs after {} bytes", received.len());
+    moves(&on_tcp, &mut on_bus, &payload, 2048).await;
 }
 
 #[tokio::test]

@@ -1,6 +1,5 @@
 //! Nodes and hubs over byte streams that are not TCP clients: a pseudo-terminal standing in
-//! for a USB-serial GridConnect adapter, an in-memory pipe, and hubs chained by
-//! `link_upstream`. Everything on 127.0.0.1 (ephemeral ports); every wait is bounded.
+//! for a USB-serial GridConnect adapter, and hubs chained by `link_upstream`. Everything on 127.0.0.1 (ephemeral ports); every wait is bounded.
 
 use openlcb_stream::{NodeId, OpenOptions};
 use openlcb_tokio::serial::{self, SerialPort};
@@ -9,6 +8,9 @@ use tokio_serial::SerialPort as _;
 
 mod common;
 use common::bounded;
+#[path = "common/transfer.rs"]
+mod transfer;
+use transfer::moves;
 
 const MIB: usize = 1024 * 1024;
 
@@ -19,38 +21,6 @@ fn id(last: u8) -> NodeId {
 /// Data that differs at every offset of a window.
 fn pattern(len: usize) -> Vec<u8> {
     (0..len).map(|i| (i as u32).wrapping_mul(2_654_435_761).rotate_right(7) as u8).collect()
-}
-
-/// Sends `payload` from `sender` to `receiver` in one stream; the sender's result and what
-/// the receiver read (with how its stream ended).
-async fn send_one(
-    sender: &Node,
-    receiver: &mut Node,
-    payload: &[u8],
-    window: u16,
-) -> (Result<u64, Error>, Vec<u8>, Result<(), Error>) {
-    let destination = receiver.node_id();
-    let send = async {
-        let mut stream = sender.open(OpenOptions::new(destination, window)).await?;
-        for chunk in payload.chunks(64 * 1024) {
-            stream.write_all(chunk.to_vec()).await?;
-        }
-        stream.finish().await
-    };
-    let receive = async {
-        let mut received = Vec::new();
-        let end = async {
-            let mut stream = receiver.accept().await?;
-            while let Some(chunk) = stream.read().await? {
-                received.extend_from_slice(&chunk);
-            }
-            Ok(())
-        }
-        .await;
-        (received, end)
-    };
-    let (sent, (received, end)) = bounded("a transfer", async { tokio::join!(send, receive) }).await;
-    (sent, received, end)
 }
 
 async fn gridconnect_hub() -> Hub {
@@ -96,36 +66,12 @@ async fn a_node_on_a_serial_port_sends_a_mebibyte_to_a_tcp_node_through_the_hub(
     let mut tcp_node = join(&hub.local_addr().to_string(), id(2)).await;
 
     let payload = pattern(MIB);
-    let (sent, received, end) = send_one(&serial_node, &mut tcp_node, &payload, 2048).await;
-    assert_eq!(sent.unwrap(), MIB as u64);
-    end.unwrap();
-    assert!(received == payload, "the data differs after {} bytes", received.len());
+    moves(&serial_node, &mut tcp_node, &payload, 2048).await;
 
     // And back, from the TCP side to the serial side.
     let mut serial_node = serial_node;
     let back = pattern(100_000);
-    let (sent, received, end) = send_one(&tcp_node, &mut serial_node, &back, 65535).await;
-    assert_eq!(sent.unwrap(), back.len() as u64);
-    end.unwrap();
-    assert!(received == back, "the data differs after {} bytes", received.len());
-}
-
-#[tokio::test]
-async fn two_nodes_on_the_two_ends_of_a_pipe_move_a_stream() {
-    let (one, other) = tokio::io::duplex(16 * 1024);
-    let (sender, mut receiver) = bounded("two logins", async {
-        tokio::try_join!(
-            Node::over(one, Protocol::GridConnect, NodeOptions::new(id(3))),
-            Node::over(other, Protocol::GridConnect, NodeOptions::new(id(4))),
-        )
-    })
-    .await
-    .unwrap();
-    let payload = pattern(300_000);
-    let (sent, received, end) = send_one(&sender, &mut receiver, &payload, 4096).await;
-    assert_eq!(sent.unwrap(), payload.len() as u64);
-    end.unwrap();
-    assert!(received == payload, "the data differs after {} bytes", received.len());
+    moves(&tcp_node, &mut serial_node, &back, 65535).await;
 }
 
 #[tokio::test]
@@ -147,10 +93,7 @@ async fn two_chained_hubs_carry_a_stream_across() {
     let mut receiver = join(&upstream_addr, id(5)).await;
     let sender = join(&downstream.local_addr().to_string(), id(6)).await;
     let payload = pattern(200_000);
-    let (sent, received, end) = send_one(&sender, &mut receiver, &payload, 2048).await;
-    assert_eq!(sent.unwrap(), payload.len() as u64);
-    end.unwrap();
-    assert!(received == payload, "the data differs after {} bytes", received.len());
+    moves(&sender, &mut receiver, &payload, 2048).await;
 }
 
 #[tokio::test]
@@ -190,10 +133,7 @@ async fn a_restarted_upstream_hub_fails_the_transfer_across_and_the_next_one_wor
     assert_eq!(attached(&mut downstream).await, format!("upstream {upstream_addr}"));
     let mut receiver = join(&upstream.local_addr().to_string(), id(9)).await;
     let payload = pattern(200_000);
-    let (sent, received, end) = send_one(&sender, &mut receiver, &payload, 2048).await;
-    assert_eq!(sent.unwrap(), payload.len() as u64);
-    end.unwrap();
-    assert!(received == payload, "the data differs after {} bytes", received.len());
+    moves(&sender, &mut receiver, &payload, 2048).await;
 }
 
 #[tokio::test]
