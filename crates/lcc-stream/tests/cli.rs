@@ -756,3 +756,42 @@ async fn send_serial_reaches_a_node_behind_the_adapter() {
     assert!(received == payload, "the data differs after {} bytes", received.len());
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn send_and_recv_on_two_hubs_chained_with_upstream() {
+    let dir = scratch("upstream");
+    let (input, output) = (dir.join("input.bin"), dir.join("output.bin"));
+    let payload = data(150_000);
+    std::fs::write(&input, &payload).unwrap();
+    let (_upstream, upstream_addr, _) = start_hub_binary().await;
+    let mut downstream =
+        spawn(&["hub", "--listen", "127.0.0.1:0", "--no-tcp", "--upstream", &upstream_addr, "--silent-timeout", "0"]);
+    // Its address, then the line saying the link is up.
+    let stderr = downstream.stderr.take().unwrap();
+    let mut lines = BufReader::new(stderr).lines();
+    let (addr, linked) = bounded("the downstream hub linking", async {
+        let mut addr = None;
+        while let Some(line) = lines.next_line().await.unwrap() {
+            if line.contains("GridConnect on") {
+                addr = line.split_whitespace().nth(4).map(str::to_string);
+            }
+            if line.contains("is upstream") {
+                return (addr.unwrap(), line);
+            }
+        }
+        panic!("the downstream hub's stderr ended");
+    })
+    .await;
+    assert!(linked.contains(&upstream_addr), "{linked}");
+    tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
+
+    let mut recv = spawn(&["recv", "--connect", &upstream_addr, "--once", "--json", "--out", output.to_str().unwrap()]);
+    wait_for_line(&mut recv, "listening").await;
+    let send = spawn(&["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &addr, "--json"]);
+    let (status, stdout, stderr) = finish(send).await;
+    assert!(status.success(), "send failed: {status} {stdout} {stderr}");
+    let (status, stdout, _) = finish(recv).await;
+    assert!(status.success(), "recv failed: {status} {stdout}");
+    assert!(std::fs::read(&output).unwrap() == payload, "the received file differs");
+    let _ = std::fs::remove_dir_all(dir);
+}
