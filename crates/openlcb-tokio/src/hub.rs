@@ -15,6 +15,11 @@
 //! for [`HubOptions::silent_timeout`] after connecting is closed, and a client that
 //! half-closes its socket (shuts down its sending side) still receives. Garbage is counted
 //! and reported at most once per [`GARBAGE_REPORT_INTERVAL`] per client.
+//!
+//! Besides TCP clients, the GridConnect group takes links: any byte stream of GridConnect
+//! text ([`Hub::attach`]: a serial adapter, a CAN interface through
+//! [`FrameStream`](crate::can::FrameStream)) and a connection to an upstream hub
+//! ([`Hub::link_upstream`]), kept up with a bounded backoff.
 
 use std::collections::HashMap;
 use std::fmt::Write as _;

@@ -6,7 +6,11 @@
 //!   binary OpenLCB-TCP framing (a [`TcpLink`](openlcb_tcp::TcpLink)). [`Node::open`] gives a
 //!   [`SendStream`], [`Node::accept`] a [`RecvStream`].
 //! - [`Hub`]: a hub that relays every frame from a client to every other client, with bounded
-//!   per-client queues.
+//!   per-client queues; [`Hub::attach`] adds a serial adapter or CAN interface,
+//!   [`Hub::link_upstream`] joins another hub.
+//! - `serial` (feature `serial`, on by default): USB GridConnect adapters through
+//!   `tokio-serial`. [`can`]: CAN interfaces as byte streams ([`can::FrameStream`]), with
+//!   SocketCAN behind the `socketcan` feature.
 //!
 //! # What the driver does
 //!
