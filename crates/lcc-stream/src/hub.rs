@@ -5,6 +5,9 @@ use std::process::ExitCode;
 
 use clap::Args;
 use openlcb_stream::NodeId;
+use std::collections::HashMap;
+
+use openlcb_tokio::hub::{BRIDGE_GRIDCONNECT, BRIDGE_TCP, ClientId};
 use openlcb_tokio::{Error, Hub, HubEvent, HubOptions};
 
 use crate::net::{self, GRIDCONNECT_ADDR, TCP_ADDR};
@@ -13,9 +16,27 @@ use crate::net::{self, GRIDCONNECT_ADDR, TCP_ADDR};
 #[derive(Debug, Args)]
 #[command(after_help = net::EXIT_HELP)]
 pub(crate) struct HubArgs {
-    /// Where GridConnect clients connect.
+    /// Where GridConnect clients connect. The default is reachable from this machine only;
+    /// for JMRI or nodes on other machines listen on all interfaces (0.0.0.0:12021) or on
+    /// one of this machine's addresses.
     #[arg(long, value_name = "ADDR", default_value = GRIDCONNECT_ADDR)]
     listen: String,
+    /// Relay between the clients and a USB GridConnect adapter on the CAN bus (e.g.
+    /// /dev/ttyACM0 or COM3): the clients reach the real bus through the hub.
+    #[arg(long, value_name = "DEVICE")]
+    serial: Option<String>,
+    /// Relay between the clients and a SocketCAN interface, e.g. can0 (Linux; built with the
+    /// `socketcan` feature).
+    #[cfg(feature = "socketcan")]
+    #[arg(long, value_name = "IFACE")]
+    can: Option<String>,
+    /// The serial port's line rate in bits per second (USB adapters ignore it).
+    #[arg(long, value_name = "N", default_value_t = openlcb_tokio::serial::DEFAULT_BAUD, requires = "serial")]
+    baud: u32,
+    /// Join another GridConnect hub as one of its clients and relay both ways (both hubs'
+    /// clients share one CAN segment); a lost link is tried again, waiting up to 5 s.
+    #[arg(long, value_name = "HOST:PORT")]
+    upstream: Option<String>,
     /// Where OpenLCB-TCP clients connect (opened by default, beside --listen). A gateway
     /// bridges them with the GridConnect clients (CAN nodes and OpenLCB-TCP nodes see each
     /// other, streams included). A second hub needs another port here too, or --no-tcp.
@@ -72,10 +93,34 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
         ),
         None => eprintln!("lcc-stream hub: GridConnect on {}", hub.local_addr()),
     }
+    if hub.local_addr().ip().is_loopback() {
+        eprintln!("lcc-stream hub: reachable from this machine only (--listen 0.0.0.0:12021 opens it to others)");
+    }
+    let mut names = ClientNames::default();
+    if let Some(device) = &args.serial {
+        match openlcb_tokio::serial::open(device, args.baud) {
+            Ok(port) => {
+                hub.attach(port, device);
+            }
+            Err(error) => return Ok(net::fail("hub", &error)),
+        }
+    }
+    #[cfg(feature = "socketcan")]
+    if let Some(interface) = &args.can {
+        match openlcb_tokio::can::open_socketcan(interface) {
+            Ok(socket) => {
+                hub.attach(openlcb_tokio::can::FrameStream::new(socket), interface);
+            }
+            Err(error) => return Ok(net::fail("hub", &error)),
+        }
+    }
+    if let Some(upstream) = &args.upstream {
+        hub.link_upstream(upstream);
+    }
     loop {
         tokio::select! {
             event = hub.next_event() => match event {
-                Some(event) => print_event(&event),
+                Some(event) => names.print(&event),
                 None => return Ok(ExitCode::SUCCESS),
             },
             _ = tokio::signal::ctrl_c() => {
@@ -108,22 +153,58 @@ fn bind_failed(args: &HubArgs, addr: &str, source: &std::io::Error) -> ExitCode 
     ExitCode::from(net::EXIT_USAGE)
 }
 
-fn print_event(event: &HubEvent) {
-    match event {
-        HubEvent::Connected { client, peer, protocol } => {
-            eprintln!("client {client} connected from {peer} ({protocol:?})")
+/// What the hub prints about its clients: their names, and the time since the hub started.
+struct ClientNames {
+    start: std::time::Instant,
+    names: HashMap<ClientId, String>,
+}
+
+impl Default for ClientNames {
+    fn default() -> Self {
+        let names = HashMap::from([(BRIDGE_GRIDCONNECT, "bridge".to_string()), (BRIDGE_TCP, "bridge".to_string())]);
+        ClientNames { start: std::time::Instant::now(), names }
+    }
+}
+
+impl ClientNames {
+    fn name(&self, client: ClientId) -> std::borrow::Cow<'_, str> {
+        match self.names.get(&client) {
+            Some(name) => name.as_str().into(),
+            None => format!("client {client}").into(),
         }
-        HubEvent::Disconnected { client, reason } => eprintln!("client {client} left: {reason}"),
-        HubEvent::SlowClient { client, queued } => {
-            eprintln!("client {client} dropped: too slow ({queued} bytes were waiting for it)")
+    }
+
+    fn print(&mut self, event: &HubEvent) {
+        match event {
+            HubEvent::Connected { client, peer, protocol } => {
+                self.names.insert(*client, format!("client {client} ({peer})"));
+                eprintln!("client {client} connected from {peer} ({protocol:?})")
+            }
+            HubEvent::Attached { client, name } => {
+                self.names.insert(*client, format!("client {client} ({name})"));
+                eprintln!("client {client} is {name}")
+            }
+            HubEvent::UpstreamDown { addr, reason, retry_in } => {
+                eprintln!("upstream {addr} down: {reason}; trying again in {:.2} s", retry_in.as_secs_f64())
+            }
+            HubEvent::Disconnected { client, reason } => {
+                eprintln!("{} left: {reason}", self.name(*client));
+                self.names.remove(client);
+            }
+            HubEvent::SlowClient { client, queued } => {
+                eprintln!("{} dropped: too slow ({queued} bytes were waiting for it)", self.name(*client))
+            }
+            HubEvent::Garbage { client, count, error } => {
+                eprintln!("{} sent {count} undecodable pieces (the first: {error})", self.name(*client))
+            }
+            HubEvent::Refused { peer, clients } => {
+                eprintln!("refused a client from {peer}: {clients} clients connected (--max-clients)")
+            }
+            HubEvent::Frame { client, text } => {
+                let at = self.start.elapsed().as_secs_f64();
+                println!("{at:>10.3} {:<24} {text}", self.name(*client))
+            }
+            _ => {}
         }
-        HubEvent::Garbage { client, count, error } => {
-            eprintln!("client {client} sent {count} undecodable pieces (the first: {error})")
-        }
-        HubEvent::Refused { peer, clients } => {
-            eprintln!("refused a client from {peer}: {clients} clients connected (--max-clients)")
-        }
-        HubEvent::Frame { client, text } => println!("{client:>3} {text}"),
-        _ => {}
     }
 }

@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use std::process::ExitCode;
 
 use clap::{Args, ValueEnum};
-use openlcb_tokio::{Error, Protocol};
+use openlcb_tokio::{Error, Node, NodeOptions, Protocol};
 
 /// The GridConnect port of `lcc-stream hub` (the usual port of GridConnect hubs).
 pub(crate) const GRIDCONNECT_ADDR: &str = "127.0.0.1:12021";
@@ -85,24 +85,57 @@ impl From<ProtocolArg> for Protocol {
     }
 }
 
-/// `--connect` and `--protocol`.
+/// `--connect` or `--serial`, and `--protocol`.
 #[derive(Debug, Args)]
 pub(crate) struct ConnectArgs {
     /// The hub, HOST:PORT [default: 127.0.0.1:12021; 127.0.0.1:12022 with --protocol tcp,
     /// the two listeners of `lcc-stream hub`].
-    #[arg(long, value_name = "HOST:PORT")]
+    #[arg(long, value_name = "HOST:PORT", conflicts_with = "serial")]
     pub(crate) connect: Option<String>,
+    /// A serial port instead of a hub: a USB GridConnect adapter on the CAN bus (RR-CirKits
+    /// LCC Buffer-USB, SPROG CANISB), e.g. /dev/ttyACM0 or COM3.
+    #[arg(long, value_name = "DEVICE")]
+    pub(crate) serial: Option<String>,
+    /// A SocketCAN interface instead of a hub, e.g. can0 (Linux; built with the `socketcan`
+    /// feature).
+    #[cfg(feature = "socketcan")]
+    #[arg(long, value_name = "IFACE", conflicts_with_all = ["connect", "serial"])]
+    pub(crate) can: Option<String>,
+    /// The serial port's line rate in bits per second (USB adapters ignore it).
+    #[arg(long, value_name = "N", default_value_t = openlcb_tokio::serial::DEFAULT_BAUD, requires = "serial")]
+    pub(crate) baud: u32,
     /// The framing spoken to the hub.
     #[arg(long, value_enum, default_value_t = ProtocolArg::Gridconnect)]
     pub(crate) protocol: ProtocolArg,
 }
 
 impl ConnectArgs {
+    /// Where the node connects: the serial device, or the hub's address.
     pub(crate) fn addr(&self) -> &str {
-        match (&self.connect, self.protocol) {
-            (Some(addr), _) => addr,
-            (None, ProtocolArg::Gridconnect) => GRIDCONNECT_ADDR,
-            (None, ProtocolArg::Tcp) => TCP_ADDR,
+        #[cfg(feature = "socketcan")]
+        if let Some(interface) = &self.can {
+            return interface;
+        }
+        match (&self.serial, &self.connect, self.protocol) {
+            (Some(device), _, _) => device,
+            (None, Some(addr), _) => addr,
+            (None, None, ProtocolArg::Gridconnect) => GRIDCONNECT_ADDR,
+            (None, None, ProtocolArg::Tcp) => TCP_ADDR,
+        }
+    }
+
+    /// Joins the network as a node with `options`: through the serial port, or the hub.
+    pub(crate) async fn node(&self, options: NodeOptions) -> Result<Node, Error> {
+        #[cfg(feature = "socketcan")]
+        if let Some(interface) = &self.can {
+            let bus = openlcb_tokio::can::FrameStream::new(openlcb_tokio::can::open_socketcan(interface)?);
+            return Node::over(bus, Protocol::GridConnect, options).await;
+        }
+        match &self.serial {
+            Some(device) => {
+                Node::over(openlcb_tokio::serial::open(device, self.baud)?, self.protocol.into(), options).await
+            }
+            None => Node::connect(self.addr(), self.protocol.into(), options).await,
         }
     }
 }

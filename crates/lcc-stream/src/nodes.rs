@@ -86,7 +86,7 @@ async fn list(args: &NodesArgs) -> Result<ExitCode, String> {
     let mut options = NodeOptions::new(args.node_id);
     options.node.snip = net::snip("nodes");
     options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
-    let node = match Node::connect(args.connect.addr(), args.connect.protocol.into(), options).await {
+    let node = match args.connect.node(options).await {
         Ok(node) => node,
         Err(error) => return Ok(net::fail("nodes", &error)),
     };

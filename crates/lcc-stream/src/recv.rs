@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{NodeId, StreamInfo};
-use openlcb_tokio::{Error, Node, NodeOptions, RecvStream};
+use openlcb_tokio::{Error, NodeOptions, RecvStream};
 use tokio::io::{AsyncWriteExt as _, BufWriter};
 use tokio::sync::watch;
 
@@ -78,7 +78,7 @@ async fn receive(args: &RecvArgs) -> Result<ExitCode, String> {
     options.node.stream.max_streams = usize::from(args.max_streams);
     options.node.stream.max_streams_per_peer = usize::from(args.max_streams_per_peer.min(args.max_streams));
     options.node.stream.idle_timeout = Some(Duration::from_secs(args.timeout).into());
-    let connect = Node::connect(args.connect.addr(), args.connect.protocol.into(), options);
+    let connect = args.connect.node(options);
     let mut node = tokio::select! {
         connected = connect => match connected {
             Ok(node) => node,

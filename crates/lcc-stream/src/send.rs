@@ -110,7 +110,7 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
 
     let started = Instant::now();
     let mut interrupt = net::Interrupt::new()?;
-    let connect = Node::connect(args.connect.addr(), args.connect.protocol.into(), options);
+    let connect = args.connect.node(options);
     let node = tokio::select! {
         connected = connect => match connected {
             Ok(node) => node,

@@ -687,3 +687,114 @@ async fn a_duplicate_announced_later_stops_recv_with_exit_10() {
     let (status, _, _) = finish(recv).await;
     assert_eq!(status.code(), Some(10), "wire-spec 7.5: the node stops and says why");
 }
+
+/// A pseudo-terminal pair: the master end, the terminal end (held open so that the master
+/// does not hang up) and the terminal's device path.
+fn pty() -> (tokio_serial::SerialStream, tokio_serial::SerialStream, String) {
+    use tokio_serial::SerialPort as _;
+    let (master, terminal) = tokio_serial::SerialStream::pair().unwrap();
+    let path = terminal.name().unwrap();
+    (master, terminal, path)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hub_serial_relays_between_a_node_on_the_serial_line_and_recv_over_tcp() {
+    let dir = scratch("hub-serial");
+    let output = dir.join("output.bin");
+    let (master, _terminal, path) = pty();
+    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0", "--no-tcp", "--serial", &path]);
+    let line = wait_for_line(&mut hub, "GridConnect on").await;
+    let addr = line.split_whitespace().nth(4).unwrap().to_string();
+    let mut recv = spawn(&["recv", "--connect", &addr, "--once", "--json", "--out", output.to_str().unwrap()]);
+    wait_for_line(&mut recv, "listening").await;
+
+    // The node on the line's far end, where an adapter's CAN bus would be.
+    let me = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0xF0]);
+    let node =
+        bounded("login over the pty", Node::over(master, Protocol::GridConnect, NodeOptions::new(me))).await.unwrap();
+    let payload = data(256 * 1024);
+    bounded("sending over the serial line", async {
+        let mut stream = node.open(OpenOptions::new(RECEIVER.parse().unwrap(), 2048)).await.unwrap();
+        stream.write_all(payload.clone()).await.unwrap();
+        stream.finish().await.unwrap();
+    })
+    .await;
+    let (status, stdout, _) = finish(recv).await;
+    assert!(status.success(), "recv failed: {status} {stdout}");
+    assert_eq!(field(&stdout, "bytes"), payload.len().to_string());
+    assert!(std::fs::read(&output).unwrap() == payload, "the received file differs");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn send_serial_reaches_a_node_behind_the_adapter() {
+    let dir = scratch("send-serial");
+    let input = dir.join("input.bin");
+    let payload = data(200_000);
+    std::fs::write(&input, &payload).unwrap();
+    // A hub on the master end plays the adapter and its bus; the receiver is on that bus.
+    let (master, _terminal, path) = pty();
+    let mut bus = Hub::bind("127.0.0.1:0", None, HubOptions::default()).await.unwrap();
+    bus.attach(master, "the adapter");
+    let receiver_id: NodeId = RECEIVER.parse().unwrap();
+    let mut receiver = bounded(
+        "the receiver's login",
+        Node::connect(&bus.local_addr().to_string(), Protocol::GridConnect, NodeOptions::new(receiver_id)),
+    )
+    .await
+    .unwrap();
+    let send = spawn(&["send", input.to_str().unwrap(), "--to", RECEIVER, "--serial", &path, "--json"]);
+    let received = bounded("the stream from send --serial", async {
+        let mut stream = receiver.accept().await.unwrap();
+        let mut received = Vec::new();
+        while let Some(chunk) = stream.read().await.unwrap() {
+            received.extend_from_slice(&chunk);
+        }
+        received
+    })
+    .await;
+    let (status, stdout, stderr) = finish(send).await;
+    assert!(status.success(), "send failed: {status} {stderr}");
+    assert_eq!(field(&stdout, "result"), "ok", "{stdout}");
+    assert!(received == payload, "the data differs after {} bytes", received.len());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn send_and_recv_on_two_hubs_chained_with_upstream() {
+    let dir = scratch("upstream");
+    let (input, output) = (dir.join("input.bin"), dir.join("output.bin"));
+    let payload = data(150_000);
+    std::fs::write(&input, &payload).unwrap();
+    let (_upstream, upstream_addr, _) = start_hub_binary().await;
+    let mut downstream =
+        spawn(&["hub", "--listen", "127.0.0.1:0", "--no-tcp", "--upstream", &upstream_addr, "--silent-timeout", "0"]);
+    // Its address, then the line saying the link is up.
+    let stderr = downstream.stderr.take().unwrap();
+    let mut lines = BufReader::new(stderr).lines();
+    let (addr, linked) = bounded("the downstream hub linking", async {
+        let mut addr = None;
+        while let Some(line) = lines.next_line().await.unwrap() {
+            if line.contains("GridConnect on") {
+                addr = line.split_whitespace().nth(4).map(str::to_string);
+            }
+            if line.contains("is upstream") {
+                return (addr.unwrap(), line);
+            }
+        }
+        panic!("the downstream hub's stderr ended");
+    })
+    .await;
+    assert!(linked.contains(&upstream_addr), "{linked}");
+    tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
+
+    let mut recv = spawn(&["recv", "--connect", &upstream_addr, "--once", "--json", "--out", output.to_str().unwrap()]);
+    wait_for_line(&mut recv, "listening").await;
+    let send = spawn(&["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &addr, "--json"]);
+    let (status, stdout, stderr) = finish(send).await;
+    assert!(status.success(), "send failed: {status} {stdout} {stderr}");
+    let (status, stdout, _) = finish(recv).await;
+    assert!(status.success(), "recv failed: {status} {stdout}");
+    assert!(std::fs::read(&output).unwrap() == payload, "the received file differs");
+    let _ = std::fs::remove_dir_all(dir);
+}

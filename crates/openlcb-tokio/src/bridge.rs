@@ -82,9 +82,15 @@ pub(crate) async fn run(can: Side, tcp: Side, state: Arc<State>) {
             let mut moved = false;
             while let Some(frame) = gateway.poll_can_transmit() {
                 if let Ok(len) = gridconnect::encode(&frame, &mut text) {
-                    to_can.extend_from_slice(text.get(..len).unwrap_or_default());
+                    let text = text.get(..len).unwrap_or_default();
+                    to_can.extend_from_slice(text);
                     to_can.extend_from_slice(b"\n");
                     frames += 1;
+                    // The bridge's own frames, under its own client number.
+                    if state.options().trace {
+                        let text = String::from_utf8_lossy(text).into_owned();
+                        state.event(HubEvent::Frame { client: can_id, text });
+                    }
                 }
                 moved = true;
             }

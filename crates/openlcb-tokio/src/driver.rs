@@ -1,5 +1,5 @@
-//! The driver task of a [`Node`](crate::Node): it owns the socket, the sans-IO node and the
-//! link, and runs the sans-IO drive loop (handle input, drain outputs, arm the timer) between
+//! The driver task of a [`Node`](crate::Node): it owns the connection (any byte stream), the
+//! sans-IO node and the link, and runs the sans-IO drive loop (handle input, drain outputs, arm the timer) between
 //! the socket, the clock and the handles' commands.
 
 use std::collections::HashMap;
@@ -8,9 +8,10 @@ use bytes::{Bytes, BytesMut};
 use openlcb_node::{NodeEvent, SnipRequestError};
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Event, Instant, NodeId, Role, StreamError, StreamHandle, StreamInfo};
-use tokio::net::TcpStream;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
+use crate::io::{ByteReader, ByteWriter, try_write};
 use crate::node::{Command, Control, NodeStats, Shared};
 use crate::requests::Requests;
 use crate::wire::{Wire, WireStats};
@@ -53,7 +54,8 @@ struct Receiving {
 }
 
 pub(crate) struct Driver {
-    socket: TcpStream,
+    reader: ByteReader,
+    writer: ByteWriter,
     start: tokio::time::Instant,
     /// The sans-IO node: streams, datagrams, SNIP, the message-network basics.
     stack: openlcb_node::Node,
@@ -80,7 +82,7 @@ pub(crate) struct Driver {
 
 impl Driver {
     pub(crate) fn new(
-        socket: TcpStream,
+        (reader, writer): (ByteReader, ByteWriter),
         protocol: Protocol,
         options: NodeOptions,
         commands: mpsc::Receiver<Command>,
@@ -91,7 +93,8 @@ impl Driver {
         let NodeOptions { node_id, node, can, write_timeout, .. } = options;
         let start = tokio::time::Instant::now();
         Driver {
-            socket,
+            reader,
+            writer,
             start,
             write_timeout,
             last_write: start,
@@ -154,13 +157,13 @@ impl Driver {
                 sleep.as_mut().reset(at);
             }
             tokio::select! {
-                ready = self.socket.readable() => {
-                    if let Err(error) = ready.map_err(Error::lost).and_then(|()| self.read_socket()) {
+                read = self.reader.read(&mut self.read_buf) => {
+                    if let Err(error) = self.received(read) {
                         return error;
                     }
                 }
-                ready = self.socket.writable(), if want_write => {
-                    if let Err(error) = ready.map_err(Error::lost).and_then(|()| self.write_socket()) {
+                written = self.writer.write(self.wire.pending()), if want_write => {
+                    if let Err(error) = self.wrote(written) {
                         return error;
                     }
                 }
@@ -240,8 +243,9 @@ impl Driver {
         }
     }
 
-    fn read_socket(&mut self) -> Result<(), Error> {
-        match self.socket.try_read(&mut self.read_buf) {
+    /// Feeds what one read delivered to the link.
+    fn received(&mut self, read: std::io::Result<usize>) -> Result<(), Error> {
+        match read {
             Ok(0) => Err(Error::closed_by_hub()),
             Ok(n) => {
                 let now = self.now();
@@ -253,22 +257,30 @@ impl Driver {
         }
     }
 
-    /// Writes everything pending in one call (the socket may take less).
+    /// Counts what one write took off the pending output.
+    fn wrote(&mut self, written: std::io::Result<usize>) -> Result<(), Error> {
+        match written {
+            Ok(0) => Err(Error::lost(std::io::ErrorKind::WriteZero.into())),
+            Ok(n) => {
+                self.wire.advance(n, &mut self.stats);
+                self.last_write = tokio::time::Instant::now();
+                Ok(())
+            }
+            Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => Ok(()),
+            Err(error) => Err(Error::lost(error)),
+        }
+    }
+
+    /// Writes everything pending in one call if the connection takes it now (it may take
+    /// less, or nothing: the drive loop's write then waits for it).
     fn write_socket(&mut self) -> Result<(), Error> {
         let pending = self.wire.pending();
         if pending.is_empty() {
             return Ok(());
         }
-        match self.socket.try_write(pending) {
-            Ok(n) => {
-                self.wire.advance(n, &mut self.stats);
-                if n > 0 {
-                    self.last_write = tokio::time::Instant::now();
-                }
-                Ok(())
-            }
-            Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => Ok(()),
-            Err(error) => Err(Error::lost(error)),
+        match try_write(&mut self.writer, pending) {
+            Some(written) => self.wrote(written),
+            None => Ok(()),
         }
     }
 
@@ -279,8 +291,8 @@ impl Driver {
             if self.wire.pending().is_empty() {
                 return Ok(());
             }
-            self.socket.writable().await.map_err(Error::lost)?;
-            self.write_socket()?;
+            let written = self.writer.write(self.wire.pending()).await;
+            self.wrote(written)?;
         }
     }
 

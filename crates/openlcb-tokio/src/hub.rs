@@ -15,6 +15,11 @@
 //! for [`HubOptions::silent_timeout`] after connecting is closed, and a client that
 //! half-closes its socket (shuts down its sending side) still receives. Garbage is counted
 //! and reported at most once per [`GARBAGE_REPORT_INTERVAL`] per client.
+//!
+//! Besides TCP clients, the GridConnect group takes links: any byte stream of GridConnect
+//! text ([`Hub::attach`]: a serial adapter, a CAN interface through
+//! [`FrameStream`](crate::can::FrameStream)) and a connection to an upstream hub
+//! ([`Hub::link_upstream`]), kept up with a bounded backoff.
 
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -26,16 +31,22 @@ use bytes::{Bytes, BytesMut};
 use openlcb_can::{CanFrame, CanHeader, FrameKind, GridConnectDecoder, NodeAlias, gridconnect};
 use openlcb_tcp::Decoder;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 use tokio::task::{AbortHandle, JoinSet};
 
-use crate::{Error, Protocol};
+use crate::io::{ByteReader, ByteWriter};
+use crate::{ByteStream, Error, Protocol};
 use openlcb_stream::NodeId;
 
 /// A connected client, numbered from 1 in order of arrival.
 pub type ClientId = u64;
+
+/// The bridge's number as a client of the GridConnect group (numbered from the top, so that
+/// real clients count from 1).
+pub const BRIDGE_GRIDCONNECT: ClientId = ClientId::MAX;
+/// The bridge's number as a client of the OpenLCB-TCP group.
+pub const BRIDGE_TCP: ClientId = ClientId::MAX - 1;
 
 /// A client's garbage is reported at most this often (with a count of what was skipped).
 pub const GARBAGE_REPORT_INTERVAL: std::time::Duration = std::time::Duration::from_secs(10);
@@ -95,6 +106,25 @@ pub enum HubEvent {
         peer: SocketAddr,
         /// The listener it came through.
         protocol: Protocol,
+    },
+    /// A link that is not a TCP client joined the GridConnect group: a byte stream given to
+    /// [`Hub::attach`] (a serial adapter) or the connection to an upstream hub
+    /// ([`Hub::link_upstream`]).
+    Attached {
+        /// Its number.
+        client: ClientId,
+        /// What it is, as given (a device path, `upstream HOST:PORT`).
+        name: String,
+    },
+    /// The upstream hub could not be reached or its connection ended; the link tries again
+    /// after `retry_in`.
+    UpstreamDown {
+        /// The upstream hub's address.
+        addr: String,
+        /// What went wrong.
+        reason: String,
+        /// The wait before the next attempt.
+        retry_in: std::time::Duration,
     },
     /// A client left or its connection failed.
     Disconnected {
@@ -203,10 +233,9 @@ impl State {
 
     /// Registers the bridge as a client of `protocol`'s group: its id and its queue.
     fn add_bridge_client(&self, protocol: Protocol) -> (ClientId, mpsc::UnboundedReceiver<Bytes>) {
-        // Numbered from the top, so that real clients count from 1.
         let id = match protocol {
-            Protocol::GridConnect => ClientId::MAX,
-            Protocol::Tcp => ClientId::MAX - 1,
+            Protocol::GridConnect => BRIDGE_GRIDCONNECT,
+            Protocol::Tcp => BRIDGE_TCP,
         };
         let (queue, rx) = mpsc::unbounded_channel();
         let client =
@@ -215,6 +244,20 @@ impl State {
             clients.insert(id, client);
         }
         (id, rx)
+    }
+
+    /// Registers a new client of `protocol`'s group: its id, its queue and its queue's count.
+    fn add_client(&self, protocol: Protocol) -> (ClientId, mpsc::UnboundedReceiver<Bytes>, Arc<AtomicUsize>) {
+        let id = self.next_id.fetch_add(1, Ordering::Relaxed);
+        self.accepted.fetch_add(1, Ordering::Relaxed);
+        let (queue, rx) = mpsc::unbounded_channel();
+        let queued = Arc::new(AtomicUsize::new(0));
+        let client =
+            Client { protocol, bridge: false, queue, queued: queued.clone(), tasks: Vec::new(), aliases: Vec::new() };
+        if let Ok(mut clients) = self.clients.lock() {
+            clients.insert(id, client);
+        }
+        (id, rx, queued)
     }
 
     /// Counts relayed frames and undecodable input.
@@ -409,6 +452,27 @@ impl Hub {
         }
     }
 
+    /// Relays between the GridConnect clients and `stream`, any byte stream that carries
+    /// GridConnect text (a USB-serial adapter to a real CAN bus, a pseudo-terminal): it is
+    /// one more client, numbered like the others, never closed for being silent (a quiet bus
+    /// is no stray connection). It leaves when the stream ends or fails
+    /// ([`HubEvent::Disconnected`]).
+    pub fn attach(&mut self, stream: impl ByteStream, name: &str) -> ClientId {
+        let (id, queue, queued) = self.state.add_client(Protocol::GridConnect);
+        self.state.event(HubEvent::Attached { client: id, name: name.to_string() });
+        self._listeners.spawn(serve_link(id, crate::io::halves(stream), queue, queued, self.state.clone()));
+        id
+    }
+
+    /// Joins the GridConnect hub at `addr` (`HOST:PORT`) as one of its clients and relays both
+    /// ways: the two hubs' clients share one CAN segment. A lost or refused connection is
+    /// tried again, after [`UPSTREAM_RETRY_FIRST`] and then twice as long each time up to
+    /// [`UPSTREAM_RETRY_MAX`] ([`HubEvent::UpstreamDown`] says so); each new connection is a
+    /// new client ([`HubEvent::Attached`]).
+    pub fn link_upstream(&mut self, addr: &str) {
+        self._listeners.spawn(upstream_loop(addr.to_string(), self.state.clone()));
+    }
+
     /// The next event (connections, slow clients, garbage, traced frames).
     pub async fn next_event(&mut self) -> Option<HubEvent> {
         self.events.recv().await
@@ -457,19 +521,12 @@ fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, pr
     }
     let _ = socket.set_nodelay(true);
     let _ = crate::socket::keep_alive(&socket);
-    let id = state.next_id.fetch_add(1, Ordering::Relaxed);
-    state.accepted.fetch_add(1, Ordering::Relaxed);
-    let (queue, rx) = mpsc::unbounded_channel();
-    let queued = Arc::new(AtomicUsize::new(0));
-    let client =
-        Client { protocol, bridge: false, queue, queued: queued.clone(), tasks: Vec::new(), aliases: Vec::new() };
-    if let Ok(mut clients) = state.clients.lock() {
-        clients.insert(id, client);
-    }
+    let (id, rx, queued) = state.add_client(protocol);
     state.event(HubEvent::Connected { client: id, peer, protocol });
-    let (reader, writer) = socket.into_split();
+    let (reader, writer) = crate::io::tcp_halves(socket);
+    let silent_timeout = state.options.silent_timeout;
     let handles = [
-        tasks.spawn(read_client(id, reader, protocol, state.clone())),
+        tasks.spawn(read_client(id, reader, protocol, silent_timeout, state.clone())),
         tasks.spawn(write_client(id, writer, rx, queued, state.clone())),
     ];
     let registered = state
@@ -480,6 +537,55 @@ fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, pr
     if registered.is_none() {
         // It left before its tasks were registered.
         handles.iter().for_each(AbortHandle::abort);
+    }
+}
+
+/// The first wait before an upstream hub is tried again.
+pub const UPSTREAM_RETRY_FIRST: std::time::Duration = std::time::Duration::from_millis(250);
+/// The longest wait between attempts to reach an upstream hub.
+pub const UPSTREAM_RETRY_MAX: std::time::Duration = std::time::Duration::from_secs(5);
+/// How long one attempt to reach an upstream hub may take.
+const UPSTREAM_CONNECT_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Keeps a link to the upstream hub at `addr` up for as long as the hub runs.
+async fn upstream_loop(addr: String, state: Arc<State>) {
+    let name = format!("upstream {addr}");
+    let mut retry_in = UPSTREAM_RETRY_FIRST;
+    loop {
+        let reason = match tokio::time::timeout(UPSTREAM_CONNECT_TIMEOUT, crate::node::dial(&addr)).await {
+            Ok(Ok(socket)) => {
+                let _ = socket.set_nodelay(true);
+                let (id, queue, queued) = state.add_client(Protocol::GridConnect);
+                state.event(HubEvent::Attached { client: id, name: name.clone() });
+                serve_link(id, crate::io::tcp_halves(socket), queue, queued, state.clone()).await;
+                // It was up: the next attempt starts from the shortest wait.
+                retry_in = UPSTREAM_RETRY_FIRST;
+                "the connection ended".to_string()
+            }
+            Ok(Err(error)) => error.to_string(),
+            Err(_) => "no answer in time".to_string(),
+        };
+        state.event(HubEvent::UpstreamDown { addr: addr.clone(), reason, retry_in });
+        tokio::time::sleep(retry_in).await;
+        retry_in = (retry_in * 2).min(UPSTREAM_RETRY_MAX);
+    }
+}
+
+/// Runs a link client (an attached stream, an upstream hub) until either direction ends,
+/// then removes it: a link whose input ended is gone, unlike a half-closed TCP client.
+async fn serve_link(
+    id: ClientId,
+    (reader, writer): (ByteReader, ByteWriter),
+    queue: mpsc::UnboundedReceiver<Bytes>,
+    queued: Arc<AtomicUsize>,
+    state: Arc<State>,
+) {
+    tokio::select! {
+        () = read_client(id, reader, Protocol::GridConnect, None, state.clone()) => {}
+        () = write_client(id, writer, queue, queued, state.clone()) => {}
+    }
+    if state.remove(id) {
+        state.event(HubEvent::Disconnected { client: id, reason: "the link ended".to_string() });
     }
 }
 
@@ -524,14 +630,20 @@ impl GarbageReport {
 
 /// Reads a client's frames, encodes each again and relays them in one chunk per read. At
 /// the end of its input (a half-close) the client stays: it still receives.
-async fn read_client(id: ClientId, mut reader: OwnedReadHalf, protocol: Protocol, state: Arc<State>) {
+async fn read_client(
+    id: ClientId,
+    mut reader: ByteReader,
+    protocol: Protocol,
+    silent_timeout: Option<std::time::Duration>,
+    state: Arc<State>,
+) {
     let mut buf = vec![0u8; 16 * 1024];
     let mut gridconnect_decoder = GridConnectDecoder::default();
     let mut tcp_decoder = Decoder::default();
     let mut chunk = BytesMut::new();
     let mut garbage = GarbageReport::default();
     let mut heard = false;
-    let silent_deadline = state.options.silent_timeout.map(|t| tokio::time::Instant::now() + t);
+    let silent_deadline = silent_timeout.map(|t| tokio::time::Instant::now() + t);
     let reason = loop {
         let read = reader.read(&mut buf);
         let n = match silent_deadline.filter(|_| !heard) {
@@ -654,7 +766,7 @@ fn relay_tcp(
 /// Writes a client's queue, many chunks per `write` call.
 async fn write_client(
     id: ClientId,
-    mut writer: OwnedWriteHalf,
+    mut writer: ByteWriter,
     mut queue: mpsc::UnboundedReceiver<Bytes>,
     queued: Arc<AtomicUsize>,
     state: Arc<State>,

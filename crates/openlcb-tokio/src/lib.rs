@@ -1,11 +1,16 @@
-//! Async drivers that run the sans-IO OpenLCB stream stack against real TCP sockets.
+//! Async drivers that run the sans-IO OpenLCB stream stack over any byte stream: TCP sockets,
+//! serial ports (USB GridConnect adapters), pseudo-terminals, in-memory pipes.
 //!
 //! - [`Node`]: one OpenLCB node connected to a hub, speaking GridConnect text (a
 //!   [`CanLink`](openlcb_can::CanLink) with alias login under the stream endpoint) or the
 //!   binary OpenLCB-TCP framing (a [`TcpLink`](openlcb_tcp::TcpLink)). [`Node::open`] gives a
 //!   [`SendStream`], [`Node::accept`] a [`RecvStream`].
 //! - [`Hub`]: a hub that relays every frame from a client to every other client, with bounded
-//!   per-client queues.
+//!   per-client queues; [`Hub::attach`] adds a serial adapter or CAN interface,
+//!   [`Hub::link_upstream`] joins another hub.
+//! - `serial` (feature `serial`, on by default): USB GridConnect adapters through
+//!   `tokio-serial`. [`can`]: CAN interfaces as byte streams ([`can::FrameStream`]), with
+//!   SocketCAN behind the `socketcan` feature.
 //!
 //! # What the driver does
 //!
@@ -24,8 +29,9 @@
 //! - **A lost connection** ends the driver with [`Error::ConnectionLost`], which every waiting
 //!   call and every later call returns.
 //!
-//! The sockets are driven with `readable`/`try_read` and `writable`/`try_write` rather than
-//! `tokio-util` codecs: the GridConnect and OpenLCB-TCP decoders are already resumable over
+//! [`Node::connect`] dials a TCP hub; [`Node::over`] runs a node over any [`ByteStream`] (a
+//! serial port, a pseudo-terminal, a `tokio::io::duplex`). The connection is driven with
+//! plain `read` and `write` calls rather than `tokio-util` codecs: the GridConnect and OpenLCB-TCP decoders are already resumable over
 //! byte slices and hand out messages borrowed from their own buffers, which a codec's owned
 //! items would copy once more.
 //!
@@ -71,16 +77,21 @@
 #![warn(missing_docs)]
 
 mod bridge;
+pub mod can;
 mod driver;
 mod error;
 pub mod hub;
+mod io;
 mod node;
 mod requests;
+#[cfg(feature = "serial")]
+pub mod serial;
 mod socket;
 mod wire;
 
 pub use error::Error;
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};
+pub use io::ByteStream;
 pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStream};
 
 // What a user of this crate needs from the ones below it, so that sending a stream takes

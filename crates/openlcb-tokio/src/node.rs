@@ -154,6 +154,18 @@ async fn driver_error(driver: JoinHandle<()>, shared: &Shared) -> Error {
     shared.error()
 }
 
+/// A TCP connection to the first address `addr` (`host:port`) resolves to that answers.
+pub(crate) async fn dial(addr: &str) -> std::io::Result<TcpStream> {
+    let mut last = std::io::Error::new(std::io::ErrorKind::NotFound, "the name resolves to no address");
+    for address in lookup_host(addr).await? {
+        match connect_socket(address).await {
+            Ok(socket) => return Ok(socket),
+            Err(error) => last = error,
+        }
+    }
+    Err(last)
+}
+
 /// A TCP connection to `address` with this crate's segment limit and keep-alive.
 async fn connect_socket(address: std::net::SocketAddr) -> std::io::Result<TcpStream> {
     let socket = if address.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
@@ -196,39 +208,64 @@ impl Node {
         let connect_error =
             |source: std::io::Error| Error::Connect { addr: addr.to_string(), source: Arc::new(source) };
         let timeout = options.connect_timeout;
-        let socket = tokio::time::timeout(timeout, async {
-            let mut last = std::io::Error::new(std::io::ErrorKind::NotFound, "the name resolves to no address");
-            for address in lookup_host(addr).await? {
-                match connect_socket(address).await {
-                    Ok(socket) => return Ok(socket),
-                    Err(error) => last = error,
-                }
-            }
-            Err(last)
-        })
-        .await
-        .map_err(|_| connect_error(std::io::Error::new(std::io::ErrorKind::TimedOut, "no answer in time")))?
-        .map_err(connect_error)?;
+        let socket = tokio::time::timeout(timeout, dial(addr))
+            .await
+            .map_err(|_| connect_error(std::io::Error::new(std::io::ErrorKind::TimedOut, "no answer in time")))?
+            .map_err(connect_error)?;
         // Small frames must not wait for Nagle's algorithm: the batching is done here.
         socket.set_nodelay(true).map_err(connect_error)?;
+        Node::start(crate::io::tcp_halves(socket), protocol, options).await.map_err(|error| match error {
+            // A connection that breaks before the login is done never reached a hub (a
+            // firewall or proxy that accepts and closes, a port that is not a hub).
+            Error::ConnectionLost(source) => Error::Connect { addr: addr.to_string(), source },
+            other => other,
+        })
+    }
 
+    /// Runs a node over `stream`, any byte stream that carries `protocol` (a serial port to a
+    /// USB GridConnect adapter, a pseudo-terminal, a `tokio::io::duplex`), logs in and sends
+    /// Initialization Complete. Fails with [`Error::ConnectionLost`] if the stream ends before
+    /// the login is done, or [`Error::Login`] if it does not finish within
+    /// [`NodeOptions::connect_timeout`].
+    ///
+    /// ```
+    /// use openlcb_tokio::{Node, NodeOptions, Protocol};
+    ///
+    /// # #[tokio::main(flavor = "current_thread")]
+    /// # async fn main() -> Result<(), openlcb_tokio::Error> {
+    /// // Two nodes joined by an in-memory pipe, as if by a CAN bus.
+    /// let (one, other) = tokio::io::duplex(64 * 1024);
+    /// let id = |last| openlcb_tokio::NodeId::from_bytes([5, 1, 1, 1, 0x22, last]);
+    /// let (a, b) = tokio::try_join!(
+    ///     Node::over(one, Protocol::GridConnect, NodeOptions::new(id(1))),
+    ///     Node::over(other, Protocol::GridConnect, NodeOptions::new(id(2))),
+    /// )?;
+    /// assert_eq!(a.discover(std::time::Duration::from_millis(500), 1).await?, vec![b.node_id()]);
+    /// # Ok(()) }
+    /// ```
+    pub async fn over(stream: impl crate::ByteStream, protocol: Protocol, options: NodeOptions) -> Result<Node, Error> {
+        Node::start(crate::io::halves(stream), protocol, options).await
+    }
+
+    /// Starts the driver on a connection's halves and waits for the login.
+    async fn start(
+        halves: (crate::io::ByteReader, crate::io::ByteWriter),
+        protocol: Protocol,
+        options: NodeOptions,
+    ) -> Result<Node, Error> {
+        let timeout = options.connect_timeout;
         let node_id = options.node_id;
         let shared = Shared::default();
         let (commands, command_rx) = mpsc::channel(64);
         let (incoming_tx, incoming) = mpsc::channel(options.node.stream.max_streams.max(1));
         let (up_tx, up) = oneshot::channel();
         let driver =
-            Driver::new(socket, protocol, options, command_rx, commands.downgrade(), incoming_tx, shared.clone());
+            Driver::new(halves, protocol, options, command_rx, commands.downgrade(), incoming_tx, shared.clone());
         let driver = tokio::spawn(driver.run(up_tx));
         let control = Control { commands, shared };
         match tokio::time::timeout(timeout, up).await {
             Ok(Ok(())) => Ok(Node { node_id, control, incoming, driver }),
-            // A connection that breaks before the login is done never reached a hub (a
-            // firewall or proxy that accepts and closes, a port that is not a hub).
-            Ok(Err(_)) => Err(match driver_error(driver, &control.shared).await {
-                Error::ConnectionLost(source) => Error::Connect { addr: addr.to_string(), source },
-                other => other,
-            }),
+            Ok(Err(_)) => Err(driver_error(driver, &control.shared).await),
             Err(_) => {
                 driver.abort();
                 Err(Error::Login("the alias login did not finish in time"))

@@ -1,0 +1,129 @@
+//! The CAN-interface path ([`FrameStream`] over a [`FrameBus`]) against an in-memory bus
+//! whose controllers echo every frame they send, as SocketCAN with own-message reception
+//! does: logins, transfers, a hub attached to the bus, echo filtering. Every wait is bounded.
+
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
+
+use openlcb_can::CanFrame;
+use openlcb_stream::NodeId;
+use openlcb_tokio::can::{FrameBus, FrameStream};
+use openlcb_tokio::{Hub, HubOptions, Node, NodeOptions, Protocol};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::mpsc;
+
+mod common;
+use common::bounded;
+#[path = "common/transfer.rs"]
+mod transfer;
+use transfer::moves;
+
+/// One controller on a [`MemoryBus`]: what it sends reaches every controller, itself included.
+struct Controller {
+    bus: Arc<Mutex<Vec<mpsc::UnboundedSender<CanFrame>>>>,
+    heard: mpsc::UnboundedReceiver<CanFrame>,
+}
+
+/// A lossless in-memory CAN bus.
+#[derive(Default)]
+struct MemoryBus(Arc<Mutex<Vec<mpsc::UnboundedSender<CanFrame>>>>);
+
+impl MemoryBus {
+    fn controller(&self) -> Controller {
+        let (tx, heard) = mpsc::unbounded_channel();
+        self.0.lock().unwrap().push(tx);
+        Controller { bus: self.0.clone(), heard }
+    }
+}
+
+impl FrameBus for Controller {
+    fn poll_receive(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<CanFrame>> {
+        self.heard.poll_recv(cx).map(|frame| frame.ok_or_else(|| std::io::ErrorKind::BrokenPipe.into()))
+    }
+
+    fn poll_send(&mut self, _cx: &mut Context<'_>, frame: &CanFrame) -> Poll<std::io::Result<()>> {
+        for controller in self.bus.lock().unwrap().iter() {
+            let _ = controller.send(*frame);
+        }
+        Poll::Ready(Ok(()))
+    }
+}
+
+fn id(last: u8) -> NodeId {
+    NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, last])
+}
+
+fn pattern(len: usize) -> Vec<u8> {
+    (0..len).map(|i| (i as u32).wrapping_mul(2_654_435_761).rotate_right(5) as u8).collect()
+}
+
+#[tokio::test]
+async fn nodes_on_an_echoing_bus_log_in_and_move_a_stream() {
+    let bus = MemoryBus::default();
+    let (one, other) = (FrameStream::new(bus.controller()), FrameStream::new(bus.controller()));
+    let echoes = [one.echoes(), other.echoes()];
+    let (sender, mut receiver) = bounded("two logins on the bus", async {
+        tokio::try_join!(
+            Node::over(one, Protocol::GridConnect, NodeOptions::new(id(1))),
+            Node::over(other, Protocol::GridConnect, NodeOptions::new(id(2))),
+        )
+    })
+    .await
+    .unwrap();
+    let payload = pattern(256 * 1024);
+    moves(&sender, &mut receiver, &payload, 2048).await;
+    // Each heard its own login and data back and dropped it.
+    for echoes in echoes {
+        assert!(echoes.load(Ordering::Relaxed) > 4, "echoes were not dropped");
+    }
+}
+
+#[tokio::test]
+async fn a_hub_attached_to_the_bus_relays_between_a_bus_node_and_a_tcp_node() {
+    let bus = MemoryBus::default();
+    let mut hub = bounded("binding the hub", Hub::bind("127.0.0.1:0", None, HubOptions::default())).await.unwrap();
+    hub.attach(FrameStream::new(bus.controller()), "can0");
+    let mut on_bus = bounded(
+        "login on the bus",
+        Node::over(FrameStream::new(bus.controller()), Protocol::GridConnect, NodeOptions::new(id(3))),
+    )
+    .await
+    .unwrap();
+    let on_tcp = bounded(
+        "login through the hub",
+        Node::connect(&hub.local_addr().to_string(), Protocol::GridConnect, NodeOptions::new(id(4))),
+    )
+    .await
+    .unwrap();
+    let payload = pattern(100_000);
+    moves(&on_tcp, &mut on_bus, &payload, 2048).await;
+}
+
+#[tokio::test]
+async fn an_echo_is_dropped_once_and_other_frames_are_read() {
+    let bus = MemoryBus::default();
+    let mut mine = FrameStream::new(bus.controller());
+    let mut theirs = FrameStream::new(bus.controller());
+    let echoes = mine.echoes();
+    bounded("writing", async {
+        mine.write_all(b":X19490123N;").await.unwrap();
+        mine.flush().await.unwrap();
+        // Another node says something, then the very same frame as ours (not an echo).
+        theirs.write_all(b":X19170456N0501010122F0;\n:X19490123N;").await.unwrap();
+        theirs.flush().await.unwrap();
+    })
+    .await;
+    let mut text = Vec::new();
+    bounded("reading", async {
+        let mut buf = [0u8; 64];
+        while text.iter().filter(|&&b| b == b'\n').count() < 2 {
+            let n = mine.read(&mut buf).await.unwrap();
+            assert!(n > 0, "the bus ended");
+            text.extend_from_slice(&buf[..n]);
+        }
+    })
+    .await;
+    assert_eq!(String::from_utf8(text).unwrap(), ":X19170456N0501010122F0;\n:X19490123N;\n");
+    assert_eq!(echoes.load(Ordering::Relaxed), 1);
+}
