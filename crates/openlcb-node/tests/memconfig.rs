@@ -206,14 +206,17 @@ fn write_by_stream_is_verified() {
 
 #[test]
 fn firmware_upgrade_by_stream_and_by_datagrams() {
-    for path in [TransferPath::Auto, TransferPath::Datagrams] {
+    // 100 000 bytes: the last window is a partial one.
+    for (path, len) in
+        [(TransferPath::Auto, 64 * 1024), (TransferPath::Datagrams, 64 * 1024), (TransferPath::Auto, 100_000)]
+    {
         let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
         pair.pump();
         assert!(pair.server.protocols().contains(Protocols::FIRMWARE_UPGRADE));
-        let image = pattern(64 * 1024, 3);
+        let image = pattern(len, 3);
         pair.client.upgrade_firmware(pair.now, SERVER, image.clone(), path).unwrap();
         match pair.finish() {
-            MemoryEvent::WriteDone { len, .. } => assert_eq!(len, 64 * 1024),
+            MemoryEvent::WriteDone { len: written, .. } => assert_eq!(written, len as u64),
             other => panic!("{other:?}"),
         }
         pair.pump();
@@ -226,7 +229,7 @@ fn firmware_upgrade_by_stream_and_by_datagrams() {
             _ => None,
         });
         assert!(frozen, "{path:?}");
-        assert_eq!(unfrozen, Some(64 * 1024));
+        assert_eq!(unfrozen, Some(len as u32), "{path:?}, {len} bytes");
     }
 }
 
@@ -658,4 +661,107 @@ fn write_under_mask_changes_only_the_masked_bits() {
     let answers = exchange(&mut pair, &past.to_bytes());
     assert_eq!(&answers[0].payload[..], [0x80]);
     assert!(matches!(reply_of(&answers), Some(Reply::Failed { code, .. }) if code.0 == 0x1082));
+}
+
+#[test]
+fn firmware_unfreeze_never_overtakes_the_stream_complete() {
+    // The server replies to Write Stream at once, so the client may end the upgrade as soon
+    // as its last data is out: its Unfreeze must still follow its Data Complete.
+    let mut client = Node::new(CLIENT, NodeConfig::default());
+    let mut server = server_with(NodeConfig::default(), 16);
+    client.upgrade_firmware(Instant::ZERO, SERVER, pattern(100_000, 5), TransferPath::Auto).unwrap();
+    let mut now = Instant::ZERO;
+    let mut order = Vec::new();
+    let mut unfrozen = None;
+    for _ in 0..10_000 {
+        let mut moved = false;
+        while let Some(m) = client.poll_transmit() {
+            if m.mti == Mti::STREAM_DATA_COMPLETE {
+                order.push("complete");
+            } else if m.mti == Mti::DATAGRAM && m.payload.get(..3) == Some(&[0x20, 0xA0, 0xEF][..]) {
+                order.push("unfreeze");
+            }
+            server.handle_message(now, m.as_ref());
+            moved = true;
+        }
+        while let Some(m) = server.poll_transmit() {
+            client.handle_message(now, m.as_ref());
+            moved = true;
+        }
+        while client.poll_event().is_some() {
+            moved = true;
+        }
+        while let Some(event) = server.poll_event() {
+            if let NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) = event {
+                unfrozen = Some(image_len);
+            }
+            moved = true;
+        }
+        if !moved {
+            match client.poll_timeout().filter(|t| *t <= now + Duration::from_secs(60)) {
+                Some(t) => {
+                    now = now.max(t);
+                    client.handle_timeout(now);
+                }
+                None => break,
+            }
+        }
+    }
+    assert_eq!(order, ["complete", "unfreeze"]);
+    assert_eq!(unfrozen, Some(100_000));
+}
+
+#[test]
+fn an_unfreeze_that_overtakes_the_stream_waits_for_its_end() {
+    // A client whose Unfreeze arrives before the last data and the Complete of its Write
+    // Stream (CAN arbitration puts datagram frames first): the image is still whole.
+    let mut client = Node::new(CLIENT, NodeConfig::default());
+    let mut server = server_with(NodeConfig::default(), 16);
+    let image = pattern(100_000, 9);
+    client.upgrade_firmware(Instant::ZERO, SERVER, image.clone(), TransferPath::Auto).unwrap();
+    let mut held = Vec::new();
+    let mut unfrozen = None;
+    let mut data = 0;
+    for _ in 0..10_000 {
+        let mut moved = false;
+        while let Some(m) = client.poll_transmit() {
+            moved = true;
+            let unfreeze = m.mti == Mti::DATAGRAM && m.payload.get(..3) == Some(&[0x20, 0xA0, 0xEF][..]);
+            if m.mti == Mti::STREAM_DATA_SEND {
+                data += m.payload.len() - 1;
+            }
+            // Hold back the last window's data and the Complete until the Unfreeze is through.
+            if (data > 98_304 || !held.is_empty()) && !unfreeze {
+                held.push(m);
+                continue;
+            }
+            server.handle_message(Instant::ZERO, m.as_ref());
+            if unfreeze {
+                for m in held.drain(..) {
+                    server.handle_message(Instant::ZERO, m.as_ref());
+                }
+            }
+        }
+        while let Some(m) = server.poll_transmit() {
+            client.handle_message(Instant::ZERO, m.as_ref());
+            moved = true;
+        }
+        while client.poll_event().is_some() {
+            moved = true;
+        }
+        while let Some(event) = server.poll_event() {
+            if let NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) = event {
+                unfrozen = Some(image_len);
+            }
+            moved = true;
+        }
+        if !moved {
+            match client.poll_timeout() {
+                Some(t) if t == Instant::ZERO => client.handle_timeout(t),
+                _ => break,
+            }
+        }
+    }
+    assert_eq!(unfrozen, Some(100_000));
+    assert_eq!(&read_back(&mut server, 0xEF)[..image.len()], &image[..]);
 }

@@ -4,6 +4,9 @@
 //!   [`CanLink`](openlcb_can::CanLink) with alias login under the stream endpoint) or the
 //!   binary OpenLCB-TCP framing (a [`TcpLink`](openlcb_tcp::TcpLink)). [`Node::open`] gives a
 //!   [`SendStream`], [`Node::accept`] a [`RecvStream`].
+//! - Memory Configuration ([`memory`]): [`Node::serve_memory`] serves address spaces,
+//!   [`Node::read_memory`], [`Node::write_memory`] and [`Node::upgrade_firmware`] configure
+//!   and upgrade other nodes, with progress.
 //! - [`Hub`]: a hub that relays every frame from a client to every other client, with bounded
 //!   per-client queues.
 //!
@@ -74,6 +77,7 @@ mod bridge;
 mod driver;
 mod error;
 pub mod hub;
+pub mod memory;
 mod node;
 mod requests;
 mod socket;
@@ -81,12 +85,13 @@ mod wire;
 
 pub use error::Error;
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};
+pub use memory::{MemoryTransfer, ServerEvent, ServerEvents};
 pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStream};
 
 // What a user of this crate needs from the ones below it, so that sending a stream takes
 // this crate alone.
 pub use openlcb_can::CanConfig;
-pub use openlcb_node::{NodeConfig, Protocols, SnipInfo};
+pub use openlcb_node::{MemoryServer, NodeConfig, Protocols, RamSpace, ReadOnlySpace, SnipInfo, TransferPath};
 pub use openlcb_stream::{Config as StreamConfig, NodeId, OpenOptions};
 pub use wire::{Protocol, WireStats};
 pub use {openlcb_can, openlcb_node, openlcb_stream};
