@@ -43,7 +43,8 @@ async fn hub() -> (Hub, String) {
 
 /// A `serve` process and its stderr, line by line.
 struct Server {
-    child: Child,
+    /// Held so that the process is killed when the test ends.
+    _child: Child,
     lines: mpsc::UnboundedReceiver<String>,
 }
 
@@ -66,7 +67,7 @@ impl Server {
                 let _ = tx.send(line);
             }
         });
-        let mut server = Server { child, lines };
+        let mut server = Server { _child: child, lines };
         server.wait_for("serving spaces").await;
         server
     }
