@@ -3,16 +3,12 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
 
 use clap::Args;
 use openlcb_stream::NodeId;
 
-use crate::memory::{self, ClientArgs, Report, Stop};
+use crate::memory::{self, ClientArgs, Upload};
 use crate::net;
-
-/// The firmware space.
-const SPACE_FIRMWARE: u8 = 0xEF;
 
 /// Options of `lcc-stream firmware`.
 #[derive(Debug, Args)]
@@ -28,33 +24,21 @@ pub(crate) struct FirmwareArgs {
 }
 
 pub(crate) fn run(args: &FirmwareArgs) -> Result<ExitCode, String> {
-    net::runtime()?.block_on(upgrade(args))
-}
-
-async fn upgrade(args: &FirmwareArgs) -> Result<ExitCode, String> {
-    let mut interrupt = net::Interrupt::new()?;
-    let started = Instant::now();
-    let outcome = async {
-        let image = tokio::fs::read(&args.file).await.map_err(Stop::File)?;
-        let total = image.len() as u64;
-        let node = memory::join(&args.client, "firmware", args.to).await?;
-        let transfer = node.upgrade_firmware(args.to, image, args.client.path()).await.map_err(Stop::Net)?;
-        let bar = memory::progress_bar(Some(total), args.client.json);
-        let written = memory::follow(transfer, &bar, &mut interrupt).await;
-        node.close().await;
-        written
-    }
-    .await;
-    let bytes = *outcome.as_ref().unwrap_or(&0);
-    let report = Report::new(args.to, SPACE_FIRMWARE, 0, &args.file, args.client.path(), bytes, started);
-    let (elapsed_s, bytes_per_s) = (report.elapsed_s, report.bytes_per_s);
-    let text = outcome.map(|bytes| {
-        format!(
-            "upgraded {} with {bytes} bytes of {} in {elapsed_s:.3} s ({})",
-            args.to,
-            args.file.display(),
-            net::rate_text(bytes_per_s)
-        )
-    });
-    Ok(memory::finish(report, text, args.client.json, "firmware"))
+    net::runtime()?.block_on(memory::upload(
+        &args.client,
+        "firmware",
+        args.to,
+        &args.file,
+        Upload::Firmware,
+        |report| {
+            format!(
+                "upgraded {} with {} bytes of {} in {:.3} s ({})",
+                report.node,
+                report.bytes,
+                report.file,
+                report.elapsed_s,
+                net::rate_text(report.bytes_per_s)
+            )
+        },
+    ))
 }

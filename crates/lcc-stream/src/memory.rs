@@ -176,7 +176,7 @@ pub(crate) async fn join(args: &ClientArgs, command: &str, peer: NodeId) -> Resu
 const NOT_IMPLEMENTED: openlcb_stream::wire::ErrorCode = openlcb_stream::wire::ErrorCode(0x1042);
 
 /// A progress bar on stderr, drawn only on a terminal and without `--json`.
-pub(crate) fn progress_bar(total: Option<u64>, json: bool) -> ProgressBar {
+fn progress_bar(total: Option<u64>, json: bool) -> ProgressBar {
     let target = if json || !std::io::stderr().is_terminal() {
         ProgressDrawTarget::hidden()
     } else {
@@ -194,12 +194,15 @@ pub(crate) fn progress_bar(total: Option<u64>, json: bool) -> ProgressBar {
     bar
 }
 
-/// Waits for `transfer` to end, showing its progress, unless interrupted first.
+/// Waits for `transfer` (of `total` bytes, if known) to end, showing its progress unless
+/// `json`, or until interrupted.
 pub(crate) async fn follow<T>(
     transfer: MemoryTransfer<T>,
-    bar: &ProgressBar,
+    total: Option<u64>,
+    json: bool,
     interrupt: &mut net::Interrupt,
 ) -> Result<T, Stop> {
+    let bar = progress_bar(total, json);
     let mut progress = transfer.watch_progress();
     let end = transfer.finish();
     tokio::pin!(end);
@@ -217,6 +220,52 @@ pub(crate) async fn follow<T>(
         }
     }
 }
+
+/// What `write` and `firmware` put into a node.
+pub(crate) enum Upload {
+    /// The bytes of a file into `space` from `address`.
+    Space { space: u8, address: u32 },
+    /// A firmware image (space 0xEF from 0, between Freeze and Unfreeze).
+    Firmware,
+}
+
+/// Runs `write` or `firmware`: the file's bytes into `peer`, with a progress bar, then the
+/// report; `done` words the success for a person.
+pub(crate) async fn upload(
+    client: &ClientArgs,
+    command: &str,
+    peer: NodeId,
+    file: &std::path::Path,
+    what: Upload,
+    done: impl FnOnce(&Report) -> String,
+) -> Result<ExitCode, String> {
+    let mut interrupt = net::Interrupt::new()?;
+    let started = Instant::now();
+    let (space, address) = match what {
+        Upload::Space { space, address } => (space, address),
+        Upload::Firmware => (SPACE_FIRMWARE, 0),
+    };
+    let outcome = async {
+        let data = tokio::fs::read(file).await.map_err(Stop::File)?;
+        let total = data.len() as u64;
+        let node = join(client, command, peer).await?;
+        let transfer = match what {
+            Upload::Space { space, address } => node.write_memory(peer, space, address, data, client.path()).await,
+            Upload::Firmware => node.upgrade_firmware(peer, data, client.path()).await,
+        };
+        let written = follow(transfer.map_err(Stop::Net)?, Some(total), client.json, &mut interrupt).await;
+        node.close().await;
+        written
+    }
+    .await;
+    let bytes = *outcome.as_ref().unwrap_or(&0);
+    let report = Report::new(peer, space, address, file, client.path(), bytes, started);
+    let text = outcome.map(|_| done(&report));
+    Ok(finish(report, text, client.json, command))
+}
+
+/// The firmware space.
+const SPACE_FIRMWARE: u8 = 0xEF;
 
 /// Prints `report` (text or JSON) and returns the exit status.
 pub(crate) fn finish(report: Report, outcome: Result<String, Stop>, json: bool, command: &str) -> ExitCode {

@@ -87,8 +87,7 @@ async fn transfer(args: &ReadArgs, interrupt: &mut net::Interrupt) -> Result<Vec
         .read_memory(args.from, args.space, args.address, args.length, args.client.path())
         .await
         .map_err(Stop::Net)?;
-    let bar = memory::progress_bar(args.length.map(u64::from), args.client.json);
-    let data = memory::follow(transfer, &bar, interrupt).await;
+    let data = memory::follow(transfer, args.length.map(u64::from), args.client.json, interrupt).await;
     node.close().await;
     data
 }

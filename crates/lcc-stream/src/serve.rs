@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex};
 use clap::Args;
 use openlcb_stream::NodeId;
 use openlcb_tokio::openlcb_node::{MemorySpace, SpaceError};
-use openlcb_tokio::{MemoryServer, Node, NodeOptions, RamSpace, ReadOnlySpace, ServerEvent};
+use openlcb_tokio::{MemoryEvent, MemoryServer, Node, NodeOptions, RamSpace, ReadOnlySpace};
 use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
@@ -185,15 +185,15 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
 }
 
 /// Carries out what the server was asked to do, and says so on stderr.
-async fn on_event(event: ServerEvent, args: &ServeArgs, out: &Path, image: &Image, report: &mut ServeReport) {
+async fn on_event(event: MemoryEvent, args: &ServeArgs, out: &Path, image: &Image, report: &mut ServeReport) {
     let say = |text: String| {
         if !args.json {
             eprintln!("lcc-stream serve: {text}");
         }
     };
     match event {
-        ServerEvent::Frozen { by } => say(format!("frozen for a firmware upgrade by {by}")),
-        ServerEvent::Unfrozen { by, image_len } => {
+        MemoryEvent::Frozen { by } => say(format!("frozen for a firmware upgrade by {by}")),
+        MemoryEvent::Unfrozen { by, image_len } => {
             let bytes = image.take(image_len);
             let saved = save_image(out, &bytes, args.force).await;
             match &saved {
@@ -207,13 +207,13 @@ async fn on_event(event: ServerEvent, args: &ServeArgs, out: &Path, image: &Imag
                 error: saved.err().map(|e| e.to_string()),
             });
         }
-        ServerEvent::UserInfoChanged => {
+        MemoryEvent::UserInfoChanged => {
             report.user_info_changes += 1;
             say("user name and description changed (space 0xFB)".to_string());
         }
-        ServerEvent::UpdateComplete { by } => say(format!("update complete, said {by}")),
-        ServerEvent::ResetRequested { by } => say(format!("reset asked for by {by} (nothing to reset)")),
-        ServerEvent::FactoryResetRequested { by } => say(format!("factory reset asked for by {by} (ignored)")),
+        MemoryEvent::UpdateComplete { by } => say(format!("update complete, said {by}")),
+        MemoryEvent::ResetRequested { by } => say(format!("reset asked for by {by} (nothing to reset)")),
+        MemoryEvent::FactoryResetRequested { by } => say(format!("factory reset asked for by {by} (ignored)")),
         _ => {}
     }
 }

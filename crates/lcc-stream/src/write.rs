@@ -2,12 +2,11 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
 
 use clap::Args;
 use openlcb_stream::NodeId;
 
-use crate::memory::{self, ClientArgs, Report, Stop};
+use crate::memory::{self, ClientArgs, Upload};
 use crate::net;
 
 /// Options of `lcc-stream write`.
@@ -30,35 +29,16 @@ pub(crate) struct WriteArgs {
 }
 
 pub(crate) fn run(args: &WriteArgs) -> Result<ExitCode, String> {
-    net::runtime()?.block_on(write(args))
-}
-
-async fn write(args: &WriteArgs) -> Result<ExitCode, String> {
-    let mut interrupt = net::Interrupt::new()?;
-    let started = Instant::now();
-    let outcome = async {
-        let data = tokio::fs::read(&args.file).await.map_err(Stop::File)?;
-        let total = data.len() as u64;
-        let node = memory::join(&args.client, "write", args.to).await?;
-        let transfer =
-            node.write_memory(args.to, args.space, args.address, data, args.client.path()).await.map_err(Stop::Net)?;
-        let bar = memory::progress_bar(Some(total), args.client.json);
-        let written = memory::follow(transfer, &bar, &mut interrupt).await;
-        node.close().await;
-        written
-    }
-    .await;
-    let bytes = *outcome.as_ref().unwrap_or(&0);
-    let report = Report::new(args.to, args.space, args.address, &args.file, args.client.path(), bytes, started);
-    let (elapsed_s, bytes_per_s) = (report.elapsed_s, report.bytes_per_s);
-    let text = outcome.map(|bytes| {
+    let what = Upload::Space { space: args.space, address: args.address };
+    net::runtime()?.block_on(memory::upload(&args.client, "write", args.to, &args.file, what, |report| {
         format!(
-            "wrote {bytes} bytes of {} into space 0x{:02X} of {} in {elapsed_s:.3} s ({})",
-            args.file.display(),
-            args.space,
-            args.to,
-            net::rate_text(bytes_per_s)
+            "wrote {} bytes of {} into space 0x{:02X} of {} in {:.3} s ({})",
+            report.bytes,
+            report.file,
+            report.space,
+            report.node,
+            report.elapsed_s,
+            net::rate_text(report.bytes_per_s)
         )
-    });
-    Ok(memory::finish(report, text, args.client.json, "write"))
+    }))
 }

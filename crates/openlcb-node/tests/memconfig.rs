@@ -663,25 +663,19 @@ fn write_under_mask_changes_only_the_masked_bits() {
     assert!(matches!(reply_of(&answers), Some(Reply::Failed { code, .. }) if code.0 == 0x1082));
 }
 
-#[test]
-fn firmware_unfreeze_never_overtakes_the_stream_complete() {
-    // The server replies to Write Stream at once, so the client may end the upgrade as soon
-    // as its last data is out: its Unfreeze must still follow its Data Complete.
+/// Upgrades a fresh server with `image` from a fresh client (Auto path: by stream), handing
+/// every client message to `deliver`, which passes it to the server or holds it back.
+/// Returns the server and the image length of its Unfrozen event.
+fn upgrade_through(image: &[u8], mut deliver: impl FnMut(Message, &mut Node)) -> (Node, Option<u32>) {
     let mut client = Node::new(CLIENT, NodeConfig::default());
     let mut server = server_with(NodeConfig::default(), 16);
-    client.upgrade_firmware(Instant::ZERO, SERVER, pattern(100_000, 5), TransferPath::Auto).unwrap();
+    client.upgrade_firmware(Instant::ZERO, SERVER, image.to_vec(), TransferPath::Auto).unwrap();
     let mut now = Instant::ZERO;
-    let mut order = Vec::new();
     let mut unfrozen = None;
     for _ in 0..10_000 {
         let mut moved = false;
         while let Some(m) = client.poll_transmit() {
-            if m.mti == Mti::STREAM_DATA_COMPLETE {
-                order.push("complete");
-            } else if m.mti == Mti::DATAGRAM && m.payload.get(..3) == Some(&[0x20, 0xA0, 0xEF][..]) {
-                order.push("unfreeze");
-            }
-            server.handle_message(now, m.as_ref());
+            deliver(m, &mut server);
             moved = true;
         }
         while let Some(m) = server.poll_transmit() {
@@ -707,6 +701,26 @@ fn firmware_unfreeze_never_overtakes_the_stream_complete() {
             }
         }
     }
+    (server, unfrozen)
+}
+
+fn is_unfreeze(m: &Message) -> bool {
+    m.mti == Mti::DATAGRAM && m.payload.get(..3) == Some(&[0x20, 0xA0, 0xEF][..])
+}
+
+#[test]
+fn firmware_unfreeze_never_overtakes_the_stream_complete() {
+    // The server replies to Write Stream at once, so the client may end the upgrade as soon
+    // as its last data is out: its Unfreeze must still follow its Data Complete.
+    let mut order = Vec::new();
+    let (_, unfrozen) = upgrade_through(&pattern(100_000, 5), |m, server| {
+        if m.mti == Mti::STREAM_DATA_COMPLETE {
+            order.push("complete");
+        } else if is_unfreeze(&m) {
+            order.push("unfreeze");
+        }
+        server.handle_message(Instant::ZERO, m.as_ref());
+    });
     assert_eq!(order, ["complete", "unfreeze"]);
     assert_eq!(unfrozen, Some(100_000));
 }
@@ -715,53 +729,25 @@ fn firmware_unfreeze_never_overtakes_the_stream_complete() {
 fn an_unfreeze_that_overtakes_the_stream_waits_for_its_end() {
     // A client whose Unfreeze arrives before the last data and the Complete of its Write
     // Stream (CAN arbitration puts datagram frames first): the image is still whole.
-    let mut client = Node::new(CLIENT, NodeConfig::default());
-    let mut server = server_with(NodeConfig::default(), 16);
     let image = pattern(100_000, 9);
-    client.upgrade_firmware(Instant::ZERO, SERVER, image.clone(), TransferPath::Auto).unwrap();
     let mut held = Vec::new();
-    let mut unfrozen = None;
     let mut data = 0;
-    for _ in 0..10_000 {
-        let mut moved = false;
-        while let Some(m) = client.poll_transmit() {
-            moved = true;
-            let unfreeze = m.mti == Mti::DATAGRAM && m.payload.get(..3) == Some(&[0x20, 0xA0, 0xEF][..]);
-            if m.mti == Mti::STREAM_DATA_SEND {
-                data += m.payload.len() - 1;
-            }
-            // Hold back the last window's data and the Complete until the Unfreeze is through.
-            if (data > 98_304 || !held.is_empty()) && !unfreeze {
-                held.push(m);
-                continue;
-            }
-            server.handle_message(Instant::ZERO, m.as_ref());
-            if unfreeze {
-                for m in held.drain(..) {
-                    server.handle_message(Instant::ZERO, m.as_ref());
-                }
+    let (mut server, unfrozen) = upgrade_through(&image, |m, server| {
+        if m.mti == Mti::STREAM_DATA_SEND {
+            data += m.payload.len() - 1;
+        }
+        // Hold back the last window's data and the Complete until the Unfreeze is through.
+        if (data > 98_304 || !held.is_empty()) && !is_unfreeze(&m) {
+            held.push(m);
+            return;
+        }
+        server.handle_message(Instant::ZERO, m.as_ref());
+        if is_unfreeze(&m) {
+            for m in held.drain(..) {
+                server.handle_message(Instant::ZERO, m.as_ref());
             }
         }
-        while let Some(m) = server.poll_transmit() {
-            client.handle_message(Instant::ZERO, m.as_ref());
-            moved = true;
-        }
-        while client.poll_event().is_some() {
-            moved = true;
-        }
-        while let Some(event) = server.poll_event() {
-            if let NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) = event {
-                unfrozen = Some(image_len);
-            }
-            moved = true;
-        }
-        if !moved {
-            match client.poll_timeout() {
-                Some(t) if t == Instant::ZERO => client.handle_timeout(t),
-                _ => break,
-            }
-        }
-    }
+    });
     assert_eq!(unfrozen, Some(100_000));
     assert_eq!(&read_back(&mut server, 0xEF)[..image.len()], &image[..]);
 }

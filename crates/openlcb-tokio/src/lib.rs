@@ -85,13 +85,15 @@ mod wire;
 
 pub use error::Error;
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};
-pub use memory::{MemoryTransfer, ServerEvent, ServerEvents};
+pub use memory::{MemoryTransfer, ServerEvents};
 pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStream};
 
 // What a user of this crate needs from the ones below it, so that sending a stream takes
 // this crate alone.
 pub use openlcb_can::CanConfig;
-pub use openlcb_node::{MemoryServer, NodeConfig, Protocols, RamSpace, ReadOnlySpace, SnipInfo, TransferPath};
+pub use openlcb_node::{
+    MemoryEvent, MemoryServer, NodeConfig, Protocols, RamSpace, ReadOnlySpace, SnipInfo, TransferPath,
+};
 pub use openlcb_stream::{Config as StreamConfig, NodeId, OpenOptions};
 pub use wire::{Protocol, WireStats};
 pub use {openlcb_can, openlcb_node, openlcb_stream};

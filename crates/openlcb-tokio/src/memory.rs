@@ -19,69 +19,22 @@ use crate::Error;
 /// Server events queued for the application before more are dropped (and counted).
 pub const SERVER_EVENT_QUEUE: usize = 64;
 
-/// What a node serving memory spaces was asked to do (the application carries it out).
-#[derive(Debug, Clone, PartialEq, Eq)]
-#[non_exhaustive]
-pub enum ServerEvent {
-    /// Freeze of space 0xEF: a firmware upgrade begins.
-    Frozen {
-        /// Who asked.
-        by: NodeId,
-    },
-    /// Unfreeze of space 0xEF: the upgrade is over; bytes `0..image_len` of space 0xEF are
-    /// the new image.
-    Unfrozen {
-        /// Who asked.
-        by: NodeId,
-        /// One past the highest firmware byte written while frozen.
-        image_len: u32,
-    },
-    /// Update Complete: the configuration tool is done.
-    UpdateComplete {
-        /// Who said so.
-        by: NodeId,
-    },
-    /// Reset/Reboot was asked for.
-    ResetRequested {
-        /// Who asked.
-        by: NodeId,
-    },
-    /// Factory Reset was asked for.
-    FactoryResetRequested {
-        /// Who asked.
-        by: NodeId,
-    },
-    /// Space 0xFB was written: the node's SNIP user name and description follow it.
-    UserInfoChanged,
-}
-
-impl ServerEvent {
-    fn from_memory(event: MemoryEvent) -> Option<Self> {
-        Some(match event {
-            MemoryEvent::Frozen { by } => ServerEvent::Frozen { by },
-            MemoryEvent::Unfrozen { by, image_len } => ServerEvent::Unfrozen { by, image_len },
-            MemoryEvent::UpdateComplete { by } => ServerEvent::UpdateComplete { by },
-            MemoryEvent::ResetRequested { by } => ServerEvent::ResetRequested { by },
-            MemoryEvent::FactoryResetRequested { by } => ServerEvent::FactoryResetRequested { by },
-            MemoryEvent::UserInfoChanged => ServerEvent::UserInfoChanged,
-            _ => return None,
-        })
-    }
-}
-
-/// The server events of a node, from [`Node::serve_memory`](crate::Node::serve_memory).
+/// What a node serving memory spaces was asked to do, for the application to carry out,
+/// from [`Node::serve_memory`](crate::Node::serve_memory): the server's variants of
+/// [`MemoryEvent`] (`Frozen`, `Unfrozen` with the image's length, `UpdateComplete`,
+/// `ResetRequested`, `FactoryResetRequested`, `UserInfoChanged`).
 #[derive(Debug)]
 pub struct ServerEvents {
-    events: mpsc::Receiver<ServerEvent>,
+    events: mpsc::Receiver<MemoryEvent>,
 }
 
 impl ServerEvents {
-    pub(crate) fn new(events: mpsc::Receiver<ServerEvent>) -> Self {
+    pub(crate) fn new(events: mpsc::Receiver<MemoryEvent>) -> Self {
         ServerEvents { events }
     }
 
     /// The next event; `None` once the node has stopped.
-    pub async fn next(&mut self) -> Option<ServerEvent> {
+    pub async fn next(&mut self) -> Option<MemoryEvent> {
         self.events.recv().await
     }
 }
@@ -106,7 +59,7 @@ type DoneReply = oneshot::Sender<Result<Done, Error>>;
 /// Requests of the handles to the driver's Memory Configuration.
 #[derive(Debug)]
 pub(crate) enum MemoryCommand {
-    Serve { server: Box<MemoryServer>, events: mpsc::Sender<ServerEvent> },
+    Serve { server: Box<MemoryServer>, events: mpsc::Sender<MemoryEvent> },
     Start { peer: NodeId, path: TransferPath, operation: Operation, progress: watch::Sender<u64>, reply: DoneReply },
 }
 
@@ -160,7 +113,7 @@ struct Running {
 #[derive(Default)]
 pub(crate) struct MemoryDriver {
     running: Vec<Running>,
-    events: Option<mpsc::Sender<ServerEvent>>,
+    events: Option<mpsc::Sender<MemoryEvent>>,
     /// Server events dropped because the application did not take them.
     dropped: u64,
 }
@@ -196,11 +149,9 @@ impl MemoryDriver {
             MemoryEvent::ReadDone { operation, data, .. } => (operation, Ok(Done::Read(data))),
             MemoryEvent::WriteDone { operation, len, .. } => (operation, Ok(Done::Written(len))),
             MemoryEvent::Failed { operation, peer, error } => (operation, Err(memory_error(peer, error))),
-            other => {
-                if let Some(event) = ServerEvent::from_memory(other) {
-                    let sent = self.events.as_ref().is_some_and(|events| events.try_send(event).is_ok());
-                    self.dropped += u64::from(!sent);
-                }
+            server => {
+                let sent = self.events.as_ref().is_some_and(|events| events.try_send(server).is_ok());
+                self.dropped += u64::from(!sent);
                 return;
             }
         };

@@ -7,7 +7,7 @@ mod common;
 use common::bounded;
 use openlcb_tokio::openlcb_node::MemoryError;
 use openlcb_tokio::{
-    Error, Hub, HubOptions, MemoryServer, Node, NodeId, NodeOptions, Protocol, RamSpace, ServerEvent, TransferPath,
+    Error, Hub, HubOptions, MemoryEvent, MemoryServer, Node, NodeId, NodeOptions, Protocol, RamSpace, TransferPath,
 };
 
 fn data(len: usize, key: u8) -> Vec<u8> {
@@ -57,11 +57,11 @@ async fn read_write_and_upgrade_by_stream_and_by_datagrams() {
             assert_eq!(bounded("upgrade", upgrade.finish()).await.unwrap(), 100_000);
             assert_eq!(*shown.borrow(), 100_000, "the progress ends at the whole image");
             let mut seen = Vec::new();
-            while !matches!(seen.last(), Some(ServerEvent::Unfrozen { .. })) {
+            while !matches!(seen.last(), Some(MemoryEvent::Unfrozen { .. })) {
                 seen.push(bounded("server events", events.next()).await.unwrap());
             }
-            assert!(seen.contains(&ServerEvent::Frozen { by: client.node_id() }), "{seen:?}");
-            assert_eq!(seen.last(), Some(&ServerEvent::Unfrozen { by: client.node_id(), image_len: 100_000 }));
+            assert!(seen.contains(&MemoryEvent::Frozen { by: client.node_id() }), "{seen:?}");
+            assert_eq!(seen.last(), Some(&MemoryEvent::Unfrozen { by: client.node_id(), image_len: 100_000 }));
             let flashed = client.read_memory(peer, 0xEF, 0, Some(100_000), path).await.unwrap();
             assert_eq!(bounded("read the image", flashed.finish()).await.unwrap(), image, "{protocol:?} {path:?}");
         }
