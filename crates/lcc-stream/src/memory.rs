@@ -27,7 +27,7 @@ macro_rules! json_help {
         "\
 --json prints one object: node (the target), space, address, bytes (moved), path (\"stream\"
 or \"datagrams\": what was asked; \"auto\" lets the target's answers decide), file,
-elapsed_s, bytes_per_s, result (\"ok\", \"rejected\", \"timed_out\", \"not_found\",
+elapsed_s (from the first command, once on the network), bytes_per_s, result (\"ok\", \"rejected\", \"timed_out\", \"not_found\",
 \"connection_lost\", \"terminated\", \"file_error\", \"interrupted\", \"error\") and, on failure,
 error (the reason, worded for a person).
 
@@ -240,7 +240,7 @@ pub(crate) async fn upload(
     done: impl FnOnce(&Report) -> String,
 ) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
-    let started = Instant::now();
+    let mut started = Instant::now();
     let (space, address) = match what {
         Upload::Space { space, address } => (space, address),
         Upload::Firmware => (SPACE_FIRMWARE, 0),
@@ -249,6 +249,7 @@ pub(crate) async fn upload(
         let data = tokio::fs::read(file).await.map_err(Stop::File)?;
         let total = data.len() as u64;
         let node = join(client, command, peer).await?;
+        started = Instant::now();
         let transfer = match what {
             Upload::Space { space, address } => node.write_memory(peer, space, address, data, client.path()).await,
             Upload::Firmware => node.upgrade_firmware(peer, data, client.path()).await,

@@ -43,7 +43,7 @@ pub(crate) fn run(args: &ReadArgs) -> Result<ExitCode, String> {
 
 async fn read(args: &ReadArgs) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
-    let started = Instant::now();
+    let mut started = Instant::now();
     let part = part_path(&args.out);
     let outcome = async {
         if tokio::fs::try_exists(&args.out).await.map_err(Stop::File)? {
@@ -52,7 +52,7 @@ async fn read(args: &ReadArgs) -> Result<ExitCode, String> {
         }
         let claimed = tokio::fs::OpenOptions::new().write(true).create_new(true).open(&part).await;
         let file = claimed.map_err(Stop::File)?;
-        let result = transfer(args, &mut interrupt).await;
+        let result = transfer(args, &mut interrupt, &mut started).await;
         let data = match result {
             Ok(data) => data,
             Err(stop) => {
@@ -81,8 +81,10 @@ async fn read(args: &ReadArgs) -> Result<ExitCode, String> {
     Ok(memory::finish(report, text, args.client.json, "read"))
 }
 
-async fn transfer(args: &ReadArgs, interrupt: &mut net::Interrupt) -> Result<Vec<u8>, Stop> {
+/// Joins, finds the node and reads; `started` is set when the first command goes out.
+async fn transfer(args: &ReadArgs, interrupt: &mut net::Interrupt, started: &mut Instant) -> Result<Vec<u8>, Stop> {
     let node = memory::join(&args.client, "read", args.from).await?;
+    *started = Instant::now();
     let transfer = node
         .read_memory(args.from, args.space, args.address, args.length, args.client.path())
         .await
