@@ -351,13 +351,21 @@ fn server_control_commands() {
 }
 
 #[test]
-fn immediate_write_is_answered_by_ok_alone() {
-    // C-9 and worked example 9.1: OK without Reply Pending, no Write Reply.
+fn a_firmware_write_is_answered_by_ok_alone_any_other_by_a_write_reply() {
+    // C-9, worked example 9.1: OpenMRN's bootloader_client aborts on Reply Pending for its
+    // firmware writes; OpenMRN's MemoryConfigClient stops a multi-chunk write after the first
+    // chunk unless Reply Pending and a Write Reply come.
     let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
     let answers = exchange(&mut pair, &[0x20, 0x01, 0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8]);
+    assert_eq!(answers.len(), 2);
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0x80][..]));
+    assert_eq!((answers[1].mti, &answers[1].payload[..]), (Mti::DATAGRAM, &[0x20, 0x11, 0, 0, 0, 0][..]));
+    assert_eq!(&read_back(&mut pair.server, 0xFD)[..8], [1, 2, 3, 4, 5, 6, 7, 8]);
+    exchange(&mut pair, &[0x20, 0xA1, 0xEF]); // Freeze
+    let answers = exchange(&mut pair, &[0x20, 0x00, 0, 0, 0, 0, 0xEF, 9, 8, 7]);
     assert_eq!(answers.len(), 1);
     assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0][..]));
-    assert_eq!(&read_back(&mut pair.server, 0xFD)[..8], [1, 2, 3, 4, 5, 6, 7, 8]);
+    assert_eq!(&read_back(&mut pair.server, 0xEF)[..3], [9, 8, 7]);
 }
 
 #[test]
@@ -651,7 +659,8 @@ fn write_under_mask_changes_only_the_masked_bits() {
     let before = read_back(&mut pair.server, 0xFD);
     let command = Command::WriteUnderMask { space: 0xFD, address: 2, mask: vec![0xF0, 0x0F], data: vec![0xAB, 0xCD] };
     let answers = exchange(&mut pair, &command.to_bytes());
-    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0][..]));
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0x80][..]));
+    assert_eq!(&answers[1].payload[..], [0x20, 0x11, 0, 0, 0, 2], "a Write Reply follows");
     let after = read_back(&mut pair.server, 0xFD);
     assert_eq!(after[2], (before[2] & 0x0F) | 0xA0);
     assert_eq!(after[3], (before[3] & 0xF0) | 0x0D);

@@ -418,7 +418,15 @@ impl MemoryServer {
             }
         };
         match result {
-            Ok(()) => cx.ok(peer, OkFlags::default()),
+            // node-protocols.md C-9 allows either form; each of OpenMRN's clients needs its
+            // own: bootloader_client's datagram path aborts on Reply Pending, and its
+            // MemoryConfigClient (memconfig_utils, configuration tools) takes an OK alone as
+            // the end of the whole write, dropping every chunk after the first.
+            Ok(()) if space == SPACE_FIRMWARE => cx.ok(peer, OkFlags::default()),
+            Ok(()) => {
+                cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
+                cx.send_reply(peer, &Reply::WriteOk { space, address }.to_bytes());
+            }
             Err(e) => {
                 cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
                 cx.send_reply(peer, &failed(FailedKind::Write, space, address, e.code()).to_bytes());
