@@ -43,8 +43,8 @@ async fn hub() -> (Hub, String) {
 
 /// A `serve` process and its stderr, line by line.
 struct Server {
-    /// Held so that the process is killed when the test ends.
-    _child: Child,
+    /// Killed when the test ends.
+    child: Child,
     lines: mpsc::UnboundedReceiver<String>,
 }
 
@@ -67,7 +67,7 @@ impl Server {
                 let _ = tx.send(line);
             }
         });
-        let mut server = Server { _child: child, lines };
+        let mut server = Server { child, lines };
         server.wait_for("serving spaces").await;
         server
     }
@@ -231,4 +231,25 @@ async fn an_unknown_node_exits_5() {
     assert_eq!(status, 5);
     let (status, _) = run(&addr, &["write", path_arg(&image), "--to", "05.01.01.01.22.EE"]).await;
     assert_eq!(status, 5);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_stops_serve_with_exit_130_and_its_report() {
+    let dir = scratch("sigterm");
+    let (_hub, addr) = hub().await;
+    let out = dir.join("image.bin");
+    let mut server = Server::start(&dir, &addr, SERVER, &["--firmware-out", path_arg(&out)]).await;
+    let image = dir.join("upgrade.bin");
+    std::fs::write(&image, data(3000, 8)).unwrap();
+    assert_eq!(run(&addr, &["firmware", path_arg(&image), "--to", SERVER]).await.0, 0);
+    server.wait_for("written to").await;
+    // A second image would replace the first: without --force it is refused and reported.
+    assert_eq!(run(&addr, &["firmware", path_arg(&image), "--to", SERVER]).await.0, 0);
+    server.wait_for("not saved").await;
+    let pid = server.child.id().unwrap().to_string();
+    let killed = Command::new("kill").args(["-TERM", &pid]).status();
+    assert!(bounded("kill", killed).await.unwrap().success());
+    let status = bounded("serve's exit", server.child.wait()).await.unwrap();
+    assert_eq!(status.code(), Some(130));
+    assert_eq!(std::fs::read(&out).unwrap(), data(3000, 8));
 }
