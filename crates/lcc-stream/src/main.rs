@@ -1,12 +1,17 @@
 //! `lcc-stream`: OpenLCB streams from the command line.
 
 mod demo;
+mod firmware;
 mod hub;
+mod memory;
 mod net;
 mod nodes;
+mod read;
 mod recv;
 mod send;
+mod serve;
 mod sim;
+mod write;
 
 use std::process::ExitCode;
 
@@ -32,6 +37,14 @@ enum Command {
     Recv(recv::RecvArgs),
     /// List the nodes on the network: Node ID, CAN alias, SNIP strings and protocols.
     Nodes(nodes::NodesArgs),
+    /// Serve memory spaces (CDI, configuration, ACDI, a firmware target) as a node, until Ctrl-C.
+    Serve(serve::ServeArgs),
+    /// Back up a memory space of a node into a file.
+    Read(read::ReadArgs),
+    /// Restore a memory space of a node from a file.
+    Write(write::WriteArgs),
+    /// Upgrade a node's firmware (Freeze, the image into space 0xEF, Unfreeze).
+    Firmware(firmware::FirmwareArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
 }
@@ -44,6 +57,10 @@ fn main() -> ExitCode {
         Command::Send(args) => send::run(&args),
         Command::Recv(args) => recv::run(&args),
         Command::Nodes(args) => nodes::run(&args),
+        Command::Serve(args) => serve::run(&args),
+        Command::Read(args) => read::run(&args),
+        Command::Write(args) => write::run(&args),
+        Command::Firmware(args) => firmware::run(&args),
         Command::Demo(args) => demo::run(&args),
     };
     match result {

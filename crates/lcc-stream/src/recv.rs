@@ -162,7 +162,7 @@ fn target_path(out: &Path, peer: NodeId, n: u64) -> PathBuf {
     }
 }
 
-fn part_path(path: &Path) -> PathBuf {
+pub(crate) fn part_path(path: &Path) -> PathBuf {
     let mut name = path.as_os_str().to_owned();
     name.push(".part");
     PathBuf::from(name)
@@ -170,7 +170,7 @@ fn part_path(path: &Path) -> PathBuf {
 
 /// Moves `part` to `path` without ever replacing a file: a hard link fails if `path` exists.
 /// On a file system without hard links, a rename after checking that `path` is free.
-async fn publish(part: &Path, path: &Path) -> io::Result<()> {
+pub(crate) async fn publish(part: &Path, path: &Path) -> io::Result<()> {
     match tokio::fs::hard_link(part, path).await {
         Ok(()) => tokio::fs::remove_file(part).await,
         Err(error) if error.kind() == io::ErrorKind::AlreadyExists => Err(error),

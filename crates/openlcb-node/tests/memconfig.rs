@@ -206,14 +206,17 @@ fn write_by_stream_is_verified() {
 
 #[test]
 fn firmware_upgrade_by_stream_and_by_datagrams() {
-    for path in [TransferPath::Auto, TransferPath::Datagrams] {
+    // 100 000 bytes: the last window is a partial one.
+    for (path, len) in
+        [(TransferPath::Auto, 64 * 1024), (TransferPath::Datagrams, 64 * 1024), (TransferPath::Auto, 100_000)]
+    {
         let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
         pair.pump();
         assert!(pair.server.protocols().contains(Protocols::FIRMWARE_UPGRADE));
-        let image = pattern(64 * 1024, 3);
+        let image = pattern(len, 3);
         pair.client.upgrade_firmware(pair.now, SERVER, image.clone(), path).unwrap();
         match pair.finish() {
-            MemoryEvent::WriteDone { len, .. } => assert_eq!(len, 64 * 1024),
+            MemoryEvent::WriteDone { len: written, .. } => assert_eq!(written, len as u64),
             other => panic!("{other:?}"),
         }
         pair.pump();
@@ -226,7 +229,7 @@ fn firmware_upgrade_by_stream_and_by_datagrams() {
             _ => None,
         });
         assert!(frozen, "{path:?}");
-        assert_eq!(unfrozen, Some(64 * 1024));
+        assert_eq!(unfrozen, Some(len as u32), "{path:?}, {len} bytes");
     }
 }
 
@@ -348,13 +351,21 @@ fn server_control_commands() {
 }
 
 #[test]
-fn immediate_write_is_answered_by_ok_alone() {
-    // C-9 and worked example 9.1: OK without Reply Pending, no Write Reply.
+fn a_firmware_write_is_answered_by_ok_alone_any_other_by_a_write_reply() {
+    // C-9, worked example 9.1: OpenMRN's bootloader_client aborts on Reply Pending for its
+    // firmware writes; OpenMRN's MemoryConfigClient stops a multi-chunk write after the first
+    // chunk unless Reply Pending and a Write Reply come.
     let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
     let answers = exchange(&mut pair, &[0x20, 0x01, 0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8]);
+    assert_eq!(answers.len(), 2);
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0x80][..]));
+    assert_eq!((answers[1].mti, &answers[1].payload[..]), (Mti::DATAGRAM, &[0x20, 0x11, 0, 0, 0, 0][..]));
+    assert_eq!(&read_back(&mut pair.server, 0xFD)[..8], [1, 2, 3, 4, 5, 6, 7, 8]);
+    exchange(&mut pair, &[0x20, 0xA1, 0xEF]); // Freeze
+    let answers = exchange(&mut pair, &[0x20, 0x00, 0, 0, 0, 0, 0xEF, 9, 8, 7]);
     assert_eq!(answers.len(), 1);
     assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0][..]));
-    assert_eq!(&read_back(&mut pair.server, 0xFD)[..8], [1, 2, 3, 4, 5, 6, 7, 8]);
+    assert_eq!(&read_back(&mut pair.server, 0xEF)[..3], [9, 8, 7]);
 }
 
 #[test]
@@ -648,7 +659,8 @@ fn write_under_mask_changes_only_the_masked_bits() {
     let before = read_back(&mut pair.server, 0xFD);
     let command = Command::WriteUnderMask { space: 0xFD, address: 2, mask: vec![0xF0, 0x0F], data: vec![0xAB, 0xCD] };
     let answers = exchange(&mut pair, &command.to_bytes());
-    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0][..]));
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0x80][..]));
+    assert_eq!(&answers[1].payload[..], [0x20, 0x11, 0, 0, 0, 2], "a Write Reply follows");
     let after = read_back(&mut pair.server, 0xFD);
     assert_eq!(after[2], (before[2] & 0x0F) | 0xA0);
     assert_eq!(after[3], (before[3] & 0xF0) | 0x0D);
@@ -658,4 +670,93 @@ fn write_under_mask_changes_only_the_masked_bits() {
     let answers = exchange(&mut pair, &past.to_bytes());
     assert_eq!(&answers[0].payload[..], [0x80]);
     assert!(matches!(reply_of(&answers), Some(Reply::Failed { code, .. }) if code.0 == 0x1082));
+}
+
+/// Upgrades a fresh server with `image` from a fresh client (Auto path: by stream), handing
+/// every client message to `deliver`, which passes it to the server or holds it back.
+/// Returns the server and the image length of its Unfrozen event.
+fn upgrade_through(image: &[u8], mut deliver: impl FnMut(Message, &mut Node)) -> (Node, Option<u32>) {
+    let mut client = Node::new(CLIENT, NodeConfig::default());
+    let mut server = server_with(NodeConfig::default(), 16);
+    client.upgrade_firmware(Instant::ZERO, SERVER, image.to_vec(), TransferPath::Auto).unwrap();
+    let mut now = Instant::ZERO;
+    let mut unfrozen = None;
+    for _ in 0..10_000 {
+        let mut moved = false;
+        while let Some(m) = client.poll_transmit() {
+            deliver(m, &mut server);
+            moved = true;
+        }
+        while let Some(m) = server.poll_transmit() {
+            client.handle_message(now, m.as_ref());
+            moved = true;
+        }
+        while client.poll_event().is_some() {
+            moved = true;
+        }
+        while let Some(event) = server.poll_event() {
+            if let NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) = event {
+                unfrozen = Some(image_len);
+            }
+            moved = true;
+        }
+        if !moved {
+            match client.poll_timeout().filter(|t| *t <= now + Duration::from_secs(60)) {
+                Some(t) => {
+                    now = now.max(t);
+                    client.handle_timeout(now);
+                }
+                None => break,
+            }
+        }
+    }
+    (server, unfrozen)
+}
+
+fn is_unfreeze(m: &Message) -> bool {
+    m.mti == Mti::DATAGRAM && m.payload.get(..3) == Some(&[0x20, 0xA0, 0xEF][..])
+}
+
+#[test]
+fn firmware_unfreeze_never_overtakes_the_stream_complete() {
+    // The server replies to Write Stream at once, so the client may end the upgrade as soon
+    // as its last data is out: its Unfreeze must still follow its Data Complete.
+    let mut order = Vec::new();
+    let (_, unfrozen) = upgrade_through(&pattern(100_000, 5), |m, server| {
+        if m.mti == Mti::STREAM_DATA_COMPLETE {
+            order.push("complete");
+        } else if is_unfreeze(&m) {
+            order.push("unfreeze");
+        }
+        server.handle_message(Instant::ZERO, m.as_ref());
+    });
+    assert_eq!(order, ["complete", "unfreeze"]);
+    assert_eq!(unfrozen, Some(100_000));
+}
+
+#[test]
+fn an_unfreeze_that_overtakes_the_stream_waits_for_its_end() {
+    // A client whose Unfreeze arrives before the last data and the Complete of its Write
+    // Stream (CAN arbitration puts datagram frames first): the image is still whole.
+    let image = pattern(100_000, 9);
+    let mut held = Vec::new();
+    let mut data = 0;
+    let (mut server, unfrozen) = upgrade_through(&image, |m, server| {
+        if m.mti == Mti::STREAM_DATA_SEND {
+            data += m.payload.len() - 1;
+        }
+        // Hold back the last window's data and the Complete until the Unfreeze is through.
+        if (data > 98_304 || !held.is_empty()) && !is_unfreeze(&m) {
+            held.push(m);
+            return;
+        }
+        server.handle_message(Instant::ZERO, m.as_ref());
+        if is_unfreeze(&m) {
+            for m in held.drain(..) {
+                server.handle_message(Instant::ZERO, m.as_ref());
+            }
+        }
+    });
+    assert_eq!(unfrozen, Some(100_000));
+    assert_eq!(&read_back(&mut server, 0xEF)[..image.len()], &image[..]);
 }

@@ -12,6 +12,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::io::{ByteReader, ByteWriter, try_write};
+use crate::memory::MemoryDriver;
 use crate::node::{Command, Control, NodeStats, Shared};
 use crate::requests::Requests;
 use crate::wire::{Wire, WireStats};
@@ -61,6 +62,8 @@ pub(crate) struct Driver {
     stack: openlcb_node::Node,
     /// Handles' questions to other nodes, waiting for the node's answers.
     requests: Requests,
+    /// Memory Configuration operations waiting for their end, and the server's events.
+    memory: MemoryDriver,
     wire: Wire,
     stats: WireStats,
     commands: mpsc::Receiver<Command>,
@@ -100,6 +103,7 @@ impl Driver {
             last_write: start,
             stack: openlcb_node::Node::new(node_id, node),
             requests: Requests::default(),
+            memory: MemoryDriver::default(),
             wire: Wire::new(protocol, Instant::ZERO, node_id, can),
             stats: WireStats::default(),
             commands,
@@ -208,6 +212,7 @@ impl Driver {
             self.node_events(now);
             let moved = self.feed_writes(now) + self.fill_reads(now);
             self.node_events(now);
+            self.memory.publish_progress(&self.stack);
             self.deliver_reads();
             let written = self.write_out(now)?;
             busy = moved > 0 || written > 0;
@@ -375,8 +380,10 @@ impl Driver {
                     wire: self.stats,
                     endpoint: self.stack.streams().stats(),
                     node: self.stack.stats(),
+                    memory_events_dropped: self.memory.dropped(),
                 });
             }
+            Command::Memory(command) => self.memory.command(now, &mut self.stack, command),
         }
     }
 
@@ -384,9 +391,16 @@ impl Driver {
 
     fn node_events(&mut self, now: Instant) {
         while let Some(event) = self.stack.poll_event() {
-            let NodeEvent::Stream(event) = event else {
-                self.requests.answer(event);
-                continue;
+            let event = match event {
+                NodeEvent::Stream(event) => event,
+                NodeEvent::Memory(event) => {
+                    self.memory.event(event);
+                    continue;
+                }
+                event => {
+                    self.requests.answer(event);
+                    continue;
+                }
             };
             match event {
                 Event::Opened { handle, info } if info.role == Role::Source => {

@@ -111,6 +111,17 @@ pub enum Error {
         /// Bytes the source stated.
         stated: u64,
     },
+    /// A Memory Configuration operation with `peer` failed.
+    #[error("{}", crate::memory::memory_error_text(*.peer, *.error))]
+    Memory {
+        /// The node read, written or upgraded.
+        peer: NodeId,
+        /// What happened.
+        error: openlcb_node::MemoryError,
+    },
+    /// A Memory Configuration operation could not start.
+    #[error("{}", crate::memory::request_error_text(*.0))]
+    MemoryRequest(openlcb_node::MemoryRequestError),
     /// The stream engine refused a command.
     #[error("stream command refused: {0}")]
     Stream(#[from] StreamError),

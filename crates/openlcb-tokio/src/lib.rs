@@ -5,6 +5,9 @@
 //!   [`CanLink`](openlcb_can::CanLink) with alias login under the stream endpoint) or the
 //!   binary OpenLCB-TCP framing (a [`TcpLink`](openlcb_tcp::TcpLink)). [`Node::open`] gives a
 //!   [`SendStream`], [`Node::accept`] a [`RecvStream`].
+//! - Memory Configuration ([`memory`]): [`Node::serve_memory`] serves address spaces,
+//!   [`Node::read_memory`], [`Node::write_memory`] and [`Node::upgrade_firmware`] configure
+//!   and upgrade other nodes, with progress.
 //! - [`Hub`]: a hub that relays every frame from a client to every other client, with bounded
 //!   per-client queues; [`Hub::attach`] adds a serial adapter or CAN interface,
 //!   [`Hub::link_upstream`] joins another hub.
@@ -82,6 +85,7 @@ mod driver;
 mod error;
 pub mod hub;
 mod io;
+pub mod memory;
 mod node;
 mod requests;
 #[cfg(feature = "serial")]
@@ -92,12 +96,15 @@ mod wire;
 pub use error::Error;
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};
 pub use io::ByteStream;
+pub use memory::{MemoryTransfer, ServerEvents};
 pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStream};
 
 // What a user of this crate needs from the ones below it, so that sending a stream takes
 // this crate alone.
 pub use openlcb_can::CanConfig;
-pub use openlcb_node::{NodeConfig, Protocols, SnipInfo};
+pub use openlcb_node::{
+    MemoryEvent, MemoryServer, NodeConfig, Protocols, RamSpace, ReadOnlySpace, SnipInfo, TransferPath,
+};
 pub use openlcb_stream::{Config as StreamConfig, NodeId, OpenOptions};
 pub use wire::{Protocol, WireStats};
 pub use {openlcb_can, openlcb_node, openlcb_stream};

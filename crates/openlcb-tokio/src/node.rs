@@ -5,14 +5,15 @@ use std::time::Duration;
 
 use bytes::Bytes;
 use openlcb_can::CanConfig;
-use openlcb_node::{NodeConfig, NodeStats as StackStats, Protocols, SnipInfo};
+use openlcb_node::{MemoryServer, NodeConfig, NodeStats as StackStats, Protocols, SnipInfo, TransferPath};
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{NodeId, OpenOptions, Stats, StreamHandle, StreamInfo};
 use tokio::net::{TcpStream, lookup_host};
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
 use crate::driver::Driver;
+use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents};
 use crate::{Error, Protocol, WireStats};
 
 /// How a [`Node`] joins the network.
@@ -63,6 +64,8 @@ pub struct NodeStats {
     pub endpoint: Stats,
     /// The node's own counters (routing, answers, datagrams).
     pub node: StackStats,
+    /// Memory server events dropped because the application did not take them in time.
+    pub memory_events_dropped: u64,
 }
 
 /// The longest [`Node::discover`] listens, however often nodes answer.
@@ -110,6 +113,8 @@ pub(crate) enum Command {
         node: NodeId,
         reply: oneshot::Sender<Option<u16>>,
     },
+    /// Memory Configuration: serve spaces, or start a client operation.
+    Memory(MemoryCommand),
 }
 
 /// Where the driver leaves the error it stopped with, for every handle to find.
@@ -337,6 +342,78 @@ impl Node {
         self.control.call(|reply| Command::AliasOf { node, reply }).await
     }
 
+    /// Serves `server`'s address spaces from now on (Memory Configuration and, with space
+    /// 0xEF, Firmware Upgrade in the PIP); what the server is asked to do that the
+    /// application must carry out (Freeze, Unfreeze, Reset, a new user name...) comes out of
+    /// the returned [`ServerEvents`]. Events the application leaves waiting past
+    /// [`SERVER_EVENT_QUEUE`](crate::memory::SERVER_EVENT_QUEUE) are dropped and counted
+    /// ([`NodeStats::memory_events_dropped`]).
+    pub async fn serve_memory(&self, server: MemoryServer) -> Result<ServerEvents, Error> {
+        let (events, receiver) = mpsc::channel(SERVER_EVENT_QUEUE);
+        let command = Command::Memory(MemoryCommand::Serve { server: Box::new(server), events });
+        self.control.commands.send(command).await.map_err(|_| self.control.shared.error())?;
+        Ok(ServerEvents::new(receiver))
+    }
+
+    /// Reads `len` bytes (`None`: to the end of the space) of `space` from `address` on
+    /// `peer`, by `path`. The returned transfer shows the progress and ends with the bytes,
+    /// or with [`Error::Memory`] (every step has a deadline, so it always ends).
+    pub async fn read_memory(
+        &self,
+        peer: NodeId,
+        space: u8,
+        address: u32,
+        len: Option<u32>,
+        path: TransferPath,
+    ) -> Result<MemoryTransfer<Vec<u8>>, Error> {
+        let operation = Operation::Read { space, address, len };
+        self.start_memory(peer, path, operation, |done| match done {
+            Done::Read(data) => Some(data),
+            Done::Written(_) => None,
+        })
+        .await
+    }
+
+    /// Writes `data` into `space` from `address` on `peer`, by `path`; ends with the count
+    /// written.
+    pub async fn write_memory(
+        &self,
+        peer: NodeId,
+        space: u8,
+        address: u32,
+        data: impl Into<Bytes>,
+        path: TransferPath,
+    ) -> Result<MemoryTransfer<u64>, Error> {
+        let operation = Operation::Write { space, address, data: data.into() };
+        self.start_memory(peer, path, operation, written).await
+    }
+
+    /// Upgrades `peer`'s firmware with `image`: Freeze, the image into space 0xEF by stream
+    /// or datagrams (`path`; `Auto` follows the target's PIP), Unfreeze. A target that
+    /// reboots at Unfreeze has succeeded. Ends with the count written.
+    pub async fn upgrade_firmware(
+        &self,
+        peer: NodeId,
+        image: impl Into<Bytes>,
+        path: TransferPath,
+    ) -> Result<MemoryTransfer<u64>, Error> {
+        self.start_memory(peer, path, Operation::Firmware { image: image.into() }, written).await
+    }
+
+    async fn start_memory<T>(
+        &self,
+        peer: NodeId,
+        path: TransferPath,
+        operation: Operation,
+        map: fn(Done) -> Option<T>,
+    ) -> Result<MemoryTransfer<T>, Error> {
+        let (progress, progress_rx) = watch::channel(0);
+        let (reply, done) = oneshot::channel();
+        let command = Command::Memory(MemoryCommand::Start { peer, path, operation, progress, reply });
+        self.control.commands.send(command).await.map_err(|_| self.control.shared.error())?;
+        Ok(MemoryTransfer::new(progress_rx, done, self.control.shared.clone(), map))
+    }
+
     /// Stops the node at once: the connection closes without a word to anyone, as if the
     /// program had crashed. Its streams fail with [`Error::Closed`]; peers find out by their
     /// own timeouts. (A node that is simply dropped stops once its last stream is done.)
@@ -360,6 +437,14 @@ impl Node {
     pub async fn closed(&mut self) -> Error {
         let _ = (&mut self.driver).await;
         self.control.shared.error()
+    }
+}
+
+/// The count of a write or an upgrade.
+fn written(done: Done) -> Option<u64> {
+    match done {
+        Done::Written(len) => Some(len),
+        Done::Read(_) => None,
     }
 }
 

@@ -605,6 +605,7 @@ impl MemoryClient {
                     op.deadline = None;
                     match op.step {
                         Step::Freeze | Step::Unfreeze => Some(Outcome::Fail(MemoryError::TimedOut)),
+                        Step::WriteStream { finished: true, replied: true, .. } => self.transfer_done(cx, index),
                         Step::ReadStream { .. } | Step::WriteStream { .. } => {
                             Some(Outcome::Fail(MemoryError::TimedOut))
                         }
@@ -750,7 +751,11 @@ impl MemoryClient {
             return None;
         }
         if replied {
-            return self.transfer_done(cx, index);
+            // The Complete is queued in the endpoint, behind the node's own messages: the
+            // next step (Unfreeze) waits for the next turn of the drive loop, so that it
+            // never overtakes the end of the stream.
+            op.deadline = Some(cx.now);
+            return None;
         }
         // C-2: the reply may come after the stream; wait for it as for a datagram reply.
         op.awaiting_reply = true;

@@ -63,6 +63,9 @@ pub struct MemoryServer {
     lock: u64,
     frozen: bool,
     firmware_written: u32,
+    /// Unfreeze came from this node while its Write Stream into space 0xEF was still open:
+    /// the image ends, and the node unfreezes, when that stream ends.
+    unfreeze_pending: Option<NodeId>,
     transfers: Vec<Transfer>,
     pub(crate) user_info_changed: bool,
     stats: MemoryServerStats,
@@ -98,6 +101,7 @@ impl MemoryServer {
             lock: 0,
             frozen: false,
             firmware_written: 0,
+            unfreeze_pending: None,
             transfers: Vec::new(),
             user_info_changed: false,
             stats: MemoryServerStats::default(),
@@ -358,11 +362,12 @@ impl MemoryServer {
                     return self.reject(cx, peer, codes::UNKNOWN_SPACE);
                 }
                 cx.ok(peer, OkFlags::default());
-                if self.frozen {
-                    self.frozen = false;
-                    cx.announce = true;
-                    let image_len = self.firmware_written;
-                    cx.out.event(crate::NodeEvent::Memory(E::Unfrozen { by: peer, image_len }));
+                if self.frozen && self.firmware_stream_open(peer) {
+                    // On CAN the client's Unfreeze datagram may overtake the end of its own
+                    // stream: the bytes still coming belong to the image.
+                    self.unfreeze_pending = Some(peer);
+                } else if self.frozen {
+                    self.unfreeze(cx, peer);
                 }
             }
             Command::UpdateComplete => self.acknowledge(cx, peer, E::UpdateComplete { by: peer }),
@@ -413,7 +418,15 @@ impl MemoryServer {
             }
         };
         match result {
-            Ok(()) => cx.ok(peer, OkFlags::default()),
+            // node-protocols.md C-9 allows either form; each of OpenMRN's clients needs its
+            // own: bootloader_client's datagram path aborts on Reply Pending, and its
+            // MemoryConfigClient (memconfig_utils, configuration tools) takes an OK alone as
+            // the end of the whole write, dropping every chunk after the first.
+            Ok(()) if space == SPACE_FIRMWARE => cx.ok(peer, OkFlags::default()),
+            Ok(()) => {
+                cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
+                cx.send_reply(peer, &Reply::WriteOk { space, address }.to_bytes());
+            }
             Err(e) => {
                 cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
                 cx.send_reply(peer, &failed(FailedKind::Write, space, address, e.code()).to_bytes());
@@ -505,7 +518,32 @@ impl MemoryServer {
 
     /// Takes a stream event that belongs to one of this server's transfers; returns false
     /// for any other.
+    /// Takes a stream event of one of the server's transfers; false for any other.
     pub(crate) fn on_stream_event(&mut self, cx: &mut Cx<'_>, event: &Event) -> bool {
+        let claimed = self.transfer_event(cx, event);
+        if let Some(peer) = self.unfreeze_pending.filter(|p| !self.firmware_stream_open(*p)) {
+            self.unfreeze_pending = None;
+            self.unfreeze(cx, peer);
+        }
+        claimed
+    }
+
+    /// A Write Stream of `peer` into space 0xEF is open (its stream has started).
+    fn firmware_stream_open(&self, peer: NodeId) -> bool {
+        self.transfers
+            .iter()
+            .any(|t| t.peer == peer && matches!(t.job, Job::Write { handle: Some(_), space: SPACE_FIRMWARE, .. }))
+    }
+
+    /// Leaves the Firmware Upgrade state: the image is what was written while frozen.
+    fn unfreeze(&mut self, cx: &mut Cx<'_>, by: NodeId) {
+        self.frozen = false;
+        cx.announce = true;
+        let image_len = self.firmware_written;
+        cx.out.event(crate::NodeEvent::Memory(E::Unfrozen { by, image_len }));
+    }
+
+    fn transfer_event(&mut self, cx: &mut Cx<'_>, event: &Event) -> bool {
         if let Event::IncomingRequest { handle, info } = event {
             let waiting = self.transfers.iter_mut().find(|t| {
                 t.peer == info.peer

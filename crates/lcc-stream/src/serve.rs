@@ -1,0 +1,424 @@
+//! `lcc-stream serve`: a node that serves memory spaces, a test partner for configuration
+//! tools and firmware loaders: 0xFF (CDI), 0xFD (configuration), 0xFC/0xFB (ACDI, mirroring
+//! SNIP) and 0xEF (firmware, saved to a file at each Unfreeze).
+
+use std::io::{Seek as _, SeekFrom, Write as _};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::{Arc, Mutex};
+
+use clap::Args;
+use openlcb_stream::NodeId;
+use openlcb_tokio::openlcb_node::{MemorySpace, SpaceError};
+use openlcb_tokio::{MemoryEvent, MemoryServer, NodeOptions, RamSpace, ReadOnlySpace};
+use serde::Serialize;
+
+use crate::net::{self, ConnectArgs};
+use crate::recv::{part_path, publish};
+
+/// The Node ID `serve` uses unless told otherwise.
+const DEFAULT_SERVER: &str = "05.01.01.01.22.F2";
+/// The configuration space without `--config`: this many bytes in memory.
+const DEFAULT_CONFIG_LEN: u32 = 256;
+/// The largest firmware image taken (the size space 0xEF announces).
+const FIRMWARE_MAX: u32 = 16 * 1024 * 1024;
+
+/// The fields of `serve --json`.
+macro_rules! serve_json_help {
+    () => {
+        "\
+--json prints one object when the node stops: node, config_bytes (the size of space 0xFD),
+cdi_bytes, firmware (one object per image received: from, bytes, file, and error when it
+could not be saved), user_info_changes (writes of space 0xFB), events_dropped, result
+(\"interrupted\", or \"connection_lost\" and the like) and, on failure, error.
+
+"
+    };
+}
+
+/// Options of `lcc-stream serve`.
+#[derive(Debug, Args)]
+#[command(after_help = concat!(serve_json_help!(), net::exit_help!()))]
+pub(crate) struct ServeArgs {
+    /// This node's Node ID.
+    #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_SERVER)]
+    node_id: NodeId,
+    /// The CDI XML served as space 0xFF [default: a built-in CDI describing space 0xFD and
+    /// the user name and description].
+    #[arg(long, value_name = "FILE")]
+    cdi: Option<PathBuf>,
+    /// The configuration space 0xFD: this file (its size; writes go to it) [default: 256
+    /// bytes in memory].
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Where each firmware image (space 0xEF) is written at Unfreeze [default:
+    /// firmware-<node id>.bin in the current folder].
+    #[arg(long, value_name = "FILE")]
+    firmware_out: Option<PathBuf>,
+    /// Replace the firmware file if it exists.
+    #[arg(long)]
+    force: bool,
+    /// The SNIP user name (also space 0xFB).
+    #[arg(long, value_name = "TEXT", default_value = "")]
+    name: String,
+    /// The SNIP user description (also space 0xFB).
+    #[arg(long, value_name = "TEXT", default_value = "")]
+    description: String,
+    /// Take no part in streams: every transfer goes by datagrams.
+    #[arg(long)]
+    no_streams: bool,
+    /// Print one JSON object (fields below) when the node stops, instead of text.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    connect: ConnectArgs,
+}
+
+/// What `serve --json` prints.
+#[derive(Debug, Default, Serialize)]
+struct ServeReport {
+    node: String,
+    config_bytes: u32,
+    cdi_bytes: u32,
+    firmware: Vec<ImageReport>,
+    user_info_changes: u64,
+    events_dropped: u64,
+    result: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error: Option<String>,
+}
+
+/// One firmware image received.
+#[derive(Debug, Serialize)]
+struct ImageReport {
+    from: String,
+    bytes: u32,
+    file: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error: Option<String>,
+}
+
+pub(crate) fn run(args: &ServeArgs) -> Result<ExitCode, String> {
+    net::runtime()?.block_on(serve(args))
+}
+
+async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
+    let mut interrupt = net::Interrupt::new()?;
+    let firmware_out = args.firmware_out.clone().unwrap_or_else(|| default_firmware_path(args.node_id));
+    if !args.force && firmware_out.exists() {
+        eprintln!("lcc-stream serve: {} exists (--force replaces it)", firmware_out.display());
+        return Ok(ExitCode::from(net::EXIT_FILE));
+    }
+    let spaces = match Spaces::open(args) {
+        Ok(spaces) => spaces,
+        Err(error) => {
+            eprintln!("lcc-stream serve: {error}");
+            return Ok(ExitCode::from(net::EXIT_FILE));
+        }
+    };
+    let mut options = NodeOptions::new(args.node_id);
+    options.node.snip = net::snip("serve");
+    options.node.snip.user_name.clone_from(&args.name);
+    options.node.snip.user_description.clone_from(&args.description);
+    if let Err(too_long) = options.node.snip.check() {
+        eprintln!("lcc-stream serve: the {} is too long ({} bytes)", too_long.field.name(), too_long.len);
+        return Ok(ExitCode::from(net::EXIT_USAGE));
+    }
+    options.node.streams_enabled = !args.no_streams;
+    let mut report = ServeReport {
+        node: args.node_id.to_string(),
+        config_bytes: spaces.config.len(),
+        cdi_bytes: spaces.cdi.len(),
+        ..ServeReport::default()
+    };
+    let image = spaces.image.clone();
+    let connect = args.connect.node(options);
+    let mut node = tokio::select! {
+        connected = connect => match connected {
+            Ok(node) => node,
+            Err(error) => return Ok(net::fail("serve", &error)),
+        },
+        () = interrupt.wait() => return Ok(ExitCode::from(net::EXIT_INTERRUPTED)),
+    };
+    let mut events = match node.serve_memory(spaces.into_server()).await {
+        Ok(events) => events,
+        Err(error) => return Ok(net::fail("serve", &error)),
+    };
+    // On stderr even with --json: scripts can wait for this line before starting a tool.
+    eprintln!(
+        "lcc-stream serve: node {} serving spaces 0xFF 0xFD 0xFC 0xFB 0xEF on {}",
+        args.node_id,
+        args.connect.addr()
+    );
+    let status = loop {
+        tokio::select! {
+            event = events.next() => match event {
+                Some(event) => on_event(event, args, &firmware_out, &image, &mut report).await,
+                None => {
+                    let error = node.closed().await;
+                    (report.result, report.error) = (net::result_word(&error), Some(error.to_string()));
+                    break net::exit_status(&error);
+                }
+            },
+            error = node.closed() => {
+                (report.result, report.error) = (net::result_word(&error), Some(error.to_string()));
+                break net::exit_status(&error);
+            }
+            () = interrupt.wait() => {
+                report.result = "interrupted";
+                break net::EXIT_INTERRUPTED;
+            }
+        }
+    };
+    if let Ok(stats) = node.stats().await {
+        report.events_dropped = stats.memory_events_dropped;
+    }
+    node.close().await;
+    if args.json {
+        println!("{}", serde_json::to_string(&report).map_err(|e| e.to_string())?);
+    } else if let Some(error) = &report.error {
+        eprintln!("lcc-stream serve: {error}");
+    } else {
+        eprintln!("lcc-stream serve: interrupted");
+    }
+    Ok(ExitCode::from(status))
+}
+
+/// Carries out what the server was asked to do, and says so on stderr.
+async fn on_event(event: MemoryEvent, args: &ServeArgs, out: &Path, image: &Image, report: &mut ServeReport) {
+    let say = |text: String| {
+        if !args.json {
+            eprintln!("lcc-stream serve: {text}");
+        }
+    };
+    match event {
+        MemoryEvent::Frozen { by } => say(format!("frozen for a firmware upgrade by {by}")),
+        MemoryEvent::Unfrozen { by, image_len } => {
+            let bytes = image.take(image_len);
+            let saved = save_image(out, &bytes, args.force).await;
+            match &saved {
+                Ok(()) => say(format!("firmware of {image_len} bytes from {by} written to {}", out.display())),
+                Err(error) => say(format!("firmware of {image_len} bytes from {by} not saved: {error}")),
+            }
+            report.firmware.push(ImageReport {
+                from: by.to_string(),
+                bytes: image_len,
+                file: out.display().to_string(),
+                error: saved.err().map(|e| e.to_string()),
+            });
+        }
+        MemoryEvent::UserInfoChanged => {
+            report.user_info_changes += 1;
+            say("user name and description changed (space 0xFB)".to_string());
+        }
+        MemoryEvent::UpdateComplete { by } => say(format!("update complete, said {by}")),
+        MemoryEvent::ResetRequested { by } => say(format!("reset asked for by {by} (nothing to reset)")),
+        MemoryEvent::FactoryResetRequested { by } => say(format!("factory reset asked for by {by} (ignored)")),
+        _ => {}
+    }
+}
+
+/// `firmware-<node id>.bin` in the current folder (the Node ID's digits, as `recv` names files).
+fn default_firmware_path(node: NodeId) -> PathBuf {
+    PathBuf::from(format!("firmware-{}.bin", node.to_string().replace('.', "")))
+}
+
+/// Writes `bytes` to `out` through `out.part`: never over an existing file unless `force`.
+async fn save_image(out: &Path, bytes: &[u8], force: bool) -> std::io::Result<()> {
+    let part = part_path(out);
+    let mut open = tokio::fs::OpenOptions::new();
+    open.write(true);
+    if force {
+        open.create(true).truncate(true)
+    } else {
+        open.create_new(true)
+    };
+    let mut file = open.open(&part).await?;
+    let written = async {
+        use tokio::io::AsyncWriteExt as _;
+        file.write_all(bytes).await?;
+        file.sync_all().await?;
+        if force { tokio::fs::rename(&part, out).await } else { publish(&part, out).await }
+    }
+    .await;
+    if written.is_err() {
+        let _ = tokio::fs::remove_file(&part).await;
+    }
+    written
+}
+
+/// The spaces `serve` hands to its node.
+struct Spaces {
+    cdi: ReadOnlySpace,
+    config: ConfigSpace,
+    image: Image,
+}
+
+impl Spaces {
+    fn open(args: &ServeArgs) -> Result<Spaces, String> {
+        let config = match &args.config {
+            Some(path) => ConfigSpace::open(path)?,
+            None => ConfigSpace::Memory(RamSpace::new(DEFAULT_CONFIG_LEN)),
+        };
+        let cdi = match &args.cdi {
+            Some(path) => {
+                let xml = std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+                ReadOnlySpace::cdi(&xml)
+            }
+            None => ReadOnlySpace::cdi(&builtin_cdi(config.len())),
+        };
+        Ok(Spaces { cdi, config, image: Image::default() })
+    }
+
+    fn into_server(self) -> MemoryServer {
+        MemoryServer::new()
+            .with_space(0xFF, self.cdi)
+            .with_space(0xFD, self.config)
+            .with_space(0xEF, self.image)
+            .with_acdi()
+    }
+}
+
+/// A CDI describing this node: its identification, the ACDI user space and `config_len`
+/// bytes of space 0xFD.
+fn builtin_cdi(config_len: u32) -> String {
+    let snip = net::snip("serve");
+    format!(
+        r#"<?xml version="1.0" encoding="utf-8"?>
+<cdi xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:noNamespaceSchemaLocation="http://openlcb.org/schema/cdi/1/1/cdi.xsd">
+<identification><manufacturer>{}</manufacturer><model>{}</model><hardwareVersion>{}</hardwareVersion><softwareVersion>{}</softwareVersion></identification>
+<acdi/>
+<segment space="251" origin="1"><name>User identification</name>
+<string size="63"><name>User name</name></string>
+<string size="64"><name>User description</name></string>
+</segment>
+<segment space="253" origin="0"><name>Configuration</name><description>{config_len} bytes of storage</description>
+<group replication="{config_len}"><name>Bytes</name><repname>Byte</repname><int size="1"><name>Value</name></int></group>
+</segment>
+</cdi>
+"#,
+        snip.manufacturer, snip.model, snip.hardware_version, snip.software_version
+    )
+}
+
+/// Space 0xFD: a file (written through) or bytes in memory.
+enum ConfigSpace {
+    File { file: std::fs::File, bytes: RamSpace },
+    Memory(RamSpace),
+}
+
+impl ConfigSpace {
+    fn open(path: &Path) -> Result<ConfigSpace, String> {
+        let bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        if bytes.is_empty() || u32::try_from(bytes.len()).is_err() {
+            return Err(format!("{} must hold 1 byte to 4 GiB", path.display()));
+        }
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .open(path)
+            .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+        Ok(ConfigSpace::File { file, bytes: RamSpace::from_bytes(bytes) })
+    }
+
+    fn ram(&self) -> &RamSpace {
+        match self {
+            ConfigSpace::File { bytes, .. } | ConfigSpace::Memory(bytes) => bytes,
+        }
+    }
+}
+
+impl MemorySpace for ConfigSpace {
+    fn len(&self) -> u32 {
+        self.ram().len()
+    }
+    fn read_only(&self) -> bool {
+        false
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        match self {
+            ConfigSpace::File { bytes, .. } | ConfigSpace::Memory(bytes) => bytes.read(address, buf),
+        }
+    }
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        match self {
+            ConfigSpace::Memory(bytes) => bytes.write(address, data),
+            ConfigSpace::File { file, bytes } => {
+                bytes.write(address, data)?;
+                let failed = |_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT);
+                file.seek(SeekFrom::Start(u64::from(address))).map_err(failed)?;
+                file.write_all(data).map_err(failed)
+            }
+        }
+    }
+}
+
+/// Space 0xEF: the image being received, shared with the task that saves it at Unfreeze.
+#[derive(Debug, Clone, Default)]
+struct Image(Arc<Mutex<Vec<u8>>>);
+
+impl Image {
+    /// Bytes `0..len` of the image, and an empty buffer for the next upgrade.
+    fn take(&self, len: u32) -> Vec<u8> {
+        let Ok(mut bytes) = self.0.lock() else { return Vec::new() };
+        let mut image = std::mem::take(&mut *bytes);
+        image.resize(len as usize, 0);
+        image
+    }
+}
+
+impl MemorySpace for Image {
+    fn len(&self) -> u32 {
+        FIRMWARE_MAX
+    }
+    fn read_only(&self) -> bool {
+        false
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        let bytes = self.0.lock().map_err(|_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT))?;
+        let n = buf.len().min(FIRMWARE_MAX.saturating_sub(address) as usize);
+        let (buf, at) = (buf.get_mut(..n).unwrap_or_default(), address as usize);
+        buf.fill(0);
+        if let Some(held) = bytes.get(at..) {
+            let m = held.len().min(n);
+            if let (Some(to), Some(from)) = (buf.get_mut(..m), held.get(..m)) {
+                to.copy_from_slice(from);
+            }
+        }
+        Ok(n)
+    }
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        let mut bytes = self.0.lock().map_err(|_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT))?;
+        let at = address as usize;
+        let end = at.saturating_add(data.len()).min(FIRMWARE_MAX as usize);
+        if bytes.len() < end {
+            bytes.resize(end, 0);
+        }
+        if let (Some(to), Some(from)) = (bytes.get_mut(at..end), data.get(..end.saturating_sub(at))) {
+            to.copy_from_slice(from);
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn image_space_keeps_what_was_written_and_reads_zeros_past_it() {
+        let mut image = Image::default();
+        image.write(4, &[1, 2, 3]).unwrap();
+        let mut buf = [0xAA; 8];
+        assert_eq!(image.read(2, &mut buf).unwrap(), 8);
+        assert_eq!(buf, [0, 0, 1, 2, 3, 0, 0, 0]);
+        assert_eq!(image.take(7), [0, 0, 0, 0, 1, 2, 3]);
+        assert_eq!(image.take(2), [0, 0], "a taken image leaves an empty buffer");
+    }
+
+    #[test]
+    fn builtin_cdi_describes_the_configuration_space() {
+        let xml = builtin_cdi(256);
+        assert!(xml.contains(r#"<segment space="253" origin="0">"#));
+        assert!(xml.contains(r#"replication="256""#));
+    }
+}

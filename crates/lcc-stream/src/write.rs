@@ -1,0 +1,44 @@
+//! `lcc-stream write`: restore a memory space of a node from a file.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Args;
+use openlcb_stream::NodeId;
+
+use crate::memory::{self, ClientArgs, Upload};
+use crate::net;
+
+/// Options of `lcc-stream write`.
+#[derive(Debug, Args)]
+#[command(after_help = concat!(memory::json_help!(), net::exit_help!()))]
+pub(crate) struct WriteArgs {
+    /// The file whose bytes are written.
+    file: PathBuf,
+    /// The node to write.
+    #[arg(long, value_name = "NODE_ID")]
+    to: NodeId,
+    /// The address space (0xFD configuration, 0xFB ACDI user data).
+    #[arg(long, default_value = "0xFD", value_parser = memory::parse_number::<u8>)]
+    space: u8,
+    /// The first address written.
+    #[arg(long, default_value = "0", value_parser = memory::parse_number::<u32>)]
+    address: u32,
+    #[command(flatten)]
+    client: ClientArgs,
+}
+
+pub(crate) fn run(args: &WriteArgs) -> Result<ExitCode, String> {
+    let what = Upload::Space { space: args.space, address: args.address };
+    net::runtime()?.block_on(memory::upload(&args.client, "write", args.to, &args.file, what, |report| {
+        format!(
+            "wrote {} bytes of {} into space 0x{:02X} of {} in {:.3} s ({})",
+            report.bytes,
+            report.file,
+            report.space,
+            report.node,
+            report.elapsed_s,
+            net::rate_text(report.bytes_per_s)
+        )
+    }))
+}

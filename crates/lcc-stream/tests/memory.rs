@@ -1,0 +1,255 @@
+//! `lcc-stream serve` with `read`, `write` and `firmware`, each a separate process of the
+//! built binary, through an in-process hub on 127.0.0.1 (ephemeral port). Every wait is
+//! bounded; children are killed when a test ends.
+
+use std::future::Future;
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::Duration;
+
+use openlcb_tokio::{Hub, HubOptions};
+use tokio::io::{AsyncBufReadExt, BufReader};
+use tokio::process::{Child, Command};
+use tokio::sync::mpsc;
+
+const LIMIT: Duration = Duration::from_secs(120);
+const BIN: &str = env!("CARGO_BIN_EXE_lcc-stream");
+
+async fn bounded<T>(what: &str, future: impl Future<Output = T>) -> T {
+    match tokio::time::timeout(LIMIT, future).await {
+        Ok(value) => value,
+        Err(_) => panic!("{what} did not finish within {LIMIT:?}"),
+    }
+}
+
+/// A fresh, empty directory for one test.
+fn scratch(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lcc-stream-memory-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn data(len: usize, key: u32) -> Vec<u8> {
+    (0..len).map(|i| (i as u32 ^ key).wrapping_mul(2_654_435_761).rotate_right(11) as u8).collect()
+}
+
+/// A hub on 127.0.0.1 for one test; its address.
+async fn hub() -> (Hub, String) {
+    let hub = Hub::bind("127.0.0.1:0", None, HubOptions::default()).await.unwrap();
+    let addr = hub.local_addr().to_string();
+    (hub, addr)
+}
+
+/// A `serve` process and its stderr, line by line.
+struct Server {
+    /// Killed when the test ends.
+    child: Child,
+    lines: mpsc::UnboundedReceiver<String>,
+}
+
+impl Server {
+    async fn start(dir: &Path, hub: &str, node_id: &str, extra: &[&str]) -> Server {
+        let mut child = Command::new(BIN)
+            .current_dir(dir)
+            .args(["serve", "--connect", hub, "--node-id", node_id])
+            .args(extra)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .kill_on_drop(true)
+            .spawn()
+            .unwrap();
+        let (tx, lines) = mpsc::unbounded_channel();
+        let mut stderr = BufReader::new(child.stderr.take().unwrap()).lines();
+        tokio::spawn(async move {
+            while let Ok(Some(line)) = stderr.next_line().await {
+                let _ = tx.send(line);
+            }
+        });
+        let mut server = Server { child, lines };
+        server.wait_for("serving spaces").await;
+        server
+    }
+
+    /// The next stderr line that contains `needle`.
+    async fn wait_for(&mut self, needle: &str) -> String {
+        bounded(needle, async {
+            while let Some(line) = self.lines.recv().await {
+                if line.contains(needle) {
+                    return line;
+                }
+            }
+            panic!("serve's stderr ended before a line with {needle:?}");
+        })
+        .await
+    }
+}
+
+/// Runs the binary with `args` to its end: exit status and the JSON object it printed.
+async fn run(hub: &str, args: &[&str]) -> (i32, serde_json::Value) {
+    let output = Command::new(BIN)
+        .args(args)
+        .args(["--connect", hub, "--json"])
+        .stdin(Stdio::null())
+        .kill_on_drop(true)
+        .output();
+    let output = bounded(&args.join(" "), output).await.unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let json = serde_json::from_str(stdout.trim())
+        .unwrap_or_else(|e| panic!("{args:?}: {e} in {stdout:?}; stderr {}", String::from_utf8_lossy(&output.stderr)));
+    (output.status.code().unwrap_or(-1), json)
+}
+
+fn path_arg(path: &Path) -> &str {
+    path.to_str().unwrap()
+}
+
+const SERVER: &str = "05.01.01.01.22.E2";
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn read_and_write_the_configuration_by_stream_and_by_datagrams() {
+    let dir = scratch("config");
+    let (_hub, addr) = hub().await;
+    let config = dir.join("config.bin");
+    std::fs::write(&config, data(1000, 1)).unwrap();
+    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+
+    for (name, extra) in [("by-stream.bin", None), ("by-datagrams.bin", Some("--no-stream"))] {
+        let out = dir.join(name);
+        let mut args = vec!["read", "--from", SERVER, "--out", path_arg(&out)];
+        args.extend(extra);
+        let (status, json) = run(&addr, &args).await;
+        assert_eq!(status, 0, "{json}");
+        assert_eq!(json["bytes"], 1000);
+        assert_eq!(json["result"], "ok");
+        assert_eq!(std::fs::read(&out).unwrap(), data(1000, 1), "{name}");
+        assert!(!dir.join(format!("{name}.part")).exists());
+    }
+
+    // Restore other bytes, by stream and by datagrams; the file behind space 0xFD follows.
+    for (key, extra) in [(2, None), (3, Some("--no-stream"))] {
+        let restore = dir.join(format!("restore-{key}.bin"));
+        std::fs::write(&restore, data(1000, key)).unwrap();
+        let mut args = vec!["write", path_arg(&restore), "--to", SERVER];
+        args.extend(extra);
+        let (status, json) = run(&addr, &args).await;
+        assert_eq!(status, 0, "{json}");
+        assert_eq!(json["bytes"], 1000);
+        assert_eq!(std::fs::read(&config).unwrap(), data(1000, key));
+        let back = dir.join(format!("back-{key}.bin"));
+        let (status, _) = run(&addr, &["read", "--from", SERVER, "--out", path_arg(&back)]).await;
+        assert_eq!(status, 0);
+        assert_eq!(std::fs::read(&back).unwrap(), data(1000, key));
+    }
+
+    // A part of the space.
+    let part = dir.join("part.bin");
+    let args = ["read", "--from", SERVER, "--address", "0x10", "--length", "100", "--out", path_arg(&part)];
+    assert_eq!(run(&addr, &args).await.0, 0);
+    assert_eq!(std::fs::read(&part).unwrap(), data(1000, 3)[0x10..0x10 + 100]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn firmware_by_stream_and_by_datagrams_arrives_whole() {
+    let dir = scratch("firmware");
+    let (_hub, addr) = hub().await;
+    let out = dir.join("image.bin");
+    let mut server = Server::start(&dir, &addr, SERVER, &["--firmware-out", path_arg(&out), "--force"]).await;
+    // 100 000 bytes: not a whole number of windows or of datagrams.
+    for (key, extra) in [(4, None), (5, Some("--no-stream"))] {
+        let image = dir.join(format!("upgrade-{key}.bin"));
+        std::fs::write(&image, data(100_000, key)).unwrap();
+        let mut args = vec!["firmware", path_arg(&image), "--to", SERVER];
+        args.extend(extra);
+        let (status, json) = run(&addr, &args).await;
+        assert_eq!(status, 0, "{json}");
+        assert_eq!(json["bytes"], 100_000);
+        server.wait_for("written to").await;
+        assert_eq!(std::fs::read(&out).unwrap(), data(100_000, key), "{extra:?}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_without_streams_is_read_and_upgraded_by_datagrams() {
+    let dir = scratch("no-streams");
+    let (_hub, addr) = hub().await;
+    let mut server = Server::start(&dir, &addr, SERVER, &["--no-streams", "--name", "Yard"]).await;
+    let image = dir.join("upgrade.bin");
+    std::fs::write(&image, data(5000, 6)).unwrap();
+    let (status, json) = run(&addr, &["firmware", path_arg(&image), "--to", SERVER]).await;
+    assert_eq!(status, 0, "{json}");
+    server.wait_for("written to").await;
+    // The default output: firmware-<node id>.bin in serve's folder.
+    assert_eq!(std::fs::read(dir.join("firmware-0501010122E2.bin")).unwrap(), data(5000, 6));
+    // The whole configuration space (256 bytes in memory) and the ACDI user space.
+    let config = dir.join("config.bin");
+    let (status, json) = run(&addr, &["read", "--from", SERVER, "--out", path_arg(&config)]).await;
+    assert_eq!((status, json["bytes"].as_u64()), (0, Some(256)), "{json}");
+    let user = dir.join("user.bin");
+    let (status, _) = run(&addr, &["read", "--from", SERVER, "--space", "0xFB", "--out", path_arg(&user)]).await;
+    assert_eq!(status, 0);
+    assert_eq!(std::fs::read(&user).unwrap()[1..5], *b"Yard");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn nothing_is_written_over_an_existing_file() {
+    let dir = scratch("overwrite");
+    let (_hub, addr) = hub().await;
+    // `serve` refuses a firmware output that exists, unless --force.
+    let taken = dir.join("taken.bin");
+    std::fs::write(&taken, b"keep me").unwrap();
+    let refused = Command::new(BIN)
+        .args(["serve", "--connect", &addr, "--firmware-out", path_arg(&taken)])
+        .stdin(Stdio::null())
+        .kill_on_drop(true)
+        .output();
+    let refused = bounded("serve with a taken output", refused).await.unwrap();
+    assert_eq!(refused.status.code(), Some(8));
+    assert_eq!(std::fs::read(&taken).unwrap(), b"keep me");
+    // `read` refuses an output that exists, and leaves no .part behind.
+    let _server = Server::start(&dir, &addr, SERVER, &[]).await;
+    let (status, json) = run(&addr, &["read", "--from", SERVER, "--out", path_arg(&taken)]).await;
+    assert_eq!(status, 8, "{json}");
+    assert_eq!(json["result"], "file_error");
+    assert_eq!(std::fs::read(&taken).unwrap(), b"keep me");
+    assert!(!dir.join("taken.bin.part").exists());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unknown_node_exits_5() {
+    let dir = scratch("unknown");
+    let (_hub, addr) = hub().await;
+    let out = dir.join("never.bin");
+    let (status, json) = run(&addr, &["read", "--from", "05.01.01.01.22.EE", "--out", path_arg(&out)]).await;
+    assert_eq!(status, 5, "{json}");
+    assert_eq!(json["result"], "not_found");
+    assert!(!out.exists() && !dir.join("never.bin.part").exists());
+    let image = dir.join("image.bin");
+    std::fs::write(&image, data(10, 0)).unwrap();
+    let (status, _) = run(&addr, &["firmware", path_arg(&image), "--to", "05.01.01.01.22.EE"]).await;
+    assert_eq!(status, 5);
+    let (status, _) = run(&addr, &["write", path_arg(&image), "--to", "05.01.01.01.22.EE"]).await;
+    assert_eq!(status, 5);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_stops_serve_with_exit_130_and_its_report() {
+    let dir = scratch("sigterm");
+    let (_hub, addr) = hub().await;
+    let out = dir.join("image.bin");
+    let mut server = Server::start(&dir, &addr, SERVER, &["--firmware-out", path_arg(&out)]).await;
+    let image = dir.join("upgrade.bin");
+    std::fs::write(&image, data(3000, 8)).unwrap();
+    assert_eq!(run(&addr, &["firmware", path_arg(&image), "--to", SERVER]).await.0, 0);
+    server.wait_for("written to").await;
+    // A second image would replace the first: without --force it is refused and reported.
+    assert_eq!(run(&addr, &["firmware", path_arg(&image), "--to", SERVER]).await.0, 0);
+    server.wait_for("not saved").await;
+    let pid = server.child.id().unwrap().to_string();
+    let killed = Command::new("kill").args(["-TERM", &pid]).status();
+    assert!(bounded("kill", killed).await.unwrap().success());
+    let status = bounded("serve's exit", server.child.wait()).await.unwrap();
+    assert_eq!(status.code(), Some(130));
+    assert_eq!(std::fs::read(&out).unwrap(), data(3000, 8));
+}

@@ -1,0 +1,211 @@
+//! Memory Configuration on a [`Node`](crate::Node): serving address spaces
+//! ([`Node::serve_memory`](crate::Node::serve_memory)) and reading, writing and upgrading
+//! the spaces of other nodes ([`Node::read_memory`](crate::Node::read_memory),
+//! [`Node::write_memory`](crate::Node::write_memory),
+//! [`Node::upgrade_firmware`](crate::Node::upgrade_firmware)).
+//!
+//! The protocol is [`openlcb_node::memconfig`]'s; the driver runs it and tells each waiting
+//! handle how its operation ended. Every wait ends: the sans-IO client gives each step a
+//! deadline ([`MemoryConfigOptions`](openlcb_node::MemoryConfigOptions): reply, stream and
+//! reboot waits), and a driver that stops fails every operation with its reason.
+
+use bytes::Bytes;
+use openlcb_node::{MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, TransferPath};
+use openlcb_stream::{Instant, NodeId};
+use tokio::sync::{mpsc, oneshot, watch};
+
+use crate::Error;
+
+/// Server events queued for the application before more are dropped (and counted).
+pub const SERVER_EVENT_QUEUE: usize = 64;
+
+/// What a node serving memory spaces was asked to do, for the application to carry out,
+/// from [`Node::serve_memory`](crate::Node::serve_memory): the server's variants of
+/// [`MemoryEvent`] (`Frozen`, `Unfrozen` with the image's length, `UpdateComplete`,
+/// `ResetRequested`, `FactoryResetRequested`, `UserInfoChanged`).
+#[derive(Debug)]
+pub struct ServerEvents {
+    events: mpsc::Receiver<MemoryEvent>,
+}
+
+impl ServerEvents {
+    pub(crate) fn new(events: mpsc::Receiver<MemoryEvent>) -> Self {
+        ServerEvents { events }
+    }
+
+    /// The next event; `None` once the node has stopped.
+    pub async fn next(&mut self) -> Option<MemoryEvent> {
+        self.events.recv().await
+    }
+}
+
+/// What a client operation is asked to do.
+#[derive(Debug, Clone)]
+pub(crate) enum Operation {
+    Read { space: u8, address: u32, len: Option<u32> },
+    Write { space: u8, address: u32, data: Bytes },
+    Firmware { image: Bytes },
+}
+
+/// How a client operation ended well: the bytes read, or the count written.
+#[derive(Debug)]
+pub(crate) enum Done {
+    Read(Vec<u8>),
+    Written(u64),
+}
+
+type DoneReply = oneshot::Sender<Result<Done, Error>>;
+
+/// Requests of the handles to the driver's Memory Configuration.
+#[derive(Debug)]
+pub(crate) enum MemoryCommand {
+    Serve { server: Box<MemoryServer>, events: mpsc::Sender<MemoryEvent> },
+    Start { peer: NodeId, path: TransferPath, operation: Operation, progress: watch::Sender<u64>, reply: DoneReply },
+}
+
+/// A client operation running, from the handle's point of view: progress now, and the end.
+#[derive(Debug)]
+pub struct MemoryTransfer<T> {
+    progress: watch::Receiver<u64>,
+    done: oneshot::Receiver<Result<Done, Error>>,
+    shared: crate::node::Shared,
+    map: fn(Done) -> Option<T>,
+}
+
+impl<T> MemoryTransfer<T> {
+    pub(crate) fn new(
+        progress: watch::Receiver<u64>,
+        done: oneshot::Receiver<Result<Done, Error>>,
+        shared: crate::node::Shared,
+        map: fn(Done) -> Option<T>,
+    ) -> Self {
+        MemoryTransfer { progress, done, shared, map }
+    }
+
+    /// Bytes moved so far (read, or written and acknowledged by credit or reply).
+    pub fn progress(&self) -> u64 {
+        *self.progress.borrow()
+    }
+
+    /// A watch of the progress, to await its changes beside [`finish`](Self::finish); it
+    /// closes when the operation ends.
+    pub fn watch_progress(&self) -> watch::Receiver<u64> {
+        self.progress.clone()
+    }
+
+    /// Waits for the end: the bytes read (for a read) or the count written.
+    pub async fn finish(self) -> Result<T, Error> {
+        match self.done.await {
+            Ok(Ok(done)) => (self.map)(done).ok_or(Error::Closed),
+            Ok(Err(error)) => Err(error),
+            Err(_) => Err(self.shared.error()),
+        }
+    }
+}
+
+struct Running {
+    operation: MemoryOperation,
+    progress: watch::Sender<u64>,
+    reply: DoneReply,
+}
+
+/// The driver's part: operations waiting for their end, and where server events go.
+#[derive(Default)]
+pub(crate) struct MemoryDriver {
+    running: Vec<Running>,
+    events: Option<mpsc::Sender<MemoryEvent>>,
+    /// Server events dropped because the application did not take them.
+    dropped: u64,
+}
+
+impl MemoryDriver {
+    pub(crate) fn command(&mut self, now: Instant, stack: &mut openlcb_node::Node, command: MemoryCommand) {
+        match command {
+            MemoryCommand::Serve { server, events } => {
+                stack.set_memory_server(*server);
+                self.events = Some(events);
+            }
+            MemoryCommand::Start { peer, path, operation, progress, reply } => {
+                let started = match operation {
+                    Operation::Read { space, address, len } => stack.read_memory(now, peer, space, address, len, path),
+                    Operation::Write { space, address, data } => {
+                        stack.write_memory(now, peer, space, address, data, path)
+                    }
+                    Operation::Firmware { image } => stack.upgrade_firmware(now, peer, image, path),
+                };
+                match started {
+                    Ok(operation) => self.running.push(Running { operation, progress, reply }),
+                    Err(error) => {
+                        let _ = reply.send(Err(Error::MemoryRequest(error)));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Takes a Memory Configuration event of the node.
+    pub(crate) fn event(&mut self, event: MemoryEvent) {
+        let (operation, result) = match event {
+            MemoryEvent::ReadDone { operation, data, .. } => (operation, Ok(Done::Read(data))),
+            MemoryEvent::WriteDone { operation, len, .. } => (operation, Ok(Done::Written(len))),
+            MemoryEvent::Failed { operation, peer, error } => (operation, Err(memory_error(peer, error))),
+            server => {
+                let sent = self.events.as_ref().is_some_and(|events| events.try_send(server).is_ok());
+                self.dropped += u64::from(!sent);
+                return;
+            }
+        };
+        if let Some(index) = self.running.iter().position(|r| r.operation == operation) {
+            let running = self.running.swap_remove(index);
+            if let Ok(Done::Written(len)) = &result {
+                running.progress.send_replace(*len);
+            }
+            let _ = running.reply.send(result);
+        }
+    }
+
+    /// Publishes each running operation's progress (only what changed wakes a watcher).
+    pub(crate) fn publish_progress(&self, stack: &openlcb_node::Node) {
+        for running in &self.running {
+            if let Some(now) = stack.memory_progress(running.operation) {
+                running.progress.send_if_modified(|shown| std::mem::replace(shown, now) != now);
+            }
+        }
+    }
+
+    /// Server events dropped because the application's queue was full or gone.
+    pub(crate) fn dropped(&self) -> u64 {
+        self.dropped
+    }
+}
+
+/// A failed operation as this crate's error.
+fn memory_error(peer: NodeId, error: MemoryError) -> Error {
+    Error::Memory { peer, error }
+}
+
+/// Words for a person, one per [`MemoryError`].
+pub(crate) fn memory_error_text(peer: NodeId, error: MemoryError) -> String {
+    match error {
+        MemoryError::Rejected(code) => format!("node {peer} refused the command: {code} ({})", code.meaning()),
+        MemoryError::Failed(code) => format!("node {peer} failed the command: {code} ({})", code.meaning()),
+        MemoryError::TimedOut => format!("node {peer} did not answer the Memory Configuration command in time"),
+        MemoryError::StreamRejected(code) => format!("node {peer} refused the stream: {code} ({})", code.meaning()),
+        MemoryError::StreamEnded(code) => format!("the stream with node {peer} ended early: {code}"),
+        MemoryError::StreamTimedOut(_) => format!("the stream with node {peer} stalled"),
+        MemoryError::WrongLength { expected, received } => {
+            format!("node {peer} sent {received} bytes where {expected} were expected")
+        }
+        MemoryError::PeerRestarted => format!("node {peer} restarted in the middle of the operation"),
+        MemoryError::PeerLost => format!("node {peer} left the network"),
+        MemoryError::BadReply => format!("node {peer} answered with a reply that does not fit the command"),
+        MemoryError::NoStreams => format!("node {peer} does not support streams"),
+        MemoryError::TooLong => format!("the space of node {peer} is larger than a read may take, or empty"),
+        _ => format!("the Memory Configuration operation with node {peer} failed"),
+    }
+}
+
+/// Words for a person, one per [`MemoryRequestError`].
+pub(crate) fn request_error_text(error: MemoryRequestError) -> String {
+    format!("the Memory Configuration operation cannot start: {error}")
+}
