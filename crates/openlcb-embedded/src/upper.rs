@@ -2,6 +2,7 @@
 //! it reads the time.
 
 use openlcb_can::LinkEvent;
+use openlcb_node::Node;
 use openlcb_stream::{Instant, Message, MessageRef, StreamEndpoint};
 
 /// The layer above the CAN link: a [`StreamEndpoint`], or a whole node that routes messages to
@@ -36,11 +37,13 @@ impl Upper for StreamEndpoint {
     }
 
     /// Alias lost: every stream is over (`link_lost`); a peer released its alias or could
-    /// not be found: its streams are over (`peer_lost`).
+    /// not be found: its streams are over (`peer_lost`); a peer renamed: its streams go on under
+    /// the new name (`rename_peer`).
     fn handle_link_event(&mut self, _now: Instant, event: LinkEvent) {
         match event {
             LinkEvent::AliasLost { .. } | LinkEvent::DuplicateNodeId { .. } => self.link_lost(),
             LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.peer_lost(node),
+            LinkEvent::PeerRenamed { from, to, .. } => self.rename_peer(from, to),
             _ => {}
         }
     }
@@ -55,6 +58,38 @@ impl Upper for StreamEndpoint {
 
     fn poll_timeout(&self) -> Option<Instant> {
         StreamEndpoint::poll_timeout(self)
+    }
+}
+
+/// What a firmware should drive: the node routes each message to its streams, datagrams,
+/// SNIP and Memory Configuration, and sends Initialization Complete itself.
+impl Upper for Node {
+    fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
+        Node::handle_message(self, now, message);
+    }
+
+    /// Alias lost or Node ID taken: everything open ends (`link_lost`); a peer released its
+    /// alias or could not be found: what is open with it ends (`peer_lost`); a peer renamed:
+    /// what is open with it goes on under the new name (`rename_peer`).
+    fn handle_link_event(&mut self, _now: Instant, event: LinkEvent) {
+        match event {
+            LinkEvent::AliasLost { .. } | LinkEvent::DuplicateNodeId { .. } => self.link_lost(),
+            LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.peer_lost(node),
+            LinkEvent::PeerRenamed { from, to, .. } => self.rename_peer(from, to),
+            _ => {}
+        }
+    }
+
+    fn handle_timeout(&mut self, now: Instant) {
+        Node::handle_timeout(self, now);
+    }
+
+    fn poll_transmit(&mut self) -> Option<Message> {
+        Node::poll_transmit(self)
+    }
+
+    fn poll_timeout(&self) -> Option<Instant> {
+        Node::poll_timeout(self)
     }
 }
 

@@ -10,6 +10,7 @@ use embedded_can::{ErrorKind, ExtendedId, Frame, Id};
 use openlcb_can::{CanConfig, CanFrame, CanLink};
 use openlcb_embedded::memory_bus::MemoryBus;
 use openlcb_embedded::{Driver, Error, Poll, Upper};
+use openlcb_node::{Node, NodeConfig, NodeEvent, SnipInfo};
 use openlcb_stream::{Config, Event, Instant, NodeId, OpenOptions, StreamEndpoint, StreamHandle};
 
 const A: u64 = 0x05_01_01_01_22_00;
@@ -72,6 +73,42 @@ fn login_on_memory_bus_reserves_aliases_after_the_reserve_wait() {
     assert_eq!(a.stats().frames_transmitted, 6);
     assert_eq!(a.stats().frames_received, 6);
     assert_eq!(bus.queued(), 0);
+}
+
+#[test]
+fn nodes_on_memory_bus_announce_themselves_and_answer_snip_by_alias() {
+    let bus: MemoryBus<CanFrame, 2, 8> = MemoryBus::new();
+    let time = Cell::new(Instant::ZERO);
+    let clock = || time.get();
+    let mut a = Driver::new(bus.port(0).unwrap(), clock, CanLink::new(time.get(), node(A), CanConfig::default()));
+    let mut b = Driver::new(bus.port(1).unwrap(), clock, CanLink::new(time.get(), node(B), CanConfig::default()));
+    let mut na = Node::new(node(A), NodeConfig::default());
+    let mut b_config = NodeConfig::default();
+    b_config.snip = SnipInfo { model: "Widget".into(), ..SnipInfo::default() };
+    let mut nb = Node::new(node(B), b_config);
+
+    let mut snip = None;
+    for _ in 0..64 {
+        let pa = a.poll(&mut na).unwrap();
+        let pb = b.poll(&mut nb).unwrap();
+        if a.link().alias().is_some() && b.link().alias().is_some() && bus.stats().frames == 14 {
+            // 4 CID + RID + AMD + Initialization Complete (the node's) each.
+            assert_eq!(a.stats().frames_transmitted, 7);
+            na.request_snip(time.get(), node(B)).unwrap();
+        }
+        while let Some(event) = na.poll_event() {
+            if let NodeEvent::SnipReceived { peer, info } = event {
+                snip = Some((peer, info.model));
+            }
+        }
+        if snip.is_some() {
+            break;
+        }
+        if pa.is_idle() && pb.is_idle() {
+            advance(&time, &[pa, pb]);
+        }
+    }
+    assert_eq!(snip, Some((node(B), "Widget".into())), "B's node answered through its driver");
 }
 
 // ----- a transfer -----
