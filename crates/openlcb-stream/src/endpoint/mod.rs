@@ -9,7 +9,7 @@ mod rename;
 mod stream;
 mod timer;
 
-use alloc::collections::{BTreeMap, VecDeque};
+use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
 use bytes::Bytes;
@@ -165,9 +165,6 @@ pub struct Stats {
     pub own_echoes: u64,
 }
 
-/// Key of the stream index: the peer, this node's role, and the ID this node assigned.
-type StreamKey = (NodeId, Role, StreamId);
-
 #[derive(Debug, Default)]
 struct Slot {
     generation: u16,
@@ -211,8 +208,9 @@ impl Outputs {
 #[derive(Debug)]
 pub struct StreamEndpoint {
     config: Config,
+    /// The stream table, searched linearly by (peer, role, the ID this node assigned): it is
+    /// small (bounded by `max_streams`), and a map's code costs kilobytes of flash.
     slots: Vec<Slot>,
-    index: BTreeMap<StreamKey, u16>,
     next_source_id: StreamId,
     next_destination_id: StreamId,
     out: Outputs,
@@ -226,7 +224,6 @@ impl StreamEndpoint {
         StreamEndpoint {
             config,
             slots: Vec::new(),
-            index: BTreeMap::new(),
             next_source_id: StreamId::MIN,
             next_destination_id: StreamId::MIN,
             out,
@@ -259,7 +256,7 @@ impl StreamEndpoint {
 
     /// Streams in the table (open, pending, or closed with unread data).
     pub fn stream_count(&self) -> usize {
-        self.index.len()
+        self.streams().count()
     }
 
     /// What is known about a stream.
@@ -397,7 +394,7 @@ impl StreamEndpoint {
         }
         let peer = options.destination;
         let sid = match options.source_stream {
-            Some(sid) if self.index.contains_key(&(peer, Role::Source, sid)) => return Err(StreamError::StreamIdInUse),
+            Some(sid) if self.find(peer, Role::Source, sid).is_some() => return Err(StreamError::StreamIdInUse),
             Some(sid) => sid,
             None => self.free_id(peer, Role::Source)?,
         };
@@ -633,7 +630,7 @@ impl StreamEndpoint {
             return;
         }
         let did = match request.proposed_destination {
-            Some(did) if self.index.contains_key(&(peer, Role::Destination, did)) => {
+            Some(did) if self.find(peer, Role::Destination, did).is_some() => {
                 self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
                 return;
             }
@@ -1062,10 +1059,10 @@ impl StreamEndpoint {
     }
 
     fn check_room(&self, peer: NodeId, role: Role) -> Result<(), StreamError> {
-        if self.index.len() >= self.config.max_streams {
+        if self.stream_count() >= self.config.max_streams {
             return Err(StreamError::TableFull);
         }
-        let with_peer = self.index.range((peer, role, StreamId::MIN)..=(peer, role, StreamId::MAX)).count();
+        let with_peer = self.streams().filter(|(_, s)| s.peer == peer && s.role() == role).count();
         if with_peer >= self.config.max_streams_per_peer.min(255) {
             return Err(StreamError::NoFreeStreamId);
         }
@@ -1079,7 +1076,7 @@ impl StreamEndpoint {
             Role::Destination => self.next_destination_id,
         };
         for _ in 0..255 {
-            if !self.index.contains_key(&(peer, role, id)) {
+            if self.find(peer, role, id).is_none() {
                 return Ok(id);
             }
             id = id.next();
@@ -1088,7 +1085,7 @@ impl StreamEndpoint {
     }
 
     fn insert(&mut self, stream: Stream) -> Result<StreamHandle, StreamError> {
-        let key = (stream.peer, stream.role(), stream.local_id().ok_or(StreamError::NotOpen)?);
+        stream.local_id().ok_or(StreamError::NotOpen)?;
         let slot = match self.slots.iter().position(|s| s.stream.is_none()) {
             Some(free) => free,
             None if self.slots.len() < self.config.max_streams.min(usize::from(u16::MAX)) => {
@@ -1099,19 +1096,14 @@ impl StreamEndpoint {
         };
         let entry = self.slots.get_mut(slot).ok_or(StreamError::TableFull)?;
         entry.stream = Some(stream);
-        let slot = slot as u16;
-        self.index.insert(key, slot);
-        Ok(StreamHandle { slot, generation: entry.generation })
+        Ok(StreamHandle { slot: slot as u16, generation: entry.generation })
     }
 
     fn release(&mut self, handle: StreamHandle) {
         let Some(slot) = self.slot_index(handle) else { return };
         let Some(entry) = self.slots.get_mut(slot) else { return };
-        if let Some(stream) = entry.stream.take() {
+        if entry.stream.take().is_some() {
             entry.generation = entry.generation.wrapping_add(1);
-            if let Some(id) = stream.local_id() {
-                self.index.remove(&(stream.peer, stream.role(), id));
-            }
         }
     }
 
@@ -1136,24 +1128,40 @@ impl StreamEndpoint {
         Ok((stream, &mut self.out))
     }
 
-    fn find(&self, peer: NodeId, role: Role, id: StreamId) -> Option<StreamHandle> {
-        let slot = *self.index.get(&(peer, role, id))?;
-        let generation = self.slots.get(usize::from(slot))?.generation;
-        Some(StreamHandle { slot, generation })
+    /// Every stream in the table with its handle, in slot order.
+    fn streams(&self) -> impl Iterator<Item = (StreamHandle, &Stream)> {
+        self.slots.iter().enumerate().filter_map(|(slot, entry)| {
+            let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
+            entry.stream.as_ref().map(|stream| (handle, stream))
+        })
     }
 
-    /// A destination stream from `peer` by the source's SID (the index is keyed by DID).
+    /// The stream with `peer` in `role` under the ID this node assigned.
+    fn find(&self, peer: NodeId, role: Role, id: StreamId) -> Option<StreamHandle> {
+        let mut found = None;
+        for (handle, s) in self.streams() {
+            if s.peer == peer && s.role() == role && s.local_id() == Some(id) {
+                found = Some(handle);
+                break;
+            }
+        }
+        found
+    }
+
+    /// A destination stream from `peer` by the source's SID; of several (a closed one with
+    /// unread data and a newer one), the one with the lowest DID.
     fn find_by_source_id(&self, peer: NodeId, sid: StreamId) -> Option<StreamHandle> {
-        self.index
-            .range((peer, Role::Destination, StreamId::MIN)..=(peer, Role::Destination, StreamId::MAX))
-            .map(|(_, slot)| *slot)
-            .find(|slot| {
-                self.slots
-                    .get(usize::from(*slot))
-                    .and_then(|s| s.stream.as_ref())
-                    .is_some_and(|s| s.source_stream == sid)
-            })
-            .and_then(|slot| Some(StreamHandle { slot, generation: self.slots.get(usize::from(slot))?.generation }))
+        let mut found: Option<(StreamId, StreamHandle)> = None;
+        for (handle, s) in self.streams() {
+            if let (Role::Destination, Some(did)) = (s.role(), s.destination_stream)
+                && s.peer == peer
+                && s.source_stream == sid
+                && found.is_none_or(|(lowest, _)| did < lowest)
+            {
+                found = Some((did, handle));
+            }
+        }
+        found.map(|(_, handle)| handle)
     }
 }
 
