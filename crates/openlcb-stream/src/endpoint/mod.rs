@@ -408,7 +408,13 @@ impl StreamEndpoint {
             window: options.max_buffer_size,
             content_uid: options.content_uid,
             timers,
-            half: Half::Source(Source { state: SourceState::AwaitingReply, credit: 0, sent: 0, write_blocked: false }),
+            half: Half::Source(Source {
+                state: SourceState::AwaitingReply,
+                credit: 0,
+                sent: 0,
+                window_sent: 0,
+                write_blocked: false,
+            }),
         };
         let handle = self.insert(stream)?;
         if options.source_stream.is_none() {
@@ -436,11 +442,11 @@ impl StreamEndpoint {
             return Err(StreamError::NotOpen);
         }
         let did = stream.destination_stream.ok_or(StreamError::NotOpen)?;
-        let window = u64::from(stream.window.max(1));
+        let window = u32::from(stream.window.max(1));
         let mut rest = data;
         while !rest.is_empty() && source.credit > 0 {
             // Never merge bytes of two windows into one message (draft §7.3, gateways count on it).
-            let to_boundary = window - source.sent % window;
+            let to_boundary = window.saturating_sub(source.window_sent).max(1);
             let n = rest.len().min(source.credit as usize).min(to_boundary as usize);
             let (chunk, tail) = rest.split_at(n);
             let mut payload = Vec::with_capacity(n + 1);
@@ -449,6 +455,10 @@ impl StreamEndpoint {
             out.send(Mti::STREAM_DATA_SEND, stream.peer, Bytes::from(payload));
             source.credit -= n as u32;
             source.sent += n as u64;
+            source.window_sent += n as u32;
+            if source.window_sent >= window {
+                source.window_sent = 0;
+            }
             rest = tail;
         }
         let taken = data.len() - rest.len();
