@@ -128,41 +128,42 @@ impl AcceptOptions {
     }
 }
 
-/// Inputs that were ignored or refused, by cause. Nothing here is ever a panic.
+/// Inputs that were ignored or refused, by cause. Nothing here is ever a panic. Each counter
+/// stops at `u32::MAX` (32 bits: 64-bit counters cost flash on a microcontroller).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct Stats {
     /// Messages handled.
-    pub messages_in: u64,
+    pub messages_in: u32,
     /// Messages queued for transmission.
-    pub messages_out: u64,
+    pub messages_out: u32,
     /// Addressed to another node.
-    pub not_for_us: u64,
+    pub not_for_us: u32,
     /// A stream message that did not parse (too short, 0xFF stream ID, zero buffer).
-    pub malformed: u64,
+    pub malformed: u32,
     /// Data Send for a DID not open with that source.
-    pub unknown_stream_data: u64,
+    pub unknown_stream_data: u32,
     /// Proceed for a stream that is not open, or with the wrong DID.
-    pub stray_proceeds: u64,
+    pub stray_proceeds: u32,
     /// Complete for an unknown stream, with the wrong SID, or a duplicate.
-    pub stray_completes: u64,
+    pub stray_completes: u32,
     /// Reply for no pending request, or a second Reply.
-    pub stray_replies: u64,
+    pub stray_replies: u32,
     /// TDE or OIR that matched no stream.
-    pub stray_error_reports: u64,
+    pub stray_error_reports: u32,
     /// Data beyond the granted window that still fitted the buffer (tolerated).
-    pub window_overruns: u64,
+    pub window_overruns: u32,
     /// Data beyond the count a Complete stated, or after the stream ended.
-    pub excess_data: u64,
+    pub excess_data: u32,
     /// Accepting Replies whose window exceeded what was proposed (used as given).
-    pub oversized_windows: u64,
+    pub oversized_windows: u32,
     /// Incoming requests refused (any code).
-    pub requests_refused: u64,
+    pub requests_refused: u32,
     /// Messages of other protocols (neither a stream message, nor a TDE/OIR, nor
     /// Initialization Complete): the node routes those elsewhere.
-    pub not_stream: u64,
+    pub not_stream: u32,
     /// Messages claiming to come from this node's own ID.
-    pub own_echoes: u64,
+    pub own_echoes: u32,
 }
 
 #[derive(Debug, Default)]
@@ -1060,7 +1061,7 @@ impl StreamEndpoint {
         }
     }
 
-    fn count(&mut self, counter: impl FnOnce(&mut Stats) -> &mut u64) {
+    fn count(&mut self, counter: impl FnOnce(&mut Stats) -> &mut u32) {
         bump(counter(&mut self.out.stats));
     }
 
@@ -1192,7 +1193,7 @@ fn copy_out(from: &mut VecDeque<u8>, to: &mut [u8]) -> usize {
 }
 
 /// Adds one to a counter.
-fn bump(counter: &mut u64) {
+fn bump(counter: &mut u32) {
     *counter = counter.saturating_add(1);
 }
 
