@@ -208,55 +208,56 @@ pub enum SendError {
     Encode(#[from] EncodeError),
 }
 
-/// Frames and messages ignored, refused or dropped, by cause.
+/// Frames and messages ignored, refused or dropped, by cause. Each counter stops at
+/// `u32::MAX` (32 bits: 64-bit counters cost flash on a microcontroller).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct LinkStats {
     /// Frames handled.
-    pub frames_in: u64,
+    pub frames_in: u32,
     /// Frames returned by `poll_transmit`.
-    pub frames_out: u64,
+    pub frames_out: u32,
     /// Standard (11-bit) frames ignored.
-    pub standard_ignored: u64,
+    pub standard_ignored: u32,
     /// Remote frames ignored.
-    pub remote_ignored: u64,
+    pub remote_ignored: u32,
     /// Frames with a bad header, an addressed frame shorter than 2 bytes, or a stream frame
     /// without DID.
-    pub invalid_frames: u64,
+    pub invalid_frames: u32,
     /// Addressed and stream frames for another node.
-    pub not_for_us: u64,
+    pub not_for_us: u32,
     /// Frames of the reserved formats 0 and 6 ignored.
-    pub unsupported_ignored: u64,
+    pub unsupported_ignored: u32,
     /// Global messages claiming our Node ID from another alias.
-    pub own_node_claims: u64,
+    pub own_node_claims: u32,
     /// 0x2041: a middle or last frame of an addressed message without a first (datagrams:
     /// `datagram_errors`).
-    pub middle_without_first: u64,
+    pub middle_without_first: u32,
     /// 0x2042: a first frame of an addressed message before the previous one ended.
-    pub first_before_last_ended: u64,
+    pub first_before_last_ended: u32,
     /// 0x2011: no last frame of an addressed message in time.
-    pub reassembly_timeouts: u64,
+    pub reassembly_timeouts: u32,
     /// Multi-frame messages longer than `max_message_len`, or with no free slot.
-    pub reassembly_overflows: u64,
+    pub reassembly_overflows: u32,
     /// Datagram framing errors, each answered with Datagram Rejected.
     pub datagram_errors: ReassemblyErrorCounts,
     /// Messages delivered with a provisional name (their sender's Node ID was not cached).
-    pub provisional_deliveries: u64,
+    pub provisional_deliveries: u32,
     /// Addressed Verify Node ID frames sent to learn an alias's Node ID (first asks and
     /// retries).
-    pub verifies_sent: u64,
+    pub verifies_sent: u32,
     /// Aliases whose Node ID was not learnt after `learn_attempts` Verify Node ID frames.
-    pub learning_given_up: u64,
+    pub learning_given_up: u32,
     /// Aliases not asked because `learn_slots` aliases were being asked already.
-    pub learning_table_full: u64,
+    pub learning_table_full: u32,
     /// Messages to send dropped because no alias was found for their destination.
-    pub unresolved_dropped: u64,
+    pub unresolved_dropped: u32,
     /// Messages refused by `send`.
-    pub send_refused: u64,
+    pub send_refused: u32,
     /// Queued messages dropped when the alias was lost or the link stopped.
-    pub messages_dropped: u64,
+    pub messages_dropped: u32,
     /// Link-originated frames or events dropped because their queue was full.
-    pub queue_overflows: u64,
+    pub queue_overflows: u32,
 }
 
 #[derive(Debug)]
@@ -545,7 +546,8 @@ impl CanLink {
             let before = self.unresolved.len();
             self.unresolved.retain(|u| u.node != node);
             let dropped = before - self.unresolved.len();
-            self.stats.unresolved_dropped = self.stats.unresolved_dropped.saturating_add(dropped as u64);
+            self.stats.unresolved_dropped =
+                self.stats.unresolved_dropped.saturating_add(u32::try_from(dropped).unwrap_or(u32::MAX));
             self.event(LinkEvent::Unreachable { node, dropped });
         }
     }
@@ -742,7 +744,8 @@ impl CanLink {
         self.learning.retain(|l| l.alias != alias);
         let before = self.messages.len();
         self.messages.retain(|m| m.destination != Some(alias));
-        self.stats.messages_dropped = self.stats.messages_dropped.saturating_add((before - self.messages.len()) as u64);
+        self.stats.messages_dropped =
+            self.stats.messages_dropped.saturating_add(u32::try_from(before - self.messages.len()).unwrap_or(u32::MAX));
         let node = self.cache.remove_alias(alias).unwrap_or(alias.provisional_node_id());
         self.event(LinkEvent::PeerLost { node, alias });
     }
@@ -864,7 +867,8 @@ impl CanLink {
     /// datagrams, frames of the link's own, aliases being learnt.
     fn drop_traffic(&mut self) {
         let queued = self.messages.len() + self.unresolved.len() + usize::from(self.current.is_some());
-        self.stats.messages_dropped = self.stats.messages_dropped.saturating_add(queued as u64);
+        self.stats.messages_dropped =
+            self.stats.messages_dropped.saturating_add(u32::try_from(queued).unwrap_or(u32::MAX));
         self.messages.clear();
         self.unresolved.clear();
         self.current = None;
@@ -921,6 +925,6 @@ fn take_into(scratch: &mut Vec<u8>, whole: &[u8]) -> Vec<u8> {
     buffer
 }
 
-fn bump(counter: &mut u64) {
+fn bump(counter: &mut u32) {
     *counter = counter.saturating_add(1);
 }

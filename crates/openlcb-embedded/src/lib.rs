@@ -5,7 +5,8 @@
 //!   bxcan, fdcan and mcp2515 implement),
 //! - the node's [`CanLink`](openlcb_can::CanLink) (alias login, framing, alias resolution),
 //! - the layer above, anything implementing [`Upper`]: a
-//!   [`StreamEndpoint`](openlcb_stream::StreamEndpoint) out of the box, a whole node later,
+//!   [`StreamEndpoint`](openlcb_stream::StreamEndpoint) or a whole
+//!   [`Node`](openlcb_node::Node) out of the box,
 //! - and a [`Clock`] the caller supplies (any `FnMut() -> Instant`).
 //!
 //! Each [`Driver::poll`] runs due timers, takes received frames into the link (which hands

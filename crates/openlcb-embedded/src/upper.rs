@@ -2,6 +2,7 @@
 //! it reads the time.
 
 use openlcb_can::LinkEvent;
+use openlcb_node::Node;
 use openlcb_stream::{Instant, Message, MessageRef, StreamEndpoint};
 
 /// The layer above the CAN link: a [`StreamEndpoint`], or a whole node that routes messages to
@@ -30,33 +31,45 @@ pub trait Upper {
     fn poll_timeout(&self) -> Option<Instant>;
 }
 
-impl Upper for StreamEndpoint {
-    fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
-        StreamEndpoint::handle_message(self, now, message);
-    }
+/// `Upper` for a layer with the endpoint's method names: a [`StreamEndpoint`], and a
+/// [`Node`] (what a firmware should drive: it routes each message to its streams, datagrams,
+/// SNIP and Memory Configuration, and sends Initialization Complete itself).
+macro_rules! upper_by_name {
+    ($($layer:ty),*) => {$(
+        impl Upper for $layer {
+            fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
+                <$layer>::handle_message(self, now, message);
+            }
 
-    /// Alias lost: every stream is over (`link_lost`); a peer released its alias or could
-    /// not be found: its streams are over (`peer_lost`).
-    fn handle_link_event(&mut self, _now: Instant, event: LinkEvent) {
-        match event {
-            LinkEvent::AliasLost { .. } | LinkEvent::DuplicateNodeId { .. } => self.link_lost(),
-            LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.peer_lost(node),
-            _ => {}
+            /// Alias lost or Node ID taken: everything open ends (`link_lost`); a peer
+            /// released its alias or could not be found: what is open with it ends
+            /// (`peer_lost`); a peer renamed: what is open with it goes on under the new
+            /// name (`rename_peer`).
+            fn handle_link_event(&mut self, _now: Instant, event: LinkEvent) {
+                match event {
+                    LinkEvent::AliasLost { .. } | LinkEvent::DuplicateNodeId { .. } => self.link_lost(),
+                    LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.peer_lost(node),
+                    LinkEvent::PeerRenamed { from, to, .. } => self.rename_peer(from, to),
+                    _ => {}
+                }
+            }
+
+            fn handle_timeout(&mut self, now: Instant) {
+                <$layer>::handle_timeout(self, now);
+            }
+
+            fn poll_transmit(&mut self) -> Option<Message> {
+                <$layer>::poll_transmit(self)
+            }
+
+            fn poll_timeout(&self) -> Option<Instant> {
+                <$layer>::poll_timeout(self)
+            }
         }
-    }
-
-    fn handle_timeout(&mut self, now: Instant) {
-        StreamEndpoint::handle_timeout(self, now);
-    }
-
-    fn poll_transmit(&mut self) -> Option<Message> {
-        StreamEndpoint::poll_transmit(self)
-    }
-
-    fn poll_timeout(&self) -> Option<Instant> {
-        StreamEndpoint::poll_timeout(self)
-    }
+    )*};
 }
+
+upper_by_name!(StreamEndpoint, Node);
 
 impl<T: Upper + ?Sized> Upper for &mut T {
     fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {

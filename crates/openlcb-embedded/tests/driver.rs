@@ -10,6 +10,7 @@ use embedded_can::{ErrorKind, ExtendedId, Frame, Id};
 use openlcb_can::{CanConfig, CanFrame, CanLink};
 use openlcb_embedded::memory_bus::MemoryBus;
 use openlcb_embedded::{Driver, Error, Poll, Upper};
+use openlcb_node::{Node, NodeConfig, NodeEvent, SnipInfo};
 use openlcb_stream::{Config, Event, Instant, NodeId, OpenOptions, StreamEndpoint, StreamHandle};
 
 const A: u64 = 0x05_01_01_01_22_00;
@@ -63,14 +64,51 @@ fn login_on_memory_bus_reserves_aliases_after_the_reserve_wait() {
     }
     let (alias_a, alias_b) = (a.link().alias().unwrap(), b.link().alias().unwrap());
     assert_ne!(alias_a, alias_b);
-    // Each learned the other's mapping from its AMD / Initialization Complete.
+    // Each learned the other's mapping from its AMD.
     assert_eq!(a.link().node_of(alias_b), Some(node(B)));
     assert_eq!(b.link().node_of(alias_a), Some(node(A)));
-    // 4 CID + RID + AMD + Initialization Complete each.
-    assert_eq!(bus.stats().frames, 14);
-    assert_eq!(a.stats().frames_transmitted, 7);
-    assert_eq!(a.stats().frames_received, 7);
+    // 4 CID + RID + AMD each; a bare endpoint sends no Initialization Complete (the node
+    // layer does).
+    assert_eq!(bus.stats().frames, 12);
+    assert_eq!(a.stats().frames_transmitted, 6);
+    assert_eq!(a.stats().frames_received, 6);
     assert_eq!(bus.queued(), 0);
+}
+
+#[test]
+fn nodes_on_memory_bus_announce_themselves_and_answer_snip_by_alias() {
+    let bus: MemoryBus<CanFrame, 2, 8> = MemoryBus::new();
+    let time = Cell::new(Instant::ZERO);
+    let clock = || time.get();
+    let mut a = Driver::new(bus.port(0).unwrap(), clock, CanLink::new(time.get(), node(A), CanConfig::default()));
+    let mut b = Driver::new(bus.port(1).unwrap(), clock, CanLink::new(time.get(), node(B), CanConfig::default()));
+    let mut na = Node::new(node(A), NodeConfig::default());
+    let mut b_config = NodeConfig::default();
+    b_config.snip = SnipInfo { model: "Widget".into(), ..SnipInfo::default() };
+    let mut nb = Node::new(node(B), b_config);
+
+    let mut snip = None;
+    for _ in 0..64 {
+        let pa = a.poll(&mut na).unwrap();
+        let pb = b.poll(&mut nb).unwrap();
+        if a.link().alias().is_some() && b.link().alias().is_some() && bus.stats().frames == 14 {
+            // 4 CID + RID + AMD + Initialization Complete (the node's) each.
+            assert_eq!(a.stats().frames_transmitted, 7);
+            na.request_snip(time.get(), node(B)).unwrap();
+        }
+        while let Some(event) = na.poll_event() {
+            if let NodeEvent::SnipReceived { peer, info } = event {
+                snip = Some((peer, info.model));
+            }
+        }
+        if snip.is_some() {
+            break;
+        }
+        if pa.is_idle() && pb.is_idle() {
+            advance(&time, &[pa, pb]);
+        }
+    }
+    assert_eq!(snip, Some((node(B), "Widget".into())), "B's node answered through its driver");
 }
 
 // ----- a transfer -----
@@ -98,11 +136,11 @@ fn transfer<const DEPTH: usize>(len: u64, window: u16, read_chunk: usize) -> Out
     let mut destination = StreamEndpoint::new(node(B), Config::default());
 
     let mut stream: Option<StreamHandle> = None;
-    let (mut sent, mut received, mut finished) = (0u64, 0u64, false);
+    let (mut sent, mut received, mut finished, mut source_done) = (0u64, 0u64, false, false);
     let mut chunk = [0u8; 512];
     let mut buf = vec![0u8; read_chunk];
     for _round in 0..2_000_000 {
-        if finished {
+        if finished && source_done {
             break;
         }
         let pa = a.poll(&mut source).unwrap();
@@ -115,6 +153,10 @@ fn transfer<const DEPTH: usize>(len: u64, window: u16, read_chunk: usize) -> Out
         while let Some(event) = source.poll_event() {
             match event {
                 Event::Opened { .. } | Event::Writable { .. } => {}
+                Event::Sent { total, .. } => {
+                    assert_eq!(total, len, "the source sent a different total");
+                    source_done = true;
+                }
                 other => panic!("source: unexpected {other:?}"),
             }
         }
@@ -156,7 +198,7 @@ fn transfer<const DEPTH: usize>(len: u64, window: u16, read_chunk: usize) -> Out
     }
     Outcome {
         received,
-        finished,
+        finished: finished && source_done,
         would_block: a.stats().would_block + b.stats().would_block,
         bus_would_block: bus.stats().would_block,
         bus_frames: bus.stats().frames,

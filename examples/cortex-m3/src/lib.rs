@@ -117,6 +117,8 @@ pub mod exercise {
     use openlcb_stream::wire::{ErrorCode, ReplyCode};
     use openlcb_stream::{AcceptPolicy, Config, Event, Instant, MessageRef, Mti, NodeId, OpenOptions, StreamEndpoint};
 
+    use openlcb_node::{DatagramAnswer, MemoryServer, Node, NodeConfig, NodeEvent, OkFlags, RamSpace};
+
     use crate::opaque::{input, input_bytes, output};
 
     /// The body of every size firmware: gives the heap its memory, builds the state under
@@ -256,6 +258,56 @@ pub mod exercise {
             output(frame.raw_id());
         }
         output(link.poll_timeout().map_or(0, |t| t.as_micros() as u32));
+    }
+
+    /// A node for an opaque Node ID: streams (the accept policy chosen by input), datagrams,
+    /// SNIP, and a Memory Configuration server with a 256-byte RAM space 0xFD.
+    pub fn node() -> Node {
+        let mut config = NodeConfig::default();
+        if input() & 1 == 1 {
+            config.stream.accept_policy = AcceptPolicy::Ask;
+        }
+        Node::new(node_id(), config).with_memory_server(MemoryServer::new().with_space(0xFD, RamSpace::new(256)))
+    }
+
+    /// One opaque input or command into the node: a received message (every MTI reaches one
+    /// of its protocols), a timeout, a transport event, a datagram sent or answered, a SNIP
+    /// request, or a stream command on its endpoint.
+    pub fn node_turn(node: &mut Node) {
+        let now = now();
+        let op = input();
+        let mut payload = [0u8; 72];
+        input_bytes(&mut payload);
+        let len = (op >> 8) as usize % payload.len();
+        let data = payload.get(..len).unwrap_or(&[]);
+        let peer = node_id();
+        let word = (op >> 16) as u16;
+        match op & 0xF {
+            0 => {
+                let destination = (op & 0x10 != 0).then(|| node.node_id());
+                node.handle_message(now, MessageRef { mti: Mti(word), source: peer, destination, payload: data });
+            }
+            1 => node.handle_timeout(now),
+            2 => output(node.send_datagram(now, peer, data).is_ok().into()),
+            3 => output(node.answer_datagram(peer, DatagramAnswer::Ok(OkFlags::default())).is_ok().into()),
+            4 => output(node.answer_datagram(peer, DatagramAnswer::Rejected(ErrorCode(word))).is_ok().into()),
+            5 => output(node.request_snip(now, peer).is_ok().into()),
+            6 => node.peer_lost(peer),
+            7 => node.link_lost(),
+            _ => endpoint_turn(node.streams_mut()),
+        }
+        while let Some(message) = node.poll_transmit() {
+            output(u32::from(message.mti.0) + message.payload.len() as u32);
+        }
+        while let Some(event) = node.poll_event() {
+            output(match event {
+                NodeEvent::DatagramReceived { datagram, .. } => datagram.as_slice().len() as u32,
+                NodeEvent::SnipReceived { info, .. } => info.model.len() as u32,
+                NodeEvent::Stream(Event::Readable { .. }) => 3,
+                _ => 8,
+            });
+        }
+        output(node.poll_timeout().map_or(0, |t| t.as_micros() as u32));
     }
 
     /// A CAN peripheral whose receive FIFO and transmit mailboxes are opaque memory.

@@ -9,7 +9,7 @@ mod rename;
 mod stream;
 mod timer;
 
-use alloc::collections::{BTreeMap, VecDeque};
+use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
 use bytes::Bytes;
@@ -128,45 +128,43 @@ impl AcceptOptions {
     }
 }
 
-/// Inputs that were ignored or refused, by cause. Nothing here is ever a panic.
+/// Inputs that were ignored or refused, by cause. Nothing here is ever a panic. Each counter
+/// stops at `u32::MAX` (32 bits: 64-bit counters cost flash on a microcontroller).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct Stats {
     /// Messages handled.
-    pub messages_in: u64,
+    pub messages_in: u32,
     /// Messages queued for transmission.
-    pub messages_out: u64,
+    pub messages_out: u32,
     /// Addressed to another node.
-    pub not_for_us: u64,
+    pub not_for_us: u32,
     /// A stream message that did not parse (too short, 0xFF stream ID, zero buffer).
-    pub malformed: u64,
+    pub malformed: u32,
     /// Data Send for a DID not open with that source.
-    pub unknown_stream_data: u64,
+    pub unknown_stream_data: u32,
     /// Proceed for a stream that is not open, or with the wrong DID.
-    pub stray_proceeds: u64,
+    pub stray_proceeds: u32,
     /// Complete for an unknown stream, with the wrong SID, or a duplicate.
-    pub stray_completes: u64,
+    pub stray_completes: u32,
     /// Reply for no pending request, or a second Reply.
-    pub stray_replies: u64,
+    pub stray_replies: u32,
     /// TDE or OIR that matched no stream.
-    pub stray_error_reports: u64,
+    pub stray_error_reports: u32,
     /// Data beyond the granted window that still fitted the buffer (tolerated).
-    pub window_overruns: u64,
+    pub window_overruns: u32,
     /// Data beyond the count a Complete stated, or after the stream ended.
-    pub excess_data: u64,
+    pub excess_data: u32,
     /// Accepting Replies whose window exceeded what was proposed (used as given).
-    pub oversized_windows: u64,
+    pub oversized_windows: u32,
     /// Incoming requests refused (any code).
-    pub requests_refused: u64,
+    pub requests_refused: u32,
     /// Messages of other protocols (neither a stream message, nor a TDE/OIR, nor
     /// Initialization Complete): the node routes those elsewhere.
-    pub not_stream: u64,
+    pub not_stream: u32,
     /// Messages claiming to come from this node's own ID.
-    pub own_echoes: u64,
+    pub own_echoes: u32,
 }
-
-/// Key of the stream index: the peer, this node's role, and the ID this node assigned.
-type StreamKey = (NodeId, Role, StreamId);
 
 #[derive(Debug, Default)]
 struct Slot {
@@ -211,8 +209,9 @@ impl Outputs {
 #[derive(Debug)]
 pub struct StreamEndpoint {
     config: Config,
+    /// The stream table, searched linearly by (peer, role, the ID this node assigned): it is
+    /// small (bounded by `max_streams`), and a map's code costs kilobytes of flash.
     slots: Vec<Slot>,
-    index: BTreeMap<StreamKey, u16>,
     next_source_id: StreamId,
     next_destination_id: StreamId,
     out: Outputs,
@@ -226,7 +225,6 @@ impl StreamEndpoint {
         StreamEndpoint {
             config,
             slots: Vec::new(),
-            index: BTreeMap::new(),
             next_source_id: StreamId::MIN,
             next_destination_id: StreamId::MIN,
             out,
@@ -259,7 +257,7 @@ impl StreamEndpoint {
 
     /// Streams in the table (open, pending, or closed with unread data).
     pub fn stream_count(&self) -> usize {
-        self.index.len()
+        self.streams().count()
     }
 
     /// What is known about a stream.
@@ -397,7 +395,7 @@ impl StreamEndpoint {
         }
         let peer = options.destination;
         let sid = match options.source_stream {
-            Some(sid) if self.index.contains_key(&(peer, Role::Source, sid)) => return Err(StreamError::StreamIdInUse),
+            Some(sid) if self.find(peer, Role::Source, sid).is_some() => return Err(StreamError::StreamIdInUse),
             Some(sid) => sid,
             None => self.free_id(peer, Role::Source)?,
         };
@@ -411,7 +409,13 @@ impl StreamEndpoint {
             window: options.max_buffer_size,
             content_uid: options.content_uid,
             timers,
-            half: Half::Source(Source { state: SourceState::AwaitingReply, credit: 0, sent: 0, write_blocked: false }),
+            half: Half::Source(Source {
+                state: SourceState::AwaitingReply,
+                credit: 0,
+                sent: 0,
+                window_sent: 0,
+                write_blocked: false,
+            }),
         };
         let handle = self.insert(stream)?;
         if options.source_stream.is_none() {
@@ -439,11 +443,11 @@ impl StreamEndpoint {
             return Err(StreamError::NotOpen);
         }
         let did = stream.destination_stream.ok_or(StreamError::NotOpen)?;
-        let window = u64::from(stream.window.max(1));
+        let window = u32::from(stream.window.max(1));
         let mut rest = data;
         while !rest.is_empty() && source.credit > 0 {
             // Never merge bytes of two windows into one message (draft §7.3, gateways count on it).
-            let to_boundary = window - source.sent % window;
+            let to_boundary = window.saturating_sub(source.window_sent).max(1);
             let n = rest.len().min(source.credit as usize).min(to_boundary as usize);
             let (chunk, tail) = rest.split_at(n);
             let mut payload = Vec::with_capacity(n + 1);
@@ -452,6 +456,10 @@ impl StreamEndpoint {
             out.send(Mti::STREAM_DATA_SEND, stream.peer, Bytes::from(payload));
             source.credit -= n as u32;
             source.sent += n as u64;
+            source.window_sent += n as u32;
+            if source.window_sent >= window {
+                source.window_sent = 0;
+            }
             rest = tail;
         }
         let taken = data.len() - rest.len();
@@ -633,7 +641,7 @@ impl StreamEndpoint {
             return;
         }
         let did = match request.proposed_destination {
-            Some(did) if self.index.contains_key(&(peer, Role::Destination, did)) => {
+            Some(did) if self.find(peer, Role::Destination, did).is_some() => {
                 self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
                 return;
             }
@@ -1053,7 +1061,7 @@ impl StreamEndpoint {
         }
     }
 
-    fn count(&mut self, counter: impl FnOnce(&mut Stats) -> &mut u64) {
+    fn count(&mut self, counter: impl FnOnce(&mut Stats) -> &mut u32) {
         bump(counter(&mut self.out.stats));
     }
 
@@ -1062,10 +1070,10 @@ impl StreamEndpoint {
     }
 
     fn check_room(&self, peer: NodeId, role: Role) -> Result<(), StreamError> {
-        if self.index.len() >= self.config.max_streams {
+        if self.stream_count() >= self.config.max_streams {
             return Err(StreamError::TableFull);
         }
-        let with_peer = self.index.range((peer, role, StreamId::MIN)..=(peer, role, StreamId::MAX)).count();
+        let with_peer = self.streams().filter(|(_, s)| s.peer == peer && s.role() == role).count();
         if with_peer >= self.config.max_streams_per_peer.min(255) {
             return Err(StreamError::NoFreeStreamId);
         }
@@ -1079,7 +1087,7 @@ impl StreamEndpoint {
             Role::Destination => self.next_destination_id,
         };
         for _ in 0..255 {
-            if !self.index.contains_key(&(peer, role, id)) {
+            if self.find(peer, role, id).is_none() {
                 return Ok(id);
             }
             id = id.next();
@@ -1088,7 +1096,7 @@ impl StreamEndpoint {
     }
 
     fn insert(&mut self, stream: Stream) -> Result<StreamHandle, StreamError> {
-        let key = (stream.peer, stream.role(), stream.local_id().ok_or(StreamError::NotOpen)?);
+        stream.local_id().ok_or(StreamError::NotOpen)?;
         let slot = match self.slots.iter().position(|s| s.stream.is_none()) {
             Some(free) => free,
             None if self.slots.len() < self.config.max_streams.min(usize::from(u16::MAX)) => {
@@ -1099,19 +1107,14 @@ impl StreamEndpoint {
         };
         let entry = self.slots.get_mut(slot).ok_or(StreamError::TableFull)?;
         entry.stream = Some(stream);
-        let slot = slot as u16;
-        self.index.insert(key, slot);
-        Ok(StreamHandle { slot, generation: entry.generation })
+        Ok(StreamHandle { slot: slot as u16, generation: entry.generation })
     }
 
     fn release(&mut self, handle: StreamHandle) {
         let Some(slot) = self.slot_index(handle) else { return };
         let Some(entry) = self.slots.get_mut(slot) else { return };
-        if let Some(stream) = entry.stream.take() {
+        if entry.stream.take().is_some() {
             entry.generation = entry.generation.wrapping_add(1);
-            if let Some(id) = stream.local_id() {
-                self.index.remove(&(stream.peer, stream.role(), id));
-            }
         }
     }
 
@@ -1136,24 +1139,40 @@ impl StreamEndpoint {
         Ok((stream, &mut self.out))
     }
 
-    fn find(&self, peer: NodeId, role: Role, id: StreamId) -> Option<StreamHandle> {
-        let slot = *self.index.get(&(peer, role, id))?;
-        let generation = self.slots.get(usize::from(slot))?.generation;
-        Some(StreamHandle { slot, generation })
+    /// Every stream in the table with its handle, in slot order.
+    fn streams(&self) -> impl Iterator<Item = (StreamHandle, &Stream)> {
+        self.slots.iter().enumerate().filter_map(|(slot, entry)| {
+            let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
+            entry.stream.as_ref().map(|stream| (handle, stream))
+        })
     }
 
-    /// A destination stream from `peer` by the source's SID (the index is keyed by DID).
+    /// The stream with `peer` in `role` under the ID this node assigned.
+    fn find(&self, peer: NodeId, role: Role, id: StreamId) -> Option<StreamHandle> {
+        let mut found = None;
+        for (handle, s) in self.streams() {
+            if s.peer == peer && s.role() == role && s.local_id() == Some(id) {
+                found = Some(handle);
+                break;
+            }
+        }
+        found
+    }
+
+    /// A destination stream from `peer` by the source's SID; of several (a closed one with
+    /// unread data and a newer one), the one with the lowest DID.
     fn find_by_source_id(&self, peer: NodeId, sid: StreamId) -> Option<StreamHandle> {
-        self.index
-            .range((peer, Role::Destination, StreamId::MIN)..=(peer, Role::Destination, StreamId::MAX))
-            .map(|(_, slot)| *slot)
-            .find(|slot| {
-                self.slots
-                    .get(usize::from(*slot))
-                    .and_then(|s| s.stream.as_ref())
-                    .is_some_and(|s| s.source_stream == sid)
-            })
-            .and_then(|slot| Some(StreamHandle { slot, generation: self.slots.get(usize::from(slot))?.generation }))
+        let mut found: Option<(StreamId, StreamHandle)> = None;
+        for (handle, s) in self.streams() {
+            if let (Role::Destination, Some(did)) = (s.role(), s.destination_stream)
+                && s.peer == peer
+                && s.source_stream == sid
+                && found.is_none_or(|(lowest, _)| did < lowest)
+            {
+                found = Some((did, handle));
+            }
+        }
+        found.map(|(_, handle)| handle)
     }
 }
 
@@ -1174,7 +1193,7 @@ fn copy_out(from: &mut VecDeque<u8>, to: &mut [u8]) -> usize {
 }
 
 /// Adds one to a counter.
-fn bump(counter: &mut u64) {
+fn bump(counter: &mut u32) {
     *counter = counter.saturating_add(1);
 }
 

@@ -1,10 +1,8 @@
 //! [`StreamEndpoint::rename_peer`]: the transport changed the name it gives a peer.
 
-use alloc::vec::Vec;
-
-use super::{StreamEndpoint, StreamKey};
+use super::StreamEndpoint;
+use crate::NodeId;
 use crate::event::{Event, Role, Termination};
-use crate::{NodeId, StreamId};
 
 impl StreamEndpoint {
     /// The transport now calls the peer `from` by the name `to`: every stream whose peer is
@@ -30,23 +28,21 @@ impl StreamEndpoint {
         for message in self.out.transmits.iter_mut() {
             message.rename_peer(from, to);
         }
-        let keys: Vec<StreamKey> = self
-            .index
-            .range((from, Role::Source, StreamId::MIN)..=(from, Role::Destination, StreamId::MAX))
-            .map(|(key, _)| *key)
-            .collect();
-        for key @ (_, role, id) in keys {
-            if self.index.contains_key(&(to, role, id)) {
-                if let Some(handle) = self.find(from, role, id) {
-                    self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::Superseded });
+        // Role by role (sources first), each in slot order.
+        for role in [Role::Source, Role::Destination] {
+            for slot in 0..self.slots.len() {
+                let Some(stream) = self.slots.get(slot).and_then(|s| s.stream.as_ref()) else { continue };
+                let Some(id) = stream.local_id().filter(|_| stream.peer == from && stream.role() == role) else {
+                    continue;
+                };
+                if self.find(to, role, id).is_some() {
+                    if let Some(handle) = self.find(from, role, id) {
+                        self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::Superseded });
+                    }
+                } else if let Some(stream) = self.slots.get_mut(slot).and_then(|s| s.stream.as_mut()) {
+                    stream.peer = to;
                 }
-                continue;
             }
-            let Some(slot) = self.index.remove(&key) else { continue };
-            if let Some(stream) = self.slots.get_mut(usize::from(slot)).and_then(|s| s.stream.as_mut()) {
-                stream.peer = to;
-            }
-            self.index.insert((to, role, id), slot);
         }
     }
 }

@@ -43,6 +43,9 @@ pub(crate) struct Source {
     pub(crate) credit: u32,
     /// Payload bytes sent so far.
     pub(crate) sent: u64,
+    /// Payload bytes sent into the current window (`sent` modulo the window, kept so that
+    /// `write` needs no 64-bit division).
+    pub(crate) window_sent: u32,
     /// A write came up short: raise `Writable` when credit returns.
     pub(crate) write_blocked: bool,
 }
