@@ -331,7 +331,9 @@ fn worked_examples_9_1_9_2_and_9_6_frame_by_frame() {
         assert!(!matches!(finish(net, client, Duration::from_secs(10)), MemoryEvent::Failed { .. }));
         net.recorded_frames().iter().map(|(_, f)| text(f)).collect()
     };
-    // §9.1: a datagram write of 01..08 to 0xFD at 0, done at once (OK without Reply Pending).
+    // §9.1: a datagram write of 01..08 to 0xFD at 0, in the form OpenMRN and OpenLcbCLib use
+    // (OK with Reply Pending, then a Write Reply the client acknowledges): OpenMRN's
+    // memconfig_utils stops after one chunk when a write is answered by the OK alone.
     let frames = exchange(&mut net, &|net| {
         let now = net.now();
         net.node(client)
@@ -339,7 +341,16 @@ fn worked_examples_9_1_9_2_and_9_6_frame_by_frame() {
             .write_memory(now, node(2), 0xFD, 0, (1..=8).collect::<Vec<u8>>(), TransferPath::Datagrams)
             .unwrap();
     });
-    assert_eq!(frames, [":X1B456123N2001000000000102;", ":X1D456123N030405060708;", ":X19A28456N012300;"]);
+    assert_eq!(
+        frames,
+        [
+            ":X1B456123N2001000000000102;",
+            ":X1D456123N030405060708;",
+            ":X19A28456N012380;",
+            ":X1A123456N201100000000;",
+            ":X19A28123N045600;"
+        ]
+    );
     // §9.2: a read of 64 bytes of the CDI.
     let frames = exchange(&mut net, &|net| {
         let now = net.now();
