@@ -1,5 +1,6 @@
 //! `lcc-stream`: OpenLCB streams from the command line.
 
+mod args;
 mod demo;
 mod hub;
 mod net;
@@ -14,7 +15,7 @@ use clap::{Parser, Subcommand};
 
 /// Move data over OpenLCB (LCC) streams, or simulate it.
 #[derive(Debug, Parser)]
-#[command(name = "lcc-stream", version, about)]
+#[command(name = "lcc-stream", version, about, after_help = net::EXIT_HELP)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

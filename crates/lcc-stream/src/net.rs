@@ -90,7 +90,7 @@ impl From<ProtocolArg> for Protocol {
 pub(crate) struct ConnectArgs {
     /// The hub, HOST:PORT [default: 127.0.0.1:12021; 127.0.0.1:12022 with --protocol tcp,
     /// the two listeners of `lcc-stream hub`].
-    #[arg(long, value_name = "HOST:PORT")]
+    #[arg(long, value_name = "HOST:PORT", value_parser = crate::args::hub_addr)]
     pub(crate) connect: Option<String>,
     /// The framing spoken to the hub.
     #[arg(long, value_enum, default_value_t = ProtocolArg::Gridconnect)]

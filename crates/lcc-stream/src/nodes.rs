@@ -22,7 +22,7 @@ const PIP_TIMEOUT: Duration = Duration::from_secs(3);
 #[command(after_help = net::exit_help!())]
 pub(crate) struct NodesArgs {
     /// This node's Node ID while it asks.
-    #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_LISTER)]
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = DEFAULT_LISTER)]
     node_id: NodeId,
     /// Seconds of quiet after the last answer to Verify Node ID before the list is complete
     /// (0.05 to 30).

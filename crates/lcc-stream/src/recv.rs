@@ -36,7 +36,7 @@ pub(crate) struct RecvArgs {
     #[arg(long, value_name = "PATH", default_value = ".")]
     out: PathBuf,
     /// This node's Node ID.
-    #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_RECEIVER)]
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = DEFAULT_RECEIVER)]
     node_id: NodeId,
     /// The largest window (Max Buffer Size) granted, 1..=65535.
     #[arg(long, default_value_t = 65535, value_parser = clap::value_parser!(u16).range(1..))]
@@ -56,7 +56,7 @@ pub(crate) struct RecvArgs {
     #[arg(long)]
     once: bool,
     /// Seconds a sender may stay silent in the middle of a stream before it is given up.
-    #[arg(long, value_name = "SECS", default_value_t = 60)]
+    #[arg(long, value_name = "SECS", default_value_t = 60, value_parser = crate::args::positive::<u64>)]
     timeout: u64,
     /// Print one JSON object per finished stream instead of text.
     #[arg(long)]

@@ -41,11 +41,12 @@ once every stated byte has arrived.
 pub(crate) struct SendArgs {
     /// The file to send.
     file: PathBuf,
-    /// The receiving node, e.g. 05.01.01.01.22.F1 (the default of `lcc-stream recv`).
-    #[arg(long, value_name = "NODE_ID")]
+    /// The receiving node, e.g. 05.01.01.01.22.F1 (the default of `lcc-stream recv`); also
+    /// 05:01:01:01:22:F1, 0501010122F1 or 0x0501010122F1.
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id)]
     to: NodeId,
     /// This node's Node ID.
-    #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_SENDER)]
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = DEFAULT_SENDER)]
     node_id: NodeId,
     /// Window (Max Buffer Size) to propose, 1..=65535; the receiver may lower it.
     #[arg(long, default_value_t = 65535, value_parser = clap::value_parser!(u16).range(1..))]
@@ -55,7 +56,7 @@ pub(crate) struct SendArgs {
     content_uid: Option<ContentUid>,
     /// Seconds to wait for the receiver's answer, for credit once it has run out (one deadline
     /// from that moment), and for the hub to take data the socket holds.
-    #[arg(long, value_name = "SECS", default_value_t = 20)]
+    #[arg(long, value_name = "SECS", default_value_t = 20, value_parser = crate::args::positive::<u64>)]
     timeout: u64,
     /// Print one JSON object instead of text.
     #[arg(long)]

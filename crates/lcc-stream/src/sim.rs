@@ -23,9 +23,12 @@ pub(crate) enum Topology {
 
 /// Options of `lcc-stream sim`.
 #[derive(Debug, Args)]
+#[command(after_help = "\
+Exit status: 0 the transfer completed and verified; 1 it did not (or the simulation failed);
+2 bad arguments.")]
 pub(crate) struct SimArgs {
     /// CAN bitrate, bits per second.
-    #[arg(long, default_value_t = 125_000)]
+    #[arg(long, default_value_t = 125_000, value_parser = crate::args::positive::<u32>)]
     bitrate: u32,
     /// Payload bytes per stream.
     #[arg(long, default_value_t = 262_144)]
@@ -37,7 +40,7 @@ pub(crate) struct SimArgs {
     #[arg(long)]
     early_proceed: bool,
     /// Per-node processing latency, milliseconds (fractions allowed).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = parse_latency)]
     latency: f64,
     /// Concurrent transfers between the two nodes.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=255))]
@@ -46,7 +49,7 @@ pub(crate) struct SimArgs {
     #[arg(long, value_enum, default_value_t = Topology::Can)]
     topology: Topology,
     /// OpenLCB-TCP link bandwidth, bytes per second (tcp topology).
-    #[arg(long, default_value_t = 12_500_000)]
+    #[arg(long, default_value_t = 12_500_000, value_parser = crate::args::positive::<u64>)]
     bandwidth: u64,
     /// Seed of the simulation.
     #[arg(long, default_value_t = 1)]
@@ -54,6 +57,14 @@ pub(crate) struct SimArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
+}
+
+/// `--latency`: milliseconds, 0 to 10000.
+fn parse_latency(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(ms) if (0.0..=10_000.0).contains(&ms) => Ok(ms),
+        _ => Err("expected milliseconds from 0 to 10000".to_string()),
+    }
 }
 
 /// What a run measured.
@@ -78,12 +89,6 @@ const GATEWAY: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x10])
 const START: Instant = Instant::from_millis(300);
 
 pub(crate) fn run(args: &SimArgs) -> Result<ExitCode, String> {
-    if !(args.latency.is_finite() && (0.0..=10_000.0).contains(&args.latency)) {
-        return Err(format!("--latency {} is not 0..=10000 ms", args.latency));
-    }
-    if args.bitrate == 0 || args.bandwidth == 0 {
-        return Err("--bitrate and --bandwidth must be positive".into());
-    }
     let report = simulate(args)?;
     if args.json {
         println!("{}", json(args, &report));
