@@ -28,7 +28,7 @@ fn zero_timeouts_bitrates_and_queues_are_refused() {
     ] {
         assert!(refused(args).contains("must be at least 1"), "{args:?}");
     }
-    assert!(refused(&["sim", "--latency", "-1"]).contains("milliseconds"));
+    assert!(refused(&["sim", "--latency=-1"]).contains("milliseconds"));
 }
 
 #[test]
