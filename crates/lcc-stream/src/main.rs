@@ -5,6 +5,7 @@ mod demo;
 mod hub;
 mod net;
 mod nodes;
+mod progress;
 mod recv;
 mod send;
 mod sim;

@@ -19,6 +19,7 @@ use tokio::io::{AsyncWriteExt as _, BufWriter};
 use tokio::sync::watch;
 
 use crate::net::{self, ConnectArgs, Json};
+use crate::progress::{Progress, ProgressGroup};
 
 /// Names tried for one stream before giving up (every one of them already taken).
 const NAME_ATTEMPTS: u64 = 100_000;
@@ -91,13 +92,15 @@ async fn receive(args: &RecvArgs) -> Result<ExitCode, String> {
     let counter = Arc::new(AtomicU64::new(0));
     let (stop, stopped) = watch::channel(false);
     let mut transfers = tokio::task::JoinSet::new();
+    let progress = ProgressGroup::new(args.json);
     let mut accepting = true;
     loop {
         tokio::select! {
             accepted = node.accept(), if accepting => match accepted {
                 Ok(stream) => {
                     let target = Target { out: args.out.clone(), counter: counter.clone() };
-                    transfers.spawn(save(stream, target, args.json, stopped.clone()));
+                    let shown = progress.start(None, &format!("from {}", stream.info().peer));
+                    transfers.spawn(save(stream, target, args.json, shown, stopped.clone()));
                     // With --once, take no more: the one stream decides the exit status.
                     accepting = !args.once;
                 }
@@ -201,7 +204,13 @@ impl Output {
 }
 
 /// Receives one stream (through `NAME.part`), reports it, and returns its exit status.
-async fn save(mut stream: RecvStream, target: Target, json: bool, mut stop: watch::Receiver<bool>) -> u8 {
+async fn save(
+    mut stream: RecvStream,
+    target: Target,
+    json: bool,
+    progress: Progress,
+    mut stop: watch::Receiver<bool>,
+) -> u8 {
     let info = *stream.info();
     let started = Instant::now();
     let mut output: Option<Output> = None;
@@ -218,10 +227,12 @@ async fn save(mut stream: RecvStream, target: Target, json: bool, mut stop: watc
             if let Some(out) = output.as_mut() {
                 out.file.write_all(&chunk).await.map_err(Failure::File)?;
             }
+            progress.set(stream.received());
         }
     }
     .await;
     let bytes = stream.received();
+    progress.finish();
     if matches!(received, Err(Failure::Interrupted)) {
         // The source learns at once (TDE), rather than by its own timeout.
         stream.abort(ErrorCode::TEMPORARY);

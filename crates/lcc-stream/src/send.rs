@@ -1,6 +1,5 @@
 //! `lcc-stream send`: join the network as a node and send a file as one stream.
 
-use std::io::IsTerminal as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -13,6 +12,7 @@ use openlcb_tokio::{Error, Node, NodeOptions};
 use tokio::io::AsyncReadExt as _;
 
 use crate::net::{self, ConnectArgs, Json};
+use crate::progress::Progress;
 
 /// The Node ID `send` uses unless told otherwise (from the range of the examples of this
 /// project; pick your own from a range you own on a real layout).
@@ -192,7 +192,7 @@ async fn transfer(
     open.content_uid = args.content_uid;
     let mut stream = node.open(open).await.map_err(Stop::Failed)?;
     let window = stream.info().window;
-    let mut progress = Progress::new(size, !args.json && std::io::stderr().is_terminal());
+    let progress = Progress::start(size, args.json);
     // Read the next chunk while the previous one goes out.
     let started = Instant::now();
     let mut next = read_chunk(file).await;
@@ -208,9 +208,9 @@ async fn transfer(
         }
         written.store(stream.written(), Ordering::Relaxed);
         next = read;
-        progress.update(stream.written(), started.elapsed());
+        progress.set(stream.written());
     };
-    progress.clear();
+    progress.finish();
     outcome?;
     let bytes = stream.finish().await.map_err(Stop::Failed)?;
     Ok(Summary { bytes, elapsed: started.elapsed(), window, frames_out: 0, writes: 0 })
@@ -224,46 +224,4 @@ async fn read_chunk(file: &mut tokio::fs::File) -> std::io::Result<BytesMut> {
         }
     }
     Ok(chunk)
-}
-
-/// A one-line progress display on stderr: bytes, percentage, rate and time left.
-pub(crate) struct Progress {
-    total: Option<u64>,
-    enabled: bool,
-    last: Option<Instant>,
-    shown: bool,
-}
-
-impl Progress {
-    pub(crate) fn new(total: Option<u64>, enabled: bool) -> Self {
-        Progress { total, enabled, last: None, shown: false }
-    }
-
-    pub(crate) fn update(&mut self, done: u64, elapsed: Duration) {
-        if !self.enabled || self.last.is_some_and(|t| t.elapsed() < Duration::from_millis(100)) {
-            return;
-        }
-        self.last = Some(Instant::now());
-        let rate = net::rate(done, elapsed.as_secs_f64());
-        let mut line = format!("\r{:.1} MiB", done as f64 / 1048576.0);
-        if let Some(total) = self.total.filter(|&t| t > 0) {
-            let left = if rate > 0.0 { total.saturating_sub(done) as f64 / rate } else { f64::NAN };
-            line += &format!(
-                " of {:.1} MiB ({:>3.0}%), ETA {:.0} s",
-                total as f64 / 1048576.0,
-                done as f64 * 100.0 / total as f64,
-                left
-            );
-        }
-        line += &format!(", {}   ", net::rate_text(rate));
-        eprint!("{line}");
-        self.shown = true;
-    }
-
-    pub(crate) fn clear(&mut self) {
-        if self.shown {
-            eprint!("\r{:60}\r", "");
-            self.shown = false;
-        }
-    }
 }
