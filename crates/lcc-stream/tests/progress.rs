@@ -24,7 +24,7 @@ fn drawn_pieces(raw: &str) -> (Vec<String>, usize) {
             '\x1b' => {
                 // CSI: ESC [ parameters final-byte.
                 if chars.next_if_eq(&'[').is_some() {
-                    while let Some(c) = chars.next() {
+                    for c in chars.by_ref() {
                         if c.is_ascii_alphabetic() {
                             break;
                         }
