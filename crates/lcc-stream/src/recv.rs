@@ -15,10 +15,11 @@ use clap::Args;
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{NodeId, StreamInfo};
 use openlcb_tokio::{Error, Node, NodeOptions, RecvStream};
+use serde::Serialize;
 use tokio::io::{AsyncWriteExt as _, BufWriter};
 use tokio::sync::watch;
 
-use crate::net::{self, ConnectArgs, Json};
+use crate::net::{self, ConnectArgs};
 use crate::progress::{Progress, ProgressGroup};
 
 /// Names tried for one stream before giving up (every one of them already taken).
@@ -29,7 +30,13 @@ pub(crate) const DEFAULT_RECEIVER: &str = "05.01.01.01.22.F1";
 
 /// Options of `lcc-stream recv`.
 #[derive(Debug, Args)]
-#[command(after_help = net::EXIT_HELP)]
+#[command(after_help = concat!("\
+--json prints one object per stream: file (final name, or the .part kept; absent if no data
+came), from (Node ID), bytes (received), elapsed_s, bytes_per_s, window (granted), result (ok,
+file_error, interrupted, timed_out, connection_lost, terminated, duplicate_node_id or error),
+content_uid (if the source sent one) and error (a sentence, on failure).
+
+", net::exit_help!()))]
 pub(crate) struct RecvArgs {
     /// Where to write: an existing directory (one file per stream, named after the sender and
     /// the first free counter), or a file name (if taken, or for later streams, `.1`, `.2`,
@@ -260,6 +267,23 @@ async fn finish(target: &Target, peer: NodeId, out: Option<Output>) -> Result<Pa
     out.complete().await.map_err(|failure| (failure, Some(part)))
 }
 
+/// `recv --json`: one object per stream (see the help for its fields).
+#[derive(Debug, Serialize)]
+struct RecvReport<'a> {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    file: Option<&'a str>,
+    from: String,
+    bytes: u64,
+    elapsed_s: f64,
+    bytes_per_s: f64,
+    window: u16,
+    result: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    content_uid: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error: Option<&'a str>,
+}
+
 /// Prints what came of one stream (text or JSON) and returns its exit status.
 fn report(
     info: &StreamInfo,
@@ -282,24 +306,17 @@ fn report(
         Err((_, None)) => None,
     };
     if json {
-        let mut report = Json::default();
-        if let Some(file) = &file {
-            report = report.str("file", file);
-        }
-        report = report
-            .str("from", &info.peer.to_string())
-            .num("bytes", bytes)
-            .float("elapsed_s", elapsed.as_secs_f64())
-            .float("bytes_per_s", bytes_per_s)
-            .num("window", info.window)
-            .str("result", result);
-        if let Some(uid) = info.content_uid {
-            report = report.str("content_uid", &uid.to_string());
-        }
-        if let Some(error) = &error {
-            report = report.str("error", error);
-        }
-        println!("{}", report.finish());
+        net::print_json(&RecvReport {
+            file: file.as_deref(),
+            from: info.peer.to_string(),
+            bytes,
+            elapsed_s: elapsed.as_secs_f64(),
+            bytes_per_s,
+            window: info.window,
+            result,
+            content_uid: info.content_uid.map(|uid| uid.to_string()),
+            error: error.as_deref(),
+        });
     } else if let Some(error) = error {
         let kept = file.map_or_else(|| "no file written".to_string(), |file| format!("kept in {file}"));
         eprintln!("lcc-stream recv: stream from {} failed after {bytes} bytes ({kept}): {error}", info.peer);

@@ -9,9 +9,10 @@ use bytes::BytesMut;
 use clap::Args;
 use openlcb_stream::{AcceptPolicy, ContentUid, NodeId, OpenOptions, wire::ReplyCode};
 use openlcb_tokio::{Error, Node, NodeOptions};
+use serde::Serialize;
 use tokio::io::AsyncReadExt as _;
 
-use crate::net::{self, ConnectArgs, Json};
+use crate::net::{self, ConnectArgs};
 use crate::progress::Progress;
 
 /// The Node ID `send` uses unless told otherwise (from the range of the examples of this
@@ -35,9 +36,21 @@ once every stated byte has arrived.
     };
 }
 
+/// The fields of `send --json`.
+macro_rules! send_json {
+    () => {
+        "\
+--json prints one object: file, to (Node ID), bytes (sent), elapsed_s, bytes_per_s, window
+(negotiated), result (ok, unreachable_hub, rejected, timed_out, connection_lost, terminated,
+duplicate_node_id or error), and frames_out and writes (on success) or error (a sentence).
+
+"
+    };
+}
+
 /// Options of `lcc-stream send`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!(send_promise!(), net::exit_help!()))]
+#[command(after_help = concat!(send_promise!(), send_json!(), net::exit_help!()))]
 pub(crate) struct SendArgs {
     /// The file to send.
     file: PathBuf,
@@ -63,6 +76,43 @@ pub(crate) struct SendArgs {
     json: bool,
     #[command(flatten)]
     connect: ConnectArgs,
+}
+
+/// `send --json`: one object (see the help for its fields).
+#[derive(Debug, Serialize)]
+struct SendReport {
+    file: String,
+    to: String,
+    bytes: u64,
+    elapsed_s: f64,
+    bytes_per_s: f64,
+    window: u16,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    frames_out: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    writes: Option<u64>,
+    result: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error: Option<String>,
+}
+
+impl SendReport {
+    /// The report of a transfer that came to `summary` and ended with `outcome`.
+    fn new(args: &SendArgs, summary: &Summary, outcome: Result<(), &Error>) -> Self {
+        let ok = outcome.is_ok();
+        SendReport {
+            file: args.file.display().to_string(),
+            to: args.to.to_string(),
+            bytes: summary.bytes,
+            elapsed_s: summary.elapsed.as_secs_f64(),
+            bytes_per_s: net::rate(summary.bytes, summary.elapsed.as_secs_f64()),
+            window: summary.window,
+            frames_out: ok.then_some(summary.frames_out),
+            writes: ok.then_some(summary.writes),
+            result: outcome.map_or_else(net::result_word, |()| "ok"),
+            error: outcome.err().map(ToString::to_string),
+        }
+    }
 }
 
 /// What a transfer came to.
@@ -95,16 +145,8 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
     options.write_timeout = Duration::from_secs(args.timeout);
     let report_error = |error: &Error, bytes: u64, elapsed: Duration| {
         if args.json {
-            let json = Json::default()
-                .str("file", &args.file.display().to_string())
-                .str("to", &args.to.to_string())
-                .num("bytes", bytes)
-                .float("elapsed_s", elapsed.as_secs_f64())
-                .float("bytes_per_s", net::rate(bytes, elapsed.as_secs_f64()))
-                .num("window", args.window)
-                .str("result", net::result_word(error))
-                .str("error", &error.to_string());
-            println!("{}", json.finish());
+            let summary = Summary { bytes, elapsed, window: args.window, frames_out: 0, writes: 0 };
+            net::print_json(&SendReport::new(args, &summary, Err(error)));
         }
         net::fail("send", error)
     };
@@ -147,17 +189,7 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
     };
     let summary = Summary { frames_out: stats.frames_out, writes: stats.writes, ..summary };
     if args.json {
-        let json = Json::default()
-            .str("file", &args.file.display().to_string())
-            .str("to", &args.to.to_string())
-            .num("bytes", summary.bytes)
-            .float("elapsed_s", summary.elapsed.as_secs_f64())
-            .float("bytes_per_s", net::rate(summary.bytes, summary.elapsed.as_secs_f64()))
-            .num("window", summary.window)
-            .num("frames_out", summary.frames_out)
-            .num("writes", summary.writes)
-            .str("result", "ok");
-        println!("{}", json.finish());
+        net::print_json(&SendReport::new(args, &summary, Ok(())));
     } else {
         println!(
             "sent {} bytes to {} in {:.3} s ({}), window {}, {} frames in {} writes",

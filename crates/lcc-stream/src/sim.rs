@@ -1,6 +1,7 @@
 //! `lcc-stream sim`: one or more transfers on the loopback harness, reported against the
 //! ceiling of the medium.
 
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::process::ExitCode;
 
@@ -9,6 +10,7 @@ use openlcb_can::CanFrame;
 use openlcb_loopback::bus::frame_bits;
 use openlcb_loopback::{FrameCounts, Network, NodeIndex, NodeOptions, Outcome, TransferSpec};
 use openlcb_stream::{Duration, Instant, NodeId};
+use serde::Serialize;
 
 /// Where the transfer runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -24,6 +26,12 @@ pub(crate) enum Topology {
 /// Options of `lcc-stream sim`.
 #[derive(Debug, Args)]
 #[command(after_help = "\
+--json prints one object: the options (topology, bitrate, window, early_proceed, latency_ms,
+streams, seed), payload_bytes, elapsed_s (virtual), goodput_bytes_per_s, ceiling_bytes_per_s
+(back-to-back full frames), efficiency (ceiling time / elapsed), bus_utilisation (0..1),
+tcp_bytes, frames (total and per kind: stream_data, proceed, initiate, complete, error_report,
+other_message, control), verified and real_time_s.
+
 Exit status: 0 the transfer completed and verified; 1 it did not (or the simulation failed);
 2 bad arguments.")]
 pub(crate) struct SimArgs {
@@ -91,7 +99,7 @@ const START: Instant = Instant::from_millis(300);
 pub(crate) fn run(args: &SimArgs) -> Result<ExitCode, String> {
     let report = simulate(args)?;
     if args.json {
-        println!("{}", json(args, &report));
+        crate::net::print_json(&json(args, &report));
     } else {
         print!("{}", text(args, &report));
     }
@@ -209,32 +217,50 @@ fn topology_name(t: Topology) -> &'static str {
     }
 }
 
-fn json(args: &SimArgs, r: &Report) -> String {
-    let mut frames = format!("\"total\":{}", r.frames.total());
-    for (kind, count) in r.frames.by_kind() {
-        let _ = write!(frames, ",\"{kind}\":{count}");
+/// `sim --json`: one object (see the help for its fields).
+#[derive(Debug, Serialize)]
+struct SimReport {
+    topology: &'static str,
+    bitrate: u32,
+    window: u16,
+    early_proceed: bool,
+    latency_ms: f64,
+    streams: u16,
+    seed: u64,
+    payload_bytes: u64,
+    elapsed_s: f64,
+    goodput_bytes_per_s: f64,
+    ceiling_bytes_per_s: f64,
+    efficiency: f64,
+    bus_utilisation: f64,
+    tcp_bytes: u64,
+    frames: BTreeMap<&'static str, u64>,
+    verified: bool,
+    real_time_s: f64,
+}
+
+fn json(args: &SimArgs, r: &Report) -> SimReport {
+    let mut frames: BTreeMap<_, _> = r.frames.by_kind().into_iter().collect();
+    frames.insert("total", r.frames.total());
+    SimReport {
+        topology: topology_name(args.topology),
+        bitrate: args.bitrate,
+        window: args.window,
+        early_proceed: args.early_proceed,
+        latency_ms: args.latency,
+        streams: args.streams,
+        seed: args.seed,
+        payload_bytes: r.payload_bytes,
+        elapsed_s: r.elapsed.as_secs_f64(),
+        goodput_bytes_per_s: rate(r.payload_bytes, r.elapsed),
+        ceiling_bytes_per_s: rate(r.payload_bytes, r.ceiling),
+        efficiency: efficiency(r),
+        bus_utilisation: utilisation(r),
+        tcp_bytes: r.tcp_bytes,
+        frames,
+        verified: r.verified,
+        real_time_s: r.real_time_s,
     }
-    format!(
-        "{{\"topology\":\"{}\",\"bitrate\":{},\"window\":{},\"early_proceed\":{},\"latency_ms\":{},\"streams\":{},\"seed\":{},\
-         \"payload_bytes\":{},\"elapsed_s\":{:.6},\"goodput_bytes_per_s\":{:.1},\"ceiling_bytes_per_s\":{:.1},\"efficiency\":{:.4},\
-         \"bus_utilisation\":{:.4},\"tcp_bytes\":{},\"frames\":{{{frames}}},\"verified\":{},\"real_time_s\":{:.3}}}",
-        topology_name(args.topology),
-        args.bitrate,
-        args.window,
-        args.early_proceed,
-        args.latency,
-        args.streams,
-        args.seed,
-        r.payload_bytes,
-        r.elapsed.as_secs_f64(),
-        rate(r.payload_bytes, r.elapsed),
-        rate(r.payload_bytes, r.ceiling),
-        efficiency(r),
-        utilisation(r),
-        r.tcp_bytes,
-        r.verified,
-        r.real_time_s,
-    )
 }
 
 fn text(args: &SimArgs, r: &Report) -> String {
