@@ -30,6 +30,7 @@ use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 use tokio::task::{AbortHandle, JoinSet};
+use tracing::Instrument as _;
 
 use crate::{Error, Protocol};
 use openlcb_stream::NodeId;
@@ -196,6 +197,12 @@ pub(crate) struct State {
 
 impl State {
     pub(crate) fn event(&self, event: HubEvent) {
+        // Inside the client's span when it concerns one; frames only with `options.trace`.
+        match &event {
+            HubEvent::Frame { .. } => tracing::trace!(?event),
+            HubEvent::Garbage { .. } | HubEvent::SlowClient { .. } | HubEvent::Refused { .. } => tracing::warn!(?event),
+            _ => tracing::info!(?event),
+        }
         if self.events.try_send(event).is_err() {
             self.events_dropped.fetch_add(1, Ordering::Relaxed);
         }
@@ -466,11 +473,12 @@ fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, pr
     if let Ok(mut clients) = state.clients.lock() {
         clients.insert(id, client);
     }
-    state.event(HubEvent::Connected { client: id, peer, protocol });
+    let span = tracing::info_span!("client", id, %peer, ?protocol);
+    span.in_scope(|| state.event(HubEvent::Connected { client: id, peer, protocol }));
     let (reader, writer) = socket.into_split();
     let handles = [
-        tasks.spawn(read_client(id, reader, protocol, state.clone())),
-        tasks.spawn(write_client(id, writer, rx, queued, state.clone())),
+        tasks.spawn(read_client(id, reader, protocol, state.clone()).instrument(span.clone())),
+        tasks.spawn(write_client(id, writer, rx, queued, state.clone()).instrument(span)),
     ];
     let registered = state
         .clients

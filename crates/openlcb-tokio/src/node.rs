@@ -11,6 +11,7 @@ use openlcb_stream::{NodeId, OpenOptions, Stats, StreamHandle, StreamInfo};
 use tokio::net::{TcpStream, lookup_host};
 use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
+use tracing::Instrument as _;
 
 use crate::driver::Driver;
 use crate::{Error, Protocol, WireStats};
@@ -219,7 +220,8 @@ impl Node {
         let (up_tx, up) = oneshot::channel();
         let driver =
             Driver::new(socket, protocol, options, command_rx, commands.downgrade(), incoming_tx, shared.clone());
-        let driver = tokio::spawn(driver.run(up_tx));
+        let span = tracing::info_span!("node", %node_id, addr, ?protocol);
+        let driver = tokio::spawn(driver.run(up_tx).instrument(span));
         let control = Control { commands, shared };
         match tokio::time::timeout(timeout, up).await {
             Ok(Ok(())) => Ok(Node { node_id, control, incoming, driver }),
