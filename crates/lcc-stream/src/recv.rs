@@ -297,9 +297,11 @@ fn report(
         Ok(_) => (0, "ok", None),
         Err((Failure::Stream(error), _)) => (net::exit_status(error), net::result_word(error), Some(error.to_string())),
         Err((Failure::File(error), _)) => (net::EXIT_FILE, "file_error", Some(error.to_string())),
-        Err((Failure::Interrupted, _)) => {
-            (net::EXIT_INTERRUPTED, "interrupted", Some("interrupted (the source was sent TDE 0x2000)".to_string()))
-        }
+        Err((Failure::Interrupted, _)) => (
+            net::EXIT_INTERRUPTED,
+            "interrupted",
+            Some("interrupted (the source was sent TDE 0x2000, temporary error)".to_string()),
+        ),
     };
     let file = match outcome {
         Ok(path) | Err((_, Some(path))) => Some(path.display().to_string()),

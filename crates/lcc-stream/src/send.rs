@@ -181,7 +181,7 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
         }
         Err(Stop::Interrupted) => {
             eprintln!(
-                "lcc-stream send: interrupted after {} bytes; the stream was terminated (TDE 0x2000)",
+                "lcc-stream send: interrupted after {} bytes; the stream was terminated (TDE 0x2000, temporary error)",
                 written.load(Ordering::Relaxed)
             );
             return Ok(ExitCode::from(net::EXIT_INTERRUPTED));

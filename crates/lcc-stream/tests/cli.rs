@@ -235,6 +235,8 @@ async fn a_terminated_stream_stays_part_and_recv_says_how_much_arrived() {
     let (status, stdout, _) = finish(recv).await;
     assert_eq!(status.code(), Some(7), "{stdout}");
     assert_eq!(field(&stdout, "result"), "terminated", "{stdout}");
+    // The peer's code is printed with its meaning.
+    assert!(field(&stdout, "error").contains("0x2000 (temporary error)"), "{stdout}");
     let arrived: u64 = field(&stdout, "bytes").parse().unwrap();
     assert!(arrived <= 5000);
     assert!(!output.exists(), "a terminated stream was renamed to the final name");
