@@ -7,23 +7,8 @@
 use openlcb_node::{DatagramAnswer, Node, NodeConfig, NodeEvent, OkFlags, SnipInfo};
 use openlcb_stream::{Instant, NodeId};
 
-/// Delivers everything each side has to send to the other until both are quiet.
-fn pump(now: Instant, a: &mut Node, b: &mut Node) {
-    loop {
-        let mut moved = false;
-        while let Some(msg) = a.poll_transmit() {
-            b.handle_message(now, msg.as_ref());
-            moved = true;
-        }
-        while let Some(msg) = b.poll_transmit() {
-            a.handle_message(now, msg.as_ref());
-            moved = true;
-        }
-        if !moved {
-            return;
-        }
-    }
-}
+mod common;
+use common::pump;
 
 /// The datagram content A sends: first byte 0x21, a content ID B claims.
 const DATAGRAM: [u8; 4] = [0x21, 1, 2, 3];
