@@ -41,8 +41,9 @@ macro_rules! send_json {
     () => {
         "\
 --json prints one object: file, to (Node ID), bytes (sent), elapsed_s, bytes_per_s, window
-(negotiated), result (ok, unreachable_hub, rejected, timed_out, connection_lost, terminated,
-duplicate_node_id or error), and frames_out and writes (on success) or error (a sentence).
+(negotiated on success, else the one proposed), result (ok, unreachable_hub, rejected,
+timed_out, connection_lost, terminated, duplicate_node_id or error), and frames_out and
+writes (on success) or error (a sentence).
 
 "
     };
