@@ -22,8 +22,8 @@ pub(crate) struct DemoArgs {
     /// Window (Max Buffer Size), 1..=65535.
     #[arg(long, default_value_t = 65535, value_parser = clap::value_parser!(u16).range(1..))]
     window: u16,
-    /// The receiver grants one window ahead.
-    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    /// The receiver grants one window ahead (two windows of buffer), as `recv --early-proceed`.
+    #[arg(long)]
     early_proceed: bool,
     /// The framing the two nodes speak to the hub.
     #[arg(long, value_enum, default_value_t = ProtocolArg::Gridconnect)]

@@ -50,13 +50,13 @@ pub(crate) struct HubArgs {
     #[arg(long)]
     no_bridge: bool,
     /// The gateway's Node ID (it is the originating node of what it forwards to OpenLCB-TCP).
-    #[arg(long, value_name = "NODE_ID", default_value = "05.01.01.01.22.FE")]
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = "05.01.01.01.22.FE")]
     gateway_node_id: NodeId,
     /// Print every frame as it passes.
     #[arg(long)]
     trace: bool,
     /// Bytes queued for one client before it is disconnected as too slow.
-    #[arg(long, value_name = "BYTES", default_value_t = 1024 * 1024)]
+    #[arg(long, value_name = "BYTES", default_value_t = 1024 * 1024, value_parser = crate::args::positive::<usize>)]
     max_queue: usize,
     /// Clients connected at once (both listeners); more are refused.
     #[arg(long, value_name = "N", default_value_t = 64)]

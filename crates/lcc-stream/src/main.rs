@@ -1,11 +1,13 @@
 //! `lcc-stream`: OpenLCB streams from the command line.
 
+mod args;
 mod demo;
 mod firmware;
 mod hub;
 mod memory;
 mod net;
 mod nodes;
+mod progress;
 mod read;
 mod recv;
 mod send;
@@ -13,16 +15,36 @@ mod serve;
 mod sim;
 mod write;
 
+use std::io::IsTerminal as _;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use tracing_subscriber::EnvFilter;
 
 /// Move data over OpenLCB (LCC) streams, or simulate it.
 #[derive(Debug, Parser)]
-#[command(name = "lcc-stream", version, about)]
+#[command(name = "lcc-stream", version, about, after_help = net::EXIT_HELP)]
 struct Cli {
+    /// Log to stderr what happens to connections and streams: -v info (clients connecting and
+    /// leaving, streams opened and finished), -vv debug, -vvv trace (with `hub --trace`, every
+    /// frame). RUST_LOG, if set, takes precedence (e.g. RUST_LOG=openlcb_tokio=debug).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
     #[command(subcommand)]
     command: Command,
+}
+
+/// Starts the log output that `--verbose` or `RUST_LOG` asks for (none by default).
+fn init_logs(verbose: u8) {
+    let level = match verbose {
+        0 => "off",
+        1 => "info",
+        2 => "debug",
+        _ => "trace",
+    };
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(level));
+    let ansi = std::io::stderr().is_terminal();
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).init();
 }
 
 #[derive(Debug, Subcommand)]
@@ -51,6 +73,7 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    init_logs(cli.verbose);
     let result = match cli.command {
         Command::Sim(args) => sim::run(&args),
         Command::Hub(args) => hub::run(&args),

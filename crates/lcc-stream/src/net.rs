@@ -1,7 +1,6 @@
 //! What `hub`, `send`, `recv` and `demo` share: connection options, exit statuses, number
-//! formatting and a small JSON writer.
+//! formatting and JSON output.
 
-use std::fmt::Write as _;
 use std::process::ExitCode;
 
 use clap::{Args, ValueEnum};
@@ -90,7 +89,7 @@ impl From<ProtocolArg> for Protocol {
 pub(crate) struct ConnectArgs {
     /// The hub, HOST:PORT [default: 127.0.0.1:12021; 127.0.0.1:12022 with --protocol tcp,
     /// the two listeners of `lcc-stream hub`].
-    #[arg(long, value_name = "HOST:PORT", conflicts_with = "serial")]
+    #[arg(long, value_name = "HOST:PORT", conflicts_with = "serial", value_parser = crate::args::hub_addr)]
     pub(crate) connect: Option<String>,
     /// A serial port instead of a hub: a USB GridConnect adapter on the CAN bus (RR-CirKits
     /// LCC Buffer-USB, SPROG CANISB), e.g. /dev/ttyACM0 or COM3.
@@ -211,66 +210,11 @@ pub(crate) fn rate(bytes: u64, seconds: f64) -> f64 {
     if seconds > 0.0 { bytes as f64 / seconds } else { 0.0 }
 }
 
-/// Builds one JSON object, field by field.
-#[derive(Debug, Default)]
-pub(crate) struct Json(String);
-
-impl Json {
-    pub(crate) fn str(mut self, key: &str, value: &str) -> Self {
-        self.key(key);
-        self.0.push('"');
-        for c in value.chars() {
-            match c {
-                '"' => self.0.push_str("\\\""),
-                '\\' => self.0.push_str("\\\\"),
-                c if (c as u32) < 0x20 => {
-                    let _ = write!(self.0, "\\u{:04x}", c as u32);
-                }
-                c => self.0.push(c),
-            }
-        }
-        self.0.push('"');
-        self
-    }
-
-    pub(crate) fn num(mut self, key: &str, value: impl std::fmt::Display) -> Self {
-        self.key(key);
-        let _ = write!(self.0, "{value}");
-        self
-    }
-
-    pub(crate) fn float(mut self, key: &str, value: f64) -> Self {
-        self.key(key);
-        if value.is_finite() {
-            let _ = write!(self.0, "{value:.6}");
-        } else {
-            self.0.push_str("null");
-        }
-        self
-    }
-
-    fn key(&mut self, key: &str) {
-        self.0.push(if self.0.is_empty() { '{' } else { ',' });
-        let _ = write!(self.0, "\"{key}\":");
-    }
-
-    pub(crate) fn finish(mut self) -> String {
-        if self.0.is_empty() {
-            self.0.push('{');
-        }
-        self.0.push('}');
-        self.0
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn json_escapes_and_closes() {
-        let text = Json::default().str("a", "x\"y\\z\n").num("n", 3).float("f", 0.5).finish();
-        assert_eq!(text, r#"{"a":"x\"y\\z\u000a","n":3,"f":0.500000}"#);
-        assert_eq!(Json::default().finish(), "{}");
+/// Prints `report` as one line of JSON on stdout.
+pub(crate) fn print_json(report: &impl serde::Serialize) {
+    match serde_json::to_string(report) {
+        Ok(line) => println!("{line}"),
+        // Only a map with non-string keys fails, and no report has one.
+        Err(error) => eprintln!("lcc-stream: cannot write JSON: {error}"),
     }
 }

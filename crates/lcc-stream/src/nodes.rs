@@ -19,10 +19,16 @@ const PIP_TIMEOUT: Duration = Duration::from_secs(3);
 
 /// Options of `lcc-stream nodes`.
 #[derive(Debug, Args)]
-#[command(after_help = net::exit_help!())]
+#[command(after_help = concat!("\
+--json prints one object per node: node_id, alias (CAN alias in hex, null over OpenLCB-TCP),
+snip (manufacturer, model, hardware_version, software_version, user_name, user_description;
+null if it did not answer), protocols (names; null if it did not answer) and errors (why SNIP
+or PIP gave nothing).
+
+", net::exit_help!()))]
 pub(crate) struct NodesArgs {
     /// This node's Node ID while it asks.
-    #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_LISTER)]
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = DEFAULT_LISTER)]
     node_id: NodeId,
     /// Seconds of quiet after the last answer to Verify Node ID before the list is complete
     /// (0.05 to 30).

@@ -15,10 +15,12 @@ use clap::Args;
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{NodeId, StreamInfo};
 use openlcb_tokio::{Error, NodeOptions, RecvStream};
+use serde::Serialize;
 use tokio::io::{AsyncWriteExt as _, BufWriter};
 use tokio::sync::watch;
 
-use crate::net::{self, ConnectArgs, Json};
+use crate::net::{self, ConnectArgs};
+use crate::progress::{Progress, ProgressGroup};
 
 /// Names tried for one stream before giving up (every one of them already taken).
 const NAME_ATTEMPTS: u64 = 100_000;
@@ -28,7 +30,13 @@ pub(crate) const DEFAULT_RECEIVER: &str = "05.01.01.01.22.F1";
 
 /// Options of `lcc-stream recv`.
 #[derive(Debug, Args)]
-#[command(after_help = net::EXIT_HELP)]
+#[command(after_help = concat!("\
+--json prints one object per stream: file (final name, or the .part kept; absent if no data
+came), from (Node ID), bytes (received), elapsed_s, bytes_per_s, window (granted), result (ok,
+file_error, interrupted, timed_out, connection_lost, terminated, duplicate_node_id or error),
+content_uid (if the source sent one) and error (a sentence, on failure).
+
+", net::exit_help!()))]
 pub(crate) struct RecvArgs {
     /// Where to write: an existing directory (one file per stream, named after the sender and
     /// the first free counter), or a file name (if taken, or for later streams, `.1`, `.2`,
@@ -36,7 +44,7 @@ pub(crate) struct RecvArgs {
     #[arg(long, value_name = "PATH", default_value = ".")]
     out: PathBuf,
     /// This node's Node ID.
-    #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_RECEIVER)]
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = DEFAULT_RECEIVER)]
     node_id: NodeId,
     /// The largest window (Max Buffer Size) granted, 1..=65535.
     #[arg(long, default_value_t = 65535, value_parser = clap::value_parser!(u16).range(1..))]
@@ -56,7 +64,7 @@ pub(crate) struct RecvArgs {
     #[arg(long)]
     once: bool,
     /// Seconds a sender may stay silent in the middle of a stream before it is given up.
-    #[arg(long, value_name = "SECS", default_value_t = 60)]
+    #[arg(long, value_name = "SECS", default_value_t = 60, value_parser = crate::args::positive::<u64>)]
     timeout: u64,
     /// Print one JSON object per finished stream instead of text.
     #[arg(long)]
@@ -91,13 +99,15 @@ async fn receive(args: &RecvArgs) -> Result<ExitCode, String> {
     let counter = Arc::new(AtomicU64::new(0));
     let (stop, stopped) = watch::channel(false);
     let mut transfers = tokio::task::JoinSet::new();
+    let progress = ProgressGroup::new(args.json);
     let mut accepting = true;
     loop {
         tokio::select! {
             accepted = node.accept(), if accepting => match accepted {
                 Ok(stream) => {
                     let target = Target { out: args.out.clone(), counter: counter.clone() };
-                    transfers.spawn(save(stream, target, args.json, stopped.clone()));
+                    let shown = progress.start(None, &format!("from {}", stream.info().peer));
+                    transfers.spawn(save(stream, target, args.json, shown, stopped.clone()));
                     // With --once, take no more: the one stream decides the exit status.
                     accepting = !args.once;
                 }
@@ -201,7 +211,13 @@ impl Output {
 }
 
 /// Receives one stream (through `NAME.part`), reports it, and returns its exit status.
-async fn save(mut stream: RecvStream, target: Target, json: bool, mut stop: watch::Receiver<bool>) -> u8 {
+async fn save(
+    mut stream: RecvStream,
+    target: Target,
+    json: bool,
+    progress: Progress,
+    mut stop: watch::Receiver<bool>,
+) -> u8 {
     let info = *stream.info();
     let started = Instant::now();
     let mut output: Option<Output> = None;
@@ -218,10 +234,12 @@ async fn save(mut stream: RecvStream, target: Target, json: bool, mut stop: watc
             if let Some(out) = output.as_mut() {
                 out.file.write_all(&chunk).await.map_err(Failure::File)?;
             }
+            progress.set(stream.received());
         }
     }
     .await;
     let bytes = stream.received();
+    progress.finish();
     if matches!(received, Err(Failure::Interrupted)) {
         // The source learns at once (TDE), rather than by its own timeout.
         stream.abort(ErrorCode::TEMPORARY);
@@ -249,6 +267,23 @@ async fn finish(target: &Target, peer: NodeId, out: Option<Output>) -> Result<Pa
     out.complete().await.map_err(|failure| (failure, Some(part)))
 }
 
+/// `recv --json`: one object per stream (see the help for its fields).
+#[derive(Debug, Serialize)]
+struct RecvReport<'a> {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    file: Option<&'a str>,
+    from: String,
+    bytes: u64,
+    elapsed_s: f64,
+    bytes_per_s: f64,
+    window: u16,
+    result: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    content_uid: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error: Option<&'a str>,
+}
+
 /// Prints what came of one stream (text or JSON) and returns its exit status.
 fn report(
     info: &StreamInfo,
@@ -262,33 +297,28 @@ fn report(
         Ok(_) => (0, "ok", None),
         Err((Failure::Stream(error), _)) => (net::exit_status(error), net::result_word(error), Some(error.to_string())),
         Err((Failure::File(error), _)) => (net::EXIT_FILE, "file_error", Some(error.to_string())),
-        Err((Failure::Interrupted, _)) => {
-            (net::EXIT_INTERRUPTED, "interrupted", Some("interrupted (the source was sent TDE 0x2000)".to_string()))
-        }
+        Err((Failure::Interrupted, _)) => (
+            net::EXIT_INTERRUPTED,
+            "interrupted",
+            Some("interrupted (the source was sent TDE 0x2000, temporary error)".to_string()),
+        ),
     };
     let file = match outcome {
         Ok(path) | Err((_, Some(path))) => Some(path.display().to_string()),
         Err((_, None)) => None,
     };
     if json {
-        let mut report = Json::default();
-        if let Some(file) = &file {
-            report = report.str("file", file);
-        }
-        report = report
-            .str("from", &info.peer.to_string())
-            .num("bytes", bytes)
-            .float("elapsed_s", elapsed.as_secs_f64())
-            .float("bytes_per_s", bytes_per_s)
-            .num("window", info.window)
-            .str("result", result);
-        if let Some(uid) = info.content_uid {
-            report = report.str("content_uid", &uid.to_string());
-        }
-        if let Some(error) = &error {
-            report = report.str("error", error);
-        }
-        println!("{}", report.finish());
+        net::print_json(&RecvReport {
+            file: file.as_deref(),
+            from: info.peer.to_string(),
+            bytes,
+            elapsed_s: elapsed.as_secs_f64(),
+            bytes_per_s,
+            window: info.window,
+            result,
+            content_uid: info.content_uid.map(|uid| uid.to_string()),
+            error: error.as_deref(),
+        });
     } else if let Some(error) = error {
         let kept = file.map_or_else(|| "no file written".to_string(), |file| format!("kept in {file}"));
         eprintln!("lcc-stream recv: stream from {} failed after {bytes} bytes ({kept}): {error}", info.peer);

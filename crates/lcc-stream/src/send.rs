@@ -1,6 +1,5 @@
 //! `lcc-stream send`: join the network as a node and send a file as one stream.
 
-use std::io::IsTerminal as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -10,9 +9,11 @@ use bytes::BytesMut;
 use clap::Args;
 use openlcb_stream::{AcceptPolicy, ContentUid, NodeId, OpenOptions, wire::ReplyCode};
 use openlcb_tokio::{Error, Node, NodeOptions};
+use serde::Serialize;
 use tokio::io::AsyncReadExt as _;
 
-use crate::net::{self, ConnectArgs, Json};
+use crate::net::{self, ConnectArgs};
+use crate::progress::Progress;
 
 /// The Node ID `send` uses unless told otherwise (from the range of the examples of this
 /// project; pick your own from a range you own on a real layout).
@@ -35,17 +36,31 @@ once every stated byte has arrived.
     };
 }
 
+/// The fields of `send --json`.
+macro_rules! send_json {
+    () => {
+        "\
+--json prints one object: file, to (Node ID), bytes (sent), elapsed_s, bytes_per_s, window
+(negotiated on success, else the one proposed), result (ok, unreachable_hub, rejected,
+timed_out, connection_lost, terminated, duplicate_node_id or error), and frames_out and
+writes (on success) or error (a sentence).
+
+"
+    };
+}
+
 /// Options of `lcc-stream send`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!(send_promise!(), net::exit_help!()))]
+#[command(after_help = concat!(send_promise!(), send_json!(), net::exit_help!()))]
 pub(crate) struct SendArgs {
     /// The file to send.
     file: PathBuf,
-    /// The receiving node, e.g. 05.01.01.01.22.F1 (the default of `lcc-stream recv`).
-    #[arg(long, value_name = "NODE_ID")]
+    /// The receiving node, e.g. 05.01.01.01.22.F1 (the default of `lcc-stream recv`); also
+    /// 05:01:01:01:22:F1, 0501010122F1 or 0x0501010122F1.
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id)]
     to: NodeId,
     /// This node's Node ID.
-    #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_SENDER)]
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = DEFAULT_SENDER)]
     node_id: NodeId,
     /// Window (Max Buffer Size) to propose, 1..=65535; the receiver may lower it.
     #[arg(long, default_value_t = 65535, value_parser = clap::value_parser!(u16).range(1..))]
@@ -55,13 +70,50 @@ pub(crate) struct SendArgs {
     content_uid: Option<ContentUid>,
     /// Seconds to wait for the receiver's answer, for credit once it has run out (one deadline
     /// from that moment), and for the hub to take data the socket holds.
-    #[arg(long, value_name = "SECS", default_value_t = 20)]
+    #[arg(long, value_name = "SECS", default_value_t = 20, value_parser = crate::args::positive::<u64>)]
     timeout: u64,
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
     #[command(flatten)]
     connect: ConnectArgs,
+}
+
+/// `send --json`: one object (see the help for its fields).
+#[derive(Debug, Serialize)]
+struct SendReport {
+    file: String,
+    to: String,
+    bytes: u64,
+    elapsed_s: f64,
+    bytes_per_s: f64,
+    window: u16,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    frames_out: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    writes: Option<u64>,
+    result: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error: Option<String>,
+}
+
+impl SendReport {
+    /// The report of a transfer that came to `summary` and ended with `outcome`.
+    fn new(args: &SendArgs, summary: &Summary, outcome: Result<(), &Error>) -> Self {
+        let ok = outcome.is_ok();
+        SendReport {
+            file: args.file.display().to_string(),
+            to: args.to.to_string(),
+            bytes: summary.bytes,
+            elapsed_s: summary.elapsed.as_secs_f64(),
+            bytes_per_s: net::rate(summary.bytes, summary.elapsed.as_secs_f64()),
+            window: summary.window,
+            frames_out: ok.then_some(summary.frames_out),
+            writes: ok.then_some(summary.writes),
+            result: outcome.map_or_else(net::result_word, |()| "ok"),
+            error: outcome.err().map(ToString::to_string),
+        }
+    }
 }
 
 /// What a transfer came to.
@@ -94,16 +146,8 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
     options.write_timeout = Duration::from_secs(args.timeout);
     let report_error = |error: &Error, bytes: u64, elapsed: Duration| {
         if args.json {
-            let json = Json::default()
-                .str("file", &args.file.display().to_string())
-                .str("to", &args.to.to_string())
-                .num("bytes", bytes)
-                .float("elapsed_s", elapsed.as_secs_f64())
-                .float("bytes_per_s", net::rate(bytes, elapsed.as_secs_f64()))
-                .num("window", args.window)
-                .str("result", net::result_word(error))
-                .str("error", &error.to_string());
-            println!("{}", json.finish());
+            let summary = Summary { bytes, elapsed, window: args.window, frames_out: 0, writes: 0 };
+            net::print_json(&SendReport::new(args, &summary, Err(error)));
         }
         net::fail("send", error)
     };
@@ -138,7 +182,7 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
         }
         Err(Stop::Interrupted) => {
             eprintln!(
-                "lcc-stream send: interrupted after {} bytes; the stream was terminated (TDE 0x2000)",
+                "lcc-stream send: interrupted after {} bytes; the stream was terminated (TDE 0x2000, temporary error)",
                 written.load(Ordering::Relaxed)
             );
             return Ok(ExitCode::from(net::EXIT_INTERRUPTED));
@@ -146,17 +190,7 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
     };
     let summary = Summary { frames_out: stats.frames_out, writes: stats.writes, ..summary };
     if args.json {
-        let json = Json::default()
-            .str("file", &args.file.display().to_string())
-            .str("to", &args.to.to_string())
-            .num("bytes", summary.bytes)
-            .float("elapsed_s", summary.elapsed.as_secs_f64())
-            .float("bytes_per_s", net::rate(summary.bytes, summary.elapsed.as_secs_f64()))
-            .num("window", summary.window)
-            .num("frames_out", summary.frames_out)
-            .num("writes", summary.writes)
-            .str("result", "ok");
-        println!("{}", json.finish());
+        net::print_json(&SendReport::new(args, &summary, Ok(())));
     } else {
         println!(
             "sent {} bytes to {} in {:.3} s ({}), window {}, {} frames in {} writes",
@@ -191,7 +225,7 @@ async fn transfer(
     open.content_uid = args.content_uid;
     let mut stream = node.open(open).await.map_err(Stop::Failed)?;
     let window = stream.info().window;
-    let mut progress = Progress::new(size, !args.json && std::io::stderr().is_terminal());
+    let progress = Progress::start(size, args.json);
     // Read the next chunk while the previous one goes out.
     let started = Instant::now();
     let mut next = read_chunk(file).await;
@@ -207,9 +241,9 @@ async fn transfer(
         }
         written.store(stream.written(), Ordering::Relaxed);
         next = read;
-        progress.update(stream.written(), started.elapsed());
+        progress.set(stream.written());
     };
-    progress.clear();
+    progress.finish();
     outcome?;
     let bytes = stream.finish().await.map_err(Stop::Failed)?;
     Ok(Summary { bytes, elapsed: started.elapsed(), window, frames_out: 0, writes: 0 })
@@ -223,46 +257,4 @@ async fn read_chunk(file: &mut tokio::fs::File) -> std::io::Result<BytesMut> {
         }
     }
     Ok(chunk)
-}
-
-/// A one-line progress display on stderr: bytes, percentage, rate and time left.
-pub(crate) struct Progress {
-    total: Option<u64>,
-    enabled: bool,
-    last: Option<Instant>,
-    shown: bool,
-}
-
-impl Progress {
-    pub(crate) fn new(total: Option<u64>, enabled: bool) -> Self {
-        Progress { total, enabled, last: None, shown: false }
-    }
-
-    pub(crate) fn update(&mut self, done: u64, elapsed: Duration) {
-        if !self.enabled || self.last.is_some_and(|t| t.elapsed() < Duration::from_millis(100)) {
-            return;
-        }
-        self.last = Some(Instant::now());
-        let rate = net::rate(done, elapsed.as_secs_f64());
-        let mut line = format!("\r{:.1} MiB", done as f64 / 1048576.0);
-        if let Some(total) = self.total.filter(|&t| t > 0) {
-            let left = if rate > 0.0 { total.saturating_sub(done) as f64 / rate } else { f64::NAN };
-            line += &format!(
-                " of {:.1} MiB ({:>3.0}%), ETA {:.0} s",
-                total as f64 / 1048576.0,
-                done as f64 * 100.0 / total as f64,
-                left
-            );
-        }
-        line += &format!(", {}   ", net::rate_text(rate));
-        eprint!("{line}");
-        self.shown = true;
-    }
-
-    pub(crate) fn clear(&mut self) {
-        if self.shown {
-            eprint!("\r{:60}\r", "");
-            self.shown = false;
-        }
-    }
 }

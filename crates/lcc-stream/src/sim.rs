@@ -1,6 +1,7 @@
 //! `lcc-stream sim`: one or more transfers on the loopback harness, reported against the
 //! ceiling of the medium.
 
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::process::ExitCode;
 
@@ -9,6 +10,7 @@ use openlcb_can::CanFrame;
 use openlcb_loopback::bus::frame_bits;
 use openlcb_loopback::{FrameCounts, Network, NodeIndex, NodeOptions, Outcome, TransferSpec};
 use openlcb_stream::{Duration, Instant, NodeId};
+use serde::Serialize;
 
 /// Where the transfer runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -23,9 +25,18 @@ pub(crate) enum Topology {
 
 /// Options of `lcc-stream sim`.
 #[derive(Debug, Args)]
+#[command(after_help = "\
+--json prints one object: the options (topology, bitrate, window, early_proceed, latency_ms,
+streams, seed), payload_bytes, elapsed_s (virtual), goodput_bytes_per_s, ceiling_bytes_per_s
+(back-to-back full frames), efficiency (ceiling time / elapsed), bus_utilisation (0..1),
+tcp_bytes, frames (total and per kind: stream_data, proceed, initiate, complete, error_report,
+other_message, control), verified and real_time_s.
+
+Exit status: 0 the transfer completed and verified; 1 it did not (or the simulation failed);
+2 bad arguments.")]
 pub(crate) struct SimArgs {
     /// CAN bitrate, bits per second.
-    #[arg(long, default_value_t = 125_000)]
+    #[arg(long, default_value_t = 125_000, value_parser = crate::args::positive::<u32>)]
     bitrate: u32,
     /// Payload bytes per stream.
     #[arg(long, default_value_t = 262_144)]
@@ -37,7 +48,7 @@ pub(crate) struct SimArgs {
     #[arg(long)]
     early_proceed: bool,
     /// Per-node processing latency, milliseconds (fractions allowed).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = parse_latency)]
     latency: f64,
     /// Concurrent transfers between the two nodes.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=255))]
@@ -46,7 +57,7 @@ pub(crate) struct SimArgs {
     #[arg(long, value_enum, default_value_t = Topology::Can)]
     topology: Topology,
     /// OpenLCB-TCP link bandwidth, bytes per second (tcp topology).
-    #[arg(long, default_value_t = 12_500_000)]
+    #[arg(long, default_value_t = 12_500_000, value_parser = crate::args::positive::<u64>)]
     bandwidth: u64,
     /// Seed of the simulation.
     #[arg(long, default_value_t = 1)]
@@ -54,6 +65,14 @@ pub(crate) struct SimArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
+}
+
+/// `--latency`: milliseconds, 0 to 10000.
+fn parse_latency(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(ms) if (0.0..=10_000.0).contains(&ms) => Ok(ms),
+        _ => Err("expected milliseconds from 0 to 10000".to_string()),
+    }
 }
 
 /// What a run measured.
@@ -78,15 +97,9 @@ const GATEWAY: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x10])
 const START: Instant = Instant::from_millis(300);
 
 pub(crate) fn run(args: &SimArgs) -> Result<ExitCode, String> {
-    if !(args.latency.is_finite() && (0.0..=10_000.0).contains(&args.latency)) {
-        return Err(format!("--latency {} is not 0..=10000 ms", args.latency));
-    }
-    if args.bitrate == 0 || args.bandwidth == 0 {
-        return Err("--bitrate and --bandwidth must be positive".into());
-    }
     let report = simulate(args)?;
     if args.json {
-        println!("{}", json(args, &report));
+        crate::net::print_json(&json(args, &report));
     } else {
         print!("{}", text(args, &report));
     }
@@ -204,32 +217,50 @@ fn topology_name(t: Topology) -> &'static str {
     }
 }
 
-fn json(args: &SimArgs, r: &Report) -> String {
-    let mut frames = format!("\"total\":{}", r.frames.total());
-    for (kind, count) in r.frames.by_kind() {
-        let _ = write!(frames, ",\"{kind}\":{count}");
+/// `sim --json`: one object (see the help for its fields).
+#[derive(Debug, Serialize)]
+struct SimReport {
+    topology: &'static str,
+    bitrate: u32,
+    window: u16,
+    early_proceed: bool,
+    latency_ms: f64,
+    streams: u16,
+    seed: u64,
+    payload_bytes: u64,
+    elapsed_s: f64,
+    goodput_bytes_per_s: f64,
+    ceiling_bytes_per_s: f64,
+    efficiency: f64,
+    bus_utilisation: f64,
+    tcp_bytes: u64,
+    frames: BTreeMap<&'static str, u64>,
+    verified: bool,
+    real_time_s: f64,
+}
+
+fn json(args: &SimArgs, r: &Report) -> SimReport {
+    let mut frames: BTreeMap<_, _> = r.frames.by_kind().into_iter().collect();
+    frames.insert("total", r.frames.total());
+    SimReport {
+        topology: topology_name(args.topology),
+        bitrate: args.bitrate,
+        window: args.window,
+        early_proceed: args.early_proceed,
+        latency_ms: args.latency,
+        streams: args.streams,
+        seed: args.seed,
+        payload_bytes: r.payload_bytes,
+        elapsed_s: r.elapsed.as_secs_f64(),
+        goodput_bytes_per_s: rate(r.payload_bytes, r.elapsed),
+        ceiling_bytes_per_s: rate(r.payload_bytes, r.ceiling),
+        efficiency: efficiency(r),
+        bus_utilisation: utilisation(r),
+        tcp_bytes: r.tcp_bytes,
+        frames,
+        verified: r.verified,
+        real_time_s: r.real_time_s,
     }
-    format!(
-        "{{\"topology\":\"{}\",\"bitrate\":{},\"window\":{},\"early_proceed\":{},\"latency_ms\":{},\"streams\":{},\"seed\":{},\
-         \"payload_bytes\":{},\"elapsed_s\":{:.6},\"goodput_bytes_per_s\":{:.1},\"ceiling_bytes_per_s\":{:.1},\"efficiency\":{:.4},\
-         \"bus_utilisation\":{:.4},\"tcp_bytes\":{},\"frames\":{{{frames}}},\"verified\":{},\"real_time_s\":{:.3}}}",
-        topology_name(args.topology),
-        args.bitrate,
-        args.window,
-        args.early_proceed,
-        args.latency,
-        args.streams,
-        args.seed,
-        r.payload_bytes,
-        r.elapsed.as_secs_f64(),
-        rate(r.payload_bytes, r.elapsed),
-        rate(r.payload_bytes, r.ceiling),
-        efficiency(r),
-        utilisation(r),
-        r.tcp_bytes,
-        r.verified,
-        r.real_time_s,
-    )
 }
 
 fn text(args: &SimArgs, r: &Report) -> String {

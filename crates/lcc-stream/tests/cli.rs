@@ -72,16 +72,15 @@ async fn finish(child: Child) -> (ExitStatus, String, String) {
     (output.status, text(output.stdout), text(output.stderr))
 }
 
-/// The value of `"key":` in a one-line JSON object, as text.
-fn field<'a>(json: &'a str, key: &str) -> &'a str {
-    let start = json.find(&format!("\"{key}\":")).unwrap_or_else(|| panic!("no {key} in {json}")) + key.len() + 3;
-    let rest = &json[start..];
-    let end = if let Some(quoted) = rest.strip_prefix('"') {
-        quoted.find('"').unwrap() + 2
-    } else {
-        rest.find([',', '}']).unwrap()
-    };
-    rest[..end].trim_matches('"')
+/// The value of `key` in a one-line JSON object (parsed with serde_json), as text: a string's
+/// contents, or a number or boolean as JSON writes it.
+fn field(json: &str, key: &str) -> String {
+    let object: serde_json::Value = serde_json::from_str(json.trim()).unwrap_or_else(|e| panic!("{e}: {json}"));
+    match object.get(key) {
+        Some(serde_json::Value::String(text)) => text.clone(),
+        Some(value) => value.to_string(),
+        None => panic!("no {key} in {json}"),
+    }
 }
 
 /// Starts `lcc-stream hub` on ephemeral ports; returns it with its GridConnect and
@@ -236,6 +235,8 @@ async fn a_terminated_stream_stays_part_and_recv_says_how_much_arrived() {
     let (status, stdout, _) = finish(recv).await;
     assert_eq!(status.code(), Some(7), "{stdout}");
     assert_eq!(field(&stdout, "result"), "terminated", "{stdout}");
+    // The peer's code is printed with its meaning.
+    assert!(field(&stdout, "error").contains("0x2000 (temporary error)"), "{stdout}");
     let arrived: u64 = field(&stdout, "bytes").parse().unwrap();
     assert!(arrived <= 5000);
     assert!(!output.exists(), "a terminated stream was renamed to the final name");

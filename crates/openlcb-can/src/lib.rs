@@ -105,7 +105,10 @@
 //!   refused by [`CanLink::send`].
 //! - The link does not see its own transmitted frames; a driver whose controller echoes them
 //!   must filter them out, or they read as an alias collision.
-
+//!
+//! # Features
+//!
+#![doc = document_features::document_features!()]
 #![cfg_attr(not(test), no_std)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
 #![warn(missing_docs)]

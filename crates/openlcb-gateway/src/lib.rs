@@ -106,7 +106,10 @@
 //! let ids: Vec<u32> = bus[4..].iter().map(|f| f.raw_id() & 0x1FFF_F000).collect();
 //! assert_eq!(ids, [0x1070_0000, 0x1070_1000, 0x1917_0000]);
 //! ```
-
+//!
+//! # Features
+//!
+#![doc = document_features::document_features!()]
 #![cfg_attr(not(test), no_std)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
 #![forbid(unsafe_code)]

@@ -16,7 +16,10 @@
 //! net.run(Instant::from_millis(60_000), 1_000_000).unwrap();
 //! assert_eq!(net.transfers()[t].outcome, Outcome::Completed);
 //! ```
-
+//!
+//! # Features
+//!
+#![doc = document_features::document_features!()]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 

@@ -121,7 +121,10 @@
 //! [`transmit_queue_limit`](NodeConfig::transmit_queue_limit) are dropped and counted;
 //! datagrams waiting, datagrams awaiting the application's answer and SNIP requests each have
 //! their own bound. Nothing on the receive path panics.
-
+//!
+//! # Features
+//!
+#![doc = document_features::document_features!()]
 #![cfg_attr(not(test), no_std)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
 #![forbid(unsafe_code)]

@@ -84,7 +84,10 @@
 //!
 //! Every table and buffer is sized by [`Config`]; bad input is counted in [`Stats`] and
 //! ignored, or refused with the code the draft asks for, and never panics.
-
+//!
+//! # Features
+//!
+#![doc = document_features::document_features!()]
 #![cfg_attr(not(test), no_std)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
 #![forbid(unsafe_code)]

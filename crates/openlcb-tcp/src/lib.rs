@@ -77,7 +77,10 @@
 //! }
 //! assert!(matches!(a.poll_event(), Some(Event::Opened { handle, .. }) if handle == stream));
 //! ```
-
+//!
+//! # Features
+//!
+#![doc = document_features::document_features!()]
 #![cfg_attr(not(test), no_std)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
 #![warn(missing_docs)]

@@ -26,8 +26,9 @@ pub struct LinkStats {
 }
 
 /// One node's OpenLCB-TCP link: socket bytes in, [`MessageRef`]s out for
-/// [`StreamEndpoint::handle_message`]; [`Message`]s from [`StreamEndpoint::poll_transmit`] in,
-/// encoded bytes out for the socket. It does no I/O and reads no clock.
+/// [`StreamEndpoint::handle_message`](openlcb_stream::StreamEndpoint::handle_message);
+/// [`Message`]s from [`StreamEndpoint::poll_transmit`](openlcb_stream::StreamEndpoint::poll_transmit)
+/// in, encoded bytes out for the socket. It does no I/O and reads no clock.
 ///
 /// Every message it sends carries this node as the originating gateway and `now` in
 /// milliseconds as the capture time. Stream Data Send messages go out whole, as large as the

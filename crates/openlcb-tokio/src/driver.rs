@@ -402,6 +402,7 @@ impl Driver {
                     continue;
                 }
             };
+            log_stream_event(&event);
             match event {
                 Event::Opened { handle, info } if info.role == Role::Source => {
                     if let Some(reply) = self.sends.get_mut(&handle).and_then(|s| s.opening.take()) {
@@ -557,5 +558,21 @@ impl Driver {
                 }
             }
         });
+    }
+}
+
+/// Logs the events that begin or end a stream (in the node's span), none per window or frame.
+fn log_stream_event(event: &Event) {
+    match event {
+        Event::Opened { handle, info } => {
+            tracing::info!(stream = ?handle, peer = %info.peer, role = ?info.role, window = info.window, "stream opened");
+        }
+        Event::Finished { handle, total, matched, .. } => {
+            tracing::info!(stream = ?handle, total, matched, "stream finished");
+        }
+        Event::Rejected { handle, code, .. } => tracing::warn!(stream = ?handle, %code, "stream rejected"),
+        Event::Terminated { handle, cause } => tracing::warn!(stream = ?handle, ?cause, "stream terminated"),
+        Event::TimedOut { handle, kind } => tracing::warn!(stream = ?handle, ?kind, "stream timed out"),
+        _ => {}
     }
 }

@@ -167,7 +167,9 @@ fn timeout_text(peer: NodeId, kind: TimeoutKind) -> String {
 
 fn termination_text(peer: NodeId, cause: Termination) -> String {
     match cause {
-        Termination::ByPeer(code) => format!("node {peer} terminated the stream with error {code}"),
+        Termination::ByPeer(code) => {
+            format!("node {peer} terminated the stream with error {code} ({})", code.meaning())
+        }
         Termination::WindowOverrun => format!("node {peer} sent more than the window allows"),
         Termination::Superseded => format!("node {peer} started a new stream in place of this one"),
         Termination::PeerLost => format!("node {peer} left the network"),

@@ -34,6 +34,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 use tokio::task::{AbortHandle, JoinSet};
+use tracing::Instrument as _;
 
 use crate::io::{ByteReader, ByteWriter};
 use crate::{ByteStream, Error, Protocol};
@@ -226,6 +227,12 @@ pub(crate) struct State {
 
 impl State {
     pub(crate) fn event(&self, event: HubEvent) {
+        // Inside the client's span when it concerns one; frames only with `options.trace`.
+        match &event {
+            HubEvent::Frame { .. } => tracing::trace!(?event),
+            HubEvent::Garbage { .. } | HubEvent::SlowClient { .. } | HubEvent::Refused { .. } => tracing::warn!(?event),
+            _ => tracing::info!(?event),
+        }
         if self.events.try_send(event).is_err() {
             self.events_dropped.fetch_add(1, Ordering::Relaxed);
         }
@@ -522,12 +529,13 @@ fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, pr
     let _ = socket.set_nodelay(true);
     let _ = crate::socket::keep_alive(&socket);
     let (id, rx, queued) = state.add_client(protocol);
-    state.event(HubEvent::Connected { client: id, peer, protocol });
+    let span = tracing::info_span!("client", id, %peer, ?protocol);
+    span.in_scope(|| state.event(HubEvent::Connected { client: id, peer, protocol }));
     let (reader, writer) = crate::io::tcp_halves(socket);
     let silent_timeout = state.options.silent_timeout;
     let handles = [
-        tasks.spawn(read_client(id, reader, protocol, silent_timeout, state.clone())),
-        tasks.spawn(write_client(id, writer, rx, queued, state.clone())),
+        tasks.spawn(read_client(id, reader, protocol, silent_timeout, state.clone()).instrument(span.clone())),
+        tasks.spawn(write_client(id, writer, rx, queued, state.clone()).instrument(span)),
     ];
     let registered = state
         .clients

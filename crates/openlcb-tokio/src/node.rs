@@ -11,6 +11,7 @@ use openlcb_stream::{NodeId, OpenOptions, Stats, StreamHandle, StreamInfo};
 use tokio::net::{TcpStream, lookup_host};
 use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
+use tracing::Instrument as _;
 
 use crate::driver::Driver;
 use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents};
@@ -219,7 +220,7 @@ impl Node {
             .map_err(connect_error)?;
         // Small frames must not wait for Nagle's algorithm: the batching is done here.
         socket.set_nodelay(true).map_err(connect_error)?;
-        Node::start(crate::io::tcp_halves(socket), protocol, options).await.map_err(|error| match error {
+        Node::start(crate::io::tcp_halves(socket), addr, protocol, options).await.map_err(|error| match error {
             // A connection that breaks before the login is done never reached a hub (a
             // firewall or proxy that accepts and closes, a port that is not a hub).
             Error::ConnectionLost(source) => Error::Connect { addr: addr.to_string(), source },
@@ -249,12 +250,14 @@ impl Node {
     /// # Ok(()) }
     /// ```
     pub async fn over(stream: impl crate::ByteStream, protocol: Protocol, options: NodeOptions) -> Result<Node, Error> {
-        Node::start(crate::io::halves(stream), protocol, options).await
+        Node::start(crate::io::halves(stream), "a byte stream", protocol, options).await
     }
 
-    /// Starts the driver on a connection's halves and waits for the login.
+    /// Starts the driver on a connection's halves (`via` names the connection in logs) and
+    /// waits for the login.
     async fn start(
         halves: (crate::io::ByteReader, crate::io::ByteWriter),
+        via: &str,
         protocol: Protocol,
         options: NodeOptions,
     ) -> Result<Node, Error> {
@@ -266,7 +269,8 @@ impl Node {
         let (up_tx, up) = oneshot::channel();
         let driver =
             Driver::new(halves, protocol, options, command_rx, commands.downgrade(), incoming_tx, shared.clone());
-        let driver = tokio::spawn(driver.run(up_tx));
+        let span = tracing::info_span!("node", %node_id, addr = via, ?protocol);
+        let driver = tokio::spawn(driver.run(up_tx).instrument(span));
         let control = Control { commands, shared };
         match tokio::time::timeout(timeout, up).await {
             Ok(Ok(())) => Ok(Node { node_id, control, incoming, driver }),

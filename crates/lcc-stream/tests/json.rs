@@ -1,0 +1,44 @@
+//! `--json` output of the built binary, parsed with serde_json: one object with the fields the
+//! help lists.
+
+use std::process::Command;
+
+use serde_json::Value;
+
+const BIN: &str = env!("CARGO_BIN_EXE_lcc-stream");
+
+#[test]
+fn sim_json_is_one_object_with_the_documented_fields() {
+    let output = Command::new(BIN).args(["sim", "--bytes", "4096", "--window", "256", "--json"]).output().unwrap();
+    assert!(output.status.success(), "{output:?}");
+    let report: Value = serde_json::from_slice(&output.stdout).unwrap();
+    let help =
+        String::from_utf8_lossy(&Command::new(BIN).args(["sim", "--help"]).output().unwrap().stdout).into_owned();
+    let object = report.as_object().unwrap();
+    for key in object.keys() {
+        assert!(help.contains(key.as_str()), "{key} is not documented in sim --help");
+    }
+    assert_eq!(report["payload_bytes"], 4096);
+    assert_eq!(report["window"], 256);
+    assert_eq!(report["verified"], true);
+    assert_eq!(report["topology"], "can");
+    let frames = report["frames"].as_object().unwrap();
+    let kinds: u64 = frames.iter().filter(|(kind, _)| *kind != "total").map(|(_, n)| n.as_u64().unwrap()).sum();
+    assert_eq!(frames["total"].as_u64(), Some(kinds));
+    assert!(report["efficiency"].as_f64().is_some_and(|e| e > 0.0 && e <= 1.0), "{report}");
+}
+
+#[test]
+fn send_and_recv_help_list_their_json_fields() {
+    let help = |command| {
+        String::from_utf8_lossy(&Command::new(BIN).args([command, "--help"]).output().unwrap().stdout).into_owned()
+    };
+    for field in
+        ["file", "to", "bytes", "elapsed_s", "bytes_per_s", "window", "result", "frames_out", "writes", "error"]
+    {
+        assert!(help("send").contains(field), "send: {field}");
+    }
+    for field in ["file", "from", "bytes", "elapsed_s", "bytes_per_s", "window", "result", "content_uid", "error"] {
+        assert!(help("recv").contains(field), "recv: {field}");
+    }
+}
