@@ -51,8 +51,8 @@ pub(crate) struct ServeArgs {
     /// bytes in memory].
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
-    /// Where each firmware image (space 0xEF) is written at Unfreeze [default:
-    /// firmware-<node id>.bin in the current folder].
+    /// Where each firmware image (space 0xEF) is written at Unfreeze; by default
+    /// `firmware-<node id>.bin` in the current folder.
     #[arg(long, value_name = "FILE")]
     firmware_out: Option<PathBuf>,
     /// Replace the firmware file if it exists.
