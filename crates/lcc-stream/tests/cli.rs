@@ -2,49 +2,22 @@
 //! processes on 127.0.0.1 (ephemeral ports). Every wait is bounded; children are killed when
 //! a test ends.
 
-use std::future::Future;
-use std::path::{Path, PathBuf};
-use std::process::{ExitStatus, Stdio};
-use std::time::Duration;
+mod common;
 
+use std::path::{Path, PathBuf};
+use std::process::ExitStatus;
+
+use common::{bounded, scratch, spawn};
 use openlcb_stream::wire::ReplyCode;
 use openlcb_stream::{AcceptPolicy, NodeId, OpenOptions};
 use openlcb_tokio::{Hub, HubEvent, HubOptions, Node, NodeOptions, Protocol};
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, ChildStderr, Command};
 
-const LIMIT: Duration = Duration::from_secs(120);
-const BIN: &str = env!("CARGO_BIN_EXE_lcc-stream");
 const RECEIVER: &str = "05.01.01.01.22.F1";
-
-async fn bounded<T>(what: &str, future: impl Future<Output = T>) -> T {
-    match tokio::time::timeout(LIMIT, future).await {
-        Ok(value) => value,
-        Err(_) => panic!("{what} did not finish within {LIMIT:?}"),
-    }
-}
-
-/// A fresh, empty directory for one test.
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("lcc-stream-cli-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn data(len: usize) -> Vec<u8> {
     (0..len).map(|i| (i as u32).wrapping_mul(2_654_435_761).rotate_right(11) as u8).collect()
-}
-
-fn spawn(args: &[&str]) -> Child {
-    Command::new(BIN)
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .kill_on_drop(true)
-        .spawn()
-        .unwrap()
 }
 
 /// Reads `child`'s stderr until a line contains `needle`; returns that line. The rest of

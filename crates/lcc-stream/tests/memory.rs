@@ -2,33 +2,16 @@
 //! built binary, through an in-process hub on 127.0.0.1 (ephemeral port). Every wait is
 //! bounded; children are killed when a test ends.
 
-use std::future::Future;
-use std::path::{Path, PathBuf};
-use std::process::Stdio;
-use std::time::Duration;
+mod common;
 
+use std::path::Path;
+use std::process::Stdio;
+
+use common::{BIN, bounded, scratch};
 use openlcb_tokio::{Hub, HubOptions};
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 use tokio::sync::mpsc;
-
-const LIMIT: Duration = Duration::from_secs(120);
-const BIN: &str = env!("CARGO_BIN_EXE_lcc-stream");
-
-async fn bounded<T>(what: &str, future: impl Future<Output = T>) -> T {
-    match tokio::time::timeout(LIMIT, future).await {
-        Ok(value) => value,
-        Err(_) => panic!("{what} did not finish within {LIMIT:?}"),
-    }
-}
-
-/// A fresh, empty directory for one test.
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("lcc-stream-memory-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn data(len: usize, key: u32) -> Vec<u8> {
     (0..len).map(|i| (i as u32 ^ key).wrapping_mul(2_654_435_761).rotate_right(11) as u8).collect()

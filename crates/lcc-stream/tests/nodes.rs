@@ -2,14 +2,10 @@
 //! GridConnect and one over OpenLCB-TCP (through the hub's bridge): both are listed with their
 //! SNIP strings and protocols, as text and as JSON.
 
-use std::process::Stdio;
-use std::time::Duration;
+mod common;
 
+use common::{bounded, command};
 use openlcb_tokio::{Hub, HubOptions, Node, NodeId, NodeOptions, Protocol, SnipInfo};
-use tokio::process::Command;
-
-const LIMIT: Duration = Duration::from_secs(60);
-const BIN: &str = env!("CARGO_BIN_EXE_lcc-stream");
 
 fn options(id: &str, model: &str, name: &str) -> NodeOptions {
     let mut options = NodeOptions::new(id.parse::<NodeId>().unwrap());
@@ -25,16 +21,8 @@ fn options(id: &str, model: &str, name: &str) -> NodeOptions {
 }
 
 async fn nodes(args: &[&str]) -> (i32, String) {
-    let child = Command::new(BIN)
-        .arg("nodes")
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .kill_on_drop(true)
-        .spawn()
-        .unwrap();
-    let output = tokio::time::timeout(LIMIT, child.wait_with_output()).await.expect("nodes finished").unwrap();
+    let child = command(&[&["nodes"], args].concat()).spawn().unwrap();
+    let output = bounded("nodes", child.wait_with_output()).await.unwrap();
     (output.status.code().unwrap_or(-1), String::from_utf8_lossy(&output.stdout).into_owned())
 }
 
