@@ -103,6 +103,7 @@ mod event;
 mod ids;
 mod message;
 mod mti;
+mod queue;
 mod time;
 pub mod wire;
 
@@ -116,4 +117,5 @@ pub use event::{Event, Role, StreamInfo, Termination, TimeoutKind};
 pub use ids::{ContentUid, NodeId, ParseNodeIdError, StreamId};
 pub use message::{Message, MessageRef};
 pub use mti::Mti;
+pub use queue::Queue;
 pub use time::{Duration, Instant};

@@ -133,11 +133,37 @@ pub mod exercise {
         }
     }
 
-    /// The baseline's work: allocate, grow, fill and free a buffer of opaque size.
+    /// The baseline's work: allocate, grow, fill, copy, move and free a buffer of opaque
+    /// size. Copying and moving link the compiler runtime's `memcpy` and `memmove` (and
+    /// `resize` its `memset`), which every firmware has: the increments are the OpenLCB
+    /// code's own.
     fn baseline_turn(buf: &mut Vec<u8>) {
         buf.resize(input() as usize & 0xFFF, 0);
         input_bytes(buf);
+        let half = buf.len() / 2;
+        let (front, back) = buf.split_at_mut(half);
+        if let Some(back) = back.get_mut(..front.len()) {
+            back.copy_from_slice(front);
+        }
+        buf.copy_within(input() as usize % (half + 1).., 0);
         output(buf.iter().map(|b| u32::from(*b)).sum());
+        // The same on word-aligned memory (the runtime's aligned variants).
+        let mut words = [0u64; 16];
+        let n = input() as usize % words.len();
+        if let Some(part) = words.get_mut(..n) {
+            part.fill(u64::from(input()));
+        }
+        let (low, high) = words.split_at_mut(8);
+        low.copy_from_slice(high);
+        if let Some(part) = low.get_mut(n / 2..) {
+            part.fill(0);
+        }
+        let mut cleared = [0u32; 16];
+        if let Some(part) = cleared.get_mut(..n) {
+            part.fill(0);
+        }
+        output(words.iter().map(|w| *w as u32).sum::<u32>() + cleared.iter().sum::<u32>());
+        buf.fill(0);
         if input() == 0 {
             *buf = Vec::new();
         }
