@@ -9,7 +9,6 @@ mod rename;
 mod stream;
 mod timer;
 
-use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
 use bytes::Bytes;
@@ -22,7 +21,7 @@ use crate::wire::{
     CompleteCount, DataComplete, DataProceed, DataSend, Emit, ErrorCode, ErrorReport, InitiateReply, InitiateRequest,
     ReplyClass, ReplyCode,
 };
-use crate::{ContentUid, Duration, Instant, Message, MessageRef, Mti, NodeId, StreamId};
+use crate::{ContentUid, Duration, Instant, Message, MessageRef, Mti, NodeId, Queue, StreamId};
 
 /// Names one stream of one endpoint. A handle outlives its stream safely: once the stream is
 /// gone, commands on it return [`StreamError::UnknownStream`], even if the slot is reused.
@@ -176,8 +175,8 @@ struct Slot {
 #[derive(Debug)]
 struct Outputs {
     node: NodeId,
-    transmits: VecDeque<Message>,
-    events: VecDeque<Event>,
+    transmits: Queue<Message>,
+    events: Queue<Event>,
     stats: Stats,
 }
 
@@ -221,7 +220,7 @@ impl StreamEndpoint {
     /// An endpoint for the local node `node`. It sends only stream messages: announcing the
     /// node and answering the message-network basics is the node's job (`openlcb-node`).
     pub fn new(node: NodeId, config: Config) -> Self {
-        let out = Outputs { node, transmits: VecDeque::new(), events: VecDeque::new(), stats: Stats::default() };
+        let out = Outputs { node, transmits: Queue::new(), events: Queue::new(), stats: Stats::default() };
         StreamEndpoint {
             config,
             slots: Vec::new(),
@@ -285,7 +284,7 @@ impl StreamEndpoint {
     /// As destination: the most `buffered` can ever be for this stream.
     pub fn buffer_capacity(&self, handle: StreamHandle) -> Option<usize> {
         match &self.stream(handle)?.half {
-            Half::Destination(d) => Some(d.capacity),
+            Half::Destination(d) => Some(d.buffer.capacity()),
             Half::Source(_) => None,
         }
     }
@@ -377,10 +376,7 @@ impl StreamEndpoint {
     /// The transport lost its link (e.g. this node's CAN alias): every stream ends with
     /// [`Termination::LinkLost`].
     pub fn link_lost(&mut self) {
-        let handles: Vec<StreamHandle> = self.handles().collect();
-        for handle in handles {
-            self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::LinkLost });
-        }
+        self.end_each(&|_| true, &|handle| Event::Terminated { handle, cause: Termination::LinkLost });
     }
 
     // ----- commands: source -----
@@ -575,7 +571,7 @@ impl StreamEndpoint {
         if dest.state == DestinationState::AwaitingDecision {
             return Err(StreamError::NotOpen);
         }
-        let n = copy_out(&mut dest.buffer, buf);
+        let n = dest.buffer.pop(buf);
         let drained_and_closed = dest.state == DestinationState::Closed && dest.buffer.is_empty();
         if drained_and_closed {
             self.release(handle);
@@ -634,7 +630,7 @@ impl StreamEndpoint {
                 return;
             }
             // The source no longer knows the old stream (it reset): that one is over.
-            self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::Superseded });
+            self.end(Event::Terminated { handle, cause: Termination::Superseded });
         }
         if let AcceptPolicy::RejectAll(code) = self.config.accept_policy {
             self.refuse(peer, sid, code);
@@ -693,7 +689,7 @@ impl StreamEndpoint {
     fn on_reply(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(reply) = InitiateReply::parse(payload) else { return self.count_malformed() };
         let Some(handle) = self.find(peer, Role::Source, reply.source_stream) else {
-            return self.count(|s| &mut s.stray_replies);
+            return bump(&mut self.out.stats.stray_replies);
         };
         let keepalive = self.config.keepalive_interval;
         let Ok((stream, out)) = self.parts(handle) else { return };
@@ -722,7 +718,7 @@ impl StreamEndpoint {
             // An accept without a usable DID cannot be answered: wait for the timeout.
             (ReplyClass::Accepted, None) => self.count_malformed(),
             (class, _) => {
-                self.end(handle, |h| Event::Rejected { handle: h, code: reply.code, class });
+                self.end(Event::Rejected { handle, code: reply.code, class });
             }
         }
     }
@@ -730,7 +726,7 @@ impl StreamEndpoint {
     fn on_data(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(data) = DataSend::parse(payload) else { return self.count_malformed() };
         let Some(handle) = self.find(peer, Role::Destination, data.destination_stream) else {
-            return self.count(|s| &mut s.unknown_stream_data);
+            return bump(&mut self.out.stats.unknown_stream_data);
         };
         let idle = self.config.idle_timeout;
         let Ok((stream, out)) = self.parts(handle) else { return };
@@ -760,7 +756,7 @@ impl StreamEndpoint {
             dest.granted = dest.received.saturating_add(len);
         }
         let was_empty = dest.buffer.is_empty();
-        dest.buffer.extend(bytes.iter().copied());
+        dest.buffer.push(bytes);
         dest.received = dest.received.saturating_add(len);
         if was_empty && !bytes.is_empty() {
             out.event(Event::Readable { handle });
@@ -783,7 +779,7 @@ impl StreamEndpoint {
     fn on_proceed(&mut self, _now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(proceed) = DataProceed::parse(payload) else { return self.count_malformed() };
         let Some(handle) = self.find(peer, Role::Source, proceed.source_stream) else {
-            return self.count(|s| &mut s.stray_proceeds);
+            return bump(&mut self.out.stats.stray_proceeds);
         };
         let Ok((stream, out)) = self.parts(handle) else { return };
         let Half::Source(source) = &mut stream.half else { return };
@@ -800,7 +796,7 @@ impl StreamEndpoint {
     fn on_complete(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(complete) = DataComplete::parse(payload) else { return self.count_malformed() };
         let Some(handle) = self.find(peer, Role::Destination, complete.destination_stream) else {
-            return self.count(|s| &mut s.stray_completes);
+            return bump(&mut self.out.stats.stray_completes);
         };
         let grace = self.config.complete_grace;
         let Ok((stream, out)) = self.parts(handle) else { return };
@@ -831,22 +827,12 @@ impl StreamEndpoint {
         // An OIR naming the request refuses every request still waiting at that peer; it
         // carries no SID (draft §7.1).
         if mti == Mti::OPTIONAL_INTERACTION_REJECTED && report.mti == Some(Mti::STREAM_INITIATE_REQUEST) {
-            let pending: Vec<StreamHandle> = self
-                .handles()
-                .filter(|h| {
-                    self.stream(*h).is_some_and(|s| {
-                        s.peer == peer
-                            && matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply)
-                    })
-                })
-                .collect();
-            if pending.is_empty() {
-                return self.count(|s| &mut s.stray_error_reports);
-            }
             let code = ReplyCode(report.code.0);
             let class = if code.is_accept() { ReplyClass::Permanent } else { code.class() };
-            for handle in pending {
-                self.end(handle, |h| Event::Rejected { handle: h, code, class });
+            let waiting =
+                |s: &Stream| s.peer == peer && matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply);
+            if self.end_each(&waiting, &|handle| Event::Rejected { handle, code, class }) == 0 {
+                bump(&mut self.out.stats.stray_error_reports);
             }
             return;
         }
@@ -861,32 +847,20 @@ impl StreamEndpoint {
                 Some(Role::Destination)
             }
             Some(Mti::STREAM_DATA_PROCEED | Mti::STREAM_INITIATE_REPLY) => Some(Role::Source),
-            Some(_) => return self.count(|s| &mut s.stray_error_reports),
+            Some(_) => return bump(&mut self.out.stats.stray_error_reports),
             None => None,
         };
-        let live_with = |ep: &Self, role: Option<Role>| -> Vec<StreamHandle> {
-            ep.handles()
-                .filter(|h| {
-                    ep.stream(*h).is_some_and(|s| {
-                        s.peer == peer
-                            && role.is_none_or(|ours| ours == s.role())
-                            && !matches!(&s.half, Half::Destination(d) if d.state == DestinationState::Closed)
-                    })
-                })
-                .collect()
-        };
-        let our_role = peer_is.map(Role::other);
-        let mut affected = live_with(self, our_role);
-        if affected.is_empty() {
-            if let Some(role) = peer_is {
-                affected = live_with(self, Some(role));
+        let terminated = |handle| Event::Terminated { handle, cause: Termination::ByPeer(report.code) };
+        let mut ended = 0;
+        for role in [peer_is.map(Role::other), peer_is] {
+            let live = |s: &Stream| s.peer == peer && role.is_none_or(|r| r == s.role()) && !s.is_closed();
+            ended = self.end_each(&live, &terminated);
+            if ended > 0 || peer_is.is_none() {
+                break;
             }
         }
-        if affected.is_empty() {
-            return self.count(|s| &mut s.stray_error_reports);
-        }
-        for handle in affected {
-            self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::ByPeer(report.code) });
+        if ended == 0 {
+            bump(&mut self.out.stats.stray_error_reports);
         }
     }
 
@@ -907,7 +881,7 @@ impl StreamEndpoint {
                     stream.timers.set(Timer::Keepalive, now + interval);
                 }
             }
-            Timer::Reply => self.end(handle, |h| Event::TimedOut { handle: h, kind: TimeoutKind::Reply }),
+            Timer::Reply => self.end(Event::TimedOut { handle, kind: TimeoutKind::Reply }),
             Timer::Idle if draining.is_some() => {
                 // The grace for in-flight data is over: the count cannot be made up.
                 let total = stream_received(stream);
@@ -920,12 +894,12 @@ impl StreamEndpoint {
                     _ if stream_received(stream) == 0 => TimeoutKind::FirstData,
                     _ => TimeoutKind::Idle,
                 };
-                self.end(handle, |h| Event::TimedOut { handle: h, kind });
+                self.end(Event::TimedOut { handle, kind });
             }
             Timer::Decision => {
                 let sid = stream.source_stream;
                 self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
-                self.end(handle, |h| Event::TimedOut { handle: h, kind: TimeoutKind::Decision });
+                self.end(Event::TimedOut { handle, kind: TimeoutKind::Decision });
             }
         }
     }
@@ -1007,9 +981,10 @@ impl StreamEndpoint {
         }
     }
 
-    /// Ends a stream with `event`: a source or pending stream is released at once, a
-    /// destination keeps its unread data until the application has read it.
-    fn end(&mut self, handle: StreamHandle, event: impl FnOnce(StreamHandle) -> Event) {
+    /// Ends a stream with `event` (about it): a source or pending stream is released at once,
+    /// a destination keeps its unread data until the application has read it.
+    fn end(&mut self, event: Event) {
+        let handle = event.handle();
         let Some(stream) = self.stream_mut(handle) else { return };
         stream.timers.stop_all();
         let keep = match &mut stream.half {
@@ -1019,54 +994,48 @@ impl StreamEndpoint {
             }
             _ => false,
         };
-        self.out.event(event(handle));
+        self.out.event(event);
         if !keep {
             self.release(handle);
         }
+    }
+
+    /// Ends every stream that `selects` picks, in slot order, each with its `event`; returns
+    /// how many.
+    fn end_each(&mut self, selects: &dyn Fn(&Stream) -> bool, event: &dyn Fn(StreamHandle) -> Event) -> usize {
+        let mut ended = 0;
+        for slot in 0..self.slots.len() {
+            let Some(entry) = self.slots.get(slot) else { continue };
+            if entry.stream.as_ref().is_some_and(selects) {
+                let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
+                self.end(event(handle));
+                ended += 1;
+            }
+        }
+        ended
     }
 
     /// `peer` announced itself: every stream it had taken part in is forgotten there. A request
     /// still waiting for its Reply stays: messages from one node arrive in order, so the peer
     /// will see the request after its restart and answer it.
     fn peer_restarted(&mut self, peer: NodeId) {
-        let handles: Vec<StreamHandle> = self
-            .handles()
-            .filter(|h| {
-                self.stream(*h).is_some_and(|s| {
-                    s.peer == peer
-                        && match &s.half {
-                            Half::Source(src) => src.state != SourceState::AwaitingReply,
-                            Half::Destination(d) => d.state != DestinationState::Closed,
-                        }
-                })
-            })
-            .collect();
-        for handle in handles {
-            self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::PeerRestarted });
-        }
+        let forgotten = |s: &Stream| {
+            s.peer == peer
+                && match &s.half {
+                    Half::Source(src) => src.state != SourceState::AwaitingReply,
+                    Half::Destination(d) => d.state != DestinationState::Closed,
+                }
+        };
+        self.end_each(&forgotten, &|handle| Event::Terminated { handle, cause: Termination::PeerRestarted });
     }
 
     /// Ends every stream with `peer` that is not over yet, without sending anything.
     fn end_all_with(&mut self, peer: NodeId, cause: Termination) {
-        let handles: Vec<StreamHandle> = self
-            .handles()
-            .filter(|h| {
-                self.stream(*h).is_some_and(|s| {
-                    s.peer == peer && !matches!(&s.half, Half::Destination(d) if d.state == DestinationState::Closed)
-                })
-            })
-            .collect();
-        for handle in handles {
-            self.end(handle, |h| Event::Terminated { handle: h, cause });
-        }
-    }
-
-    fn count(&mut self, counter: impl FnOnce(&mut Stats) -> &mut u32) {
-        bump(counter(&mut self.out.stats));
+        self.end_each(&|s| s.peer == peer && !s.is_closed(), &|handle| Event::Terminated { handle, cause });
     }
 
     fn count_malformed(&mut self) {
-        self.count(|s| &mut s.malformed);
+        bump(&mut self.out.stats.malformed);
     }
 
     fn check_room(&self, peer: NodeId, role: Role) -> Result<(), StreamError> {
@@ -1174,22 +1143,6 @@ impl StreamEndpoint {
         }
         found.map(|(_, handle)| handle)
     }
-}
-
-/// Moves the front of `from` into `to`, two slice copies at most; returns the count.
-fn copy_out(from: &mut VecDeque<u8>, to: &mut [u8]) -> usize {
-    let (front, back) = from.as_slices();
-    let n_front = front.len().min(to.len());
-    let n_back = back.len().min(to.len().saturating_sub(n_front));
-    if let (Some(dst), Some(src)) = (to.get_mut(..n_front), front.get(..n_front)) {
-        dst.copy_from_slice(src);
-    }
-    if let (Some(dst), Some(src)) = (to.get_mut(n_front..n_front + n_back), back.get(..n_back)) {
-        dst.copy_from_slice(src);
-    }
-    let n = n_front + n_back;
-    from.drain(..n);
-    n
 }
 
 /// Adds one to a counter.

@@ -37,7 +37,7 @@ impl StreamEndpoint {
                 };
                 if self.find(to, role, id).is_some() {
                     if let Some(handle) = self.find(from, role, id) {
-                        self.end(handle, |h| Event::Terminated { handle: h, cause: Termination::Superseded });
+                        self.end(Event::Terminated { handle, cause: Termination::Superseded });
                     }
                 } else if let Some(stream) = self.slots.get_mut(slot).and_then(|s| s.stream.as_mut()) {
                     stream.peer = to;

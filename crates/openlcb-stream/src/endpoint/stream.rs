@@ -1,6 +1,7 @@
 //! One stream's state: the fields both roles share, and the source or destination half.
 
-use alloc::collections::VecDeque;
+use alloc::vec;
+use alloc::vec::Vec;
 
 use super::timer::TimerTable;
 use crate::event::{Role, StreamInfo};
@@ -66,10 +67,8 @@ pub(crate) enum DestinationState {
 #[derive(Debug)]
 pub(crate) struct Destination {
     pub(crate) state: DestinationState,
-    /// Received, not yet read. Never holds more than `capacity`.
-    pub(crate) buffer: VecDeque<u8>,
-    /// One window, or two with early Proceed.
-    pub(crate) capacity: usize,
+    /// Received, not yet read: one window, or two with early Proceed.
+    pub(crate) buffer: ByteRing,
     /// Total bytes the source has been allowed to send (a window per Proceed, plus the first).
     pub(crate) granted: u64,
     /// Total payload bytes received.
@@ -93,6 +92,11 @@ impl Stream {
         }
     }
 
+    /// A destination that has ended and only waits for its data to be read.
+    pub(crate) fn is_closed(&self) -> bool {
+        matches!(&self.half, Half::Destination(d) if d.state == DestinationState::Closed)
+    }
+
     pub(crate) fn info(&self) -> StreamInfo {
         StreamInfo {
             peer: self.peer,
@@ -110,8 +114,7 @@ impl Destination {
         let capacity = usize::from(window) * if early_proceed { 2 } else { 1 };
         Destination {
             state: DestinationState::Receiving,
-            buffer: VecDeque::with_capacity(capacity),
-            capacity,
+            buffer: ByteRing::new(capacity),
             granted: u64::from(window),
             received: 0,
             early_proceed,
@@ -122,8 +125,7 @@ impl Destination {
     pub(crate) fn pending() -> Self {
         Destination {
             state: DestinationState::AwaitingDecision,
-            buffer: VecDeque::new(),
-            capacity: 0,
+            buffer: ByteRing::new(0),
             granted: 0,
             received: 0,
             early_proceed: false,
@@ -136,7 +138,7 @@ impl Destination {
     }
 
     pub(crate) fn free_space(&self) -> usize {
-        self.capacity.saturating_sub(self.buffer.len())
+        self.buffer.free()
     }
 
     /// Draft §7.3: a Proceed grants one more window. Without early Proceed it goes once the
@@ -152,5 +154,93 @@ impl Destination {
         let due = if self.early_proceed { outstanding < window } else { outstanding == 0 };
         let room = self.free_space() as u64;
         due && room >= outstanding.saturating_add(window)
+    }
+}
+
+/// A destination's receive buffer: a ring of bytes of fixed capacity, allocated at accept.
+/// Data goes in and out in at most two slice copies.
+#[derive(Debug)]
+pub(crate) struct ByteRing {
+    bytes: Vec<u8>,
+    head: usize,
+    len: usize,
+}
+
+impl ByteRing {
+    pub(crate) fn new(capacity: usize) -> Self {
+        ByteRing { bytes: vec![0; capacity], head: 0, len: 0 }
+    }
+
+    pub(crate) fn len(&self) -> usize {
+        self.len
+    }
+
+    pub(crate) fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    pub(crate) fn capacity(&self) -> usize {
+        self.bytes.len()
+    }
+
+    pub(crate) fn free(&self) -> usize {
+        self.bytes.len() - self.len
+    }
+
+    /// Appends as much of `data` as fits; returns how much that was.
+    pub(crate) fn push(&mut self, data: &[u8]) -> usize {
+        let n = data.len().min(self.free());
+        let tail = (self.head + self.len) % self.bytes.len().max(1);
+        let first = n.min(self.bytes.len() - tail);
+        copy(self.bytes.get_mut(tail..tail + first), data.get(..first));
+        copy(self.bytes.get_mut(..n - first), data.get(first..n));
+        self.len += n;
+        n
+    }
+
+    /// Moves the oldest bytes into `to`; returns how many.
+    pub(crate) fn pop(&mut self, to: &mut [u8]) -> usize {
+        let n = to.len().min(self.len);
+        let first = n.min(self.bytes.len() - self.head);
+        copy(to.get_mut(..first), self.bytes.get(self.head..self.head + first));
+        copy(to.get_mut(first..n), self.bytes.get(..n - first));
+        self.head = (self.head + n) % self.bytes.len().max(1);
+        self.len -= n;
+        n
+    }
+}
+
+fn copy(to: Option<&mut [u8]>, from: Option<&[u8]>) {
+    if let (Some(to), Some(from)) = (to, from) {
+        to.copy_from_slice(from);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ByteRing;
+
+    #[test]
+    fn byte_ring_keeps_order_across_the_wrap_and_never_exceeds_its_capacity() {
+        let mut ring = ByteRing::new(7);
+        let mut next_in = 0u8;
+        let mut next_out = 0u8;
+        for round in 0..50usize {
+            let data: [u8; 5] = core::array::from_fn(|i| next_in.wrapping_add(i as u8));
+            let taken = ring.push(&data[..round % 6]);
+            next_in = next_in.wrapping_add(taken as u8);
+            assert!(ring.len() <= ring.capacity());
+            let mut out = [0u8; 4];
+            let n = ring.pop(&mut out[..round % 5]);
+            for byte in &out[..n] {
+                assert_eq!(*byte, next_out);
+                next_out = next_out.wrapping_add(1);
+            }
+            assert_eq!(ring.free(), 7 - ring.len());
+        }
+        assert!(next_out > 50, "data went through");
+        let mut empty = ByteRing::new(0);
+        assert_eq!(empty.push(&[1, 2]), 0);
+        assert_eq!(empty.pop(&mut [0; 2]), 0);
     }
 }
