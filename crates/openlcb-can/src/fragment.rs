@@ -104,7 +104,7 @@ enum Layout {
 }
 
 /// An iterator over the frames of one message. Holds the payload (any `AsRef<[u8]>`, e.g. the
-/// core's `Bytes`) and an offset: no copy of the payload, no allocation.
+/// core's `Vec<u8>` payload) and an offset: no copy of the payload, no allocation.
 #[derive(Debug, Clone)]
 pub struct Fragments<P> {
     id: u32,

@@ -56,7 +56,6 @@
 use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
-use bytes::Bytes;
 use openlcb_stream::wire::{Emit, ErrorReport};
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
@@ -309,7 +308,7 @@ pub struct CanLink {
     scratch: Vec<u8>,
     frames: VecDeque<CanFrame>,
     messages: VecDeque<Outgoing>,
-    current: Option<Fragments<Bytes>>,
+    current: Option<Fragments<Vec<u8>>>,
     unresolved: VecDeque<Unresolved>,
     learning: Vec<Learning>,
     events: VecDeque<LinkEvent>,

@@ -1,6 +1,6 @@
 //! Counts heap allocations during a steady-state stream transfer through two `CanLink`s and
 //! two `StreamEndpoint`s: the links allocate nothing per frame on either side; the core
-//! allocates per message (one `Bytes` per Data Send, one per Proceed), not per frame. Then
+//! allocates per message (one payload `Vec` per Data Send, one per Proceed), not per frame. Then
 //! 72-byte datagrams through the same links: framing and reassembly allocate nothing either.
 //!
 //! One test only in this file: the counter is global to the process.
@@ -162,7 +162,7 @@ fn no_allocation_per_stream_frame_in_the_links() {
 
     assert!(tally.stream_frames >= (total / 7) as u64, "{} frames for {total} bytes", tally.stream_frames);
     assert_eq!(tally.link, 0, "allocations in the links over {} stream frames", tally.stream_frames);
-    // The core: one `Bytes` per Data Send message and per Proceed, nothing per frame.
+    // The core: one payload `Vec` per Data Send message and per Proceed, nothing per frame.
     assert!(
         tally.core <= tally.data_send_messages + tally.proceeds,
         "core allocations {} for {} Data Send messages and {} Proceeds",

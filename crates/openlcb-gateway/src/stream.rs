@@ -2,7 +2,6 @@
 
 use alloc::vec::Vec;
 
-use bytes::Bytes;
 use openlcb_stream::wire::CompleteCount;
 use openlcb_stream::{Instant, StreamId};
 
@@ -35,7 +34,7 @@ pub(crate) enum Phase {
 #[derive(Debug, Clone)]
 pub(crate) struct HeldComplete {
     /// The payload as received (at most [`COMPLETE_MAX_LEN`] bytes).
-    pub(crate) payload: Bytes,
+    pub(crate) payload: Vec<u8>,
     /// The count the source stated.
     pub(crate) count: CompleteCount,
     /// When to forward it even if the data it counts has not all arrived.
@@ -220,7 +219,7 @@ mod tests {
     #[test]
     fn complete_from_can_waits_only_for_data_in_flight() {
         let mut stream = open_stream(100, Side::Can);
-        let held = |count| HeldComplete { payload: Bytes::new(), count, deadline: Instant::from_millis(1000) };
+        let held = |count| HeldComplete { payload: Vec::new(), count, deadline: Instant::from_millis(1000) };
         stream.received = 90;
         stream.complete = Some(held(CompleteCount::Total(100)));
         assert!(stream.awaits_overtaken_data(Instant::ZERO));

@@ -6,7 +6,6 @@ use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 use core::fmt;
 
-use bytes::Bytes;
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Duration, Instant, Message, Mti, NodeId};
 
@@ -197,7 +196,7 @@ enum SendState {
 struct Outgoing {
     id: DatagramId,
     to: NodeId,
-    payload: Bytes,
+    payload: Vec<u8>,
     state: SendState,
     resends: u8,
 }
@@ -276,13 +275,7 @@ impl DatagramService {
         let id = DatagramId(self.next_id);
         self.next_id = self.next_id.wrapping_add(1);
         let busy = self.outgoing.iter().any(|o| o.to == to);
-        self.outgoing.push_back(Outgoing {
-            id,
-            to,
-            payload: Bytes::copy_from_slice(payload),
-            state: SendState::Queued,
-            resends: 0,
-        });
+        self.outgoing.push_back(Outgoing { id, to, payload: payload.to_vec(), state: SendState::Queued, resends: 0 });
         if !busy {
             self.start_next(now, out, to);
         }
@@ -438,12 +431,9 @@ impl DatagramService {
         let index = self.awaiting.iter().position(|a| a.from == from).ok_or(DatagramError::NotAwaitingAnswer)?;
         self.awaiting.swap_remove(index);
         let message = match answer {
-            DatagramAnswer::Ok(flags) => Message::addressed(
-                Mti::DATAGRAM_RECEIVED_OK,
-                out.node,
-                from,
-                Bytes::copy_from_slice(&[flags.to_byte()]),
-            ),
+            DatagramAnswer::Ok(flags) => {
+                Message::addressed(Mti::DATAGRAM_RECEIVED_OK, out.node, from, [flags.to_byte()].to_vec())
+            }
             DatagramAnswer::Rejected(code) => rejected(out.node, from, code),
         };
         out.transmit(message);
@@ -452,7 +442,7 @@ impl DatagramService {
 }
 
 pub(crate) fn rejected(local: NodeId, to: NodeId, code: ErrorCode) -> Message {
-    Message::addressed(Mti::DATAGRAM_REJECTED, local, to, Bytes::copy_from_slice(&code.0.to_be_bytes()))
+    Message::addressed(Mti::DATAGRAM_REJECTED, local, to, code.0.to_be_bytes())
 }
 
 /// The error code of a Datagram Rejected payload, read liberally (node-protocols.md §2.3,

@@ -4,7 +4,6 @@
 use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
-use bytes::Bytes;
 use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport};
 use openlcb_stream::{AcceptPolicy, Event, Instant, Message, MessageRef, Mti, NodeId, StreamEndpoint, StreamHandle};
 
@@ -166,12 +165,7 @@ pub(crate) struct Cx<'a> {
 impl Cx<'_> {
     /// Datagram Received OK for the datagram `to` sent.
     pub(crate) fn ok(&mut self, to: NodeId, flags: OkFlags) {
-        let ok = Message::addressed(
-            Mti::DATAGRAM_RECEIVED_OK,
-            self.out.node,
-            to,
-            Bytes::copy_from_slice(&[flags.to_byte()]),
-        );
+        let ok = Message::addressed(Mti::DATAGRAM_RECEIVED_OK, self.out.node, to, [flags.to_byte()].to_vec());
         self.out.reply(ok);
     }
 
@@ -225,7 +219,7 @@ pub struct Node {
     last_now: Instant,
     streams: StreamEndpoint,
     datagrams: DatagramService,
-    snip_reply: Bytes,
+    snip_reply: Vec<u8>,
     snip_requests: Vec<PendingSnip>,
     out: Outputs,
     stats: NodeStats,
@@ -304,7 +298,7 @@ impl Node {
         self.memory_server.as_mut()
     }
 
-    /// Bytes an operation has moved so far (`None` once it has ended).
+    /// Vec<u8> an operation has moved so far (`None` once it has ended).
     pub fn memory_progress(&self, operation: MemoryOperation) -> Option<u64> {
         self.memory_client.progress(operation)
     }
@@ -420,7 +414,7 @@ impl Node {
             }
             Mti::VERIFY_NODE_ID_ADDRESSED => out.reply(Message::verified_node_id(out.node)),
             Mti::PROTOCOL_SUPPORT_INQUIRY => {
-                let flags = Bytes::copy_from_slice(&protocols.to_bytes());
+                let flags = protocols.to_bytes().to_vec();
                 out.reply(Message::addressed(Mti::PROTOCOL_SUPPORT_REPLY, out.node, peer, flags));
             }
             mti if mti.is_addressed() && !is_answer(mti) => {
@@ -573,19 +567,19 @@ impl Node {
         }
         let deadline = now + self.config.snip_timeout;
         self.snip_requests.push(PendingSnip { peer, deadline, reply: Vec::new() });
-        self.out.transmit(Message::addressed(Mti::SIMPLE_NODE_INFO_REQUEST, self.out.node, peer, Bytes::new()));
+        self.out.transmit(Message::addressed(Mti::SIMPLE_NODE_INFO_REQUEST, self.out.node, peer, Vec::new()));
         Ok(())
     }
 
     /// Sends a global Verify Node ID: every node on the network answers with Verified Node
     /// ID (how a tool finds who is there).
     pub fn verify_all(&mut self) {
-        self.out.transmit(Message::global(Mti::VERIFY_NODE_ID_GLOBAL, self.out.node, Bytes::new()));
+        self.out.transmit(Message::global(Mti::VERIFY_NODE_ID_GLOBAL, self.out.node, Vec::new()));
     }
 
     /// Asks `peer` which protocols it supports; `ProtocolsReceived` follows if it answers.
     pub fn request_protocols(&mut self, peer: NodeId) {
-        self.out.transmit(Message::addressed(Mti::PROTOCOL_SUPPORT_INQUIRY, self.out.node, peer, Bytes::new()));
+        self.out.transmit(Message::addressed(Mti::PROTOCOL_SUPPORT_INQUIRY, self.out.node, peer, Vec::new()));
     }
 }
 
@@ -635,7 +629,7 @@ impl Node {
         peer: NodeId,
         space: u8,
         address: u32,
-        data: impl Into<Bytes>,
+        data: impl Into<Vec<u8>>,
         path: TransferPath,
     ) -> Result<MemoryOperation, MemoryRequestError> {
         self.last_now = now;
@@ -651,7 +645,7 @@ impl Node {
         &mut self,
         now: Instant,
         peer: NodeId,
-        image: impl Into<Bytes>,
+        image: impl Into<Vec<u8>>,
         path: TransferPath,
     ) -> Result<MemoryOperation, MemoryRequestError> {
         self.last_now = now;

@@ -5,7 +5,6 @@ use alloc::string::String;
 use alloc::vec::Vec;
 use core::fmt;
 
-use bytes::Bytes;
 use openlcb_stream::{Instant, NodeId};
 
 /// The most bytes a SNIP reply can carry (SNIP-TN §2.5.1).
@@ -133,7 +132,7 @@ impl SnipInfo {
     }
 
     /// The reply payload (SNIP §5.1): `04`, four NUL-terminated strings, `02`, two more.
-    pub fn to_payload(&self) -> Bytes {
+    pub fn to_payload(&self) -> Vec<u8> {
         let mut out = Vec::with_capacity(MAX_REPLY_LEN);
         for field in SnipField::ALL {
             match field {
@@ -146,7 +145,7 @@ impl SnipInfo {
             out.extend_from_slice(truncate(value, field.max_len()).as_bytes());
             out.push(0);
         }
-        Bytes::from(out)
+        out
     }
 
     /// Reads a reply payload (or several concatenated), liberally.
@@ -304,7 +303,7 @@ mod tests {
         let short = SnipInfo::parse(b"\x04Acme\0Wid");
         assert_eq!((short.manufacturer.as_str(), short.model.as_str(), short.user_name.as_str()), ("Acme", "Wid", ""));
         assert_eq!(SnipInfo::parse(&[]), SnipInfo::default());
-        // Bytes that are not UTF-8 are replaced, not refused.
+        // Vec<u8> that are not UTF-8 are replaced, not refused.
         assert_eq!(SnipInfo::parse(b"\x04\xFF\0").manufacturer, "\u{FFFD}");
     }
 

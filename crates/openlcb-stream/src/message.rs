@@ -1,6 +1,6 @@
 //! Full-format messages: [`MessageRef`] borrowed on the way in, [`Message`] owned on the way out.
 
-use bytes::Bytes;
+use alloc::vec::Vec;
 
 use crate::{Mti, NodeId};
 
@@ -19,8 +19,8 @@ pub struct MessageRef<'a> {
     pub payload: &'a [u8],
 }
 
-/// A message to send, owning its payload. Stream data is a `Bytes` handle, never copied again
-/// by the core after it is built.
+/// A message to send, owning its payload: one allocation, built once and moved (never
+/// copied) by the core and the transports until it is framed.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Message {
     /// The message type.
@@ -30,28 +30,28 @@ pub struct Message {
     /// The addressed node, for MTIs with the address bit (`None` for global messages).
     pub destination: Option<NodeId>,
     /// The data after the MTI and Node IDs.
-    pub payload: Bytes,
+    pub payload: Vec<u8>,
 }
 
 impl Message {
     /// A global (unaddressed) message.
-    pub fn global(mti: Mti, source: NodeId, payload: impl Into<Bytes>) -> Self {
+    pub fn global(mti: Mti, source: NodeId, payload: impl Into<Vec<u8>>) -> Self {
         Message { mti, source, destination: None, payload: payload.into() }
     }
 
     /// An addressed message.
-    pub fn addressed(mti: Mti, source: NodeId, destination: NodeId, payload: impl Into<Bytes>) -> Self {
+    pub fn addressed(mti: Mti, source: NodeId, destination: NodeId, payload: impl Into<Vec<u8>>) -> Self {
         Message { mti, source, destination: Some(destination), payload: payload.into() }
     }
 
     /// Initialization Complete for `node` (MN §3.3.1): the first message a node sends.
     pub fn initialization_complete(node: NodeId) -> Self {
-        Message::global(Mti::INITIALIZATION_COMPLETE, node, Bytes::copy_from_slice(&node.to_bytes()))
+        Message::global(Mti::INITIALIZATION_COMPLETE, node, node.to_bytes())
     }
 
     /// Verified Node ID for `node` (MN §3.3.2): the answer to Verify Node ID.
     pub fn verified_node_id(node: NodeId) -> Self {
-        Message::global(Mti::VERIFIED_NODE_ID, node, Bytes::copy_from_slice(&node.to_bytes()))
+        Message::global(Mti::VERIFIED_NODE_ID, node, node.to_bytes())
     }
 
     /// The transport now names the peer `from` as `to` (see `StreamEndpoint::rename_peer`): a
@@ -71,11 +71,6 @@ impl Message {
 impl MessageRef<'_> {
     /// An owned copy (copies the payload).
     pub fn to_message(&self) -> Message {
-        Message {
-            mti: self.mti,
-            source: self.source,
-            destination: self.destination,
-            payload: Bytes::copy_from_slice(self.payload),
-        }
+        Message { mti: self.mti, source: self.source, destination: self.destination, payload: self.payload.to_vec() }
     }
 }

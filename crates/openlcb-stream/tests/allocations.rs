@@ -1,5 +1,5 @@
 //! Steady-state allocation count of a 1 MiB transfer between two endpoints, measured with a
-//! counting global allocator: exactly one allocation per Data Send (its `Bytes` payload) and
+//! counting global allocator: exactly one allocation per Data Send (its payload `Vec`) and
 //! one per Proceed, nothing else.
 
 // A global allocator is unsafe by nature; this test file is the only place that needs it.

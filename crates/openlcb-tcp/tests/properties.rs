@@ -11,7 +11,7 @@ fn any_frame() -> impl Strategy<Value = (LinkPrefix, Message)> {
             let mti = Mti(mti);
             let prefix = LinkPrefix { gateway, capture_time: CaptureTime::new(time).unwrap() };
             let destination = mti.is_addressed().then_some(destination);
-            (prefix, Message { mti, source, destination, payload: payload.into() })
+            (prefix, Message { mti, source, destination, payload })
         })
 }
 

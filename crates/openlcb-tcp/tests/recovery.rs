@@ -352,6 +352,6 @@ fn encoder_refuses_a_length_over_24_bits() {
     let frame = TcpFrame::new(prefix(A, 1), message.as_ref());
     assert_eq!(frame.encode_to(&mut out), Err(EncodeError::TooLong { length: 0x100_0000 }));
     assert!(out.is_empty());
-    let fits = Message { payload: message.payload.slice(1..), ..message };
+    let fits = Message { payload: message.payload[1..].to_vec(), ..message };
     assert_eq!(TcpFrame::new(prefix(A, 1), fits.as_ref()).encode_to(&mut out), Ok(0x100_0004));
 }

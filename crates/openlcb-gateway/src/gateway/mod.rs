@@ -7,7 +7,6 @@ mod tracking;
 use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
-use bytes::Bytes;
 use openlcb_can::{
     AliasCache, CanFrame, DatagramFrame, Fragments, FrameKind, FramePosition, NodeAlias, Reassembler, ReassemblyError,
     ReassemblyKey,
@@ -78,7 +77,7 @@ enum Readiness {
 /// The frames of a message being sent.
 #[derive(Debug)]
 struct InFlight {
-    fragments: Fragments<Bytes>,
+    fragments: Fragments<Vec<u8>>,
     source: NodeAlias,
     destination: Option<NodeAlias>,
     /// For stream data: the stream (`None` if untracked) and the payload bytes not sent yet.
@@ -352,7 +351,7 @@ impl Gateway {
             let Some(node) = self.cache.node(source) else {
                 return bump(&mut self.stats.unknown_source_dropped);
             };
-            return self.forward(now, Side::Can, Message::global(mti, node, Bytes::copy_from_slice(data)));
+            return self.forward(now, Side::Can, Message::global(mti, node, data.to_vec()));
         }
         let [flags_and_high, low, body @ ..] = data else {
             return bump(&mut self.stats.invalid_frames);
@@ -363,7 +362,7 @@ impl Gateway {
         };
         let key = ReassemblyKey { source, destination: ours, mti };
         let payload = match self.reassembly.push(now, key, FramePosition::from_flags(*flags_and_high), body) {
-            Ok(Some(whole)) => Bytes::copy_from_slice(whole),
+            Ok(Some(whole)) => whole.to_vec(),
             Ok(None) => return,
             Err(_) => return bump(&mut self.stats.reassembly_errors),
         };
@@ -383,10 +382,10 @@ impl Gateway {
         let payload = if position == FramePosition::Only {
             // A whole datagram: the sender has given up any datagram it left open.
             self.datagrams.discard(key);
-            Bytes::copy_from_slice(data)
+            data.to_vec()
         } else {
             match self.datagrams.push(now, key, position, data) {
-                Ok(Some(whole)) => Bytes::copy_from_slice(whole),
+                Ok(Some(whole)) => whole.to_vec(),
                 Ok(None) => return,
                 Err(error) => return self.datagram_failed(key, error),
             }
@@ -413,12 +412,7 @@ impl Gateway {
         match tracked {
             Some(index) => self.merge_can_data(now, index, body),
             // Untracked: forwarded frame by frame.
-            None => self.emit_full(Message::addressed(
-                Mti::STREAM_DATA_SEND,
-                node,
-                destination,
-                Bytes::copy_from_slice(data),
-            )),
+            None => self.emit_full(Message::addressed(Mti::STREAM_DATA_SEND, node, destination, data.to_vec())),
         }
     }
 }

@@ -1,7 +1,6 @@
 //! Stream tracking (wire-spec §6.5): merging CAN data into Data Sends, window accounting,
 //! delayed Proceeds and Completes, flushes, TDE.
 
-use bytes::Bytes;
 use openlcb_stream::wire::{
     DataComplete, DataProceed, DataSend, Emit, ErrorCode, ErrorReport, InitiateReply, InitiateRequest,
 };
@@ -60,7 +59,7 @@ impl Gateway {
             stream.merge.clear();
             return;
         }
-        let payload = Bytes::from(core::mem::take(&mut stream.merge));
+        let payload = core::mem::take(&mut stream.merge);
         let message = Message::addressed(Mti::STREAM_DATA_SEND, stream.key.source, stream.key.destination, payload);
         bump(&mut self.stats.merged_messages);
         self.emit_full(message);
@@ -137,7 +136,7 @@ impl Gateway {
             if let Some(size) = payload.get_mut(..2) {
                 size.copy_from_slice(&proposed.to_be_bytes());
             }
-            Message { payload: Bytes::from(payload), ..message }
+            Message { payload, ..message }
         } else {
             message
         };
@@ -215,7 +214,7 @@ impl Gateway {
         stream.last_activity = now;
         let kept = message.payload.len().min(COMPLETE_MAX_LEN);
         stream.complete = Some(HeldComplete {
-            payload: message.payload.slice(..kept),
+            payload: message.payload.get(..kept).unwrap_or_default().to_vec(),
             count: complete.count,
             deadline: now + self.config.complete_wait,
         });
@@ -330,7 +329,7 @@ impl Gateway {
         let Some(destination_stream) = stream.destination_stream() else { return };
         stream.flush_pending = false;
         let (key, source_side) = (stream.key, stream.source_side);
-        let payload = Bytes::copy_from_slice(&[destination_stream.as_raw()]);
+        let payload = alloc::vec![destination_stream.as_raw()];
         let message = Message::addressed(Mti::STREAM_DATA_SEND, key.source, key.destination, payload);
         let now = self.now;
         match other(source_side) {

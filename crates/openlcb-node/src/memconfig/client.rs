@@ -4,7 +4,6 @@
 
 use alloc::vec::Vec;
 
-use bytes::Bytes;
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Event, Instant, Message, Mti, NodeId, OpenOptions, Role, StreamHandle, StreamId, Termination};
 
@@ -64,10 +63,10 @@ enum Kind {
         len: Option<u32>,
     },
     Write {
-        data: Bytes,
+        data: Vec<u8>,
     },
     Firmware {
-        image: Bytes,
+        image: Vec<u8>,
     },
 }
 
@@ -190,7 +189,7 @@ impl MemoryClient {
         peer: NodeId,
         space: u8,
         address: u32,
-        data: Bytes,
+        data: Vec<u8>,
         path: TransferPath,
     ) -> Result<MemoryOperation, MemoryRequestError> {
         if data.is_empty() || u32::try_from(data.len()).is_err() {
@@ -203,7 +202,7 @@ impl MemoryClient {
         &mut self,
         cx: &mut Cx<'_>,
         peer: NodeId,
-        image: Bytes,
+        image: Vec<u8>,
         path: TransferPath,
     ) -> Result<MemoryOperation, MemoryRequestError> {
         if image.is_empty() || u32::try_from(image.len()).is_err() {
@@ -455,7 +454,7 @@ impl MemoryClient {
         op.datagram = None;
         op.step = Step::Protocols;
         op.deadline = Some(cx.now + cx.options.reply_timeout);
-        let inquiry = Message::addressed(Mti::PROTOCOL_SUPPORT_INQUIRY, cx.out.node, op.peer, Bytes::new());
+        let inquiry = Message::addressed(Mti::PROTOCOL_SUPPORT_INQUIRY, cx.out.node, op.peer, Vec::new());
         cx.out.transmit(inquiry);
         None
     }
@@ -728,9 +727,9 @@ impl MemoryClient {
         let Step::WriteStream { sid, handle: Some(handle), sent, finished: false, replied } = op.step else {
             return None;
         };
-        let payload = match &op.kind {
-            Kind::Write { data } => data.clone(),
-            Kind::Firmware { image } => image.clone(),
+        let payload: &[u8] = match &op.kind {
+            Kind::Write { data } => data,
+            Kind::Firmware { image } => image,
             Kind::Read { .. } => return None,
         };
         let mut sent = sent;

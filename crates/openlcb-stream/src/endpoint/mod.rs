@@ -11,8 +11,6 @@ mod timer;
 
 use alloc::vec::Vec;
 
-use bytes::Bytes;
-
 use self::stream::{Destination, DestinationState, Half, Source, SourceState, Stream};
 use self::timer::{Timer, TimerTable};
 use crate::config::{AcceptPolicy, Config};
@@ -181,7 +179,7 @@ struct Outputs {
 }
 
 impl Outputs {
-    fn send(&mut self, mti: Mti, peer: NodeId, payload: Bytes) {
+    fn send(&mut self, mti: Mti, peer: NodeId, payload: Vec<u8>) {
         self.stats.messages_out = self.stats.messages_out.saturating_add(1);
         self.transmits.push_back(Message::addressed(mti, self.node, peer, payload));
     }
@@ -429,7 +427,7 @@ impl StreamEndpoint {
 
     /// Sends as much of `data` as the credit allows, as Data Send messages that never cross a
     /// window boundary, and returns how many bytes were taken. A short count means: wait for
-    /// `Writable`. Each message is one allocation (its `Bytes` payload); nothing is buffered.
+    /// `Writable`. Each message is one allocation (its payload); nothing is buffered.
     pub fn write(&mut self, now: Instant, handle: StreamHandle, data: &[u8]) -> Result<usize, StreamError> {
         let keepalive = self.config.keepalive_interval;
         let proceed_timeout = self.config.proceed_timeout;
@@ -449,7 +447,7 @@ impl StreamEndpoint {
             let mut payload = Vec::with_capacity(n + 1);
             payload.push(did.as_raw());
             payload.extend_from_slice(chunk);
-            out.send(Mti::STREAM_DATA_SEND, stream.peer, Bytes::from(payload));
+            out.send(Mti::STREAM_DATA_SEND, stream.peer, payload);
             source.credit -= n as u32;
             source.sent += n as u64;
             source.window_sent += n as u32;
@@ -829,8 +827,9 @@ impl StreamEndpoint {
         if mti == Mti::OPTIONAL_INTERACTION_REJECTED && report.mti == Some(Mti::STREAM_INITIATE_REQUEST) {
             let code = ReplyCode(report.code.0);
             let class = if code.is_accept() { ReplyClass::Permanent } else { code.class() };
-            let waiting =
-                |s: &Stream| s.peer == peer && matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply);
+            let waiting = |s: &Stream| {
+                s.peer == peer && matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply)
+            };
             if self.end_each(&waiting, &|handle| Event::Rejected { handle, code, class }) == 0 {
                 bump(&mut self.out.stats.stray_error_reports);
             }
@@ -1155,7 +1154,7 @@ fn send_flush(stream: &Stream, out: &mut Outputs) -> Result<(), StreamError> {
     let Half::Source(source) = &stream.half else { return Err(StreamError::WrongRole) };
     match (source.state, stream.destination_stream) {
         (SourceState::Sending, Some(did)) => {
-            out.send(Mti::STREAM_DATA_SEND, stream.peer, Bytes::copy_from_slice(&[did.as_raw()]));
+            out.send(Mti::STREAM_DATA_SEND, stream.peer, alloc::vec![did.as_raw()]);
             Ok(())
         }
         _ => Err(StreamError::NotOpen),

@@ -95,12 +95,12 @@ pub trait Emit {
     /// buffer shorter than [`buffer_len`](Emit::buffer_len) gets [`BufferTooSmall`].
     fn emit(&self, buf: &mut [u8]) -> Result<usize, BufferTooSmall>;
 
-    /// The emitted bytes as a new `Bytes` (one allocation).
-    fn to_bytes(&self) -> bytes::Bytes {
+    /// The emitted bytes (one allocation).
+    fn to_bytes(&self) -> alloc::vec::Vec<u8> {
         let mut out = alloc::vec![0u8; self.buffer_len()];
         let written = self.emit(&mut out).unwrap_or(0);
         out.truncate(written);
-        bytes::Bytes::from(out)
+        out
     }
 }
 

@@ -179,7 +179,7 @@ impl Vector {
             mti: Mti(self.mti),
             source: node(self.source),
             destination: self.destination.map(node),
-            payload: bytes::Bytes::from_static(self.payload),
+            payload: self.payload.to_vec(),
         }
     }
 }
