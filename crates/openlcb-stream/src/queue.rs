@@ -157,20 +157,17 @@ impl<T> Queue<T> {
         }
     }
 
-    /// Doubles the ring when it is full, moving the items to the front of the new one.
+    /// Doubles the ring when it is full: new empty slots at the end, then the items that had
+    /// wrapped round to the front move behind the others.
     fn make_room(&mut self) {
-        if self.len < self.slots.len() {
+        let capacity = self.slots.len();
+        if self.len < capacity {
             return;
         }
-        let capacity = (self.slots.len() * 2).max(4);
-        let mut slots = Vec::with_capacity(capacity);
-        while let Some(item) = self.pop_front() {
-            slots.push(Some(item));
+        self.slots.resize_with((capacity * 2).max(4), || None);
+        for index in 0..self.head {
+            self.slots.swap(index, capacity + index);
         }
-        self.len = slots.len();
-        slots.resize_with(capacity, || None);
-        self.slots = slots;
-        self.head = 0;
     }
 }
 

@@ -1,6 +1,6 @@
 //! Per-stream timers in a fixed table: an enum indexes an array of deadlines.
 
-use crate::Instant;
+use crate::{Duration, Instant};
 
 /// The waits a stream can have running.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -26,6 +26,12 @@ impl Timer {
 pub(crate) struct TimerTable([Option<Instant>; 5]);
 
 impl TimerTable {
+    /// Runs `timer` out `after` from `now` (one place for the saturating 64-bit add).
+    #[inline(never)]
+    pub(crate) fn start(&mut self, timer: Timer, now: Instant, after: Duration) {
+        self.set(timer, now + after);
+    }
+
     pub(crate) fn set(&mut self, timer: Timer, at: Instant) {
         if let Some(slot) = self.0.get_mut(timer as usize) {
             *slot = Some(at);
