@@ -751,11 +751,11 @@ impl StreamEndpoint {
         let len = bytes.len() as u64;
         if len > dest.outstanding() {
             bump(&mut out.stats.window_overruns);
-            dest.granted = dest.received.saturating_add(len);
+            dest.granted = dest.received + len;
         }
         let was_empty = dest.buffer.is_empty();
         dest.buffer.push(bytes);
-        dest.received = dest.received.saturating_add(len);
+        dest.received += len;
         if was_empty && !bytes.is_empty() {
             out.event(Event::Readable { handle });
         }
@@ -809,7 +809,7 @@ impl StreamEndpoint {
             // On CAN a Complete out-arbitrates data frames still queued (wire-spec §6.3 note):
             // wait for what the source may still have in flight, never more than its credit.
             Some(missing) if missing <= dest.outstanding() => {
-                let expected = received.saturating_add(missing);
+                let expected = received + missing;
                 dest.state = DestinationState::Draining { expected };
                 stream.timers.start(Timer::Idle, now, grace);
             }
@@ -959,6 +959,7 @@ impl StreamEndpoint {
     }
 
     /// Sends a refusing Reply: buffer 0, the SID echoed, DID 0 (never 0xFF, wire-spec §4.2).
+    #[inline(never)]
     fn refuse(&mut self, peer: NodeId, sid: StreamId, code: ReplyCode) {
         bump(&mut self.out.stats.requests_refused);
         let reply =
@@ -1092,15 +1093,18 @@ impl StreamEndpoint {
         (entry.generation == handle.generation && entry.stream.is_some()).then_some(slot)
     }
 
+    #[inline(never)]
     fn stream(&self, handle: StreamHandle) -> Option<&Stream> {
         self.slots.get(self.slot_index(handle)?)?.stream.as_ref()
     }
 
+    #[inline(never)]
     fn stream_mut(&mut self, handle: StreamHandle) -> Option<&mut Stream> {
         let slot = self.slot_index(handle)?;
         self.slots.get_mut(slot)?.stream.as_mut()
     }
 
+    #[inline(never)]
     fn parts(&mut self, handle: StreamHandle) -> Result<(&mut Stream, &mut Outputs), StreamError> {
         let slot = self.slot_index(handle).ok_or(StreamError::UnknownStream)?;
         let stream = self.slots.get_mut(slot).and_then(|s| s.stream.as_mut()).ok_or(StreamError::UnknownStream)?;
@@ -1171,7 +1175,7 @@ fn send_due_proceed(stream: &mut Stream, out: &mut Outputs) -> bool {
     if !dest.proceed_due(window) {
         return false;
     }
-    dest.granted = dest.granted.saturating_add(u64::from(window));
+    dest.granted += u64::from(window);
     let proceed = DataProceed { source_stream: stream.source_stream, destination_stream: did };
     out.send_wire(Mti::STREAM_DATA_PROCEED, stream.peer, &proceed);
     true

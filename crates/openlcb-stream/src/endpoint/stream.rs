@@ -70,6 +70,7 @@ pub(crate) struct Destination {
     /// Received, not yet read: one window, or two with early Proceed.
     pub(crate) buffer: ByteRing,
     /// Total bytes the source has been allowed to send (a window per Proceed, plus the first).
+    /// The 64-bit byte counts cannot overflow (2^64 bytes), so they add without saturating.
     pub(crate) granted: u64,
     /// Total payload bytes received.
     pub(crate) received: u64,
@@ -153,7 +154,7 @@ impl Destination {
         let outstanding = self.outstanding();
         let due = if self.early_proceed { outstanding < window } else { outstanding == 0 };
         let room = self.free_space() as u64;
-        due && room >= outstanding.saturating_add(window)
+        due && room >= outstanding + window
     }
 }
 
