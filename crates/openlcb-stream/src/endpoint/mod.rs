@@ -184,8 +184,18 @@ impl Outputs {
         self.transmits.push_back(Message::addressed(mti, self.node, peer, payload));
     }
 
+    /// Sends a stream control message (at most 12 bytes: the longest is a request with a
+    /// content UID), encoded on the stack so that only [`send_slice`](Self::send_slice)
+    /// allocates.
     fn send_wire(&mut self, mti: Mti, peer: NodeId, body: &impl Emit) {
-        self.send(mti, peer, body.to_bytes());
+        let mut buf = [0u8; 12];
+        let n = body.emit(&mut buf).unwrap_or(0);
+        self.send_slice(mti, peer, buf.get(..n).unwrap_or_default());
+    }
+
+    #[inline(never)]
+    fn send_slice(&mut self, mti: Mti, peer: NodeId, payload: &[u8]) {
+        self.send(mti, peer, payload.to_vec());
     }
 
     fn terminate(&mut self, peer: NodeId, code: ErrorCode, role: Role) {
