@@ -1,5 +1,6 @@
-//! Two OpenLCB nodes on one Cortex-M3, source and destination, each a `StreamEndpoint` and a
-//! `CanLink` behind the `openlcb-embedded` driver, on an in-memory CAN bus. They log in, move
+//! Two OpenLCB nodes on one Cortex-M3, source and destination, each an `openlcb_node::Node`
+//! (streams, datagrams, SNIP, the message-network basics) and a `CanLink` behind the
+//! `openlcb-embedded` driver, on an in-memory CAN bus. They log in, move
 //! 64 KiB through a stream on virtual time, and every byte is checked as it is read. The
 //! result goes out through semihosting; the exit status is 0 only if everything verified.
 //!
@@ -21,7 +22,8 @@ use openlcb_can::{CanConfig, CanFrame, CanLink};
 use openlcb_cortex_m3::{HEAP, HEAP_SIZE, exit, init_heap};
 use openlcb_embedded::Driver;
 use openlcb_embedded::memory_bus::MemoryBus;
-use openlcb_stream::{Config, Event, Instant, NodeId, OpenOptions, StreamEndpoint, StreamHandle};
+use openlcb_node::{Node, NodeConfig, NodeEvent};
+use openlcb_stream::{Event, Instant, NodeId, OpenOptions, StreamHandle};
 
 const LEN: u64 = 64 * 1024;
 const WINDOW: u16 = 2048;
@@ -92,8 +94,8 @@ fn run() -> Report {
     };
     let mut a = Driver::new(port_a, clock, CanLink::new(time.get(), a_id, can_config()));
     let mut b = Driver::new(port_b, clock, CanLink::new(time.get(), b_id, can_config()));
-    let mut source = StreamEndpoint::new(a_id, endpoint_config());
-    let mut destination = StreamEndpoint::new(b_id, endpoint_config());
+    let mut source = Node::new(a_id, node_config());
+    let mut destination = Node::new(b_id, node_config());
 
     let mut stream: Option<StreamHandle> = None;
     let mut opened = (false, false);
@@ -111,48 +113,50 @@ fn run() -> Report {
         if stream.is_none() && a.link().alias().is_some() && b.link().alias().is_some() && pa.is_idle() && pb.is_idle()
         {
             r.heap_logged_in = heap();
-            stream = source.open(time.get(), OpenOptions::new(b_id, WINDOW)).ok();
+            stream = source.streams_mut().open(time.get(), OpenOptions::new(b_id, WINDOW)).ok();
             r.heap_after_open = heap();
             worked = true;
         }
         while let Some(event) = source.poll_event() {
             match event {
-                Event::Opened { .. } => opened.0 = true,
-                Event::Writable { .. } | Event::Sent { total: LEN, .. } => {}
+                NodeEvent::Stream(Event::Opened { .. }) => opened.0 = true,
+                NodeEvent::Stream(Event::Writable { .. } | Event::Sent { total: LEN, .. }) => {}
                 _ => r.unexpected_events += 1,
             }
         }
         // Data goes out once the heap of the open stream was measured, both ends quiet.
         let measured = r.heap_opened != 0;
-        if let Some(handle) = stream.filter(|h| measured && r.sent < LEN && source.credit(*h).unwrap_or(0) > 0) {
+        if let Some(handle) =
+            stream.filter(|h| measured && r.sent < LEN && source.streams().credit(*h).unwrap_or(0) > 0)
+        {
             let n = chunk.len().min((LEN - r.sent) as usize);
             for (i, byte) in chunk.iter_mut().take(n).enumerate() {
                 *byte = pattern(r.sent + i as u64);
             }
-            let taken = source.write(time.get(), handle, chunk.get(..n).unwrap_or(&[])).unwrap_or(0);
+            let taken = source.streams_mut().write(time.get(), handle, chunk.get(..n).unwrap_or(&[])).unwrap_or(0);
             r.sent += taken as u64;
             if fault_at.is_some_and(|at| r.sent >= at) {
                 cortex_m::asm::udf(); // undefined instruction: UsageFault, escalated to HardFault
             }
-            if r.sent == LEN && source.finish(time.get(), handle).is_err() {
+            if r.sent == LEN && source.streams_mut().finish(time.get(), handle).is_err() {
                 r.unexpected_events += 1;
             }
             worked |= taken > 0;
         }
         while let Some(event) = destination.poll_event() {
             match event {
-                Event::Opened { .. } => opened.1 = true,
-                Event::Readable { .. } => {}
-                Event::Finished { total, matched, .. } => {
+                NodeEvent::Stream(Event::Opened { .. }) => opened.1 = true,
+                NodeEvent::Stream(Event::Readable { .. }) => {}
+                NodeEvent::Stream(Event::Finished { total, matched, .. }) => {
                     r.finished = true;
                     r.matched = matched && total == LEN;
                 }
                 _ => r.unexpected_events += 1,
             }
         }
-        let handles = destination.handles().next();
+        let handles = destination.streams().handles().next();
         if let Some(handle) = handles {
-            while let Ok(n @ 1..) = destination.read(time.get(), handle, &mut buf) {
+            while let Ok(n @ 1..) = destination.streams_mut().read(time.get(), handle, &mut buf) {
                 for (i, byte) in buf.iter().take(n).enumerate() {
                     let offset = r.received + i as u64;
                     // The `inject-mismatch` feature proves that a bad byte fails the run.
@@ -186,26 +190,26 @@ fn run() -> Report {
         while destination.poll_event().is_some() {}
     }
     r.heap_end = heap();
-    r.streams_left = source.stream_count() + destination.stream_count();
+    r.streams_left = source.streams().stream_count() + destination.streams().stream_count();
     // A second, empty stream: the heap must come back to the same level (no leak per stream).
-    if let Ok(second) = source.open(time.get(), OpenOptions::new(b_id, WINDOW)) {
+    if let Ok(second) = source.streams_mut().open(time.get(), OpenOptions::new(b_id, WINDOW)) {
         let mut finished = false;
         for _ in 0..64 {
             let _ = (a.poll(&mut source), b.poll(&mut destination));
             while let Some(event) = source.poll_event() {
-                if let Event::Opened { .. } = event {
-                    let _ = source.finish(time.get(), second);
+                if let NodeEvent::Stream(Event::Opened { .. }) = event {
+                    let _ = source.streams_mut().finish(time.get(), second);
                 }
             }
             while let Some(event) = destination.poll_event() {
-                finished |= matches!(event, Event::Finished { total: 0, .. });
+                finished |= matches!(event, NodeEvent::Stream(Event::Finished { total: 0, .. }));
             }
-            let handle = destination.handles().next();
+            let handle = destination.streams().handles().next();
             if let Some(handle) = handle {
-                let _ = destination.read(time.get(), handle, &mut buf);
+                let _ = destination.streams_mut().read(time.get(), handle, &mut buf);
             }
         }
-        r.second_ok = finished && source.stream_count() + destination.stream_count() == 0;
+        r.second_ok = finished && source.streams().stream_count() + destination.streams().stream_count() == 0;
     }
     r.heap_end_second = heap();
     let bus_stats = bus.stats();
@@ -235,11 +239,11 @@ fn can_config() -> CanConfig {
     config
 }
 
-fn endpoint_config() -> Config {
-    let mut config = Config::default();
-    config.max_streams = 4;
-    config.max_streams_per_peer = 2;
-    config.max_window = WINDOW;
+fn node_config() -> NodeConfig {
+    let mut config = NodeConfig::default();
+    config.stream.max_streams = 4;
+    config.stream.max_streams_per_peer = 2;
+    config.stream.max_window = WINDOW;
     config
 }
 
