@@ -10,10 +10,9 @@ use openlcb_stream::{AcceptPolicy, Event, Instant, Message, MessageRef, Mti, Nod
 use crate::datagram::{
     Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramService, OkFlags, rejected,
 };
-use crate::memconfig::{
-    MemoryClient, MemoryConfigOptions, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, TransferPath,
-    acdi_user_strings, wire as mc,
-};
+use crate::memconfig::{MemoryClient, MemoryConfigOptions, MemoryEvent, MemoryServer, acdi_user_strings, wire as mc};
+#[cfg(feature = "memory-client")]
+use crate::memconfig::{MemoryOperation, MemoryRequestError, TransferPath};
 use crate::snip::{PendingSnip, SnipFailure, SnipInfo, SnipRequestError};
 use crate::{DatagramStats, NodeConfig, Protocols};
 
@@ -298,7 +297,8 @@ impl Node {
         self.memory_server.as_mut()
     }
 
-    /// Vec<u8> an operation has moved so far (`None` once it has ended).
+    /// Bytes an operation has moved so far (`None` once it has ended).
+    #[cfg(feature = "memory-client")]
     pub fn memory_progress(&self, operation: MemoryOperation) -> Option<u64> {
         self.memory_client.progress(operation)
     }
@@ -343,7 +343,7 @@ impl Node {
     pub fn poll_timeout(&self) -> Option<Instant> {
         let snip = self.snip_requests.iter().map(|p| p.deadline).min();
         let server = self.memory_server.as_ref().and_then(MemoryServer::poll_timeout);
-        let client = self.memory_client.poll_timeout();
+        let client = self.client().and_then(MemoryClient::poll_timeout);
         [self.streams.poll_timeout(), self.datagrams.poll_timeout(), snip, server, client].into_iter().flatten().min()
     }
 
@@ -380,7 +380,7 @@ impl Node {
                 if let Some(server) = &mut self.memory_server {
                     server.forget_peer(Some(peer));
                 }
-                self.with_memory(now, |cx, _, client| client.peer_restarted(cx, peer));
+                self.with_client(now, |cx, client| client.peer_restarted(cx, peer));
             }
             Mti::DATAGRAM if memory_datagram => self.on_memory_datagram(now, peer, msg.payload),
             Mti::OPTIONAL_INTERACTION_REJECTED | Mti::TERMINATE_DUE_TO_ERROR => self.on_error_report(now, msg),
@@ -394,9 +394,11 @@ impl Node {
                 out.reply(Message::addressed(Mti::SIMPLE_NODE_INFO_REPLY, out.node, peer, self.snip_reply.clone()));
             }
             Mti::SIMPLE_NODE_INFO_REPLY => self.on_snip_reply(peer, msg.payload),
-            Mti::PROTOCOL_SUPPORT_REPLY if self.memory_client.wants_protocols(peer) => {
+            Mti::PROTOCOL_SUPPORT_REPLY
+                if cfg!(feature = "memory-client") && self.memory_client.wants_protocols(peer) =>
+            {
                 let protocols = Protocols::from_payload(msg.payload);
-                self.with_memory(now, |cx, _, client| client.on_protocols(cx, peer, protocols));
+                self.with_client(now, |cx, client| client.on_protocols(cx, peer, protocols));
             }
             Mti::PROTOCOL_SUPPORT_REPLY => {
                 out.event(NodeEvent::ProtocolsReceived { peer, protocols: Protocols::from_payload(msg.payload) });
@@ -478,7 +480,7 @@ impl Node {
         if let Some(server) = &mut self.memory_server {
             server.handle_timeout(now);
         }
-        self.with_memory(now, |cx, _, client| client.handle_timeout(cx));
+        self.with_client(now, |cx, client| client.handle_timeout(cx));
         while let Some(index) = self.snip_requests.iter().position(|p| p.deadline <= now) {
             let expired = self.snip_requests.swap_remove(index);
             // A partial reply is still worth having (SNIP-TN §2.6: be liberal).
@@ -500,7 +502,9 @@ impl Node {
         }
         self.streams.rename_peer(from, to);
         self.datagrams.rename_peer(from, to);
-        self.memory_client.rename_peer(from, to);
+        if let Some(client) = self.client_mut() {
+            client.rename_peer(from, to);
+        }
         if let Some(server) = &mut self.memory_server {
             server.rename_peer(from, to);
         }
@@ -531,7 +535,7 @@ impl Node {
             server.forget_peer(peer);
         }
         let now = self.last_now;
-        self.with_memory(now, |cx, _, client| client.peer_lost(cx, peer));
+        self.with_client(now, |cx, client| client.peer_lost(cx, peer));
     }
 
     fn fail_snip(&mut self, peer: Option<NodeId>) {
@@ -609,6 +613,7 @@ impl Node {
     /// Reads `len` bytes (`None`: to the end of the space) of `space` from `address` on
     /// `peer`. Progress with [`memory_progress`](Self::memory_progress); `ReadDone` or
     /// `Failed` follows.
+    #[cfg(feature = "memory-client")]
     pub fn read_memory(
         &mut self,
         now: Instant,
@@ -623,6 +628,7 @@ impl Node {
     }
 
     /// Writes `data` into `space` from `address` on `peer`; `WriteDone` or `Failed` follows.
+    #[cfg(feature = "memory-client")]
     pub fn write_memory(
         &mut self,
         now: Instant,
@@ -641,6 +647,7 @@ impl Node {
     /// Inquiry, the image to space 0xEF from address 0 by stream (when the target's PIP has
     /// the Stream bit) or by 64-byte datagram writes, Unfreeze. `WriteDone` or `Failed`
     /// follows; the target rebooting at Unfreeze counts as success.
+    #[cfg(feature = "memory-client")]
     pub fn upgrade_firmware(
         &mut self,
         now: Instant,
@@ -651,6 +658,24 @@ impl Node {
         self.last_now = now;
         let image = image.into();
         self.with_memory(now, |cx, _, client| client.upgrade(cx, peer, image, path))
+    }
+
+    /// The Memory Configuration client, when the `memory-client` feature builds it in
+    /// (without it the client is never called, so none of its code is linked).
+    fn client(&self) -> Option<&MemoryClient> {
+        cfg!(feature = "memory-client").then_some(&self.memory_client)
+    }
+
+    fn client_mut(&mut self) -> Option<&mut MemoryClient> {
+        cfg!(feature = "memory-client").then_some(&mut self.memory_client)
+    }
+
+    /// Runs `f` on the client with the node's parts lent to it (nothing without the
+    /// `memory-client` feature).
+    fn with_client(&mut self, now: Instant, f: impl FnOnce(&mut Cx<'_>, &mut MemoryClient)) {
+        if cfg!(feature = "memory-client") {
+            self.with_memory(now, |cx, _, client| f(cx, client));
+        }
     }
 
     /// Runs `f` on the memory server and client with the node's parts lent to them.
@@ -684,7 +709,7 @@ impl Node {
     fn is_memory_datagram(&self, peer: NodeId, payload: &[u8]) -> bool {
         match payload {
             [mc::CONTENT_ID, command, ..] if mc::is_reply(*command) => {
-                self.memory_client.has_operation_with(peer) || !self.datagrams.claims(mc::CONTENT_ID)
+                self.client().is_some_and(|c| c.has_operation_with(peer) || !self.datagrams.claims(mc::CONTENT_ID))
             }
             [mc::CONTENT_ID, ..] => self.memory_server.is_some(),
             _ => false,
@@ -697,7 +722,9 @@ impl Node {
             if is_reply {
                 // Acknowledge a reply before anything else is sent (MC-TN §3.1.3.3).
                 cx.ok(peer, OkFlags::default());
-                client.on_reply(cx, peer, payload);
+                if cfg!(feature = "memory-client") {
+                    client.on_reply(cx, peer, payload);
+                }
             } else if let Some(server) = server {
                 server.on_command(cx, peer, payload);
             }
@@ -734,12 +761,15 @@ impl Node {
                     _ => continue,
                 };
                 // Outcomes of the server's reply datagrams need nothing more.
-                self.with_memory(now, |cx, _, client| client.on_datagram_outcome(cx, id, result));
+                self.with_client(now, |cx, client| {
+                    client.on_datagram_outcome(cx, id, result);
+                });
             }
             while let Some(event) = self.streams.poll_event() {
                 moved = true;
                 let claimed = self.with_memory(now, |cx, server, client| {
-                    server.is_some_and(|s| s.on_stream_event(cx, &event)) || client.on_stream_event(cx, &event)
+                    server.is_some_and(|s| s.on_stream_event(cx, &event))
+                        || (cfg!(feature = "memory-client") && client.on_stream_event(cx, &event))
                 });
                 let ours_sent = match event {
                     Event::Sent { handle, .. } => self.out.memory_finished.iter().position(|h| *h == handle),
@@ -758,7 +788,7 @@ impl Node {
                     event => self.out.events.push_back(NodeEvent::Stream(event)),
                 }
             }
-            self.with_memory(now, |cx, _, client| client.poll_streams(cx));
+            self.with_client(now, |cx, client| client.poll_streams(cx));
             if !moved {
                 break;
             }
