@@ -188,13 +188,20 @@ impl ByteRing {
         self.bytes.len() - self.len
     }
 
+    /// `index` taken round the ring once (`index` < 2 × capacity; no division).
+    fn wrap(&self, index: usize) -> usize {
+        if index >= self.bytes.len() { index - self.bytes.len() } else { index }
+    }
+
     /// Appends as much of `data` as fits; returns how much that was.
     pub(crate) fn push(&mut self, data: &[u8]) -> usize {
         let n = data.len().min(self.free());
-        let tail = (self.head + self.len) % self.bytes.len().max(1);
+        let tail = self.wrap(self.head + self.len);
         let first = n.min(self.bytes.len() - tail);
         copy(self.bytes.get_mut(tail..tail + first), data.get(..first));
-        copy(self.bytes.get_mut(..n - first), data.get(first..n));
+        if first < n {
+            copy(self.bytes.get_mut(..n - first), data.get(first..n));
+        }
         self.len += n;
         n
     }
@@ -204,8 +211,10 @@ impl ByteRing {
         let n = to.len().min(self.len);
         let first = n.min(self.bytes.len() - self.head);
         copy(to.get_mut(..first), self.bytes.get(self.head..self.head + first));
-        copy(to.get_mut(first..n), self.bytes.get(..n - first));
-        self.head = (self.head + n) % self.bytes.len().max(1);
+        if first < n {
+            copy(to.get_mut(first..n), self.bytes.get(..n - first));
+        }
+        self.head = self.wrap(self.head + n);
         self.len -= n;
         n
     }
