@@ -2,12 +2,11 @@
 //! Received OK, Rejected (resent on temporary codes, bounded), and timeouts; incoming
 //! datagrams go to the application by content ID, and every other one is rejected at once.
 
-use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 use core::fmt;
 
 use openlcb_stream::wire::ErrorCode;
-use openlcb_stream::{Duration, Instant, Message, Mti, NodeId};
+use openlcb_stream::{Duration, Instant, Message, Mti, NodeId, Queue};
 
 use crate::node::{NodeEvent, Outputs};
 
@@ -212,7 +211,7 @@ struct Awaiting {
 pub(crate) struct DatagramService {
     config: DatagramConfig,
     claimed: [u64; 4],
-    outgoing: VecDeque<Outgoing>,
+    outgoing: Queue<Outgoing>,
     awaiting: Vec<Awaiting>,
     next_id: u32,
     pub(crate) stats: DatagramStats,
@@ -227,7 +226,7 @@ impl DatagramService {
             }
         }
         DatagramService {
-            outgoing: VecDeque::with_capacity(config.max_outgoing),
+            outgoing: Queue::with_capacity(config.max_outgoing),
             awaiting: Vec::with_capacity(config.max_awaiting_answer),
             claimed,
             next_id: 0,
@@ -382,9 +381,12 @@ impl DatagramService {
     }
 
     pub(crate) fn handle_timeout(&mut self, now: Instant, out: &mut Outputs) {
-        while let Some(index) =
-            self.outgoing.iter().position(|o| matches!(o.state, SendState::InFlight { deadline } if deadline <= now))
-        {
+        loop {
+            let expired = self
+                .outgoing
+                .iter()
+                .position(|o| matches!(o.state, SendState::InFlight { deadline } if deadline <= now));
+            let Some(index) = expired else { break };
             self.finish(now, out, index, Err(DatagramFailure::TimedOut));
         }
         let deadline = now + self.config.timeout;

@@ -1,11 +1,12 @@
 //! [`Node`]: one local node. It routes every message to the protocol it belongs to, answers
 //! the message-network basics itself, and drains its protocols in one drive loop.
 
-use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
 use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport};
-use openlcb_stream::{AcceptPolicy, Event, Instant, Message, MessageRef, Mti, NodeId, StreamEndpoint, StreamHandle};
+use openlcb_stream::{
+    AcceptPolicy, Event, Instant, Message, MessageRef, Mti, NodeId, Queue, StreamEndpoint, StreamHandle,
+};
 
 use crate::datagram::{
     Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramService, OkFlags, rejected,
@@ -109,13 +110,13 @@ pub struct NodeStats {
 pub(crate) struct Outputs {
     pub(crate) node: NodeId,
     limit: usize,
-    transmits: VecDeque<Message>,
-    events: VecDeque<NodeEvent>,
+    transmits: Queue<Message>,
+    events: Queue<NodeEvent>,
     answers_dropped: u64,
     /// Datagrams Memory Configuration sent and waits on: their outcome goes to
     /// `memory_inbox`, not to the application.
     memory_datagrams: Vec<DatagramId>,
-    memory_inbox: VecDeque<NodeEvent>,
+    memory_inbox: Queue<NodeEvent>,
     /// Streams Memory Configuration finished: their `Sent` event is its, not the application's.
     memory_finished: Vec<StreamHandle>,
 }
@@ -231,11 +232,11 @@ impl Node {
         let mut out = Outputs {
             node: id,
             limit: config.transmit_queue_limit,
-            transmits: VecDeque::new(),
-            events: VecDeque::new(),
+            transmits: Queue::new(),
+            events: Queue::new(),
             answers_dropped: 0,
             memory_datagrams: Vec::new(),
-            memory_inbox: VecDeque::new(),
+            memory_inbox: Queue::new(),
             memory_finished: Vec::new(),
         };
         if config.send_initialization_complete {

@@ -96,6 +96,15 @@ impl<T> Queue<T> {
         self.slots.get(self.wrap(self.head + index))?.as_ref()
     }
 
+    /// The item `index` places behind the front, to change in place.
+    pub fn get_mut(&mut self, index: usize) -> Option<&mut T> {
+        if index >= self.len {
+            return None;
+        }
+        let slot = self.wrap(self.head + index);
+        self.slots.get_mut(slot)?.as_mut()
+    }
+
     /// Removes every item.
     pub fn clear(&mut self) {
         while self.pop_front().is_some() {}
@@ -232,11 +241,23 @@ mod tests {
         queue.retain(|n| n % 2 == 0);
         assert_eq!(items(&queue), [4, 6, 8, 100, 102]);
         assert_eq!(queue.remove(1), Some(6));
+        if let Some(n) = queue.get_mut(1) {
+            *n += 10;
+        }
+        assert_eq!(queue.get_mut(4), None);
+        assert_eq!(items(&queue), [4, 18, 100, 102]);
+        queue.retain(|n| *n != 18);
+        queue.push_back(8);
+        queue.retain(|n| *n != 100);
+        queue.push_front(6);
+        queue.retain(|n| *n != 6);
+        queue.push_front(8);
+        assert_eq!(queue.remove(0), Some(8));
         assert_eq!(queue.remove(9), None);
         for n in queue.iter_mut() {
             *n += 1;
         }
-        assert_eq!(items(&queue), [5, 9, 101, 103]);
+        assert_eq!(items(&queue), [5, 103, 9]);
         queue.clear();
         assert!(queue.is_empty());
         assert_eq!(queue.pop_front(), None);

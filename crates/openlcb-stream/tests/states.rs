@@ -125,6 +125,25 @@ fn closed_open_rotates_sids() {
 }
 
 #[test]
+fn closed_open_refuses_a_proposed_did_still_in_use_to_that_node() {
+    // Data Send names only the DID: a second stream to the same node with the DID of one
+    // still sending would mix their data at the destination (found by fuzzing: the old
+    // stream's data, queued behind the new request, arrived in the new stream).
+    let mut b = Bench::new(config());
+    let open = b.open_source(16);
+    let reuse = OpenOptions::new(PEER, 16).proposed_destination(sid(7));
+    assert_eq!(b.ep.open(b.now, reuse), Err(openlcb_stream::StreamError::DestinationIdInUse));
+    assert!(b.sent().is_empty());
+    assert!(b.ep.open(b.now, OpenOptions::new(OTHER, 16).proposed_destination(sid(7))).is_ok(), "another node");
+    let pending = b.ep.open(b.now, OpenOptions::new(PEER, 16).proposed_destination(sid(9))).unwrap();
+    let again = OpenOptions::new(PEER, 16).proposed_destination(sid(9));
+    assert_eq!(b.ep.open(b.now, again), Err(openlcb_stream::StreamError::DestinationIdInUse), "while requested too");
+    b.ep.abort(b.now, open, ErrorCode::TEMPORARY).unwrap();
+    b.ep.abort(b.now, pending, ErrorCode::TEMPORARY).unwrap();
+    assert!(b.ep.open(b.now, OpenOptions::new(PEER, 16).proposed_destination(sid(7))).is_ok(), "free again");
+}
+
+#[test]
 fn initiated_reply_accepted() {
     let mut b = Bench::new(config());
     let h = b.open_source(16);

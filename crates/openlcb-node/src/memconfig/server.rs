@@ -2,7 +2,6 @@
 //! command, Read Stream (this node the source) and Write Stream (this node the destination).
 
 use alloc::boxed::Box;
-use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 use core::fmt;
 
@@ -59,7 +58,7 @@ pub struct MemoryServer {
     acdi: bool,
     acdi_manufacturer: Vec<u8>,
     acdi_user: Vec<u8>,
-    unique_ids: VecDeque<[u8; 8]>,
+    unique_ids: Vec<[u8; 8]>,
     lock: u64,
     frozen: bool,
     firmware_written: u32,
@@ -97,7 +96,7 @@ impl MemoryServer {
             acdi: false,
             acdi_manufacturer: Vec::new(),
             acdi_user: Vec::new(),
-            unique_ids: VecDeque::new(),
+            unique_ids: Vec::new(),
             lock: 0,
             frozen: false,
             firmware_written: 0,

@@ -57,6 +57,11 @@ pub enum StreamError {
     /// The requested source stream ID is in use with that node.
     #[error("that stream ID is in use with that node")]
     StreamIdInUse,
+    /// The proposed destination stream ID is the DID of a stream this node is still sending
+    /// to that node on: Data Send names only the DID, so the destination could not tell the
+    /// two streams' data apart.
+    #[error("that destination stream ID is in use by a stream to that node")]
+    DestinationIdInUse,
     /// A Max Buffer Size of 0 was asked for.
     #[error("the Max Buffer Size must be 1..=65535")]
     ZeroBufferSize,
@@ -403,6 +408,13 @@ impl StreamEndpoint {
             Some(sid) => sid,
             None => self.free_id(peer, Role::Source)?,
         };
+        if let Some(did) = options.proposed_destination
+            && self
+                .streams()
+                .any(|(_, s)| s.peer == peer && s.role() == Role::Source && s.destination_stream == Some(did))
+        {
+            return Err(StreamError::DestinationIdInUse);
+        }
         self.check_room(peer, Role::Source)?;
         let mut timers = TimerTable::default();
         timers.start(Timer::Reply, now, self.config.reply_timeout);
