@@ -5,10 +5,10 @@ use alloc::vec::Vec;
 /// The first-in first-out queue of the stack's outputs (messages, frames, events).
 ///
 /// A ring of slots in one heap array that doubles when full. It does what the stack needs of
-/// `VecDeque` and no more: `VecDeque` brings about 300 bytes of flash per element type on a
-/// Cortex-M (growth that keeps the ring in place, slices, drains), and the stack queues eight
-/// element types. Bounds are the owner's: each queue's owner refuses or counts what would
-/// exceed its configured limit before pushing.
+/// `VecDeque` and no more, in less code: on a Cortex-M each element type of `VecDeque` costs
+/// about 140 bytes of flash more than this ring (measured on the stream endpoint's queues),
+/// and the stack queues a dozen element types. Bounds are the owner's: each queue's owner
+/// refuses or counts what would exceed its configured limit before pushing.
 ///
 /// ```
 /// use openlcb_stream::Queue;
