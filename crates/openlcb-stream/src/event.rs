@@ -49,6 +49,9 @@ pub enum Termination {
     WindowOverrun,
     /// The same source opened a new stream with this stream's SID: it has forgotten this one.
     Superseded,
+    /// This node terminated another stream it has with the same node in the same role: a TDE
+    /// names no stream, so that node ends all of them (wire-spec Q5), and this node does too.
+    SiblingTerminated,
     /// The transport reported the peer gone (for example its CAN alias was released).
     PeerLost,
     /// The peer sent Initialization Complete: it restarted and has forgotten its streams.

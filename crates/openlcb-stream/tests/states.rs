@@ -138,9 +138,46 @@ fn closed_open_refuses_a_proposed_did_still_in_use_to_that_node() {
     let pending = b.ep.open(b.now, OpenOptions::new(PEER, 16).proposed_destination(sid(9))).unwrap();
     let again = OpenOptions::new(PEER, 16).proposed_destination(sid(9));
     assert_eq!(b.ep.open(b.now, again), Err(openlcb_stream::StreamError::DestinationIdInUse), "while requested too");
+    b.events();
     b.ep.abort(b.now, open, ErrorCode::TEMPORARY).unwrap();
-    b.ep.abort(b.now, pending, ErrorCode::TEMPORARY).unwrap();
+    assert!(b.ep.stream_info(pending).is_none(), "the TDE ended its sibling too");
     assert!(b.ep.open(b.now, OpenOptions::new(PEER, 16).proposed_destination(sid(7))).is_ok(), "free again");
+}
+
+#[test]
+fn a_tde_sent_for_one_stream_ends_its_siblings_with_that_node() {
+    // A TDE names no stream, so the peer ends every stream it has with this node in the
+    // matching role (wire-spec Q5); this node ends the same ones.
+    let mut b = Bench::new(config());
+    let first = b.open_source(16);
+    let second = b.ep.open(b.now, OpenOptions::new(PEER, 16)).unwrap();
+    let elsewhere = b.ep.open(b.now, OpenOptions::new(OTHER, 16)).unwrap();
+    b.sent();
+    let (incoming, _) = b.open_destination();
+    b.ep.abort(b.now, first, ErrorCode::TEMPORARY).unwrap();
+    assert_eq!(b.sent(), [(Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x00, 0x08, 0x88])], "one TDE");
+    assert_eq!(
+        b.events(),
+        [Event::Terminated { handle: second, cause: Termination::SiblingTerminated }],
+        "the other source stream to that node"
+    );
+    assert!(b.ep.stream_info(elsewhere).is_some(), "a stream to another node stays");
+    assert!(b.ep.stream_info(incoming).is_some(), "a stream in the other role stays");
+    // The same when a timeout sends the TDE: the first-data wait of the older destination
+    // stream runs out (15 s) and the younger one from the same source ends with it.
+    b.advance(Duration::from_secs(10));
+    b.peer(Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 5]);
+    b.sent();
+    let Event::Opened { handle: younger, .. } = b.events()[0] else { panic!("not opened") };
+    b.advance(Duration::from_secs(6));
+    assert_eq!(b.sent(), [(Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x10, 0x1F, 0x88])]);
+    assert_eq!(
+        b.events(),
+        [
+            Event::TimedOut { handle: incoming, kind: TimeoutKind::FirstData },
+            Event::Terminated { handle: younger, cause: Termination::SiblingTerminated },
+        ]
+    );
 }
 
 #[test]

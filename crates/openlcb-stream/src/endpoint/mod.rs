@@ -605,18 +605,26 @@ impl StreamEndpoint {
 
     /// Ends the stream at once with Terminate Due To Error `code` (e.g. 0x2000) and releases
     /// it; unread data is discarded. A pending request is refused instead, a closed stream is
-    /// just released. No event follows.
+    /// just released. No event follows for this stream; the TDE names no stream, so the other
+    /// streams in the same role with that node end too ([`Termination::SiblingTerminated`]).
     pub fn abort(&mut self, _now: Instant, handle: StreamHandle, code: ErrorCode) -> Result<(), StreamError> {
         let stream = self.stream(handle).ok_or(StreamError::UnknownStream)?;
         let (peer, role, sid) = (stream.peer, stream.role(), stream.source_stream);
-        match &stream.half {
+        let terminated = match &stream.half {
             Half::Destination(d) if d.state == DestinationState::AwaitingDecision => {
                 self.refuse(peer, sid, ReplyCode(code.0));
+                false
             }
-            Half::Destination(d) if d.state == DestinationState::Closed => {}
-            _ => self.out.terminate(peer, code, role),
-        }
+            Half::Destination(d) if d.state == DestinationState::Closed => false,
+            _ => {
+                self.out.terminate(peer, code, role);
+                true
+            }
+        };
         self.release(handle);
+        if terminated {
+            self.end_siblings(peer, role);
+        }
         Ok(())
     }
 
@@ -768,7 +776,7 @@ impl StreamEndpoint {
             if dest.buffer.is_empty() {
                 self.release(handle);
             }
-            return;
+            return self.end_siblings(peer, Role::Destination);
         }
         let len = bytes.len() as u64;
         if len > dest.outstanding() {
@@ -916,6 +924,7 @@ impl StreamEndpoint {
                     _ => TimeoutKind::Idle,
                 };
                 self.end(Event::TimedOut { handle, kind });
+                self.end_siblings(peer, role);
             }
             Timer::Decision => {
                 let sid = stream.source_stream;
@@ -1049,6 +1058,15 @@ impl StreamEndpoint {
                 }
         };
         self.end_each(&forgotten, &|handle| Event::Terminated { handle, cause: Termination::PeerRestarted });
+    }
+
+    /// This node just sent a TDE to `peer` about one of its streams in `role`. The TDE names
+    /// no stream, so the peer ends every stream it has with this node in the other role
+    /// (wire-spec §6.4, Q5): the streams here that it ends must end here too, or their data
+    /// would later land in a new stream given the same DID.
+    fn end_siblings(&mut self, peer: NodeId, role: Role) {
+        let sibling = |s: &Stream| s.peer == peer && s.role() == role && !s.is_closed();
+        self.end_each(&sibling, &|handle| Event::Terminated { handle, cause: Termination::SiblingTerminated });
     }
 
     /// Ends every stream with `peer` that is not over yet, without sending anything.
