@@ -53,7 +53,6 @@
 //! the open one quietly (the sender has moved on). Datagram Received OK and Rejected are
 //! ordinary addressed messages.
 
-use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
 use openlcb_stream::wire::{Emit, ErrorReport};
@@ -61,6 +60,7 @@ use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::NodeAlias;
 use crate::cache::AliasCache;
+use crate::fifo::Fifo;
 use crate::fragment::{EncodeError, Fragments, FramePosition};
 use crate::frame::{CanFrame, FrameError};
 use crate::header::{CanHeader, DatagramFrame, FrameKind};
@@ -306,12 +306,12 @@ pub struct CanLink {
     reassembly: Reassembler,
     datagrams: Reassembler,
     scratch: Vec<u8>,
-    frames: VecDeque<CanFrame>,
-    messages: VecDeque<Outgoing>,
+    frames: Fifo<CanFrame>,
+    messages: Fifo<Outgoing>,
     current: Option<Fragments<Vec<u8>>>,
-    unresolved: VecDeque<Unresolved>,
+    unresolved: Fifo<Unresolved>,
     learning: Vec<Learning>,
-    events: VecDeque<LinkEvent>,
+    events: Fifo<LinkEvent>,
     stats: LinkStats,
 }
 
@@ -329,12 +329,12 @@ impl CanLink {
             reassembly: Reassembler::new(config.reassembly_slots, config.max_message_len, config.reassembly_timeout),
             datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
             scratch: Vec::with_capacity(config.max_message_len.max(MAX_DATAGRAM_LEN)),
-            frames: VecDeque::with_capacity(config.frame_queue_limit),
-            messages: VecDeque::with_capacity(config.transmit_queue_limit.saturating_add(1)),
+            frames: Fifo::with_capacity(config.frame_queue_limit),
+            messages: Fifo::with_capacity(config.transmit_queue_limit.saturating_add(1)),
             current: None,
-            unresolved: VecDeque::with_capacity(config.transmit_queue_limit),
+            unresolved: Fifo::with_capacity(config.transmit_queue_limit),
             learning: Vec::with_capacity(config.learn_slots),
-            events: VecDeque::with_capacity(event_bound(&config)),
+            events: Fifo::with_capacity(event_bound(&config)),
             stats: LinkStats::default(),
             config,
         }
@@ -491,7 +491,7 @@ impl CanLink {
         }
         let alias = self.login.alias()?;
         let mid_message = self.current.as_ref().is_some_and(|c| c.remaining() > 0);
-        if let Some(front) = self.frames.front() {
+        if let Some(front) = self.frames.first() {
             if !mid_message || front.header().is_ok_and(|h| !h.is_message()) {
                 return self.frames.pop_front();
             }
@@ -541,7 +541,9 @@ impl CanLink {
             self.datagram_error(key.source, ReassemblyError::Timeout);
         }
         self.ask_again(now);
-        while let Some(node) = self.unresolved.iter().find(|u| u.deadline.is_some_and(|d| d <= now)).map(|u| u.node) {
+        loop {
+            let expired = self.unresolved.iter().find(|u| u.deadline.is_some_and(|d| d <= now)).map(|u| u.node);
+            let Some(node) = expired else { break };
             let before = self.unresolved.len();
             self.unresolved.retain(|u| u.node != node);
             let dropped = before - self.unresolved.len();
@@ -883,7 +885,9 @@ impl CanLink {
             return;
         };
         let deadline = now + self.config.resolve_timeout;
-        while let Some(node) = self.unresolved.iter().find(|u| u.deadline.is_none()).map(|u| u.node) {
+        loop {
+            let unasked = self.unresolved.iter().find(|u| u.deadline.is_none()).map(|u| u.node);
+            let Some(node) = unasked else { break };
             for waiting in self.unresolved.iter_mut().filter(|u| u.node == node) {
                 waiting.deadline = Some(deadline);
             }

@@ -18,12 +18,11 @@
 //! is the one question the standard makes a holder of a Node ID answer, which is why the
 //! check is opt-in.
 
-use alloc::collections::VecDeque;
-
 use openlcb_stream::{Duration, Instant, NodeId};
 
 use crate::NodeAlias;
 use crate::alias::AliasGenerator;
+use crate::fifo::Fifo;
 use crate::frame::CanFrame;
 use crate::header::{CanHeader, FrameKind};
 
@@ -105,8 +104,8 @@ pub struct AliasLogin {
     generator: AliasGenerator,
     reserve_wait: Duration,
     state: LoginState,
-    transmits: VecDeque<CanFrame>,
-    events: VecDeque<LoginEvent>,
+    transmits: Fifo<CanFrame>,
+    events: Fifo<LoginEvent>,
     stats: LoginStats,
     /// How long to wait for an answer to the AME for our own Node ID; `None`: no check.
     node_id_check: Option<Duration>,
@@ -126,8 +125,8 @@ impl AliasLogin {
             generator,
             reserve_wait,
             state: LoginState::Checking { alias, deadline: now },
-            transmits: VecDeque::with_capacity(QUEUE_BOUND),
-            events: VecDeque::with_capacity(EVENT_BOUND),
+            transmits: Fifo::with_capacity(QUEUE_BOUND),
+            events: Fifo::with_capacity(EVENT_BOUND),
             stats: LoginStats::default(),
             node_id_check: None,
             asked: false,
