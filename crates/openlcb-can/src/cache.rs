@@ -38,11 +38,24 @@ impl AliasCache {
     /// evicted to make room, if one was.
     pub fn insert(&mut self, alias: NodeAlias, node: NodeId) -> Option<(NodeAlias, NodeId)> {
         let last_used = self.tick();
-        self.entries.retain(|e| e.alias != alias && e.node != node);
+        let mut index = 0;
+        while let Some(e) = self.entries.get(index) {
+            if e.alias == alias || e.node == node {
+                self.entries.swap_remove(index);
+            } else {
+                index += 1;
+            }
+        }
         let mut evicted = None;
         if self.entries.len() >= self.capacity {
-            let oldest = self.entries.iter().enumerate().min_by_key(|(_, e)| e.last_used).map(|(i, _)| i)?;
-            let e = self.entries.swap_remove(oldest);
+            let mut oldest: Option<(usize, u64)> = None;
+            for (index, e) in self.entries.iter().enumerate() {
+                if oldest.is_none_or(|(_, used)| e.last_used < used) {
+                    oldest = Some((index, e.last_used));
+                }
+            }
+            let (index, _) = oldest?;
+            let e = self.entries.swap_remove(index);
             evicted = Some((e.alias, e.node));
         }
         self.entries.push(Entry { alias, node, last_used });

@@ -34,9 +34,19 @@ impl<T> Fifo<T> {
         if index < self.0.len() { Some(self.0.remove(index)) } else { None }
     }
 
-    /// Keeps only the items for which `keep` is true, in order.
-    pub(crate) fn retain(&mut self, keep: impl FnMut(&T) -> bool) {
-        self.0.retain(keep);
+    /// Keeps only the items for which `keep` is true, in order; returns how many it removed.
+    pub(crate) fn retain(&mut self, mut keep: impl FnMut(&T) -> bool) -> usize {
+        let mut removed = 0;
+        let mut index = 0;
+        while let Some(item) = self.0.get(index) {
+            if keep(item) {
+                index += 1;
+            } else {
+                self.0.remove(index);
+                removed += 1;
+            }
+        }
+        removed
     }
 
     /// Removes every item.

@@ -259,18 +259,25 @@ pub struct LinkStats {
     pub queue_overflows: u32,
 }
 
+/// A message accepted by `send`: ready to frame, or waiting for its destination's alias.
 #[derive(Debug)]
 struct Outgoing {
     message: Message,
+    /// The destination alias (`None` for a global message and while waiting for the alias).
     destination: Option<NodeAlias>,
+    /// While waiting: when to give up, set once the AME went out.
+    deadline: Option<Instant>,
 }
 
-#[derive(Debug)]
-struct Unresolved {
-    message: Message,
-    node: NodeId,
-    /// Set once the AME went out.
-    deadline: Option<Instant>,
+impl Outgoing {
+    fn new(message: Message, destination: Option<NodeAlias>) -> Self {
+        Outgoing { message, destination, deadline: None }
+    }
+
+    /// The message waits for (or was sent to) the alias of `node`.
+    fn is_for(&self, node: NodeId) -> bool {
+        self.message.destination == Some(node)
+    }
 }
 
 /// An alias whose Node ID is being asked for.
@@ -309,7 +316,8 @@ pub struct CanLink {
     frames: Fifo<CanFrame>,
     messages: Fifo<Outgoing>,
     current: Option<Fragments<Vec<u8>>>,
-    unresolved: Fifo<Unresolved>,
+    /// Messages waiting for their destination's alias (an AME answer).
+    unresolved: Fifo<Outgoing>,
     learning: Vec<Learning>,
     events: Fifo<LinkEvent>,
     stats: LinkStats,
@@ -454,20 +462,19 @@ impl CanLink {
             return Err(SendError::QueueFull);
         }
         let Some(node) = destination else {
-            self.messages.push_back(Outgoing { message, destination: None });
+            self.messages.push_back(Outgoing::new(message, None));
             return Ok(());
         };
         if let Some(alias) = NodeAlias::from_provisional(node) {
-            self.messages.push_back(Outgoing { message, destination: Some(alias) });
+            self.messages.push_back(Outgoing::new(message, Some(alias)));
             return Ok(());
         }
-        let waiting = self.unresolved.iter().any(|u| u.node == node);
-        match self.cache.alias(node) {
-            Some(alias) if !waiting => self.messages.push_back(Outgoing { message, destination: Some(alias) }),
-            _ => {
-                // A node already being resolved shares the AME out for it and its deadline.
-                let deadline = self.unresolved.iter().find(|u| u.node == node).and_then(|u| u.deadline);
-                self.unresolved.push_back(Unresolved { message, node, deadline });
+        // A node already being resolved shares the AME out for it and its deadline.
+        let waiting = self.unresolved.iter().find(|u| u.is_for(node)).map(|u| u.deadline);
+        match (self.cache.alias(node), waiting) {
+            (Some(alias), None) => self.messages.push_back(Outgoing::new(message, Some(alias))),
+            (_, deadline) => {
+                self.unresolved.push_back(Outgoing { message, destination: None, deadline: deadline.flatten() });
                 self.send_enquiries(now);
             }
         }
@@ -501,7 +508,7 @@ impl CanLink {
                 return Some(frame);
             }
             self.current = None;
-            let Outgoing { message, destination } = self.messages.pop_front()?;
+            let Outgoing { message, destination, .. } = self.messages.pop_front()?;
             match Fragments::new(message.mti, alias, destination, message.payload) {
                 Ok(fragments) => self.current = Some(fragments),
                 Err(_) => bump(&mut self.stats.send_refused),
@@ -516,14 +523,15 @@ impl CanLink {
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let unresolved = self.unresolved.iter().filter_map(|u| u.deadline);
-        let learning = self.learning.iter().map(|l| l.deadline);
-        [self.login.poll_timeout(), self.reassembly.poll_timeout(), self.datagrams.poll_timeout()]
-            .into_iter()
-            .flatten()
-            .chain(unresolved)
-            .chain(learning)
-            .min()
+        let mut next = earliest(self.login.poll_timeout(), self.reassembly.poll_timeout());
+        next = earliest(next, self.datagrams.poll_timeout());
+        for waiting in self.unresolved.iter() {
+            next = earliest(next, waiting.deadline);
+        }
+        for entry in self.learning.iter() {
+            next = earliest(next, Some(entry.deadline));
+        }
+        next
     }
 
     // ----- inputs -----
@@ -542,13 +550,10 @@ impl CanLink {
         }
         self.ask_again(now);
         loop {
-            let expired = self.unresolved.iter().find(|u| u.deadline.is_some_and(|d| d <= now)).map(|u| u.node);
-            let Some(node) = expired else { break };
-            let before = self.unresolved.len();
-            self.unresolved.retain(|u| u.node != node);
-            let dropped = before - self.unresolved.len();
-            self.stats.unresolved_dropped =
-                self.stats.unresolved_dropped.saturating_add(u32::try_from(dropped).unwrap_or(u32::MAX));
+            let expired = self.unresolved.iter().find(|u| u.deadline.is_some_and(|d| d <= now));
+            let Some(node) = expired.and_then(|u| u.message.destination) else { break };
+            let dropped = self.unresolved.retain(|u| !u.is_for(node));
+            add(&mut self.stats.unresolved_dropped, dropped);
             self.event(LinkEvent::Unreachable { node, dropped });
         }
     }
@@ -713,7 +718,7 @@ impl CanLink {
         if node == self.node || NodeAlias::from_provisional(node).is_some() {
             return;
         }
-        self.learning.retain(|l| l.alias != alias);
+        self.stop_learning(alias);
         let previous = self.cache.peek_node(alias);
         if let Some(old) = previous.filter(|old| *old != node) {
             self.event(LinkEvent::PeerLost { node: old, alias });
@@ -727,12 +732,12 @@ impl CanLink {
         }
         let mut index = 0;
         while let Some(waiting) = self.unresolved.get(index) {
-            if waiting.node != node {
+            if !waiting.is_for(node) {
                 index += 1;
                 continue;
             }
-            if let Some(Unresolved { message, .. }) = self.unresolved.remove(index) {
-                self.messages.push_back(Outgoing { message, destination: Some(alias) });
+            if let Some(Outgoing { message, .. }) = self.unresolved.remove(index) {
+                self.messages.push_back(Outgoing::new(message, Some(alias)));
             }
         }
     }
@@ -742,11 +747,9 @@ impl CanLink {
     fn forget(&mut self, alias: NodeAlias) {
         self.reassembly.forget_source(alias);
         self.datagrams.forget_source(alias);
-        self.learning.retain(|l| l.alias != alias);
-        let before = self.messages.len();
-        self.messages.retain(|m| m.destination != Some(alias));
-        self.stats.messages_dropped =
-            self.stats.messages_dropped.saturating_add(u32::try_from(before - self.messages.len()).unwrap_or(u32::MAX));
+        self.stop_learning(alias);
+        let dropped = self.messages.retain(|m| m.destination != Some(alias));
+        add(&mut self.stats.messages_dropped, dropped);
         let node = self.cache.remove_alias(alias).unwrap_or(alias.provisional_node_id());
         self.event(LinkEvent::PeerLost { node, alias });
     }
@@ -758,6 +761,13 @@ impl CanLink {
             let Some((alias, node)) = first else { break };
             self.cache.remove_alias(alias);
             self.event(LinkEvent::PeerRenamed { from: node, to: alias.provisional_node_id(), alias });
+        }
+    }
+
+    /// Stops asking `alias` for its Node ID (each alias is asked at most once at a time).
+    fn stop_learning(&mut self, alias: NodeAlias) {
+        if let Some(index) = self.learning.iter().position(|l| l.alias == alias) {
+            self.learning.swap_remove(index);
         }
     }
 
@@ -843,8 +853,7 @@ impl CanLink {
                 LoginEvent::Permitted { alias } => {
                     if self.announced {
                         // After a re-login the endpoint will not announce the node again.
-                        let announce =
-                            Outgoing { message: Message::initialization_complete(self.node), destination: None };
+                        let announce = Outgoing::new(Message::initialization_complete(self.node), None);
                         self.messages.push_front(announce);
                     }
                     self.announced = true;
@@ -868,8 +877,7 @@ impl CanLink {
     /// datagrams, frames of the link's own, aliases being learnt.
     fn drop_traffic(&mut self) {
         let queued = self.messages.len() + self.unresolved.len() + usize::from(self.current.is_some());
-        self.stats.messages_dropped =
-            self.stats.messages_dropped.saturating_add(u32::try_from(queued).unwrap_or(u32::MAX));
+        add(&mut self.stats.messages_dropped, queued);
         self.messages.clear();
         self.unresolved.clear();
         self.current = None;
@@ -886,10 +894,12 @@ impl CanLink {
         };
         let deadline = now + self.config.resolve_timeout;
         loop {
-            let unasked = self.unresolved.iter().find(|u| u.deadline.is_none()).map(|u| u.node);
-            let Some(node) = unasked else { break };
-            for waiting in self.unresolved.iter_mut().filter(|u| u.node == node) {
-                waiting.deadline = Some(deadline);
+            let unasked = self.unresolved.iter().find(|u| u.deadline.is_none());
+            let Some(node) = unasked.and_then(|u| u.message.destination) else { break };
+            for waiting in self.unresolved.iter_mut() {
+                if waiting.is_for(node) {
+                    waiting.deadline = Some(deadline);
+                }
             }
             let enquiry =
                 CanFrame::from_header(&CanHeader::control(FrameKind::AliasMapEnquiry, ours), &node.to_bytes());
@@ -928,6 +938,23 @@ fn take_into(scratch: &mut Vec<u8>, whole: &[u8]) -> Vec<u8> {
     buffer
 }
 
+/// The earlier of two optional times.
+fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, None) => a,
+        (None, b) => b,
+    }
+}
+
+/// Counts one more, stopping at `u32::MAX`.
+#[inline(never)]
 fn bump(counter: &mut u32) {
-    *counter = counter.saturating_add(1);
+    add(counter, 1);
+}
+
+/// Counts `n` more, stopping at `u32::MAX`.
+#[inline(never)]
+fn add(counter: &mut u32, n: usize) {
+    *counter = counter.saturating_add(u32::try_from(n).unwrap_or(u32::MAX));
 }
