@@ -107,9 +107,16 @@ enum Layout {
 /// core's `Vec<u8>` payload) and an offset: no copy of the payload, no allocation.
 #[derive(Debug, Clone)]
 pub struct Fragments<P> {
+    cursor: Cursor,
+    payload: P,
+}
+
+/// Where a [`Fragments`] stands, apart from its payload: the framing code is the same for
+/// every payload type.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Cursor {
     id: u32,
     layout: Layout,
-    payload: P,
     offset: usize,
     finished: bool,
 }
@@ -118,7 +125,37 @@ impl<P: AsRef<[u8]>> Fragments<P> {
     /// The frames of `mti` from `source` to `destination` (`None` for a global message)
     /// carrying `payload`. For Stream Data Send the payload starts with the DID.
     pub fn new(mti: Mti, source: NodeAlias, destination: Option<NodeAlias>, payload: P) -> Result<Self, EncodeError> {
-        let len = payload.as_ref().len();
+        let cursor = Cursor::new(mti, source, destination, payload.as_ref().len())?;
+        Ok(Fragments { cursor, payload })
+    }
+
+    /// Frames still to come.
+    pub fn remaining(&self) -> usize {
+        self.cursor.remaining(self.payload.as_ref().len())
+    }
+}
+
+impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
+    type Item = CanFrame;
+
+    fn next(&mut self) -> Option<CanFrame> {
+        self.cursor.next_frame(self.payload.as_ref())
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let n = self.remaining();
+        (n, Some(n))
+    }
+}
+
+impl Cursor {
+    /// The start of the frames of `mti` carrying `len` payload bytes, or why it has no CAN form.
+    pub(crate) fn new(
+        mti: Mti,
+        source: NodeAlias,
+        destination: Option<NodeAlias>,
+        len: usize,
+    ) -> Result<Self, EncodeError> {
         let (kind, layout) = if mti == Mti::STREAM_DATA_SEND {
             let destination = destination.ok_or(EncodeError::MissingDestination(mti))?;
             if len == 0 {
@@ -130,7 +167,7 @@ impl<P: AsRef<[u8]>> Fragments<P> {
             if len > MAX_DATAGRAM_LEN {
                 return Err(EncodeError::DatagramTooLong(len));
             }
-            // The identifier changes frame by frame (formats 2-5): see `next`.
+            // The identifier changes frame by frame (formats 2-5): see `next_frame`.
             (FrameKind::Datagram { frame: DatagramFrame::Only, destination }, Layout::Datagram { source, destination })
         } else if mti.as_raw() & 0xF000 != 0 {
             return Err(EncodeError::Unsupported(mti));
@@ -144,15 +181,14 @@ impl<P: AsRef<[u8]>> Fragments<P> {
             (FrameKind::Message { can_mti: mti.as_raw() }, Layout::Global)
         };
         let id = CanHeader { kind, source }.to_id();
-        Ok(Fragments { id, layout, payload, offset: 0, finished: false })
+        Ok(Cursor { id, layout, offset: 0, finished: false })
     }
 
-    /// Frames still to come.
-    pub fn remaining(&self) -> usize {
+    /// Frames still to come of a payload of `len` bytes.
+    fn remaining(&self, len: usize) -> usize {
         if self.finished {
             return 0;
         }
-        let len = self.payload.as_ref().len();
         match self.layout {
             Layout::Global => 1,
             Layout::Addressed { .. } => len.saturating_sub(self.offset).div_ceil(ADDRESSED_PAYLOAD_PER_FRAME).max(1),
@@ -163,16 +199,12 @@ impl<P: AsRef<[u8]>> Fragments<P> {
             Layout::Datagram { .. } => len.saturating_sub(self.offset).div_ceil(DATAGRAM_PAYLOAD_PER_FRAME).max(1),
         }
     }
-}
 
-impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
-    type Item = CanFrame;
-
-    fn next(&mut self) -> Option<CanFrame> {
+    /// The next frame of `payload` (the same payload every call), if any is left.
+    pub(crate) fn next_frame(&mut self, payload: &[u8]) -> Option<CanFrame> {
         if self.finished {
             return None;
         }
-        let payload = self.payload.as_ref();
         let frame = match self.layout {
             Layout::Global => {
                 self.finished = true;
@@ -208,11 +240,6 @@ impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
             }
         };
         Some(frame)
-    }
-
-    fn size_hint(&self) -> (usize, Option<usize>) {
-        let n = self.remaining();
-        (n, Some(n))
     }
 }
 
