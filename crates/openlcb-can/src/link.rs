@@ -61,7 +61,7 @@ use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 use crate::NodeAlias;
 use crate::cache::AliasCache;
 use crate::fifo::Fifo;
-use crate::fragment::{EncodeError, Fragments, FramePosition};
+use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition};
 use crate::frame::{CanFrame, FrameError};
 use crate::header::{CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
@@ -457,28 +457,32 @@ impl CanLink {
         let destination = if addressed { message.destination } else { None };
         // Check the message has a CAN form now, so that failures reach the caller.
         let placeholder = NodeAlias::MAX;
-        Fragments::new(message.mti, placeholder, destination.map(|_| placeholder), &message.payload[..])?;
+        Cursor::new(message.mti, placeholder, destination.map(|_| placeholder), message.payload.len())?;
         if !self.can_send() {
             return Err(SendError::QueueFull);
         }
-        let Some(node) = destination else {
-            self.messages.push_back(Outgoing::new(message, None));
-            return Ok(());
-        };
-        if let Some(alias) = NodeAlias::from_provisional(node) {
-            self.messages.push_back(Outgoing::new(message, Some(alias)));
-            return Ok(());
-        }
-        // A node already being resolved shares the AME out for it and its deadline.
-        let waiting = self.unresolved.iter().find(|u| u.is_for(node)).map(|u| u.deadline);
-        match (self.cache.alias(node), waiting) {
-            (Some(alias), None) => self.messages.push_back(Outgoing::new(message, Some(alias))),
-            (_, deadline) => {
-                self.unresolved.push_back(Outgoing { message, destination: None, deadline: deadline.flatten() });
+        match destination.map(|node| self.alias_for(node)).transpose() {
+            Ok(alias) => self.messages.push_back(Outgoing::new(message, alias)),
+            Err(deadline) => {
+                self.unresolved.push_back(Outgoing { message, destination: None, deadline });
                 self.send_enquiries(now);
             }
         }
         Ok(())
+    }
+
+    /// The alias to send to `node`: its provisional alias, or its cached one unless messages
+    /// already wait for it; else `Err` with the deadline of the AME out for it, if one is.
+    fn alias_for(&mut self, node: NodeId) -> Result<NodeAlias, Option<Instant>> {
+        if let Some(alias) = NodeAlias::from_provisional(node) {
+            return Ok(alias);
+        }
+        // A node already being resolved shares the AME out for it and its deadline.
+        let waiting = self.unresolved.iter().find(|u| u.is_for(node)).map(|u| u.deadline);
+        match (self.cache.alias(node), waiting) {
+            (Some(alias), None) => Ok(alias),
+            (_, deadline) => Err(deadline.flatten()),
+        }
     }
 
     // ----- outputs -----
@@ -841,7 +845,7 @@ impl CanLink {
         let Some(ours) = self.login.alias() else {
             return;
         };
-        let frame = Fragments::new(mti, ours, Some(to), payload).ok().and_then(|mut f| f.next());
+        let frame = Cursor::new(mti, ours, Some(to), payload.len()).ok().and_then(|mut c| c.next_frame(payload));
         self.queue_frame(frame);
     }
 
