@@ -198,17 +198,17 @@ impl AliasLogin {
                 return;
             }
             if !self.asked {
-                self.queue(CanHeader::control(FrameKind::ReserveId, alias), &[]);
+                self.send(FrameKind::ReserveId, alias, false);
             }
             match self.node_id_check {
                 Some(wait) if !self.asked => {
                     // Alias reserved; before claiming the Node ID, ask who holds it.
                     self.asked = true;
-                    self.queue(CanHeader::control(FrameKind::AliasMapEnquiry, alias), &self.node.to_bytes());
+                    self.send(FrameKind::AliasMapEnquiry, alias, true);
                     self.state = LoginState::Checking { alias, deadline: now + wait };
                 }
                 _ => {
-                    self.queue(CanHeader::control(FrameKind::AliasMapDefinition, alias), &self.node.to_bytes());
+                    self.send(FrameKind::AliasMapDefinition, alias, true);
                     self.state = LoginState::Permitted { alias };
                     self.event(LoginEvent::Permitted { alias });
                 }
@@ -238,8 +238,8 @@ impl AliasLogin {
                     if (data.is_empty() || claimed == Some(self.node))
                         && !self.has_queued(FrameKind::AliasMapDefinition)
                     {
-                        self.stats.enquiry_answers = self.stats.enquiry_answers.saturating_add(1);
-                        self.queue(CanHeader::control(FrameKind::AliasMapDefinition, alias), &self.node.to_bytes());
+                        count(&mut self.stats.enquiry_answers);
+                        self.send(FrameKind::AliasMapDefinition, alias, true);
                     }
                 }
             }
@@ -257,24 +257,22 @@ impl AliasLogin {
         }
         match (self.state, header.kind) {
             (LoginState::Checking { alias, .. }, _) => {
-                self.stats.conflicts = self.stats.conflicts.saturating_add(1);
+                count(&mut self.stats.conflicts);
                 self.event(LoginEvent::Conflict { alias });
-                let next = self.generator.next_alias();
-                self.check(now, next);
+                self.check_next(now);
             }
             (LoginState::Permitted { alias }, FrameKind::CheckId { .. }) => {
                 if !self.has_queued(FrameKind::ReserveId) {
-                    self.stats.defences = self.stats.defences.saturating_add(1);
-                    self.queue(CanHeader::control(FrameKind::ReserveId, alias), &[]);
+                    count(&mut self.stats.defences);
+                    self.send(FrameKind::ReserveId, alias, false);
                 }
             }
             (LoginState::Permitted { alias }, _) => {
-                self.stats.losses = self.stats.losses.saturating_add(1);
+                count(&mut self.stats.losses);
                 self.transmits.clear();
-                self.queue(CanHeader::control(FrameKind::AliasMapReset, alias), &self.node.to_bytes());
+                self.send(FrameKind::AliasMapReset, alias, true);
                 self.event(LoginEvent::Lost { alias });
-                let next = self.generator.next_alias();
-                self.check(now, next);
+                self.check_next(now);
             }
             (LoginState::Stopped, _) => {}
         }
@@ -291,6 +289,12 @@ impl AliasLogin {
         }
     }
 
+    /// Checks the generator's next alias.
+    fn check_next(&mut self, now: Instant) {
+        let next = self.generator.next_alias();
+        self.check(now, next);
+    }
+
     /// Queues CID 7..4 for `alias` (dropping frames of an abandoned alias) and starts the wait.
     fn check(&mut self, now: Instant, alias: NodeAlias) {
         let kept_amr = self.transmits.iter().copied().find(|f| is_kind(f, FrameKind::AliasMapReset));
@@ -302,7 +306,7 @@ impl AliasLogin {
         for sequence in (4u8..=7).rev() {
             let shift = 12 * u32::from(sequence - 4);
             let node_id_bits = ((id >> shift) & 0xFFF) as u16;
-            self.queue(CanHeader::control(FrameKind::CheckId { sequence, node_id_bits }, alias), &[]);
+            self.send(FrameKind::CheckId { sequence, node_id_bits }, alias, false);
         }
         self.state = LoginState::Checking { alias, deadline: now + self.reserve_wait };
         self.asked = false;
@@ -312,10 +316,13 @@ impl AliasLogin {
         self.transmits.iter().any(|f| is_kind(f, kind))
     }
 
-    fn queue(&mut self, header: CanHeader, data: &[u8]) {
-        match CanFrame::from_header(&header, data) {
+    /// Queues the control frame `kind` from `alias`, carrying our Node ID if `with_node_id`.
+    fn send(&mut self, kind: FrameKind, alias: NodeAlias, with_node_id: bool) {
+        let node = self.node.to_bytes();
+        let data = if with_node_id { node.as_slice() } else { &[] };
+        match CanFrame::from_header(&CanHeader::control(kind, alias), data) {
             Some(frame) if self.transmits.len() < QUEUE_BOUND => self.transmits.push_back(frame),
-            _ => self.stats.dropped = self.stats.dropped.saturating_add(1),
+            _ => count(&mut self.stats.dropped),
         }
     }
 
@@ -323,9 +330,15 @@ impl AliasLogin {
         if self.events.len() < EVENT_BOUND {
             self.events.push_back(event);
         } else {
-            self.stats.dropped = self.stats.dropped.saturating_add(1);
+            count(&mut self.stats.dropped);
         }
     }
+}
+
+/// Counts one more, stopping at `u64::MAX`.
+#[inline(never)]
+fn count(counter: &mut u64) {
+    *counter = counter.saturating_add(1);
 }
 
 fn is_kind(frame: &CanFrame, kind: FrameKind) -> bool {
