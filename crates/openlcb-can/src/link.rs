@@ -67,6 +67,9 @@ use crate::header::{CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
 
+/// Where received messages go: the caller's closure.
+type Deliver<'d> = &'d mut dyn FnMut(MessageRef<'_>);
+
 /// Events other than renames the link can have queued at once. The queue holds
 /// [`CanConfig::alias_cache_size`] more, for the renames of a global AME; beyond that events
 /// are dropped and counted.
@@ -573,6 +576,12 @@ impl CanLink {
     /// ID above the link ([`StreamEndpoint::rename_peer`](openlcb_stream::StreamEndpoint::rename_peer)),
     /// so that the next message from that alias finds its streams under the new name.
     pub fn handle_frame(&mut self, now: Instant, frame: &CanFrame, mut deliver: impl FnMut(MessageRef<'_>)) {
+        self.receive(now, frame, &mut deliver);
+    }
+
+    /// [`handle_frame`](Self::handle_frame) through a `dyn` closure: one copy of the receive
+    /// path whatever the caller's closure type.
+    fn receive(&mut self, now: Instant, frame: &CanFrame, deliver: Deliver<'_>) {
         bump(&mut self.stats.frames_in);
         let header = match frame.header() {
             Ok(header) => header,
@@ -595,7 +604,7 @@ impl CanLink {
             FrameKind::AliasMapReset => self.forget(header.source),
             // CFT §6.2.3: a global AME drops every cached mapping; the AMDs it causes refill it.
             FrameKind::AliasMapEnquiry if data.is_empty() => self.forget_all_mappings(),
-            FrameKind::Message { can_mti } => self.on_message(now, header.source, Mti(can_mti), data, &mut deliver),
+            FrameKind::Message { can_mti } => self.on_message(now, header.source, Mti(can_mti), data, deliver),
             FrameKind::StreamData { destination } => {
                 if Some(destination) != self.login.alias() {
                     return bump(&mut self.stats.not_for_us);
@@ -604,10 +613,10 @@ impl CanLink {
                     // Wire-spec §7.3: DLC 0 is invalid (no DID).
                     return bump(&mut self.stats.invalid_frames);
                 }
-                self.deliver_from(now, header.source, Mti::STREAM_DATA_SEND, true, data, &mut deliver);
+                self.deliver_from(now, header.source, Mti::STREAM_DATA_SEND, true, data, deliver);
             }
             FrameKind::Datagram { frame: part, destination } => {
-                self.on_datagram_frame(now, header.source, part, destination, data, &mut deliver);
+                self.on_datagram_frame(now, header.source, part, destination, data, deliver);
             }
             FrameKind::ReservedFormat { .. } => bump(&mut self.stats.unsupported_ignored),
             _ => {}
@@ -616,14 +625,7 @@ impl CanLink {
 
     // ----- received messages -----
 
-    fn on_message(
-        &mut self,
-        now: Instant,
-        source: NodeAlias,
-        mti: Mti,
-        data: &[u8],
-        deliver: &mut impl FnMut(MessageRef<'_>),
-    ) {
+    fn on_message(&mut self, now: Instant, source: NodeAlias, mti: Mti, data: &[u8], deliver: Deliver<'_>) {
         if !mti.is_addressed() {
             if mti.announces_sender() {
                 match NodeId::from_slice(data) {
@@ -667,7 +669,7 @@ impl CanLink {
         frame: DatagramFrame,
         destination: NodeAlias,
         data: &[u8],
-        deliver: &mut impl FnMut(MessageRef<'_>),
+        deliver: Deliver<'_>,
     ) {
         let Some(ours) = self.login.alias().filter(|ours| *ours == destination) else {
             return bump(&mut self.stats.not_for_us);
@@ -700,7 +702,7 @@ impl CanLink {
         mti: Mti,
         addressed: bool,
         payload: &[u8],
-        deliver: &mut impl FnMut(MessageRef<'_>),
+        deliver: Deliver<'_>,
     ) {
         let name = match self.cache.node(source) {
             Some(node) => node,
@@ -943,6 +945,7 @@ fn take_into(scratch: &mut Vec<u8>, whole: &[u8]) -> Vec<u8> {
 }
 
 /// The earlier of two optional times.
+#[inline(never)]
 fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
     match (a, b) {
         (Some(a), Some(b)) => Some(a.min(b)),
