@@ -55,7 +55,6 @@
 
 use alloc::vec::Vec;
 
-use openlcb_stream::wire::{Emit, ErrorReport};
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::NodeAlias;
@@ -834,11 +833,10 @@ impl CanLink {
         if !answer {
             return;
         }
-        let mut payload = [0u8; 4];
-        let report = ErrorReport { code: error.code(), mti: Some(mti) };
-        if let Ok(len) = report.emit(&mut payload) {
-            self.queue_addressed(Mti::OPTIONAL_INTERACTION_REJECTED, source, payload.get(..len).unwrap_or(&[]));
-        }
+        // The Optional Interaction Rejected payload: the error code, then the MTI it answers.
+        let [c0, c1] = error.code().0.to_be_bytes();
+        let [m0, m1] = mti.0.to_be_bytes();
+        self.queue_addressed(Mti::OPTIONAL_INTERACTION_REJECTED, source, &[c0, c1, m0, m1]);
     }
 
     /// Queues a one-frame addressed message of the link's own (at most 6 payload bytes) from
