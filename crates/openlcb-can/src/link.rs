@@ -799,7 +799,11 @@ impl CanLink {
                 self.learning.swap_remove(index);
                 bump(&mut self.stats.learning_given_up);
             } else {
-                let wait = self.config.resolve_timeout.as_micros().saturating_mul(1u64 << entry.asked.min(32));
+                // Twice the last wait: `resolve_timeout` times 2^asked, without a 64-bit shift.
+                let mut wait = self.config.resolve_timeout.as_micros();
+                for _ in 0..entry.asked.min(32) {
+                    wait = wait.saturating_add(wait);
+                }
                 if let Some(slot) = self.learning.get_mut(index) {
                     slot.asked = entry.asked + 1;
                     slot.deadline = now + Duration::from_micros(wait);

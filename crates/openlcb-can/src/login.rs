@@ -303,9 +303,9 @@ impl AliasLogin {
             self.transmits.push_back(amr);
         }
         let id = self.node.as_raw();
-        for sequence in (4u8..=7).rev() {
-            let shift = 12 * u32::from(sequence - 4);
-            let node_id_bits = ((id >> shift) & 0xFFF) as u16;
+        // Node ID bits 47-36, 35-24, 23-12 and 11-0 (constant shifts: no 64-bit shift call).
+        for (sequence, bits) in [(7, id >> 36), (6, id >> 24), (5, id >> 12), (4, id)] {
+            let node_id_bits = (bits & 0xFFF) as u16;
             self.send(FrameKind::CheckId { sequence, node_id_bits }, alias, false);
         }
         self.state = LoginState::Checking { alias, deadline: now + self.reserve_wait };
