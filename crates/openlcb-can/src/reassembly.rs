@@ -222,7 +222,13 @@ impl Reassembler {
 
     /// When the next open message times out.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        self.slots.iter().filter(|s| s.key.is_some()).map(|s| s.deadline).min()
+        let mut next = None;
+        for slot in &self.slots {
+            if slot.key.is_some() && next.is_none_or(|next| slot.deadline < next) {
+                next = Some(slot.deadline);
+            }
+        }
+        next
     }
 
     /// Drops the open message with `key`, if there is one; true if there was.
