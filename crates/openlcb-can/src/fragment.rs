@@ -205,20 +205,19 @@ impl Cursor {
         if self.finished {
             return None;
         }
-        let frame = match self.layout {
+        // Data bytes before the payload chunk: framing flags and destination, or the DID.
+        let mut head = [0u8; 2];
+        let (id, head_len, chunk) = match self.layout {
             Layout::Global => {
                 self.finished = true;
-                CanFrame::build(self.id, |data| copy_into(data, 0, payload))
+                (self.id, 0, payload)
             }
             Layout::Addressed { destination } => {
                 let (chunk, position) = next_chunk(payload, &mut self.offset, ADDRESSED_PAYLOAD_PER_FRAME);
                 self.finished = position.is_last();
                 let [high, low] = destination.as_raw().to_be_bytes();
-                CanFrame::build(self.id, |data| {
-                    data[0] = position.flags() | (high & 0x0F);
-                    data[1] = low;
-                    copy_into(data, 2, chunk)
-                })
+                head = [position.flags() | (high & 0x0F), low];
+                (self.id, 2, chunk)
             }
             Layout::StreamData => {
                 let (did, body) = payload.split_first().unwrap_or((&0, &[]));
@@ -226,20 +225,18 @@ impl Cursor {
                 let chunk = rest.get(..STREAM_PAYLOAD_PER_FRAME).unwrap_or(rest);
                 self.offset = self.offset.saturating_add(chunk.len());
                 self.finished = self.offset >= body.len();
-                CanFrame::build(self.id, |data| {
-                    data[0] = *did;
-                    copy_into(data, 1, chunk)
-                })
+                head[0] = *did;
+                (self.id, 1, chunk)
             }
             Layout::Datagram { source, destination } => {
                 let (chunk, position) = next_chunk(payload, &mut self.offset, DATAGRAM_PAYLOAD_PER_FRAME);
                 self.finished = position.is_last();
                 let frame = DatagramFrame::at(position);
                 let id = CanHeader { kind: FrameKind::Datagram { frame, destination }, source }.to_id();
-                CanFrame::build(id, |data| copy_into(data, 0, chunk))
+                (id, 0, chunk)
             }
         };
-        Some(frame)
+        Some(CanFrame::build(id, head.get(..head_len).unwrap_or(&[]), chunk))
     }
 }
 
@@ -258,18 +255,6 @@ fn next_chunk<'p>(payload: &'p [u8], offset: &mut usize, per_frame: usize) -> (&
         (false, false) => FramePosition::Middle,
     };
     (chunk, position)
-}
-
-/// Copies `bytes` to `data[at..]` as far as it fits and returns the used length.
-fn copy_into(data: &mut [u8; 8], at: usize, bytes: &[u8]) -> usize {
-    let Some(room) = data.get_mut(at..) else {
-        return at.min(CanFrame::MAX_DATA);
-    };
-    let n = room.len().min(bytes.len());
-    if let (Some(to), Some(from)) = (room.get_mut(..n), bytes.get(..n)) {
-        to.copy_from_slice(from);
-    }
-    at + n
 }
 
 #[cfg(test)]
