@@ -282,6 +282,14 @@ impl Outgoing {
     }
 }
 
+/// A whole message taken from received frames, to deliver.
+struct Received<'a> {
+    mti: Mti,
+    /// Addressed to us (addressed, stream data, datagram) rather than global.
+    addressed: bool,
+    payload: &'a [u8],
+}
+
 /// An alias whose Node ID is being asked for.
 #[derive(Debug, Clone, Copy)]
 struct Learning {
@@ -594,100 +602,121 @@ impl CanLink {
         if from_our_alias {
             return;
         }
-        match header.kind {
+        // A reassembled message is copied into `scratch`, taken out of the link meanwhile: the
+        // reassembler is free again while the message is delivered.
+        let mut scratch = core::mem::take(&mut self.scratch);
+        let source = header.source;
+        let message = match header.kind {
             FrameKind::AliasMapDefinition => {
                 if let Some(node) = NodeId::from_slice(data) {
-                    self.learn(header.source, node);
+                    self.learn(source, node);
                 }
+                None
             }
-            FrameKind::AliasMapReset => self.forget(header.source),
+            FrameKind::AliasMapReset => {
+                self.forget(source);
+                None
+            }
             // CFT §6.2.3: a global AME drops every cached mapping; the AMDs it causes refill it.
-            FrameKind::AliasMapEnquiry if data.is_empty() => self.forget_all_mappings(),
-            FrameKind::Message { can_mti } => self.on_message(now, header.source, Mti(can_mti), data, deliver),
-            FrameKind::StreamData { destination } => {
-                if Some(destination) != self.login.alias() {
-                    return bump(&mut self.stats.not_for_us);
-                }
-                if data.is_empty() {
-                    // Wire-spec §7.3: DLC 0 is invalid (no DID).
-                    return bump(&mut self.stats.invalid_frames);
-                }
-                self.deliver_from(now, header.source, Mti::STREAM_DATA_SEND, true, data, deliver);
+            FrameKind::AliasMapEnquiry if data.is_empty() => {
+                self.forget_all_mappings();
+                None
             }
+            FrameKind::Message { can_mti } => self.on_message(now, source, Mti(can_mti), data, &mut scratch),
+            FrameKind::StreamData { destination } => self.on_stream_data(destination, data),
             FrameKind::Datagram { frame: part, destination } => {
-                self.on_datagram_frame(now, header.source, part, destination, data, deliver);
+                self.on_datagram_frame(now, source, part, destination, data, &mut scratch)
             }
-            FrameKind::ReservedFormat { .. } => bump(&mut self.stats.unsupported_ignored),
-            _ => {}
+            FrameKind::ReservedFormat { .. } => ignore(&mut self.stats.unsupported_ignored),
+            _ => None,
+        };
+        if let Some(Received { mti, addressed, payload }) = message {
+            self.deliver_from(now, source, mti, addressed, payload, deliver);
         }
+        self.scratch = scratch;
     }
 
     // ----- received messages -----
 
-    fn on_message(&mut self, now: Instant, source: NodeAlias, mti: Mti, data: &[u8], deliver: Deliver<'_>) {
+    /// A format 1 frame: a global or addressed message whole, or once its last frame came.
+    fn on_message<'a>(
+        &mut self,
+        now: Instant,
+        source: NodeAlias,
+        mti: Mti,
+        data: &'a [u8],
+        scratch: &'a mut Vec<u8>,
+    ) -> Option<Received<'a>> {
         if !mti.is_addressed() {
             if mti.announces_sender() {
                 match NodeId::from_slice(data) {
-                    Some(node) if node == self.node => {
-                        return bump(&mut self.stats.own_node_claims);
-                    }
+                    Some(node) if node == self.node => return ignore(&mut self.stats.own_node_claims),
                     Some(node) => self.learn(source, node),
                     None => {}
                 }
             }
-            return self.deliver_from(now, source, mti, false, data, deliver);
+            return Some(Received { mti, addressed: false, payload: data });
         }
         let [flags_and_high, low, body @ ..] = data else {
-            return bump(&mut self.stats.invalid_frames);
+            return ignore(&mut self.stats.invalid_frames);
         };
         let destination = NodeAlias::new(u16::from_be_bytes([flags_and_high & 0x0F, *low]));
         let Some(ours) = self.login.alias().filter(|ours| destination == Some(*ours)) else {
-            return bump(&mut self.stats.not_for_us);
+            return ignore(&mut self.stats.not_for_us);
         };
         let position = FramePosition::from_flags(*flags_and_high);
         if position == FramePosition::Only {
             // The usual case: the payload is handed over straight from the frame.
-            return self.deliver_from(now, source, mti, true, body, deliver);
+            return Some(Received { mti, addressed: true, payload: body });
         }
         let key = ReassemblyKey { source, destination: ours, mti };
         match self.reassembly.push(now, key, position, body) {
-            Ok(None) => {}
-            Ok(Some(whole)) => {
-                let whole = take_into(&mut self.scratch, whole);
-                self.deliver_from(now, source, mti, true, &whole, deliver);
-                self.scratch = whole;
+            Ok(whole) => Some(Received { mti, addressed: true, payload: copy_into(scratch, whole?) }),
+            Err(error) => {
+                self.reassembly_error(source, mti, error);
+                None
             }
-            Err(error) => self.reassembly_error(source, mti, error),
         }
     }
 
-    fn on_datagram_frame(
+    /// A format 7 frame: stream data to us.
+    fn on_stream_data<'a>(&mut self, destination: NodeAlias, data: &'a [u8]) -> Option<Received<'a>> {
+        if Some(destination) != self.login.alias() {
+            return ignore(&mut self.stats.not_for_us);
+        }
+        if data.is_empty() {
+            // Wire-spec §7.3: DLC 0 is invalid (no DID).
+            return ignore(&mut self.stats.invalid_frames);
+        }
+        Some(Received { mti: Mti::STREAM_DATA_SEND, addressed: true, payload: data })
+    }
+
+    /// A datagram frame (formats 2-5): the datagram once whole.
+    fn on_datagram_frame<'a>(
         &mut self,
         now: Instant,
         source: NodeAlias,
         frame: DatagramFrame,
         destination: NodeAlias,
-        data: &[u8],
-        deliver: Deliver<'_>,
-    ) {
+        data: &'a [u8],
+        scratch: &'a mut Vec<u8>,
+    ) -> Option<Received<'a>> {
         let Some(ours) = self.login.alias().filter(|ours| *ours == destination) else {
-            return bump(&mut self.stats.not_for_us);
+            return ignore(&mut self.stats.not_for_us);
         };
         let key = ReassemblyKey { source, destination: ours, mti: Mti::DATAGRAM };
         let position = frame.position();
         if position == FramePosition::Only {
             // A whole datagram: the sender has given up any datagram it left open.
             self.datagrams.discard(key);
-            return self.deliver_from(now, source, Mti::DATAGRAM, true, data, deliver);
+            return Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: data });
         }
         match self.datagrams.push(now, key, position, data) {
-            Ok(None) => {}
-            Ok(Some(whole)) => {
-                let whole = take_into(&mut self.scratch, whole);
-                self.deliver_from(now, source, Mti::DATAGRAM, true, &whole, deliver);
-                self.scratch = whole;
+            Ok(whole) => Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: copy_into(scratch, whole?) }),
+            Err(error) => {
+                self.datagram_error(source, error);
+                None
             }
-            Err(error) => self.datagram_error(source, error),
         }
     }
 
@@ -936,14 +965,18 @@ fn event_bound(config: &CanConfig) -> usize {
     config.alias_cache_size.saturating_add(EVENT_BOUND)
 }
 
-/// Copies a reassembled payload once into the link's `scratch` buffer (taken out of the
-/// link, so the reassembler is free again while the message is delivered). `scratch` has
-/// room for the longest message and datagram, so this never allocates.
-fn take_into(scratch: &mut Vec<u8>, whole: &[u8]) -> Vec<u8> {
-    let mut buffer = core::mem::take(scratch);
-    buffer.clear();
-    buffer.extend_from_slice(whole);
-    buffer
+/// Copies a reassembled payload into the link's `scratch` buffer, which has room for the
+/// longest message and datagram: this never allocates.
+fn copy_into<'a>(scratch: &'a mut Vec<u8>, whole: &[u8]) -> &'a [u8] {
+    scratch.clear();
+    scratch.extend_from_slice(whole);
+    scratch
+}
+
+/// Counts a frame that delivers nothing.
+fn ignore<T>(counter: &mut u32) -> Option<T> {
+    bump(counter);
+    None
 }
 
 /// The earlier of two optional times.
