@@ -75,6 +75,11 @@ impl AliasCache {
         self.take(index).map(|e| e.node)
     }
 
+    /// Forgets the most recently used mapping and returns it.
+    pub(crate) fn pop(&mut self) -> Option<(NodeAlias, NodeId)> {
+        self.entries.pop().map(|e| (e.alias, e.node))
+    }
+
     /// Forgets every mapping (a global AME, CFT §6.2.3).
     pub fn clear(&mut self) {
         self.entries.clear();

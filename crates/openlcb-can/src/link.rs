@@ -758,8 +758,7 @@ impl CanLink {
             self.event(LinkEvent::PeerLost { node: old, alias });
         }
         if let Some((evicted, evicted_node)) = self.cache.insert(alias, node) {
-            let to = evicted.provisional_node_id();
-            self.event(LinkEvent::PeerRenamed { from: evicted_node, to, alias: evicted });
+            self.unname(evicted, evicted_node);
         }
         if previous.is_none() {
             self.event(LinkEvent::PeerRenamed { from: alias.provisional_node_id(), to: node, alias });
@@ -788,13 +787,15 @@ impl CanLink {
         self.event(LinkEvent::PeerLost { node, alias });
     }
 
+    /// Reports that `alias`, known as `node` until now, goes back to its provisional name.
+    fn unname(&mut self, alias: NodeAlias, node: NodeId) {
+        self.event(LinkEvent::PeerRenamed { from: node, to: alias.provisional_node_id(), alias });
+    }
+
     /// A global AME (CFT §6.2.3): every cached peer goes back to its provisional name.
     fn forget_all_mappings(&mut self) {
-        loop {
-            let first = self.cache.iter().next();
-            let Some((alias, node)) = first else { break };
-            self.cache.remove_alias(alias);
-            self.event(LinkEvent::PeerRenamed { from: node, to: alias.provisional_node_id(), alias });
+        while let Some((alias, node)) = self.cache.pop() {
+            self.unname(alias, node);
         }
     }
 
