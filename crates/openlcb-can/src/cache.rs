@@ -95,8 +95,11 @@ impl AliasCache {
         (index < self.entries.len()).then(|| self.entries.remove(index))
     }
 
-    /// Marks the entry at `index` used: it moves to the back.
+    /// Marks the entry at `index` used: it moves to the back (where it usually is already).
     fn touch(&mut self, index: usize) -> Option<Entry> {
+        if index + 1 == self.entries.len() {
+            return self.entries.last().copied();
+        }
         let entry = self.take(index)?;
         self.entries.push(entry);
         Some(entry)
