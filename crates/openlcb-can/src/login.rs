@@ -295,13 +295,10 @@ impl AliasLogin {
         self.check(now, next);
     }
 
-    /// Queues CID 7..4 for `alias` (dropping frames of an abandoned alias) and starts the wait.
+    /// Queues CID 7..4 for `alias` (dropping frames of an abandoned alias but its AMR) and
+    /// starts the wait.
     fn check(&mut self, now: Instant, alias: NodeAlias) {
-        let kept_amr = self.transmits.iter().copied().find(|f| is_kind(f, FrameKind::AliasMapReset));
-        self.transmits.clear();
-        if let Some(amr) = kept_amr {
-            self.transmits.push_back(amr);
-        }
+        self.transmits.retain(|f| is_kind(f, FrameKind::AliasMapReset));
         let id = self.node.as_raw();
         // Node ID bits 47-36, 35-24, 23-12 and 11-0 (constant shifts: no 64-bit shift call).
         for (sequence, bits) in [(7, id >> 36), (6, id >> 24), (5, id >> 12), (4, id)] {
