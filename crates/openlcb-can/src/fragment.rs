@@ -205,35 +205,31 @@ impl Cursor {
         if self.finished {
             return None;
         }
+        let (per_frame, body) = match self.layout {
+            Layout::Global => (CanFrame::MAX_DATA, payload),
+            Layout::Addressed { .. } => (ADDRESSED_PAYLOAD_PER_FRAME, payload),
+            // The DID goes in every frame; the offset counts the bytes after it.
+            Layout::StreamData => (STREAM_PAYLOAD_PER_FRAME, payload.get(1..).unwrap_or(&[])),
+            Layout::Datagram { .. } => (DATAGRAM_PAYLOAD_PER_FRAME, payload),
+        };
+        let (chunk, position) = next_chunk(body, &mut self.offset, per_frame);
+        self.finished = position.is_last();
         // Data bytes before the payload chunk: framing flags and destination, or the DID.
         let mut head = [0u8; 2];
-        let (id, head_len, chunk) = match self.layout {
-            Layout::Global => {
-                self.finished = true;
-                (self.id, 0, payload)
-            }
+        let (id, head_len) = match self.layout {
+            Layout::Global => (self.id, 0),
             Layout::Addressed { destination } => {
-                let (chunk, position) = next_chunk(payload, &mut self.offset, ADDRESSED_PAYLOAD_PER_FRAME);
-                self.finished = position.is_last();
                 let [high, low] = destination.as_raw().to_be_bytes();
                 head = [position.flags() | (high & 0x0F), low];
-                (self.id, 2, chunk)
+                (self.id, 2)
             }
             Layout::StreamData => {
-                let (did, body) = payload.split_first().unwrap_or((&0, &[]));
-                let rest = body.get(self.offset..).unwrap_or(&[]);
-                let chunk = rest.get(..STREAM_PAYLOAD_PER_FRAME).unwrap_or(rest);
-                self.offset = self.offset.saturating_add(chunk.len());
-                self.finished = self.offset >= body.len();
-                head[0] = *did;
-                (self.id, 1, chunk)
+                head[0] = payload.first().copied().unwrap_or(0);
+                (self.id, 1)
             }
             Layout::Datagram { source, destination } => {
-                let (chunk, position) = next_chunk(payload, &mut self.offset, DATAGRAM_PAYLOAD_PER_FRAME);
-                self.finished = position.is_last();
                 let frame = DatagramFrame::at(position);
-                let id = CanHeader { kind: FrameKind::Datagram { frame, destination }, source }.to_id();
-                (id, 0, chunk)
+                (CanHeader { kind: FrameKind::Datagram { frame, destination }, source }.to_id(), 0)
             }
         };
         Some(CanFrame::build(id, head.get(..head_len).unwrap_or(&[]), chunk))
