@@ -556,11 +556,10 @@ impl CanLink {
     pub fn handle_timeout(&mut self, now: Instant) {
         self.login.handle_timeout(now);
         self.drain_login_events(now);
-        while let Some(key) = self.reassembly.take_expired(now) {
-            self.reassembly_error(key.source, key.mti, ReassemblyError::Timeout);
-        }
-        while let Some(key) = self.datagrams.take_expired(now) {
-            self.datagram_error(key.source, ReassemblyError::Timeout);
+        loop {
+            let expired = self.reassembly.take_expired(now).or_else(|| self.datagrams.take_expired(now));
+            let Some(key) = expired else { break };
+            self.reassembly_error(key, ReassemblyError::Timeout);
         }
         self.ask_again(now);
         loop {
@@ -673,7 +672,7 @@ impl CanLink {
         match self.reassembly.push(now, key, position, body) {
             Ok(whole) => Some(Received { mti, addressed: true, payload: copy_into(scratch, whole?) }),
             Err(error) => {
-                self.reassembly_error(source, mti, error);
+                self.reassembly_error(key, error);
                 None
             }
         }
@@ -714,7 +713,7 @@ impl CanLink {
         match self.datagrams.push(now, key, position, data) {
             Ok(whole) => Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: copy_into(scratch, whole?) }),
             Err(error) => {
-                self.datagram_error(source, error);
+                self.reassembly_error(key, error);
                 None
             }
         }
@@ -849,13 +848,15 @@ impl CanLink {
         self.queue_addressed(Mti::VERIFY_NODE_ID_ADDRESSED, alias, &[]);
     }
 
-    /// Answers a datagram framing error with Datagram Rejected to the sender (DG §7.3.2).
-    fn datagram_error(&mut self, source: NodeAlias, error: ReassemblyError) {
-        self.stats.datagram_errors.record(error);
-        self.queue_addressed(Mti::DATAGRAM_REJECTED, source, &error.datagram_code().0.to_be_bytes());
-    }
-
-    fn reassembly_error(&mut self, source: NodeAlias, mti: Mti, error: ReassemblyError) {
+    /// Counts an error of the message or datagram `key` and answers it: a datagram with
+    /// Datagram Rejected (DG §7.3.2), a message with Optional Interaction Rejected quoting its
+    /// MTI if so configured (never for 0x2042).
+    fn reassembly_error(&mut self, key: ReassemblyKey, error: ReassemblyError) {
+        let ReassemblyKey { source, mti, .. } = key;
+        if mti == Mti::DATAGRAM {
+            self.stats.datagram_errors.record(error);
+            return self.queue_addressed(Mti::DATAGRAM_REJECTED, source, &error.datagram_code().0.to_be_bytes());
+        }
         let counter = match error {
             ReassemblyError::MiddleWithoutFirst => &mut self.stats.middle_without_first,
             ReassemblyError::FirstBeforeLastEnded => &mut self.stats.first_before_last_ended,
