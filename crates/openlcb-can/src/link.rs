@@ -668,14 +668,7 @@ impl CanLink {
             // The usual case: the payload is handed over straight from the frame.
             return Some(Received { mti, addressed: true, payload: body });
         }
-        let key = ReassemblyKey { source, destination: ours, mti };
-        match self.reassembly.push(now, key, position, body) {
-            Ok(whole) => Some(Received { mti, addressed: true, payload: copy_into(scratch, whole?) }),
-            Err(error) => {
-                self.reassembly_error(key, error);
-                None
-            }
-        }
+        self.reassemble(now, ReassemblyKey { source, destination: ours, mti }, position, body, scratch)
     }
 
     /// A format 7 frame: stream data to us.
@@ -710,8 +703,22 @@ impl CanLink {
             self.datagrams.discard(key);
             return Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: data });
         }
-        match self.datagrams.push(now, key, position, data) {
-            Ok(whole) => Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: copy_into(scratch, whole?) }),
+        self.reassemble(now, key, position, data, scratch)
+    }
+
+    /// Adds a frame of a multi-frame message or datagram (`key.mti` tells which); the whole
+    /// message once its last frame came, copied into `scratch`.
+    fn reassemble<'a>(
+        &mut self,
+        now: Instant,
+        key: ReassemblyKey,
+        position: FramePosition,
+        data: &[u8],
+        scratch: &'a mut Vec<u8>,
+    ) -> Option<Received<'a>> {
+        let reassembler = if key.mti == Mti::DATAGRAM { &mut self.datagrams } else { &mut self.reassembly };
+        match reassembler.push(now, key, position, data) {
+            Ok(whole) => Some(Received { mti: key.mti, addressed: true, payload: copy_into(scratch, whole?) }),
             Err(error) => {
                 self.reassembly_error(key, error);
                 None
