@@ -11,58 +11,52 @@ use crate::NodeAlias;
 struct Entry {
     alias: NodeAlias,
     node: NodeId,
-    last_used: u64,
 }
 
 /// Alias mappings of remote nodes, at most `capacity` of them. Each alias and each Node ID
 /// appears at most once. Lookups that find an entry mark it used.
 #[derive(Debug, Clone)]
 pub struct AliasCache {
+    /// Least recently used first: marking an entry used moves it to the back.
     entries: Vec<Entry>,
     capacity: usize,
-    clock: u64,
 }
 
 impl AliasCache {
     /// An empty cache holding at most `capacity` mappings (all memory taken up front).
     pub fn new(capacity: usize) -> Self {
-        AliasCache { entries: Vec::with_capacity(capacity), capacity, clock: 0 }
-    }
-
-    fn tick(&mut self) -> u64 {
-        self.clock = self.clock.wrapping_add(1);
-        self.clock
+        AliasCache { entries: Vec::with_capacity(capacity), capacity }
     }
 
     /// Records `alias` <-> `node`, replacing any mapping of either. Returns the mapping
     /// evicted to make room, if one was.
     pub fn insert(&mut self, alias: NodeAlias, node: NodeId) -> Option<(NodeAlias, NodeId)> {
-        let last_used = self.tick();
-        self.entries.retain(|e| e.alias != alias && e.node != node);
-        let mut evicted = None;
-        if self.entries.len() >= self.capacity {
-            let oldest = self.entries.iter().enumerate().min_by_key(|(_, e)| e.last_used).map(|(i, _)| i)?;
-            let e = self.entries.swap_remove(oldest);
-            evicted = Some((e.alias, e.node));
+        let mut index = 0;
+        while let Some(e) = self.entries.get(index) {
+            if e.alias == alias || e.node == node {
+                self.take(index);
+            } else {
+                index += 1;
+            }
         }
-        self.entries.push(Entry { alias, node, last_used });
-        evicted
+        if self.capacity == 0 {
+            return None;
+        }
+        let evicted = if self.entries.len() >= self.capacity { self.take(0) } else { None };
+        self.entries.push(Entry { alias, node });
+        evicted.map(|e| (e.alias, e.node))
     }
 
     /// The node holding `alias`, marking the entry used.
     pub fn node(&mut self, alias: NodeAlias) -> Option<NodeId> {
-        let now = self.tick();
-        let entry = self.entries.iter_mut().find(|e| e.alias == alias)?;
-        entry.last_used = now;
-        Some(entry.node)
+        let index = self.entries.iter().position(|e| e.alias == alias)?;
+        self.touch(index).map(|e| e.node)
     }
 
     /// The alias of `node`, marking the entry used.
     pub fn alias(&mut self, node: NodeId) -> Option<NodeAlias> {
-        let now = self.tick();
-        let entry = self.entries.iter_mut().find(|e| e.node == node)?;
-        entry.last_used = now;
-        Some(entry.alias)
+        let index = self.entries.iter().position(|e| e.node == node)?;
+        self.touch(index).map(|e| e.alias)
     }
 
     /// The node holding `alias`, without marking it used.
@@ -78,7 +72,12 @@ impl AliasCache {
     /// Forgets `alias` and returns the node that held it.
     pub fn remove_alias(&mut self, alias: NodeAlias) -> Option<NodeId> {
         let index = self.entries.iter().position(|e| e.alias == alias)?;
-        Some(self.entries.swap_remove(index).node)
+        self.take(index).map(|e| e.node)
+    }
+
+    /// Forgets the most recently used mapping and returns it.
+    pub(crate) fn pop(&mut self) -> Option<(NodeAlias, NodeId)> {
+        self.entries.pop().map(|e| (e.alias, e.node))
     }
 
     /// Forgets every mapping (a global AME, CFT §6.2.3).
@@ -86,9 +85,24 @@ impl AliasCache {
         self.entries.clear();
     }
 
-    /// Every mapping held, in no particular order, without marking any used.
+    /// Every mapping held, least recently used first, without marking any used.
     pub fn iter(&self) -> impl Iterator<Item = (NodeAlias, NodeId)> + '_ {
         self.entries.iter().map(|e| (e.alias, e.node))
+    }
+
+    /// Removes the entry at `index`, keeping the order of the others.
+    fn take(&mut self, index: usize) -> Option<Entry> {
+        (index < self.entries.len()).then(|| self.entries.remove(index))
+    }
+
+    /// Marks the entry at `index` used: it moves to the back (where it usually is already).
+    fn touch(&mut self, index: usize) -> Option<Entry> {
+        if index + 1 == self.entries.len() {
+            return self.entries.last().copied();
+        }
+        let entry = self.take(index)?;
+        self.entries.push(entry);
+        Some(entry)
     }
 
     /// The most mappings held at once.

@@ -107,9 +107,16 @@ enum Layout {
 /// core's `Vec<u8>` payload) and an offset: no copy of the payload, no allocation.
 #[derive(Debug, Clone)]
 pub struct Fragments<P> {
+    cursor: Cursor,
+    payload: P,
+}
+
+/// Where a [`Fragments`] stands, apart from its payload: the framing code is the same for
+/// every payload type.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Cursor {
     id: u32,
     layout: Layout,
-    payload: P,
     offset: usize,
     finished: bool,
 }
@@ -118,7 +125,37 @@ impl<P: AsRef<[u8]>> Fragments<P> {
     /// The frames of `mti` from `source` to `destination` (`None` for a global message)
     /// carrying `payload`. For Stream Data Send the payload starts with the DID.
     pub fn new(mti: Mti, source: NodeAlias, destination: Option<NodeAlias>, payload: P) -> Result<Self, EncodeError> {
-        let len = payload.as_ref().len();
+        let cursor = Cursor::new(mti, source, destination, payload.as_ref().len())?;
+        Ok(Fragments { cursor, payload })
+    }
+
+    /// Frames still to come.
+    pub fn remaining(&self) -> usize {
+        self.cursor.remaining(self.payload.as_ref().len())
+    }
+}
+
+impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
+    type Item = CanFrame;
+
+    fn next(&mut self) -> Option<CanFrame> {
+        self.cursor.next_frame(self.payload.as_ref())
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let n = self.remaining();
+        (n, Some(n))
+    }
+}
+
+impl Cursor {
+    /// The start of the frames of `mti` carrying `len` payload bytes, or why it has no CAN form.
+    pub(crate) fn new(
+        mti: Mti,
+        source: NodeAlias,
+        destination: Option<NodeAlias>,
+        len: usize,
+    ) -> Result<Self, EncodeError> {
         let (kind, layout) = if mti == Mti::STREAM_DATA_SEND {
             let destination = destination.ok_or(EncodeError::MissingDestination(mti))?;
             if len == 0 {
@@ -130,7 +167,7 @@ impl<P: AsRef<[u8]>> Fragments<P> {
             if len > MAX_DATAGRAM_LEN {
                 return Err(EncodeError::DatagramTooLong(len));
             }
-            // The identifier changes frame by frame (formats 2-5): see `next`.
+            // The identifier changes frame by frame (formats 2-5): see `next_frame`.
             (FrameKind::Datagram { frame: DatagramFrame::Only, destination }, Layout::Datagram { source, destination })
         } else if mti.as_raw() & 0xF000 != 0 {
             return Err(EncodeError::Unsupported(mti));
@@ -144,15 +181,14 @@ impl<P: AsRef<[u8]>> Fragments<P> {
             (FrameKind::Message { can_mti: mti.as_raw() }, Layout::Global)
         };
         let id = CanHeader { kind, source }.to_id();
-        Ok(Fragments { id, layout, payload, offset: 0, finished: false })
+        Ok(Cursor { id, layout, offset: 0, finished: false })
     }
 
-    /// Frames still to come.
-    pub fn remaining(&self) -> usize {
+    /// Frames still to come of a payload of `len` bytes.
+    fn remaining(&self, len: usize) -> usize {
         if self.finished {
             return 0;
         }
-        let len = self.payload.as_ref().len();
         match self.layout {
             Layout::Global => 1,
             Layout::Addressed { .. } => len.saturating_sub(self.offset).div_ceil(ADDRESSED_PAYLOAD_PER_FRAME).max(1),
@@ -163,56 +199,40 @@ impl<P: AsRef<[u8]>> Fragments<P> {
             Layout::Datagram { .. } => len.saturating_sub(self.offset).div_ceil(DATAGRAM_PAYLOAD_PER_FRAME).max(1),
         }
     }
-}
 
-impl<P: AsRef<[u8]>> Iterator for Fragments<P> {
-    type Item = CanFrame;
-
-    fn next(&mut self) -> Option<CanFrame> {
+    /// The next frame of `payload` (the same payload every call), if any is left.
+    pub(crate) fn next_frame(&mut self, payload: &[u8]) -> Option<CanFrame> {
         if self.finished {
             return None;
         }
-        let payload = self.payload.as_ref();
-        let frame = match self.layout {
-            Layout::Global => {
-                self.finished = true;
-                CanFrame::build(self.id, |data| copy_into(data, 0, payload))
-            }
+        let (per_frame, body) = match self.layout {
+            Layout::Global => (CanFrame::MAX_DATA, payload),
+            Layout::Addressed { .. } => (ADDRESSED_PAYLOAD_PER_FRAME, payload),
+            // The DID goes in every frame; the offset counts the bytes after it.
+            Layout::StreamData => (STREAM_PAYLOAD_PER_FRAME, payload.get(1..).unwrap_or(&[])),
+            Layout::Datagram { .. } => (DATAGRAM_PAYLOAD_PER_FRAME, payload),
+        };
+        let (chunk, position) = next_chunk(body, &mut self.offset, per_frame);
+        self.finished = position.is_last();
+        // Data bytes before the payload chunk: framing flags and destination, or the DID.
+        let mut head = [0u8; 2];
+        let (id, head_len) = match self.layout {
+            Layout::Global => (self.id, 0),
             Layout::Addressed { destination } => {
-                let (chunk, position) = next_chunk(payload, &mut self.offset, ADDRESSED_PAYLOAD_PER_FRAME);
-                self.finished = position.is_last();
                 let [high, low] = destination.as_raw().to_be_bytes();
-                CanFrame::build(self.id, |data| {
-                    data[0] = position.flags() | (high & 0x0F);
-                    data[1] = low;
-                    copy_into(data, 2, chunk)
-                })
+                head = [position.flags() | (high & 0x0F), low];
+                (self.id, 2)
             }
             Layout::StreamData => {
-                let (did, body) = payload.split_first().unwrap_or((&0, &[]));
-                let rest = body.get(self.offset..).unwrap_or(&[]);
-                let chunk = rest.get(..STREAM_PAYLOAD_PER_FRAME).unwrap_or(rest);
-                self.offset = self.offset.saturating_add(chunk.len());
-                self.finished = self.offset >= body.len();
-                CanFrame::build(self.id, |data| {
-                    data[0] = *did;
-                    copy_into(data, 1, chunk)
-                })
+                head[0] = payload.first().copied().unwrap_or(0);
+                (self.id, 1)
             }
             Layout::Datagram { source, destination } => {
-                let (chunk, position) = next_chunk(payload, &mut self.offset, DATAGRAM_PAYLOAD_PER_FRAME);
-                self.finished = position.is_last();
                 let frame = DatagramFrame::at(position);
-                let id = CanHeader { kind: FrameKind::Datagram { frame, destination }, source }.to_id();
-                CanFrame::build(id, |data| copy_into(data, 0, chunk))
+                (CanHeader { kind: FrameKind::Datagram { frame, destination }, source }.to_id(), 0)
             }
         };
-        Some(frame)
-    }
-
-    fn size_hint(&self) -> (usize, Option<usize>) {
-        let n = self.remaining();
-        (n, Some(n))
+        Some(CanFrame::build(id, head.get(..head_len).unwrap_or(&[]), chunk))
     }
 }
 
@@ -231,18 +251,6 @@ fn next_chunk<'p>(payload: &'p [u8], offset: &mut usize, per_frame: usize) -> (&
         (false, false) => FramePosition::Middle,
     };
     (chunk, position)
-}
-
-/// Copies `bytes` to `data[at..]` as far as it fits and returns the used length.
-fn copy_into(data: &mut [u8; 8], at: usize, bytes: &[u8]) -> usize {
-    let Some(room) = data.get_mut(at..) else {
-        return at.min(CanFrame::MAX_DATA);
-    };
-    let n = room.len().min(bytes.len());
-    if let (Some(to), Some(from)) = (room.get_mut(..n), bytes.get(..n)) {
-        to.copy_from_slice(from);
-    }
-    at + n
 }
 
 #[cfg(test)]

@@ -43,11 +43,12 @@ impl CanFrame {
         Some(frame)
     }
 
-    /// An extended frame whose data is filled by `fill`, which writes into the 8-byte array
-    /// and returns the length it used (clamped to 8). Builds frames without a staging buffer.
-    pub(crate) fn build(id: u32, fill: impl FnOnce(&mut [u8; 8]) -> usize) -> Self {
+    /// An extended frame whose data is `head` then `body`, cut at 8 bytes. Builds frames
+    /// without a staging buffer.
+    pub(crate) fn build(id: u32, head: &[u8], body: &[u8]) -> Self {
         let mut data = [0u8; 8];
-        let len = fill(&mut data).min(Self::MAX_DATA) as u8;
+        let at = copy_into(&mut data, 0, head);
+        let len = copy_into(&mut data, at, body) as u8;
         let id = ExtendedId::new(id & ExtendedId::MAX.as_raw()).unwrap_or(ExtendedId::ZERO);
         CanFrame { id: Id::Extended(id), remote: false, len, data }
     }
@@ -73,6 +74,18 @@ impl CanFrame {
     pub fn payload(&self) -> &[u8] {
         self.data.get(..usize::from(self.len)).unwrap_or(&[])
     }
+}
+
+/// Copies `bytes` to `data[at..]` as far as it fits and returns the length used.
+fn copy_into(data: &mut [u8; 8], at: usize, bytes: &[u8]) -> usize {
+    let Some(room) = data.get_mut(at..) else {
+        return at.min(CanFrame::MAX_DATA);
+    };
+    let n = room.len().min(bytes.len());
+    if let (Some(to), Some(from)) = (room.get_mut(..n), bytes.get(..n)) {
+        to.copy_from_slice(from);
+    }
+    at + n
 }
 
 impl core::fmt::Debug for CanFrame {

@@ -117,6 +117,7 @@ extern crate alloc;
 
 mod alias;
 mod cache;
+mod fifo;
 mod fragment;
 mod frame;
 pub mod gridconnect;

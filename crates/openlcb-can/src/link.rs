@@ -53,19 +53,21 @@
 //! the open one quietly (the sender has moved on). Datagram Received OK and Rejected are
 //! ordinary addressed messages.
 
-use alloc::collections::VecDeque;
 use alloc::vec::Vec;
 
-use openlcb_stream::wire::{Emit, ErrorReport};
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::NodeAlias;
 use crate::cache::AliasCache;
-use crate::fragment::{EncodeError, Fragments, FramePosition};
+use crate::fifo::Fifo;
+use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition};
 use crate::frame::{CanFrame, FrameError};
 use crate::header::{CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
+
+/// Where received messages go: the caller's closure.
+type Deliver<'d> = &'d mut dyn FnMut(MessageRef<'_>);
 
 /// Events other than renames the link can have queued at once. The queue holds
 /// [`CanConfig::alias_cache_size`] more, for the renames of a global AME; beyond that events
@@ -259,18 +261,33 @@ pub struct LinkStats {
     pub queue_overflows: u32,
 }
 
+/// A message accepted by `send`: ready to frame, or waiting for its destination's alias.
 #[derive(Debug)]
 struct Outgoing {
     message: Message,
+    /// The destination alias (`None` for a global message and while waiting for the alias).
     destination: Option<NodeAlias>,
+    /// While waiting: when to give up, set once the AME went out.
+    deadline: Option<Instant>,
 }
 
-#[derive(Debug)]
-struct Unresolved {
-    message: Message,
-    node: NodeId,
-    /// Set once the AME went out.
-    deadline: Option<Instant>,
+impl Outgoing {
+    fn new(message: Message, destination: Option<NodeAlias>) -> Self {
+        Outgoing { message, destination, deadline: None }
+    }
+
+    /// The message waits for (or was sent to) the alias of `node`.
+    fn is_for(&self, node: NodeId) -> bool {
+        self.message.destination == Some(node)
+    }
+}
+
+/// A whole message taken from received frames, to deliver.
+struct Received<'a> {
+    mti: Mti,
+    /// Addressed to us (addressed, stream data, datagram) rather than global.
+    addressed: bool,
+    payload: &'a [u8],
 }
 
 /// An alias whose Node ID is being asked for.
@@ -306,12 +323,13 @@ pub struct CanLink {
     reassembly: Reassembler,
     datagrams: Reassembler,
     scratch: Vec<u8>,
-    frames: VecDeque<CanFrame>,
-    messages: VecDeque<Outgoing>,
+    frames: Fifo<CanFrame>,
+    messages: Fifo<Outgoing>,
     current: Option<Fragments<Vec<u8>>>,
-    unresolved: VecDeque<Unresolved>,
+    /// Messages waiting for their destination's alias (an AME answer).
+    unresolved: Fifo<Outgoing>,
     learning: Vec<Learning>,
-    events: VecDeque<LinkEvent>,
+    events: Fifo<LinkEvent>,
     stats: LinkStats,
 }
 
@@ -329,12 +347,12 @@ impl CanLink {
             reassembly: Reassembler::new(config.reassembly_slots, config.max_message_len, config.reassembly_timeout),
             datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
             scratch: Vec::with_capacity(config.max_message_len.max(MAX_DATAGRAM_LEN)),
-            frames: VecDeque::with_capacity(config.frame_queue_limit),
-            messages: VecDeque::with_capacity(config.transmit_queue_limit.saturating_add(1)),
+            frames: Fifo::with_capacity(config.frame_queue_limit),
+            messages: Fifo::with_capacity(config.transmit_queue_limit.saturating_add(1)),
             current: None,
-            unresolved: VecDeque::with_capacity(config.transmit_queue_limit),
+            unresolved: Fifo::with_capacity(config.transmit_queue_limit),
             learning: Vec::with_capacity(config.learn_slots),
-            events: VecDeque::with_capacity(event_bound(&config)),
+            events: Fifo::with_capacity(event_bound(&config)),
             stats: LinkStats::default(),
             config,
         }
@@ -449,29 +467,32 @@ impl CanLink {
         let destination = if addressed { message.destination } else { None };
         // Check the message has a CAN form now, so that failures reach the caller.
         let placeholder = NodeAlias::MAX;
-        Fragments::new(message.mti, placeholder, destination.map(|_| placeholder), &message.payload[..])?;
+        Cursor::new(message.mti, placeholder, destination.map(|_| placeholder), message.payload.len())?;
         if !self.can_send() {
             return Err(SendError::QueueFull);
         }
-        let Some(node) = destination else {
-            self.messages.push_back(Outgoing { message, destination: None });
-            return Ok(());
-        };
-        if let Some(alias) = NodeAlias::from_provisional(node) {
-            self.messages.push_back(Outgoing { message, destination: Some(alias) });
-            return Ok(());
-        }
-        let waiting = self.unresolved.iter().any(|u| u.node == node);
-        match self.cache.alias(node) {
-            Some(alias) if !waiting => self.messages.push_back(Outgoing { message, destination: Some(alias) }),
-            _ => {
-                // A node already being resolved shares the AME out for it and its deadline.
-                let deadline = self.unresolved.iter().find(|u| u.node == node).and_then(|u| u.deadline);
-                self.unresolved.push_back(Unresolved { message, node, deadline });
+        match destination.map(|node| self.alias_for(node)).transpose() {
+            Ok(alias) => self.messages.push_back(Outgoing::new(message, alias)),
+            Err(deadline) => {
+                self.unresolved.push_back(Outgoing { message, destination: None, deadline });
                 self.send_enquiries(now);
             }
         }
         Ok(())
+    }
+
+    /// The alias to send to `node`: its provisional alias, or its cached one unless messages
+    /// already wait for it; else `Err` with the deadline of the AME out for it, if one is.
+    fn alias_for(&mut self, node: NodeId) -> Result<NodeAlias, Option<Instant>> {
+        if let Some(alias) = NodeAlias::from_provisional(node) {
+            return Ok(alias);
+        }
+        // A node already being resolved shares the AME out for it and its deadline.
+        let waiting = self.unresolved.iter().find(|u| u.is_for(node)).map(|u| u.deadline);
+        match (self.cache.alias(node), waiting) {
+            (Some(alias), None) => Ok(alias),
+            (_, deadline) => Err(deadline.flatten()),
+        }
     }
 
     // ----- outputs -----
@@ -491,7 +512,7 @@ impl CanLink {
         }
         let alias = self.login.alias()?;
         let mid_message = self.current.as_ref().is_some_and(|c| c.remaining() > 0);
-        if let Some(front) = self.frames.front() {
+        if let Some(front) = self.frames.first() {
             if !mid_message || front.header().is_ok_and(|h| !h.is_message()) {
                 return self.frames.pop_front();
             }
@@ -501,7 +522,7 @@ impl CanLink {
                 return Some(frame);
             }
             self.current = None;
-            let Outgoing { message, destination } = self.messages.pop_front()?;
+            let Outgoing { message, destination, .. } = self.messages.pop_front()?;
             match Fragments::new(message.mti, alias, destination, message.payload) {
                 Ok(fragments) => self.current = Some(fragments),
                 Err(_) => bump(&mut self.stats.send_refused),
@@ -516,14 +537,15 @@ impl CanLink {
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let unresolved = self.unresolved.iter().filter_map(|u| u.deadline);
-        let learning = self.learning.iter().map(|l| l.deadline);
-        [self.login.poll_timeout(), self.reassembly.poll_timeout(), self.datagrams.poll_timeout()]
-            .into_iter()
-            .flatten()
-            .chain(unresolved)
-            .chain(learning)
-            .min()
+        let mut next = earliest(self.login.poll_timeout(), self.reassembly.poll_timeout());
+        next = earliest(next, self.datagrams.poll_timeout());
+        for waiting in self.unresolved.iter() {
+            next = earliest(next, waiting.deadline);
+        }
+        for entry in self.learning.iter() {
+            next = earliest(next, Some(entry.deadline));
+        }
+        next
     }
 
     // ----- inputs -----
@@ -534,19 +556,17 @@ impl CanLink {
     pub fn handle_timeout(&mut self, now: Instant) {
         self.login.handle_timeout(now);
         self.drain_login_events(now);
-        while let Some(key) = self.reassembly.take_expired(now) {
-            self.reassembly_error(key.source, key.mti, ReassemblyError::Timeout);
-        }
-        while let Some(key) = self.datagrams.take_expired(now) {
-            self.datagram_error(key.source, ReassemblyError::Timeout);
+        loop {
+            let expired = self.reassembly.take_expired(now).or_else(|| self.datagrams.take_expired(now));
+            let Some(key) = expired else { break };
+            self.reassembly_error(key, ReassemblyError::Timeout);
         }
         self.ask_again(now);
-        while let Some(node) = self.unresolved.iter().find(|u| u.deadline.is_some_and(|d| d <= now)).map(|u| u.node) {
-            let before = self.unresolved.len();
-            self.unresolved.retain(|u| u.node != node);
-            let dropped = before - self.unresolved.len();
-            self.stats.unresolved_dropped =
-                self.stats.unresolved_dropped.saturating_add(u32::try_from(dropped).unwrap_or(u32::MAX));
+        loop {
+            let expired = self.unresolved.iter().find(|u| u.deadline.is_some_and(|d| d <= now));
+            let Some(node) = expired.and_then(|u| u.message.destination) else { break };
+            let dropped = self.unresolved.retain(|u| !u.is_for(node));
+            add(&mut self.stats.unresolved_dropped, dropped);
             self.event(LinkEvent::Unreachable { node, dropped });
         }
     }
@@ -562,6 +582,12 @@ impl CanLink {
     /// ID above the link ([`StreamEndpoint::rename_peer`](openlcb_stream::StreamEndpoint::rename_peer)),
     /// so that the next message from that alias finds its streams under the new name.
     pub fn handle_frame(&mut self, now: Instant, frame: &CanFrame, mut deliver: impl FnMut(MessageRef<'_>)) {
+        self.receive(now, frame, &mut deliver);
+    }
+
+    /// [`handle_frame`](Self::handle_frame) through a `dyn` closure: one copy of the receive
+    /// path whatever the caller's closure type.
+    fn receive(&mut self, now: Instant, frame: &CanFrame, deliver: Deliver<'_>) {
         bump(&mut self.stats.frames_in);
         let header = match frame.header() {
             Ok(header) => header,
@@ -575,107 +601,128 @@ impl CanLink {
         if from_our_alias {
             return;
         }
-        match header.kind {
+        // A reassembled message is copied into `scratch`, taken out of the link meanwhile: the
+        // reassembler is free again while the message is delivered.
+        let mut scratch = core::mem::take(&mut self.scratch);
+        let source = header.source;
+        let message = match header.kind {
             FrameKind::AliasMapDefinition => {
                 if let Some(node) = NodeId::from_slice(data) {
-                    self.learn(header.source, node);
+                    self.learn(source, node);
                 }
+                None
             }
-            FrameKind::AliasMapReset => self.forget(header.source),
+            FrameKind::AliasMapReset => {
+                self.forget(source);
+                None
+            }
             // CFT §6.2.3: a global AME drops every cached mapping; the AMDs it causes refill it.
-            FrameKind::AliasMapEnquiry if data.is_empty() => self.forget_all_mappings(),
-            FrameKind::Message { can_mti } => self.on_message(now, header.source, Mti(can_mti), data, &mut deliver),
-            FrameKind::StreamData { destination } => {
-                if Some(destination) != self.login.alias() {
-                    return bump(&mut self.stats.not_for_us);
-                }
-                if data.is_empty() {
-                    // Wire-spec §7.3: DLC 0 is invalid (no DID).
-                    return bump(&mut self.stats.invalid_frames);
-                }
-                self.deliver_from(now, header.source, Mti::STREAM_DATA_SEND, true, data, &mut deliver);
+            FrameKind::AliasMapEnquiry if data.is_empty() => {
+                self.forget_all_mappings();
+                None
             }
+            FrameKind::Message { can_mti } => self.on_message(now, source, Mti(can_mti), data, &mut scratch),
+            FrameKind::StreamData { destination } => self.on_stream_data(destination, data),
             FrameKind::Datagram { frame: part, destination } => {
-                self.on_datagram_frame(now, header.source, part, destination, data, &mut deliver);
+                self.on_datagram_frame(now, source, part, destination, data, &mut scratch)
             }
-            FrameKind::ReservedFormat { .. } => bump(&mut self.stats.unsupported_ignored),
-            _ => {}
+            FrameKind::ReservedFormat { .. } => ignore(&mut self.stats.unsupported_ignored),
+            _ => None,
+        };
+        if let Some(Received { mti, addressed, payload }) = message {
+            self.deliver_from(now, source, mti, addressed, payload, deliver);
         }
+        self.scratch = scratch;
     }
 
     // ----- received messages -----
 
-    fn on_message(
+    /// A format 1 frame: a global or addressed message whole, or once its last frame came.
+    fn on_message<'a>(
         &mut self,
         now: Instant,
         source: NodeAlias,
         mti: Mti,
-        data: &[u8],
-        deliver: &mut impl FnMut(MessageRef<'_>),
-    ) {
+        data: &'a [u8],
+        scratch: &'a mut Vec<u8>,
+    ) -> Option<Received<'a>> {
         if !mti.is_addressed() {
             if mti.announces_sender() {
                 match NodeId::from_slice(data) {
-                    Some(node) if node == self.node => {
-                        return bump(&mut self.stats.own_node_claims);
-                    }
+                    Some(node) if node == self.node => return ignore(&mut self.stats.own_node_claims),
                     Some(node) => self.learn(source, node),
                     None => {}
                 }
             }
-            return self.deliver_from(now, source, mti, false, data, deliver);
+            return Some(Received { mti, addressed: false, payload: data });
         }
         let [flags_and_high, low, body @ ..] = data else {
-            return bump(&mut self.stats.invalid_frames);
+            return ignore(&mut self.stats.invalid_frames);
         };
         let destination = NodeAlias::new(u16::from_be_bytes([flags_and_high & 0x0F, *low]));
         let Some(ours) = self.login.alias().filter(|ours| destination == Some(*ours)) else {
-            return bump(&mut self.stats.not_for_us);
+            return ignore(&mut self.stats.not_for_us);
         };
         let position = FramePosition::from_flags(*flags_and_high);
         if position == FramePosition::Only {
             // The usual case: the payload is handed over straight from the frame.
-            return self.deliver_from(now, source, mti, true, body, deliver);
+            return Some(Received { mti, addressed: true, payload: body });
         }
-        let key = ReassemblyKey { source, destination: ours, mti };
-        match self.reassembly.push(now, key, position, body) {
-            Ok(None) => {}
-            Ok(Some(whole)) => {
-                let whole = take_into(&mut self.scratch, whole);
-                self.deliver_from(now, source, mti, true, &whole, deliver);
-                self.scratch = whole;
-            }
-            Err(error) => self.reassembly_error(source, mti, error),
-        }
+        self.reassemble(now, ReassemblyKey { source, destination: ours, mti }, position, body, scratch)
     }
 
-    fn on_datagram_frame(
+    /// A format 7 frame: stream data to us.
+    fn on_stream_data<'a>(&mut self, destination: NodeAlias, data: &'a [u8]) -> Option<Received<'a>> {
+        if Some(destination) != self.login.alias() {
+            return ignore(&mut self.stats.not_for_us);
+        }
+        if data.is_empty() {
+            // Wire-spec §7.3: DLC 0 is invalid (no DID).
+            return ignore(&mut self.stats.invalid_frames);
+        }
+        Some(Received { mti: Mti::STREAM_DATA_SEND, addressed: true, payload: data })
+    }
+
+    /// A datagram frame (formats 2-5): the datagram once whole.
+    fn on_datagram_frame<'a>(
         &mut self,
         now: Instant,
         source: NodeAlias,
         frame: DatagramFrame,
         destination: NodeAlias,
-        data: &[u8],
-        deliver: &mut impl FnMut(MessageRef<'_>),
-    ) {
+        data: &'a [u8],
+        scratch: &'a mut Vec<u8>,
+    ) -> Option<Received<'a>> {
         let Some(ours) = self.login.alias().filter(|ours| *ours == destination) else {
-            return bump(&mut self.stats.not_for_us);
+            return ignore(&mut self.stats.not_for_us);
         };
         let key = ReassemblyKey { source, destination: ours, mti: Mti::DATAGRAM };
         let position = frame.position();
         if position == FramePosition::Only {
             // A whole datagram: the sender has given up any datagram it left open.
             self.datagrams.discard(key);
-            return self.deliver_from(now, source, Mti::DATAGRAM, true, data, deliver);
+            return Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: data });
         }
-        match self.datagrams.push(now, key, position, data) {
-            Ok(None) => {}
-            Ok(Some(whole)) => {
-                let whole = take_into(&mut self.scratch, whole);
-                self.deliver_from(now, source, Mti::DATAGRAM, true, &whole, deliver);
-                self.scratch = whole;
+        self.reassemble(now, key, position, data, scratch)
+    }
+
+    /// Adds a frame of a multi-frame message or datagram (`key.mti` tells which); the whole
+    /// message once its last frame came, copied into `scratch`.
+    fn reassemble<'a>(
+        &mut self,
+        now: Instant,
+        key: ReassemblyKey,
+        position: FramePosition,
+        data: &[u8],
+        scratch: &'a mut Vec<u8>,
+    ) -> Option<Received<'a>> {
+        let reassembler = if key.mti == Mti::DATAGRAM { &mut self.datagrams } else { &mut self.reassembly };
+        match reassembler.push(now, key, position, data) {
+            Ok(whole) => Some(Received { mti: key.mti, addressed: true, payload: copy_into(scratch, whole?) }),
+            Err(error) => {
+                self.reassembly_error(key, error);
+                None
             }
-            Err(error) => self.datagram_error(source, error),
         }
     }
 
@@ -689,7 +736,7 @@ impl CanLink {
         mti: Mti,
         addressed: bool,
         payload: &[u8],
-        deliver: &mut impl FnMut(MessageRef<'_>),
+        deliver: Deliver<'_>,
     ) {
         let name = match self.cache.node(source) {
             Some(node) => node,
@@ -711,26 +758,25 @@ impl CanLink {
         if node == self.node || NodeAlias::from_provisional(node).is_some() {
             return;
         }
-        self.learning.retain(|l| l.alias != alias);
+        self.stop_learning(alias);
         let previous = self.cache.peek_node(alias);
         if let Some(old) = previous.filter(|old| *old != node) {
             self.event(LinkEvent::PeerLost { node: old, alias });
         }
         if let Some((evicted, evicted_node)) = self.cache.insert(alias, node) {
-            let to = evicted.provisional_node_id();
-            self.event(LinkEvent::PeerRenamed { from: evicted_node, to, alias: evicted });
+            self.unname(evicted, evicted_node);
         }
         if previous.is_none() {
             self.event(LinkEvent::PeerRenamed { from: alias.provisional_node_id(), to: node, alias });
         }
         let mut index = 0;
         while let Some(waiting) = self.unresolved.get(index) {
-            if waiting.node != node {
+            if !waiting.is_for(node) {
                 index += 1;
                 continue;
             }
-            if let Some(Unresolved { message, .. }) = self.unresolved.remove(index) {
-                self.messages.push_back(Outgoing { message, destination: Some(alias) });
+            if let Some(Outgoing { message, .. }) = self.unresolved.remove(index) {
+                self.messages.push_back(Outgoing::new(message, Some(alias)));
             }
         }
     }
@@ -740,22 +786,29 @@ impl CanLink {
     fn forget(&mut self, alias: NodeAlias) {
         self.reassembly.forget_source(alias);
         self.datagrams.forget_source(alias);
-        self.learning.retain(|l| l.alias != alias);
-        let before = self.messages.len();
-        self.messages.retain(|m| m.destination != Some(alias));
-        self.stats.messages_dropped =
-            self.stats.messages_dropped.saturating_add(u32::try_from(before - self.messages.len()).unwrap_or(u32::MAX));
+        self.stop_learning(alias);
+        let dropped = self.messages.retain(|m| m.destination != Some(alias));
+        add(&mut self.stats.messages_dropped, dropped);
         let node = self.cache.remove_alias(alias).unwrap_or(alias.provisional_node_id());
         self.event(LinkEvent::PeerLost { node, alias });
     }
 
+    /// Reports that `alias`, known as `node` until now, goes back to its provisional name.
+    fn unname(&mut self, alias: NodeAlias, node: NodeId) {
+        self.event(LinkEvent::PeerRenamed { from: node, to: alias.provisional_node_id(), alias });
+    }
+
     /// A global AME (CFT §6.2.3): every cached peer goes back to its provisional name.
     fn forget_all_mappings(&mut self) {
-        loop {
-            let first = self.cache.iter().next();
-            let Some((alias, node)) = first else { break };
-            self.cache.remove_alias(alias);
-            self.event(LinkEvent::PeerRenamed { from: node, to: alias.provisional_node_id(), alias });
+        while let Some((alias, node)) = self.cache.pop() {
+            self.unname(alias, node);
+        }
+    }
+
+    /// Stops asking `alias` for its Node ID (each alias is asked at most once at a time).
+    fn stop_learning(&mut self, alias: NodeAlias) {
+        if let Some(index) = self.learning.iter().position(|l| l.alias == alias) {
+            self.learning.swap_remove(index);
         }
     }
 
@@ -782,7 +835,11 @@ impl CanLink {
                 self.learning.swap_remove(index);
                 bump(&mut self.stats.learning_given_up);
             } else {
-                let wait = self.config.resolve_timeout.as_micros().saturating_mul(1u64 << entry.asked.min(32));
+                // Twice the last wait: `resolve_timeout` times 2^asked, without a 64-bit shift.
+                let mut wait = self.config.resolve_timeout.as_micros();
+                for _ in 0..entry.asked.min(32) {
+                    wait = wait.saturating_add(wait);
+                }
                 if let Some(slot) = self.learning.get_mut(index) {
                     slot.asked = entry.asked + 1;
                     slot.deadline = now + Duration::from_micros(wait);
@@ -798,13 +855,15 @@ impl CanLink {
         self.queue_addressed(Mti::VERIFY_NODE_ID_ADDRESSED, alias, &[]);
     }
 
-    /// Answers a datagram framing error with Datagram Rejected to the sender (DG §7.3.2).
-    fn datagram_error(&mut self, source: NodeAlias, error: ReassemblyError) {
-        self.stats.datagram_errors.record(error);
-        self.queue_addressed(Mti::DATAGRAM_REJECTED, source, &error.datagram_code().0.to_be_bytes());
-    }
-
-    fn reassembly_error(&mut self, source: NodeAlias, mti: Mti, error: ReassemblyError) {
+    /// Counts an error of the message or datagram `key` and answers it: a datagram with
+    /// Datagram Rejected (DG §7.3.2), a message with Optional Interaction Rejected quoting its
+    /// MTI if so configured (never for 0x2042).
+    fn reassembly_error(&mut self, key: ReassemblyKey, error: ReassemblyError) {
+        let ReassemblyKey { source, mti, .. } = key;
+        if mti == Mti::DATAGRAM {
+            self.stats.datagram_errors.record(error);
+            return self.queue_addressed(Mti::DATAGRAM_REJECTED, source, &error.datagram_code().0.to_be_bytes());
+        }
         let counter = match error {
             ReassemblyError::MiddleWithoutFirst => &mut self.stats.middle_without_first,
             ReassemblyError::FirstBeforeLastEnded => &mut self.stats.first_before_last_ended,
@@ -816,11 +875,10 @@ impl CanLink {
         if !answer {
             return;
         }
-        let mut payload = [0u8; 4];
-        let report = ErrorReport { code: error.code(), mti: Some(mti) };
-        if let Ok(len) = report.emit(&mut payload) {
-            self.queue_addressed(Mti::OPTIONAL_INTERACTION_REJECTED, source, payload.get(..len).unwrap_or(&[]));
-        }
+        // The Optional Interaction Rejected payload: the error code, then the MTI it answers.
+        let [c0, c1] = error.code().0.to_be_bytes();
+        let [m0, m1] = mti.0.to_be_bytes();
+        self.queue_addressed(Mti::OPTIONAL_INTERACTION_REJECTED, source, &[c0, c1, m0, m1]);
     }
 
     /// Queues a one-frame addressed message of the link's own (at most 6 payload bytes) from
@@ -829,7 +887,7 @@ impl CanLink {
         let Some(ours) = self.login.alias() else {
             return;
         };
-        let frame = Fragments::new(mti, ours, Some(to), payload).ok().and_then(|mut f| f.next());
+        let frame = Cursor::new(mti, ours, Some(to), payload.len()).ok().and_then(|mut c| c.next_frame(payload));
         self.queue_frame(frame);
     }
 
@@ -841,8 +899,7 @@ impl CanLink {
                 LoginEvent::Permitted { alias } => {
                     if self.announced {
                         // After a re-login the endpoint will not announce the node again.
-                        let announce =
-                            Outgoing { message: Message::initialization_complete(self.node), destination: None };
+                        let announce = Outgoing::new(Message::initialization_complete(self.node), None);
                         self.messages.push_front(announce);
                     }
                     self.announced = true;
@@ -866,8 +923,7 @@ impl CanLink {
     /// datagrams, frames of the link's own, aliases being learnt.
     fn drop_traffic(&mut self) {
         let queued = self.messages.len() + self.unresolved.len() + usize::from(self.current.is_some());
-        self.stats.messages_dropped =
-            self.stats.messages_dropped.saturating_add(u32::try_from(queued).unwrap_or(u32::MAX));
+        add(&mut self.stats.messages_dropped, queued);
         self.messages.clear();
         self.unresolved.clear();
         self.current = None;
@@ -883,9 +939,13 @@ impl CanLink {
             return;
         };
         let deadline = now + self.config.resolve_timeout;
-        while let Some(node) = self.unresolved.iter().find(|u| u.deadline.is_none()).map(|u| u.node) {
-            for waiting in self.unresolved.iter_mut().filter(|u| u.node == node) {
-                waiting.deadline = Some(deadline);
+        loop {
+            let unasked = self.unresolved.iter().find(|u| u.deadline.is_none());
+            let Some(node) = unasked.and_then(|u| u.message.destination) else { break };
+            for waiting in self.unresolved.iter_mut() {
+                if waiting.is_for(node) {
+                    waiting.deadline = Some(deadline);
+                }
             }
             let enquiry =
                 CanFrame::from_header(&CanHeader::control(FrameKind::AliasMapEnquiry, ours), &node.to_bytes());
@@ -914,16 +974,38 @@ fn event_bound(config: &CanConfig) -> usize {
     config.alias_cache_size.saturating_add(EVENT_BOUND)
 }
 
-/// Copies a reassembled payload once into the link's `scratch` buffer (taken out of the
-/// link, so the reassembler is free again while the message is delivered). `scratch` has
-/// room for the longest message and datagram, so this never allocates.
-fn take_into(scratch: &mut Vec<u8>, whole: &[u8]) -> Vec<u8> {
-    let mut buffer = core::mem::take(scratch);
-    buffer.clear();
-    buffer.extend_from_slice(whole);
-    buffer
+/// Copies a reassembled payload into the link's `scratch` buffer, which has room for the
+/// longest message and datagram: this never allocates.
+fn copy_into<'a>(scratch: &'a mut Vec<u8>, whole: &[u8]) -> &'a [u8] {
+    scratch.clear();
+    scratch.extend_from_slice(whole);
+    scratch
 }
 
+/// Counts a frame that delivers nothing.
+fn ignore<T>(counter: &mut u32) -> Option<T> {
+    bump(counter);
+    None
+}
+
+/// The earlier of two optional times.
+#[inline(never)]
+fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, None) => a,
+        (None, b) => b,
+    }
+}
+
+/// Counts one more, stopping at `u32::MAX`.
+#[inline(never)]
 fn bump(counter: &mut u32) {
-    *counter = counter.saturating_add(1);
+    add(counter, 1);
+}
+
+/// Counts `n` more, stopping at `u32::MAX`.
+#[inline(never)]
+fn add(counter: &mut u32, n: usize) {
+    *counter = counter.saturating_add(u32::try_from(n).unwrap_or(u32::MAX));
 }

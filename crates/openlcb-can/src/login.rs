@@ -18,12 +18,11 @@
 //! is the one question the standard makes a holder of a Node ID answer, which is why the
 //! check is opt-in.
 
-use alloc::collections::VecDeque;
-
 use openlcb_stream::{Duration, Instant, NodeId};
 
 use crate::NodeAlias;
 use crate::alias::AliasGenerator;
+use crate::fifo::Fifo;
 use crate::frame::CanFrame;
 use crate::header::{CanHeader, FrameKind};
 
@@ -105,8 +104,8 @@ pub struct AliasLogin {
     generator: AliasGenerator,
     reserve_wait: Duration,
     state: LoginState,
-    transmits: VecDeque<CanFrame>,
-    events: VecDeque<LoginEvent>,
+    transmits: Fifo<CanFrame>,
+    events: Fifo<LoginEvent>,
     stats: LoginStats,
     /// How long to wait for an answer to the AME for our own Node ID; `None`: no check.
     node_id_check: Option<Duration>,
@@ -126,8 +125,8 @@ impl AliasLogin {
             generator,
             reserve_wait,
             state: LoginState::Checking { alias, deadline: now },
-            transmits: VecDeque::with_capacity(QUEUE_BOUND),
-            events: VecDeque::with_capacity(EVENT_BOUND),
+            transmits: Fifo::with_capacity(QUEUE_BOUND),
+            events: Fifo::with_capacity(EVENT_BOUND),
             stats: LoginStats::default(),
             node_id_check: None,
             asked: false,
@@ -199,17 +198,17 @@ impl AliasLogin {
                 return;
             }
             if !self.asked {
-                self.queue(CanHeader::control(FrameKind::ReserveId, alias), &[]);
+                self.send(FrameKind::ReserveId, alias, false);
             }
             match self.node_id_check {
                 Some(wait) if !self.asked => {
                     // Alias reserved; before claiming the Node ID, ask who holds it.
                     self.asked = true;
-                    self.queue(CanHeader::control(FrameKind::AliasMapEnquiry, alias), &self.node.to_bytes());
+                    self.send(FrameKind::AliasMapEnquiry, alias, true);
                     self.state = LoginState::Checking { alias, deadline: now + wait };
                 }
                 _ => {
-                    self.queue(CanHeader::control(FrameKind::AliasMapDefinition, alias), &self.node.to_bytes());
+                    self.send(FrameKind::AliasMapDefinition, alias, true);
                     self.state = LoginState::Permitted { alias };
                     self.event(LoginEvent::Permitted { alias });
                 }
@@ -239,8 +238,8 @@ impl AliasLogin {
                     if (data.is_empty() || claimed == Some(self.node))
                         && !self.has_queued(FrameKind::AliasMapDefinition)
                     {
-                        self.stats.enquiry_answers = self.stats.enquiry_answers.saturating_add(1);
-                        self.queue(CanHeader::control(FrameKind::AliasMapDefinition, alias), &self.node.to_bytes());
+                        count(&mut self.stats.enquiry_answers);
+                        self.send(FrameKind::AliasMapDefinition, alias, true);
                     }
                 }
             }
@@ -258,24 +257,22 @@ impl AliasLogin {
         }
         match (self.state, header.kind) {
             (LoginState::Checking { alias, .. }, _) => {
-                self.stats.conflicts = self.stats.conflicts.saturating_add(1);
+                count(&mut self.stats.conflicts);
                 self.event(LoginEvent::Conflict { alias });
-                let next = self.generator.next_alias();
-                self.check(now, next);
+                self.check_next(now);
             }
             (LoginState::Permitted { alias }, FrameKind::CheckId { .. }) => {
                 if !self.has_queued(FrameKind::ReserveId) {
-                    self.stats.defences = self.stats.defences.saturating_add(1);
-                    self.queue(CanHeader::control(FrameKind::ReserveId, alias), &[]);
+                    count(&mut self.stats.defences);
+                    self.send(FrameKind::ReserveId, alias, false);
                 }
             }
             (LoginState::Permitted { alias }, _) => {
-                self.stats.losses = self.stats.losses.saturating_add(1);
+                count(&mut self.stats.losses);
                 self.transmits.clear();
-                self.queue(CanHeader::control(FrameKind::AliasMapReset, alias), &self.node.to_bytes());
+                self.send(FrameKind::AliasMapReset, alias, true);
                 self.event(LoginEvent::Lost { alias });
-                let next = self.generator.next_alias();
-                self.check(now, next);
+                self.check_next(now);
             }
             (LoginState::Stopped, _) => {}
         }
@@ -292,18 +289,21 @@ impl AliasLogin {
         }
     }
 
-    /// Queues CID 7..4 for `alias` (dropping frames of an abandoned alias) and starts the wait.
+    /// Checks the generator's next alias.
+    fn check_next(&mut self, now: Instant) {
+        let next = self.generator.next_alias();
+        self.check(now, next);
+    }
+
+    /// Queues CID 7..4 for `alias` (dropping frames of an abandoned alias but its AMR) and
+    /// starts the wait.
     fn check(&mut self, now: Instant, alias: NodeAlias) {
-        let kept_amr = self.transmits.iter().copied().find(|f| is_kind(f, FrameKind::AliasMapReset));
-        self.transmits.clear();
-        if let Some(amr) = kept_amr {
-            self.transmits.push_back(amr);
-        }
+        self.transmits.retain(|f| is_kind(f, FrameKind::AliasMapReset));
         let id = self.node.as_raw();
-        for sequence in (4u8..=7).rev() {
-            let shift = 12 * u32::from(sequence - 4);
-            let node_id_bits = ((id >> shift) & 0xFFF) as u16;
-            self.queue(CanHeader::control(FrameKind::CheckId { sequence, node_id_bits }, alias), &[]);
+        // Node ID bits 47-36, 35-24, 23-12 and 11-0 (constant shifts: no 64-bit shift call).
+        for (sequence, bits) in [(7, id >> 36), (6, id >> 24), (5, id >> 12), (4, id)] {
+            let node_id_bits = (bits & 0xFFF) as u16;
+            self.send(FrameKind::CheckId { sequence, node_id_bits }, alias, false);
         }
         self.state = LoginState::Checking { alias, deadline: now + self.reserve_wait };
         self.asked = false;
@@ -313,10 +313,13 @@ impl AliasLogin {
         self.transmits.iter().any(|f| is_kind(f, kind))
     }
 
-    fn queue(&mut self, header: CanHeader, data: &[u8]) {
-        match CanFrame::from_header(&header, data) {
+    /// Queues the control frame `kind` from `alias`, carrying our Node ID if `with_node_id`.
+    fn send(&mut self, kind: FrameKind, alias: NodeAlias, with_node_id: bool) {
+        let node = self.node.to_bytes();
+        let data = if with_node_id { node.as_slice() } else { &[] };
+        match CanFrame::from_header(&CanHeader::control(kind, alias), data) {
             Some(frame) if self.transmits.len() < QUEUE_BOUND => self.transmits.push_back(frame),
-            _ => self.stats.dropped = self.stats.dropped.saturating_add(1),
+            _ => count(&mut self.stats.dropped),
         }
     }
 
@@ -324,9 +327,15 @@ impl AliasLogin {
         if self.events.len() < EVENT_BOUND {
             self.events.push_back(event);
         } else {
-            self.stats.dropped = self.stats.dropped.saturating_add(1);
+            count(&mut self.stats.dropped);
         }
     }
+}
+
+/// Counts one more, stopping at `u64::MAX`.
+#[inline(never)]
+fn count(counter: &mut u64) {
+    *counter = counter.saturating_add(1);
 }
 
 fn is_kind(frame: &CanFrame, kind: FrameKind) -> bool {

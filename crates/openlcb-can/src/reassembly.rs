@@ -175,41 +175,37 @@ impl Reassembler {
         position: FramePosition,
         data: &'a [u8],
     ) -> Result<Option<&'a [u8]>, ReassemblyError> {
-        let deadline = now + self.timeout;
-        let max_len = self.max_len;
+        if position == FramePosition::Only {
+            return Ok(Some(data));
+        }
+        let first = position == FramePosition::First;
         let open = self.slots.iter().position(|s| s.key == Some(key));
-        match (position, open) {
-            (FramePosition::Only, _) => Ok(Some(data)),
-            (FramePosition::First, open) => {
-                let index = match open.or_else(|| self.slots.iter().position(|s| s.key.is_none())) {
-                    Some(index) => index,
-                    None => return Err(ReassemblyError::NoFreeSlot),
-                };
-                let slot = self.slots.get_mut(index).ok_or(ReassemblyError::NoFreeSlot)?;
-                if open.is_some() && self.rules == Rules::Datagrams {
-                    slot.key = None;
-                    return Err(ReassemblyError::FirstBeforeLastEnded);
-                }
-                slot.key = Some(key);
-                slot.deadline = deadline;
-                slot.buffer.clear();
-                append(slot, data, max_len)?;
-                if open.is_some() { Err(ReassemblyError::FirstBeforeLastEnded) } else { Ok(None) }
-            }
-            (FramePosition::Middle | FramePosition::Last, None) => Err(ReassemblyError::MiddleWithoutFirst),
-            (FramePosition::Middle | FramePosition::Last, Some(index)) => {
-                let slot = self.slots.get_mut(index).ok_or(ReassemblyError::MiddleWithoutFirst)?;
-                if self.rules == Rules::Messages {
-                    slot.deadline = deadline;
-                }
-                append(slot, data, max_len)?;
-                if position == FramePosition::Last {
-                    slot.key = None;
-                    Ok(Some(&slot.buffer))
-                } else {
-                    Ok(None)
-                }
-            }
+        let index = match open {
+            Some(index) => index,
+            None if first => self.slots.iter().position(|s| s.key.is_none()).ok_or(ReassemblyError::NoFreeSlot)?,
+            None => return Err(ReassemblyError::MiddleWithoutFirst),
+        };
+        let slot = self.slots.get_mut(index).ok_or(ReassemblyError::NoFreeSlot)?;
+        let restarted = first && open.is_some();
+        if restarted && self.rules == Rules::Datagrams {
+            slot.key = None;
+            return Err(ReassemblyError::FirstBeforeLastEnded);
+        }
+        if first {
+            slot.key = Some(key);
+            slot.buffer.clear();
+        }
+        if first || self.rules == Rules::Messages {
+            slot.deadline = now + self.timeout;
+        }
+        append(slot, data, self.max_len)?;
+        if restarted {
+            Err(ReassemblyError::FirstBeforeLastEnded)
+        } else if position == FramePosition::Last {
+            slot.key = None;
+            Ok(Some(&slot.buffer))
+        } else {
+            Ok(None)
         }
     }
 
@@ -222,7 +218,13 @@ impl Reassembler {
 
     /// When the next open message times out.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        self.slots.iter().filter(|s| s.key.is_some()).map(|s| s.deadline).min()
+        let mut next = None;
+        for slot in &self.slots {
+            if slot.key.is_some() && next.is_none_or(|next| slot.deadline < next) {
+                next = Some(slot.deadline);
+            }
+        }
+        next
     }
 
     /// Drops the open message with `key`, if there is one; true if there was.
