@@ -117,7 +117,6 @@ extern crate alloc;
 
 mod alias;
 mod cache;
-mod fifo;
 mod fragment;
 mod frame;
 pub mod gridconnect;

@@ -59,12 +59,12 @@ use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::NodeAlias;
 use crate::cache::AliasCache;
-use crate::fifo::Fifo;
 use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition};
 use crate::frame::{CanFrame, FrameError};
 use crate::header::{CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
+use openlcb_stream::Queue;
 
 /// Where received messages go: the caller's closure.
 type Deliver<'d> = &'d mut dyn FnMut(MessageRef<'_>);
@@ -323,13 +323,13 @@ pub struct CanLink {
     reassembly: Reassembler,
     datagrams: Reassembler,
     scratch: Vec<u8>,
-    frames: Fifo<CanFrame>,
-    messages: Fifo<Outgoing>,
+    frames: Queue<CanFrame>,
+    messages: Queue<Outgoing>,
     current: Option<Fragments<Vec<u8>>>,
     /// Messages waiting for their destination's alias (an AME answer).
-    unresolved: Fifo<Outgoing>,
+    unresolved: Queue<Outgoing>,
     learning: Vec<Learning>,
-    events: Fifo<LinkEvent>,
+    events: Queue<LinkEvent>,
     stats: LinkStats,
 }
 
@@ -347,12 +347,12 @@ impl CanLink {
             reassembly: Reassembler::new(config.reassembly_slots, config.max_message_len, config.reassembly_timeout),
             datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
             scratch: Vec::with_capacity(config.max_message_len.max(MAX_DATAGRAM_LEN)),
-            frames: Fifo::with_capacity(config.frame_queue_limit),
-            messages: Fifo::with_capacity(config.transmit_queue_limit.saturating_add(1)),
+            frames: Queue::with_capacity(config.frame_queue_limit),
+            messages: Queue::with_capacity(config.transmit_queue_limit.saturating_add(1)),
             current: None,
-            unresolved: Fifo::with_capacity(config.transmit_queue_limit),
+            unresolved: Queue::with_capacity(config.transmit_queue_limit),
             learning: Vec::with_capacity(config.learn_slots),
-            events: Fifo::with_capacity(event_bound(&config)),
+            events: Queue::with_capacity(event_bound(&config)),
             stats: LinkStats::default(),
             config,
         }
@@ -512,7 +512,7 @@ impl CanLink {
         }
         let alias = self.login.alias()?;
         let mid_message = self.current.as_ref().is_some_and(|c| c.remaining() > 0);
-        if let Some(front) = self.frames.first() {
+        if let Some(front) = self.frames.front() {
             if !mid_message || front.header().is_ok_and(|h| !h.is_message()) {
                 return self.frames.pop_front();
             }

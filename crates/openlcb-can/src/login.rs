@@ -22,9 +22,9 @@ use openlcb_stream::{Duration, Instant, NodeId};
 
 use crate::NodeAlias;
 use crate::alias::AliasGenerator;
-use crate::fifo::Fifo;
 use crate::frame::CanFrame;
 use crate::header::{CanHeader, FrameKind};
+use openlcb_stream::Queue;
 
 /// Frames the login can have queued at once: CID 7..4, RID, AMD, AMR, one AMD answer.
 const QUEUE_BOUND: usize = 8;
@@ -104,8 +104,8 @@ pub struct AliasLogin {
     generator: AliasGenerator,
     reserve_wait: Duration,
     state: LoginState,
-    transmits: Fifo<CanFrame>,
-    events: Fifo<LoginEvent>,
+    transmits: Queue<CanFrame>,
+    events: Queue<LoginEvent>,
     stats: LoginStats,
     /// How long to wait for an answer to the AME for our own Node ID; `None`: no check.
     node_id_check: Option<Duration>,
@@ -125,8 +125,8 @@ impl AliasLogin {
             generator,
             reserve_wait,
             state: LoginState::Checking { alias, deadline: now },
-            transmits: Fifo::with_capacity(QUEUE_BOUND),
-            events: Fifo::with_capacity(EVENT_BOUND),
+            transmits: Queue::with_capacity(QUEUE_BOUND),
+            events: Queue::with_capacity(EVENT_BOUND),
             stats: LoginStats::default(),
             node_id_check: None,
             asked: false,

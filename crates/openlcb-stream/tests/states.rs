@@ -155,7 +155,8 @@ fn a_tde_sent_for_one_stream_ends_its_siblings_with_that_node() {
     b.sent();
     let (incoming, _) = b.open_destination();
     b.ep.abort(b.now, first, ErrorCode::TEMPORARY).unwrap();
-    assert_eq!(b.sent(), [(Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x00, 0x08, 0x88])], "one TDE");
+    let tde = (Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x00, 0x08, 0x88]);
+    assert_eq!(b.sent(), [tde.clone(), tde], "a TDE for each");
     assert_eq!(
         b.events(),
         [Event::Terminated { handle: second, cause: Termination::SiblingTerminated }],
@@ -170,7 +171,8 @@ fn a_tde_sent_for_one_stream_ends_its_siblings_with_that_node() {
     b.sent();
     let Event::Opened { handle: younger, .. } = b.events()[0] else { panic!("not opened") };
     b.advance(Duration::from_secs(6));
-    assert_eq!(b.sent(), [(Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x10, 0x1F, 0x88])]);
+    let tde = (Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x10, 0x1F, 0x88]);
+    assert_eq!(b.sent(), [tde.clone(), tde]);
     assert_eq!(
         b.events(),
         [

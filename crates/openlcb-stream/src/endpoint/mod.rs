@@ -623,7 +623,7 @@ impl StreamEndpoint {
         };
         self.release(handle);
         if terminated {
-            self.end_siblings(peer, role);
+            self.end_siblings(peer, role, code);
         }
         Ok(())
     }
@@ -776,7 +776,7 @@ impl StreamEndpoint {
             if dest.buffer.is_empty() {
                 self.release(handle);
             }
-            return self.end_siblings(peer, Role::Destination);
+            return self.end_siblings(peer, Role::Destination, ErrorCode::OUT_OF_ORDER);
         }
         let len = bytes.len() as u64;
         if len > dest.outstanding() {
@@ -924,7 +924,7 @@ impl StreamEndpoint {
                     _ => TimeoutKind::Idle,
                 };
                 self.end(Event::TimedOut { handle, kind });
-                self.end_siblings(peer, role);
+                self.end_siblings(peer, role, ErrorCode::TIMEOUT);
             }
             Timer::Decision => {
                 let sid = stream.source_stream;
@@ -1061,12 +1061,17 @@ impl StreamEndpoint {
     }
 
     /// This node just sent a TDE to `peer` about one of its streams in `role`. The TDE names
-    /// no stream, so the peer ends every stream it has with this node in the other role
-    /// (wire-spec §6.4, Q5): the streams here that it ends must end here too, or their data
-    /// would later land in a new stream given the same DID.
-    fn end_siblings(&mut self, peer: NodeId, role: Role) {
+    /// no stream, so the peer may end every stream it has with this node in the other role
+    /// (wire-spec §6.4, Q5; this endpoint does): the streams here that it ends must end here
+    /// too, or their data would later land in a new stream given the same DID. Each gets its
+    /// own TDE, for a peer that ends one stream per TDE.
+    fn end_siblings(&mut self, peer: NodeId, role: Role, code: ErrorCode) {
         let sibling = |s: &Stream| s.peer == peer && s.role() == role && !s.is_closed();
-        self.end_each(&sibling, &|handle| Event::Terminated { handle, cause: Termination::SiblingTerminated });
+        let ended =
+            self.end_each(&sibling, &|handle| Event::Terminated { handle, cause: Termination::SiblingTerminated });
+        for _ in 0..ended {
+            self.out.terminate(peer, code, role);
+        }
     }
 
     /// Ends every stream with `peer` that is not over yet, without sending anything.
