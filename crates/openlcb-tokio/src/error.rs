@@ -175,6 +175,9 @@ fn termination_text(peer: NodeId, cause: Termination) -> String {
         Termination::PeerLost => format!("node {peer} left the network"),
         Termination::PeerRestarted => format!("node {peer} restarted"),
         Termination::LinkLost => "this node lost its CAN alias".to_string(),
+        Termination::SiblingTerminated => {
+            format!("this node ended another stream with node {peer}, which ends this one too")
+        }
         _ => format!("the stream with node {peer} ended early"),
     }
 }
