@@ -57,7 +57,7 @@ use alloc::vec::Vec;
 
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
-use crate::NodeAlias;
+use crate::{NodeAlias, add, bump};
 use crate::cache::AliasCache;
 use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition};
 use crate::frame::{CanFrame, FrameError};
@@ -996,16 +996,4 @@ fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
         (a, None) => a,
         (None, b) => b,
     }
-}
-
-/// Counts one more, stopping at `u32::MAX`.
-#[inline(never)]
-fn bump(counter: &mut u32) {
-    add(counter, 1);
-}
-
-/// Counts `n` more, stopping at `u32::MAX`.
-#[inline(never)]
-fn add(counter: &mut u32, n: usize) {
-    *counter = counter.saturating_add(u32::try_from(n).unwrap_or(u32::MAX));
 }

@@ -20,7 +20,7 @@
 
 use openlcb_stream::{Duration, Instant, NodeId};
 
-use crate::NodeAlias;
+use crate::{NodeAlias, bump};
 use crate::alias::AliasGenerator;
 use crate::frame::CanFrame;
 use crate::header::{CanHeader, FrameKind};
@@ -79,20 +79,20 @@ pub enum LoginEvent {
     },
 }
 
-/// Counters of the login.
+/// Counters of the login. Each counter stops at `u32::MAX`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct LoginStats {
     /// Tentative aliases abandoned because another node used them.
-    pub conflicts: u64,
+    pub conflicts: u32,
     /// RIDs sent to defend our alias against a CID.
-    pub defences: u64,
+    pub defences: u32,
     /// Permitted aliases lost to another node (AMR sent).
-    pub losses: u64,
+    pub losses: u32,
     /// AMDs sent in answer to AME.
-    pub enquiry_answers: u64,
+    pub enquiry_answers: u32,
     /// Frames or events not queued because the queue was full.
-    pub dropped: u64,
+    pub dropped: u32,
 }
 
 /// The local node's alias state machine. Feed it every received frame, call `handle_timeout`
@@ -238,7 +238,7 @@ impl AliasLogin {
                     if (data.is_empty() || claimed == Some(self.node))
                         && !self.has_queued(FrameKind::AliasMapDefinition)
                     {
-                        count(&mut self.stats.enquiry_answers);
+                        bump(&mut self.stats.enquiry_answers);
                         self.send(FrameKind::AliasMapDefinition, alias, true);
                     }
                 }
@@ -257,18 +257,18 @@ impl AliasLogin {
         }
         match (self.state, header.kind) {
             (LoginState::Checking { alias, .. }, _) => {
-                count(&mut self.stats.conflicts);
+                bump(&mut self.stats.conflicts);
                 self.event(LoginEvent::Conflict { alias });
                 self.check_next(now);
             }
             (LoginState::Permitted { alias }, FrameKind::CheckId { .. }) => {
                 if !self.has_queued(FrameKind::ReserveId) {
-                    count(&mut self.stats.defences);
+                    bump(&mut self.stats.defences);
                     self.send(FrameKind::ReserveId, alias, false);
                 }
             }
             (LoginState::Permitted { alias }, _) => {
-                count(&mut self.stats.losses);
+                bump(&mut self.stats.losses);
                 self.transmits.clear();
                 self.send(FrameKind::AliasMapReset, alias, true);
                 self.event(LoginEvent::Lost { alias });
@@ -319,7 +319,7 @@ impl AliasLogin {
         let data = if with_node_id { node.as_slice() } else { &[] };
         match CanFrame::from_header(&CanHeader::control(kind, alias), data) {
             Some(frame) if self.transmits.len() < QUEUE_BOUND => self.transmits.push_back(frame),
-            _ => count(&mut self.stats.dropped),
+            _ => bump(&mut self.stats.dropped),
         }
     }
 
@@ -327,15 +327,9 @@ impl AliasLogin {
         if self.events.len() < EVENT_BOUND {
             self.events.push_back(event);
         } else {
-            count(&mut self.stats.dropped);
+            bump(&mut self.stats.dropped);
         }
     }
-}
-
-/// Counts one more, stopping at `u64::MAX`.
-#[inline(never)]
-fn count(counter: &mut u64) {
-    *counter = counter.saturating_add(1);
 }
 
 fn is_kind(frame: &CanFrame, kind: FrameKind) -> bool {

@@ -6,7 +6,7 @@ use alloc::vec::Vec;
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Duration, Instant, Mti};
 
-use crate::NodeAlias;
+use crate::{NodeAlias, bump};
 use crate::fragment::FramePosition;
 
 /// The longest datagram payload, in bytes (DG §7.3.2; node-protocols §2.1).
@@ -71,20 +71,21 @@ impl ReassemblyError {
     }
 }
 
-/// Reassembly errors by kind, for the counters of the link and the gateway.
+/// Reassembly errors by kind, for the counters of the link and the gateway. Each counter
+/// stops at `u32::MAX`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct ReassemblyErrorCounts {
     /// [`ReassemblyError::MiddleWithoutFirst`] (0x2041).
-    pub middle_without_first: u64,
+    pub middle_without_first: u32,
     /// [`ReassemblyError::FirstBeforeLastEnded`] (0x2042).
-    pub first_before_last_ended: u64,
+    pub first_before_last_ended: u32,
     /// [`ReassemblyError::Timeout`] (0x2011).
-    pub timeouts: u64,
+    pub timeouts: u32,
     /// [`ReassemblyError::TooLong`].
-    pub too_long: u64,
+    pub too_long: u32,
     /// [`ReassemblyError::NoFreeSlot`] (0x2020).
-    pub no_free_slot: u64,
+    pub no_free_slot: u32,
 }
 
 impl ReassemblyErrorCounts {
@@ -97,14 +98,15 @@ impl ReassemblyErrorCounts {
             ReassemblyError::TooLong => &mut self.too_long,
             ReassemblyError::NoFreeSlot => &mut self.no_free_slot,
         };
-        *counter = counter.saturating_add(1);
+        bump(counter);
     }
 
     /// All errors counted.
     pub fn total(&self) -> u64 {
         [self.middle_without_first, self.first_before_last_ended, self.timeouts, self.too_long, self.no_free_slot]
             .into_iter()
-            .fold(0, u64::saturating_add)
+            .map(u64::from)
+            .sum()
     }
 }
 
