@@ -101,8 +101,9 @@ pub struct CanConfig {
     /// Messages accepted by [`CanLink::send`] and not yet framed (including those waiting
     /// for an alias). More are refused with [`SendError::QueueFull`].
     pub transmit_queue_limit: usize,
-    /// Frames the link itself queues (AME, OIR, Verify Node ID, Datagram Rejected); more are
-    /// dropped and counted.
+    /// Frames the link itself queues (AME, OIR, Verify Node ID, Datagram Rejected, and
+    /// Initialization Complete after a re-login, first into the queue emptied with the old
+    /// alias); more are dropped and counted.
     pub frame_queue_limit: usize,
     /// How long to wait for an AME answer for a Node ID we want to send to; and the wait
     /// after the first Verify Node ID to an alias being learnt (doubled after each next one).
@@ -348,7 +349,7 @@ impl CanLink {
             datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
             scratch: Vec::with_capacity(config.max_message_len.max(MAX_DATAGRAM_LEN)),
             frames: Queue::with_capacity(config.frame_queue_limit),
-            messages: Queue::with_capacity(config.transmit_queue_limit.saturating_add(1)),
+            messages: Queue::with_capacity(config.transmit_queue_limit),
             current: None,
             unresolved: Queue::with_capacity(config.transmit_queue_limit),
             learning: Vec::with_capacity(config.learn_slots),
@@ -898,9 +899,10 @@ impl CanLink {
             match event {
                 LoginEvent::Permitted { alias } => {
                     if self.announced {
-                        // After a re-login the endpoint will not announce the node again.
-                        let announce = Outgoing::new(Message::initialization_complete(self.node), None);
-                        self.messages.push_front(announce);
+                        // After a re-login the endpoint will not announce the node again: the
+                        // link does, first of all (its frame queue was emptied with the alias).
+                        let header = CanHeader::message(Mti::INITIALIZATION_COMPLETE, alias);
+                        self.queue_frame(CanFrame::from_header(&header, &self.node.to_bytes()));
                     }
                     self.announced = true;
                     self.send_enquiries(now);
