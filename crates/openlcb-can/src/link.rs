@@ -57,13 +57,13 @@ use alloc::vec::Vec;
 
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
-use crate::{NodeAlias, add, bump};
 use crate::cache::AliasCache;
 use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition};
 use crate::frame::{CanFrame, FrameError};
 use crate::header::{CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
+use crate::{NodeAlias, add, bump};
 use openlcb_stream::Queue;
 
 /// Where received messages go: the caller's closure.
@@ -555,8 +555,8 @@ impl CanLink {
     /// for messages and datagrams), alias resolutions that ran out, and the next Verify Node
     /// ID (or giving up) for aliases being learnt. Early or repeated calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
-        self.login.handle_timeout(now);
-        self.drain_login_events(now);
+        let event = self.login.timeout(now);
+        self.login_event(now, event);
         loop {
             let expired = self.reassembly.take_expired(now).or_else(|| self.datagrams.take_expired(now));
             let Some(key) = expired else { break };
@@ -597,8 +597,8 @@ impl CanLink {
             Err(_) => return bump(&mut self.stats.invalid_frames),
         };
         let data = frame.payload();
-        let from_our_alias = self.login.handle_header(now, &header, data);
-        self.drain_login_events(now);
+        let (from_our_alias, event) = self.login.header(now, &header, data);
+        self.login_event(now, event);
         if from_our_alias {
             return;
         }
@@ -894,8 +894,9 @@ impl CanLink {
 
     // ----- login and alias resolution -----
 
-    fn drain_login_events(&mut self, now: Instant) {
-        while let Some(event) = self.login.poll_event() {
+    /// Acts on what the login reported, if anything.
+    fn login_event(&mut self, now: Instant, event: Option<LoginEvent>) {
+        if let Some(event) = event {
             match event {
                 LoginEvent::Permitted { alias } => {
                     if self.announced {

@@ -20,10 +20,10 @@
 
 use openlcb_stream::{Duration, Instant, NodeId};
 
-use crate::{NodeAlias, bump};
 use crate::alias::AliasGenerator;
 use crate::frame::CanFrame;
 use crate::header::{CanHeader, FrameKind};
+use crate::{NodeAlias, bump};
 use openlcb_stream::Queue;
 
 /// Frames the login can have queued at once: CID 7..4, RID, AMD, AMR, one AMD answer.
@@ -126,7 +126,7 @@ impl AliasLogin {
             reserve_wait,
             state: LoginState::Checking { alias, deadline: now },
             transmits: Queue::with_capacity(QUEUE_BOUND),
-            events: Queue::with_capacity(EVENT_BOUND),
+            events: Queue::new(),
             stats: LoginStats::default(),
             node_id_check: None,
             asked: false,
@@ -193,9 +193,16 @@ impl AliasLogin {
 
     /// Moves on to Permitted once the reserve wait is over. Early or repeated calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
+        let event = self.timeout(now);
+        self.event(event);
+    }
+
+    /// [`handle_timeout`](Self::handle_timeout), returning its event rather than queueing it
+    /// (a call has at most one).
+    pub(crate) fn timeout(&mut self, now: Instant) -> Option<LoginEvent> {
         if let LoginState::Checking { alias, deadline } = self.state {
             if now < deadline {
-                return;
+                return None;
             }
             if !self.asked {
                 self.send(FrameKind::ReserveId, alias, false);
@@ -210,10 +217,11 @@ impl AliasLogin {
                 _ => {
                     self.send(FrameKind::AliasMapDefinition, alias, true);
                     self.state = LoginState::Permitted { alias };
-                    self.event(LoginEvent::Permitted { alias });
+                    return Some(LoginEvent::Permitted { alias });
                 }
             }
         }
+        None
     }
 
     /// Feeds one received frame. Returns true if the frame came from an alias this node holds
@@ -227,8 +235,16 @@ impl AliasLogin {
 
     /// [`handle_frame`](Self::handle_frame) for a frame whose header is already parsed.
     pub fn handle_header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> bool {
+        let (ours, event) = self.header(now, header, data);
+        self.event(event);
+        ours
+    }
+
+    /// [`handle_header`](Self::handle_header), returning its event rather than queueing it (a
+    /// call has at most one).
+    pub(crate) fn header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> (bool, Option<LoginEvent>) {
         if self.state == LoginState::Stopped {
-            return false;
+            return (false, None);
         }
         let claimed = NodeId::from_slice(data);
         match header.kind {
@@ -247,36 +263,36 @@ impl AliasLogin {
                 // CFT §6.2.5: another node announced our Node ID. Send nothing more.
                 self.state = LoginState::Stopped;
                 self.transmits.clear();
-                self.event(LoginEvent::DuplicateNodeId { other: header.source });
-                return false;
+                return (false, Some(LoginEvent::DuplicateNodeId { other: header.source }));
             }
             _ => {}
         }
         if !self.holds(header.source) {
-            return false;
+            return (false, None);
         }
-        match (self.state, header.kind) {
+        let event = match (self.state, header.kind) {
             (LoginState::Checking { alias, .. }, _) => {
                 bump(&mut self.stats.conflicts);
-                self.event(LoginEvent::Conflict { alias });
                 self.check_next(now);
+                Some(LoginEvent::Conflict { alias })
             }
             (LoginState::Permitted { alias }, FrameKind::CheckId { .. }) => {
                 if !self.has_queued(FrameKind::ReserveId) {
                     bump(&mut self.stats.defences);
                     self.send(FrameKind::ReserveId, alias, false);
                 }
+                None
             }
             (LoginState::Permitted { alias }, _) => {
                 bump(&mut self.stats.losses);
                 self.transmits.clear();
                 self.send(FrameKind::AliasMapReset, alias, true);
-                self.event(LoginEvent::Lost { alias });
                 self.check_next(now);
+                Some(LoginEvent::Lost { alias })
             }
-            (LoginState::Stopped, _) => {}
-        }
-        true
+            (LoginState::Stopped, _) => None,
+        };
+        (true, event)
     }
 
     // ----- helpers -----
@@ -323,7 +339,9 @@ impl AliasLogin {
         }
     }
 
-    fn event(&mut self, event: LoginEvent) {
+    /// Queues `event`, if there is one, for `poll_event`.
+    fn event(&mut self, event: Option<LoginEvent>) {
+        let Some(event) = event else { return };
         if self.events.len() < EVENT_BOUND {
             self.events.push_back(event);
         } else {

@@ -6,8 +6,8 @@ use alloc::vec::Vec;
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Duration, Instant, Mti};
 
-use crate::{NodeAlias, bump};
 use crate::fragment::FramePosition;
+use crate::{NodeAlias, bump};
 
 /// The longest datagram payload, in bytes (DG §7.3.2; node-protocols §2.1).
 pub const MAX_DATAGRAM_LEN: usize = 72;
