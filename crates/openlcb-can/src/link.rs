@@ -472,12 +472,21 @@ impl CanLink {
         if !self.can_send() {
             return Err(SendError::QueueFull);
         }
-        match destination.map(|node| self.alias_for(node)).transpose() {
-            Ok(alias) => self.messages.push_back(Outgoing::new(message, alias)),
-            Err(deadline) => {
-                self.unresolved.push_back(Outgoing { message, destination: None, deadline });
-                self.send_enquiries(now);
+        let resolved = destination.map(|node| self.alias_for(node)).transpose();
+        let mut outgoing = Outgoing::new(message, None);
+        let queue = match resolved {
+            Ok(alias) => {
+                outgoing.destination = alias;
+                &mut self.messages
             }
+            Err(deadline) => {
+                outgoing.deadline = deadline;
+                &mut self.unresolved
+            }
+        };
+        queue.push_back(outgoing);
+        if resolved.is_err() {
+            self.send_enquiries(now);
         }
         Ok(())
     }
@@ -809,7 +818,16 @@ impl CanLink {
     /// Stops asking `alias` for its Node ID (each alias is asked at most once at a time).
     fn stop_learning(&mut self, alias: NodeAlias) {
         if let Some(index) = self.learning.iter().position(|l| l.alias == alias) {
-            self.learning.swap_remove(index);
+            self.unlearn(index);
+        }
+    }
+
+    /// Removes entry `index` (one that exists) of the learning table; the last entry takes its
+    /// place, as the order does not matter. No panic path, unlike `swap_remove`.
+    fn unlearn(&mut self, index: usize) {
+        let Some(last) = self.learning.pop() else { return };
+        if let Some(entry) = self.learning.get_mut(index) {
+            *entry = last;
         }
     }
 
@@ -833,7 +851,7 @@ impl CanLink {
             if entry.deadline > now {
                 index += 1;
             } else if entry.asked >= self.config.learn_attempts {
-                self.learning.swap_remove(index);
+                self.unlearn(index);
                 bump(&mut self.stats.learning_given_up);
             } else {
                 // Twice the last wait: `resolve_timeout` times 2^asked, without a 64-bit shift.
