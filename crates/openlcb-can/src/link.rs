@@ -62,7 +62,7 @@ use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition};
 use crate::frame::{CanFrame, FrameError};
 use crate::header::{CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
-use crate::reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
+use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
 use crate::{NodeAlias, add, bump};
 use openlcb_stream::Queue;
 
@@ -288,7 +288,16 @@ struct Received<'a> {
     mti: Mti,
     /// Addressed to us (addressed, stream data, datagram) rather than global.
     addressed: bool,
-    payload: &'a [u8],
+    payload: Payload<'a>,
+}
+
+/// Where the payload of a [`Received`] message is.
+enum Payload<'a> {
+    /// In the frame.
+    Frame(&'a [u8]),
+    /// In this slot of the reassembler for its MTI, which keeps it until the next frame is
+    /// added there.
+    Reassembled(usize),
 }
 
 /// An alias whose Node ID is being asked for.
@@ -323,7 +332,6 @@ pub struct CanLink {
     cache: AliasCache,
     reassembly: Reassembler,
     datagrams: Reassembler,
-    scratch: Vec<u8>,
     frames: Queue<CanFrame>,
     messages: Queue<Outgoing>,
     current: Option<Fragments<Vec<u8>>>,
@@ -347,7 +355,6 @@ impl CanLink {
             cache: AliasCache::new(config.alias_cache_size),
             reassembly: Reassembler::new(config.reassembly_slots, config.max_message_len, config.reassembly_timeout),
             datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
-            scratch: Vec::with_capacity(config.max_message_len.max(MAX_DATAGRAM_LEN)),
             frames: Queue::with_capacity(config.frame_queue_limit),
             messages: Queue::with_capacity(config.transmit_queue_limit),
             current: None,
@@ -427,7 +434,7 @@ impl CanLink {
     /// Bytes allocated for reassembly buffers: fixed when the link is made.
     #[cfg(feature = "fuzzing")]
     pub(crate) fn reassembly_allocated(&self) -> usize {
-        self.reassembly.allocated() + self.datagrams.allocated() + self.scratch.capacity()
+        self.reassembly.allocated() + self.datagrams.allocated()
     }
 
     /// Messages accepted by `send` and not yet fully framed.
@@ -611,9 +618,6 @@ impl CanLink {
         if from_our_alias {
             return;
         }
-        // A reassembled message is copied into `scratch`, taken out of the link meanwhile: the
-        // reassembler is free again while the message is delivered.
-        let mut scratch = core::mem::take(&mut self.scratch);
         let source = header.source;
         let message = match header.kind {
             FrameKind::AliasMapDefinition => {
@@ -631,31 +635,29 @@ impl CanLink {
                 self.forget_all_mappings();
                 None
             }
-            FrameKind::Message { can_mti } => self.on_message(now, source, Mti(can_mti), data, &mut scratch),
+            FrameKind::Message { can_mti } => self.on_message(now, source, Mti(can_mti), data),
             FrameKind::StreamData { destination } => self.on_stream_data(destination, data),
             FrameKind::Datagram { frame: part, destination } => {
-                self.on_datagram_frame(now, source, part, destination, data, &mut scratch)
+                self.on_datagram_frame(now, source, part, destination, data)
             }
             FrameKind::ReservedFormat { .. } => ignore(&mut self.stats.unsupported_ignored),
             _ => None,
         };
         if let Some(Received { mti, addressed, payload }) = message {
-            self.deliver_from(now, source, mti, addressed, payload, deliver);
+            let name = self.name_sender(now, source, addressed);
+            let destination = addressed.then_some(self.node);
+            let payload = match payload {
+                Payload::Frame(data) => data,
+                Payload::Reassembled(slot) => self.reassembler(mti).completed(slot),
+            };
+            deliver(MessageRef { mti, source: name, destination, payload });
         }
-        self.scratch = scratch;
     }
 
     // ----- received messages -----
 
     /// A format 1 frame: a global or addressed message whole, or once its last frame came.
-    fn on_message<'a>(
-        &mut self,
-        now: Instant,
-        source: NodeAlias,
-        mti: Mti,
-        data: &'a [u8],
-        scratch: &'a mut Vec<u8>,
-    ) -> Option<Received<'a>> {
+    fn on_message<'a>(&mut self, now: Instant, source: NodeAlias, mti: Mti, data: &'a [u8]) -> Option<Received<'a>> {
         if !mti.is_addressed() {
             if mti.announces_sender() {
                 match NodeId::from_slice(data) {
@@ -664,7 +666,7 @@ impl CanLink {
                     None => {}
                 }
             }
-            return Some(Received { mti, addressed: false, payload: data });
+            return Some(Received { mti, addressed: false, payload: Payload::Frame(data) });
         }
         let [flags_and_high, low, body @ ..] = data else {
             return ignore(&mut self.stats.invalid_frames);
@@ -676,9 +678,9 @@ impl CanLink {
         let position = FramePosition::from_flags(*flags_and_high);
         if position == FramePosition::Only {
             // The usual case: the payload is handed over straight from the frame.
-            return Some(Received { mti, addressed: true, payload: body });
+            return Some(Received { mti, addressed: true, payload: Payload::Frame(body) });
         }
-        self.reassemble(now, ReassemblyKey { source, destination: ours, mti }, position, body, scratch)
+        self.reassemble(now, ReassemblyKey { source, destination: ours, mti }, position, body)
     }
 
     /// A format 7 frame: stream data to us.
@@ -690,7 +692,7 @@ impl CanLink {
             // Wire-spec §7.3: DLC 0 is invalid (no DID).
             return ignore(&mut self.stats.invalid_frames);
         }
-        Some(Received { mti: Mti::STREAM_DATA_SEND, addressed: true, payload: data })
+        Some(Received { mti: Mti::STREAM_DATA_SEND, addressed: true, payload: Payload::Frame(data) })
     }
 
     /// A datagram frame (formats 2-5): the datagram once whole.
@@ -701,7 +703,6 @@ impl CanLink {
         frame: DatagramFrame,
         destination: NodeAlias,
         data: &'a [u8],
-        scratch: &'a mut Vec<u8>,
     ) -> Option<Received<'a>> {
         let Some(ours) = self.login.alias().filter(|ours| *ours == destination) else {
             return ignore(&mut self.stats.not_for_us);
@@ -711,24 +712,22 @@ impl CanLink {
         if position == FramePosition::Only {
             // A whole datagram: the sender has given up any datagram it left open.
             self.datagrams.discard(key);
-            return Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: data });
+            return Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: Payload::Frame(data) });
         }
-        self.reassemble(now, key, position, data, scratch)
+        self.reassemble(now, key, position, data)
     }
 
-    /// Adds a frame of a multi-frame message or datagram (`key.mti` tells which); the whole
-    /// message once its last frame came, copied into `scratch`.
+    /// Adds a frame of a multi-frame message or datagram (`key.mti` tells which, the frame is
+    /// not `Only`); the whole message once its last frame came, left in its slot.
     fn reassemble<'a>(
         &mut self,
         now: Instant,
         key: ReassemblyKey,
         position: FramePosition,
         data: &[u8],
-        scratch: &'a mut Vec<u8>,
     ) -> Option<Received<'a>> {
-        let reassembler = if key.mti == Mti::DATAGRAM { &mut self.datagrams } else { &mut self.reassembly };
-        match reassembler.push(now, key, position, data) {
-            Ok(whole) => Some(Received { mti: key.mti, addressed: true, payload: copy_into(scratch, whole?) }),
+        match self.reassembler(key.mti).add(now, key, position, data) {
+            Ok(whole) => Some(Received { mti: key.mti, addressed: true, payload: Payload::Reassembled(whole?) }),
             Err(error) => {
                 self.reassembly_error(key, error);
                 None
@@ -736,19 +735,16 @@ impl CanLink {
         }
     }
 
-    /// Hands one whole message from `source` to `deliver`, named by its cached Node ID or its
-    /// provisional name. A message to us (addressed, stream data, datagram) from an alias not
-    /// in the cache starts learning it; a global one draws nothing.
-    fn deliver_from(
-        &mut self,
-        now: Instant,
-        source: NodeAlias,
-        mti: Mti,
-        addressed: bool,
-        payload: &[u8],
-        deliver: Deliver<'_>,
-    ) {
-        let name = match self.cache.node(source) {
+    /// The reassembler for messages of `mti`: datagrams or addressed messages.
+    fn reassembler(&mut self, mti: Mti) -> &mut Reassembler {
+        if mti == Mti::DATAGRAM { &mut self.datagrams } else { &mut self.reassembly }
+    }
+
+    /// The name of `source` for a whole message from it: its cached Node ID, or its
+    /// provisional name. A message to us (`addressed`: addressed, stream data, datagram) from
+    /// an alias not in the cache starts learning it; a global one draws nothing.
+    fn name_sender(&mut self, now: Instant, source: NodeAlias, addressed: bool) -> NodeId {
+        match self.cache.node(source) {
             Some(node) => node,
             None => {
                 bump(&mut self.stats.provisional_deliveries);
@@ -757,9 +753,7 @@ impl CanLink {
                 }
                 source.provisional_node_id()
             }
-        };
-        let destination = addressed.then_some(self.node);
-        deliver(MessageRef { mti, source: name, destination, payload });
+        }
     }
 
     /// Records `alias` <-> `node`, reports the renames it causes, and releases messages
@@ -993,14 +987,6 @@ impl CanLink {
 /// Room in the event queue: every cached peer's rename on a global AME, and other events.
 fn event_bound(config: &CanConfig) -> usize {
     config.alias_cache_size.saturating_add(EVENT_BOUND)
-}
-
-/// Copies a reassembled payload into the link's `scratch` buffer, which has room for the
-/// longest message and datagram: this never allocates.
-fn copy_into<'a>(scratch: &'a mut Vec<u8>, whole: &[u8]) -> &'a [u8] {
-    scratch.clear();
-    scratch.extend_from_slice(whole);
-    scratch
 }
 
 /// Counts a frame that delivers nothing.

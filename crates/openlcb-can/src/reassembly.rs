@@ -180,6 +180,19 @@ impl Reassembler {
         if position == FramePosition::Only {
             return Ok(Some(data));
         }
+        let whole = self.add(now, key, position, data)?;
+        Ok(whole.map(|slot| self.completed(slot)))
+    }
+
+    /// [`push`](Self::push) for a frame other than `Only`: the slot holding the whole payload
+    /// once `position` ends the message (see [`completed`](Self::completed)).
+    pub(crate) fn add(
+        &mut self,
+        now: Instant,
+        key: ReassemblyKey,
+        position: FramePosition,
+        data: &[u8],
+    ) -> Result<Option<usize>, ReassemblyError> {
         let first = position == FramePosition::First;
         let open = self.slots.iter().position(|s| s.key == Some(key));
         let index = match open {
@@ -205,10 +218,16 @@ impl Reassembler {
             Err(ReassemblyError::FirstBeforeLastEnded)
         } else if position == FramePosition::Last {
             slot.key = None;
-            Ok(Some(&slot.buffer))
+            Ok(Some(index))
         } else {
             Ok(None)
         }
+    }
+
+    /// The message [`add`](Self::add) completed in `slot`: it stays there until the next frame
+    /// is added.
+    pub(crate) fn completed(&self, slot: usize) -> &[u8] {
+        self.slots.get(slot).map_or(&[], |s| s.buffer.as_slice())
     }
 
     /// The key of one message whose wait ran out at `now` (it is dropped), if any. Call until
