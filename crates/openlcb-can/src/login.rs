@@ -316,8 +316,10 @@ impl AliasLogin {
     fn check(&mut self, now: Instant, alias: NodeAlias) {
         self.transmits.retain(|f| is_kind(f, FrameKind::AliasMapReset));
         let id = self.node.as_raw();
-        // Node ID bits 47-36, 35-24, 23-12 and 11-0 (constant shifts: no 64-bit shift call).
-        for (sequence, bits) in [(7, id >> 36), (6, id >> 24), (5, id >> 12), (4, id)] {
+        // Node ID bits 47-36, 35-24, 23-12 and 11-0, from its two 24-bit halves (32-bit
+        // arithmetic).
+        let (high, low) = ((id >> 24) as u32, id as u32);
+        for (sequence, bits) in [(7, high >> 12), (6, high), (5, low >> 12), (4, low)] {
             let node_id_bits = (bits & 0xFFF) as u16;
             self.send(FrameKind::CheckId { sequence, node_id_bits }, alias, false);
         }
