@@ -441,7 +441,7 @@ impl CanLink {
     pub fn queued_messages(&self) -> usize {
         self.messages.len()
             + self.unresolved.len()
-            + usize::from(self.current.as_ref().is_some_and(|c| c.remaining() > 0))
+            + usize::from(self.current.as_ref().is_some_and(Fragments::has_more))
     }
 
     /// `send` has room for another message. A driver that must not lose stream data polls
@@ -528,7 +528,7 @@ impl CanLink {
             return Some(frame);
         }
         let alias = self.login.alias()?;
-        let mid_message = self.current.as_ref().is_some_and(|c| c.remaining() > 0);
+        let mid_message = self.current.as_ref().is_some_and(Fragments::has_more);
         if let Some(front) = self.frames.front() {
             if !mid_message || front.header().is_ok_and(|h| !h.is_message()) {
                 return self.frames.pop_front();
