@@ -900,8 +900,9 @@ impl CanLink {
         let Some(ours) = self.login.alias() else {
             return;
         };
-        let frame = Cursor::new(mti, ours, Some(to), payload.len()).ok().and_then(|mut c| c.next_frame(payload));
-        self.queue_frame(frame);
+        // Data bytes 0-1: framing flags 00 (the only frame) and the destination alias.
+        let id = CanHeader::message(mti, ours).to_id();
+        self.queue_frame(Some(CanFrame::build(id, &to.as_raw().to_be_bytes(), payload)));
     }
 
     // ----- login and alias resolution -----
