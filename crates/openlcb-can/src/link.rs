@@ -60,7 +60,7 @@ use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 use crate::cache::AliasCache;
 use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition};
 use crate::frame::{CanFrame, FrameError};
-use crate::header::{CanHeader, DatagramFrame, FrameKind};
+use crate::header::{self, CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
 use crate::{NodeAlias, add, bump};
@@ -530,7 +530,7 @@ impl CanLink {
         let alias = self.login.alias()?;
         let mid_message = self.current.as_ref().is_some_and(Fragments::has_more);
         if let Some(front) = self.frames.front() {
-            if !mid_message || front.header().is_ok_and(|h| !h.is_message()) {
+            if !mid_message || !header::is_message_id(front.raw_id()) {
                 return self.frames.pop_front();
             }
         }
