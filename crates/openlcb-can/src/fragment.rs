@@ -133,6 +133,11 @@ impl<P: AsRef<[u8]>> Fragments<P> {
     pub fn remaining(&self) -> usize {
         self.cursor.remaining(self.payload.as_ref().len())
     }
+
+    /// A frame is still to come (`remaining() > 0`, without counting them).
+    pub(crate) fn has_more(&self) -> bool {
+        !self.cursor.finished
+    }
 }
 
 impl<P: AsRef<[u8]>> Iterator for Fragments<P> {

@@ -262,6 +262,12 @@ impl CanHeader {
     }
 }
 
+/// The identifier `id` (of a frame of this crate's making) is a message frame's, not a control
+/// frame's: [`CanHeader::is_message`] from the identifier's bit 27 alone, without parsing it.
+pub(crate) fn is_message_id(id: u32) -> bool {
+    id & field::MESSAGE_BIT != 0
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -315,6 +321,7 @@ mod tests {
             assert_eq!(h.kind, kind, "{id:08X}");
             assert_eq!(h.source, alias(0x555));
             assert!(!h.is_message());
+            assert!(!is_message_id(id));
             assert_eq!(h.frame_format(), None);
             assert_eq!(h.to_id(), id, "{id:08X} round trip");
         }
@@ -337,6 +344,7 @@ mod tests {
     fn every_message_header_round_trips() {
         for id in [0x19CC_822A, 0x1F45_6123, 0x1B45_6123, 0x1C45_6123, 0x1845_6123, 0x1910_0123] {
             assert_eq!(CanHeader::parse(id).unwrap().to_id(), id, "{id:08X}");
+            assert!(is_message_id(id));
         }
         assert_eq!(CanHeader::message(Mti::STREAM_DATA_COMPLETE, alias(0x123)).to_id(), 0x198A_8123);
     }

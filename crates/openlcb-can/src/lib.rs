@@ -143,3 +143,16 @@ pub use header::{CanHeader, DatagramFrame, FrameKind, HeaderError};
 pub use link::{CanConfig, CanLink, LinkEvent, LinkStats, SendError};
 pub use login::{AliasLogin, LoginEvent, LoginState, LoginStats};
 pub use reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
+
+/// Counts one more, stopping at `u32::MAX` (32-bit counters: 64-bit ones cost flash on a
+/// microcontroller).
+#[inline(never)]
+fn bump(counter: &mut u32) {
+    add(counter, 1);
+}
+
+/// Counts `n` more, stopping at `u32::MAX`.
+#[inline(never)]
+fn add(counter: &mut u32, n: usize) {
+    *counter = counter.saturating_add(u32::try_from(n).unwrap_or(u32::MAX));
+}

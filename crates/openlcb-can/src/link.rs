@@ -57,13 +57,13 @@ use alloc::vec::Vec;
 
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
-use crate::NodeAlias;
 use crate::cache::AliasCache;
 use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition};
 use crate::frame::{CanFrame, FrameError};
-use crate::header::{CanHeader, DatagramFrame, FrameKind};
+use crate::header::{self, CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
-use crate::reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
+use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
+use crate::{NodeAlias, add, bump};
 use openlcb_stream::Queue;
 
 /// Where received messages go: the caller's closure.
@@ -101,8 +101,9 @@ pub struct CanConfig {
     /// Messages accepted by [`CanLink::send`] and not yet framed (including those waiting
     /// for an alias). More are refused with [`SendError::QueueFull`].
     pub transmit_queue_limit: usize,
-    /// Frames the link itself queues (AME, OIR, Verify Node ID, Datagram Rejected); more are
-    /// dropped and counted.
+    /// Frames the link itself queues (AME, OIR, Verify Node ID, Datagram Rejected, and
+    /// Initialization Complete after a re-login, first into the queue emptied with the old
+    /// alias); more are dropped and counted.
     pub frame_queue_limit: usize,
     /// How long to wait for an AME answer for a Node ID we want to send to; and the wait
     /// after the first Verify Node ID to an alias being learnt (doubled after each next one).
@@ -287,7 +288,16 @@ struct Received<'a> {
     mti: Mti,
     /// Addressed to us (addressed, stream data, datagram) rather than global.
     addressed: bool,
-    payload: &'a [u8],
+    payload: Payload<'a>,
+}
+
+/// Where the payload of a [`Received`] message is.
+enum Payload<'a> {
+    /// In the frame.
+    Frame(&'a [u8]),
+    /// In this slot of the reassembler for its MTI, which keeps it until the next frame is
+    /// added there.
+    Reassembled(usize),
 }
 
 /// An alias whose Node ID is being asked for.
@@ -322,7 +332,6 @@ pub struct CanLink {
     cache: AliasCache,
     reassembly: Reassembler,
     datagrams: Reassembler,
-    scratch: Vec<u8>,
     frames: Queue<CanFrame>,
     messages: Queue<Outgoing>,
     current: Option<Fragments<Vec<u8>>>,
@@ -346,9 +355,8 @@ impl CanLink {
             cache: AliasCache::new(config.alias_cache_size),
             reassembly: Reassembler::new(config.reassembly_slots, config.max_message_len, config.reassembly_timeout),
             datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
-            scratch: Vec::with_capacity(config.max_message_len.max(MAX_DATAGRAM_LEN)),
             frames: Queue::with_capacity(config.frame_queue_limit),
-            messages: Queue::with_capacity(config.transmit_queue_limit.saturating_add(1)),
+            messages: Queue::with_capacity(config.transmit_queue_limit),
             current: None,
             unresolved: Queue::with_capacity(config.transmit_queue_limit),
             learning: Vec::with_capacity(config.learn_slots),
@@ -426,14 +434,14 @@ impl CanLink {
     /// Bytes allocated for reassembly buffers: fixed when the link is made.
     #[cfg(feature = "fuzzing")]
     pub(crate) fn reassembly_allocated(&self) -> usize {
-        self.reassembly.allocated() + self.datagrams.allocated() + self.scratch.capacity()
+        self.reassembly.allocated() + self.datagrams.allocated()
     }
 
     /// Messages accepted by `send` and not yet fully framed.
     pub fn queued_messages(&self) -> usize {
         self.messages.len()
             + self.unresolved.len()
-            + usize::from(self.current.as_ref().is_some_and(|c| c.remaining() > 0))
+            + usize::from(self.current.as_ref().is_some_and(Fragments::has_more))
     }
 
     /// `send` has room for another message. A driver that must not lose stream data polls
@@ -471,12 +479,21 @@ impl CanLink {
         if !self.can_send() {
             return Err(SendError::QueueFull);
         }
-        match destination.map(|node| self.alias_for(node)).transpose() {
-            Ok(alias) => self.messages.push_back(Outgoing::new(message, alias)),
-            Err(deadline) => {
-                self.unresolved.push_back(Outgoing { message, destination: None, deadline });
-                self.send_enquiries(now);
+        let resolved = destination.map(|node| self.alias_for(node)).transpose();
+        let mut outgoing = Outgoing::new(message, None);
+        let queue = match resolved {
+            Ok(alias) => {
+                outgoing.destination = alias;
+                &mut self.messages
             }
+            Err(deadline) => {
+                outgoing.deadline = deadline;
+                &mut self.unresolved
+            }
+        };
+        queue.push_back(outgoing);
+        if resolved.is_err() {
+            self.send_enquiries(now);
         }
         Ok(())
     }
@@ -511,9 +528,9 @@ impl CanLink {
             return Some(frame);
         }
         let alias = self.login.alias()?;
-        let mid_message = self.current.as_ref().is_some_and(|c| c.remaining() > 0);
+        let mid_message = self.current.as_ref().is_some_and(Fragments::has_more);
         if let Some(front) = self.frames.front() {
-            if !mid_message || front.header().is_ok_and(|h| !h.is_message()) {
+            if !mid_message || !header::is_message_id(front.raw_id()) {
                 return self.frames.pop_front();
             }
         }
@@ -554,8 +571,8 @@ impl CanLink {
     /// for messages and datagrams), alias resolutions that ran out, and the next Verify Node
     /// ID (or giving up) for aliases being learnt. Early or repeated calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
-        self.login.handle_timeout(now);
-        self.drain_login_events(now);
+        let event = self.login.timeout(now);
+        self.login_event(now, event);
         loop {
             let expired = self.reassembly.take_expired(now).or_else(|| self.datagrams.take_expired(now));
             let Some(key) = expired else { break };
@@ -596,14 +613,11 @@ impl CanLink {
             Err(_) => return bump(&mut self.stats.invalid_frames),
         };
         let data = frame.payload();
-        let from_our_alias = self.login.handle_header(now, &header, data);
-        self.drain_login_events(now);
+        let (from_our_alias, event) = self.login.header(now, &header, data);
+        self.login_event(now, event);
         if from_our_alias {
             return;
         }
-        // A reassembled message is copied into `scratch`, taken out of the link meanwhile: the
-        // reassembler is free again while the message is delivered.
-        let mut scratch = core::mem::take(&mut self.scratch);
         let source = header.source;
         let message = match header.kind {
             FrameKind::AliasMapDefinition => {
@@ -621,31 +635,29 @@ impl CanLink {
                 self.forget_all_mappings();
                 None
             }
-            FrameKind::Message { can_mti } => self.on_message(now, source, Mti(can_mti), data, &mut scratch),
+            FrameKind::Message { can_mti } => self.on_message(now, source, Mti(can_mti), data),
             FrameKind::StreamData { destination } => self.on_stream_data(destination, data),
             FrameKind::Datagram { frame: part, destination } => {
-                self.on_datagram_frame(now, source, part, destination, data, &mut scratch)
+                self.on_datagram_frame(now, source, part, destination, data)
             }
             FrameKind::ReservedFormat { .. } => ignore(&mut self.stats.unsupported_ignored),
             _ => None,
         };
         if let Some(Received { mti, addressed, payload }) = message {
-            self.deliver_from(now, source, mti, addressed, payload, deliver);
+            let name = self.name_sender(now, source, addressed);
+            let destination = addressed.then_some(self.node);
+            let payload = match payload {
+                Payload::Frame(data) => data,
+                Payload::Reassembled(slot) => self.reassembler(mti).completed(slot),
+            };
+            deliver(MessageRef { mti, source: name, destination, payload });
         }
-        self.scratch = scratch;
     }
 
     // ----- received messages -----
 
     /// A format 1 frame: a global or addressed message whole, or once its last frame came.
-    fn on_message<'a>(
-        &mut self,
-        now: Instant,
-        source: NodeAlias,
-        mti: Mti,
-        data: &'a [u8],
-        scratch: &'a mut Vec<u8>,
-    ) -> Option<Received<'a>> {
+    fn on_message<'a>(&mut self, now: Instant, source: NodeAlias, mti: Mti, data: &'a [u8]) -> Option<Received<'a>> {
         if !mti.is_addressed() {
             if mti.announces_sender() {
                 match NodeId::from_slice(data) {
@@ -654,7 +666,7 @@ impl CanLink {
                     None => {}
                 }
             }
-            return Some(Received { mti, addressed: false, payload: data });
+            return Some(Received { mti, addressed: false, payload: Payload::Frame(data) });
         }
         let [flags_and_high, low, body @ ..] = data else {
             return ignore(&mut self.stats.invalid_frames);
@@ -666,9 +678,9 @@ impl CanLink {
         let position = FramePosition::from_flags(*flags_and_high);
         if position == FramePosition::Only {
             // The usual case: the payload is handed over straight from the frame.
-            return Some(Received { mti, addressed: true, payload: body });
+            return Some(Received { mti, addressed: true, payload: Payload::Frame(body) });
         }
-        self.reassemble(now, ReassemblyKey { source, destination: ours, mti }, position, body, scratch)
+        self.reassemble(now, ReassemblyKey { source, destination: ours, mti }, position, body)
     }
 
     /// A format 7 frame: stream data to us.
@@ -680,7 +692,7 @@ impl CanLink {
             // Wire-spec §7.3: DLC 0 is invalid (no DID).
             return ignore(&mut self.stats.invalid_frames);
         }
-        Some(Received { mti: Mti::STREAM_DATA_SEND, addressed: true, payload: data })
+        Some(Received { mti: Mti::STREAM_DATA_SEND, addressed: true, payload: Payload::Frame(data) })
     }
 
     /// A datagram frame (formats 2-5): the datagram once whole.
@@ -691,7 +703,6 @@ impl CanLink {
         frame: DatagramFrame,
         destination: NodeAlias,
         data: &'a [u8],
-        scratch: &'a mut Vec<u8>,
     ) -> Option<Received<'a>> {
         let Some(ours) = self.login.alias().filter(|ours| *ours == destination) else {
             return ignore(&mut self.stats.not_for_us);
@@ -701,24 +712,22 @@ impl CanLink {
         if position == FramePosition::Only {
             // A whole datagram: the sender has given up any datagram it left open.
             self.datagrams.discard(key);
-            return Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: data });
+            return Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: Payload::Frame(data) });
         }
-        self.reassemble(now, key, position, data, scratch)
+        self.reassemble(now, key, position, data)
     }
 
-    /// Adds a frame of a multi-frame message or datagram (`key.mti` tells which); the whole
-    /// message once its last frame came, copied into `scratch`.
+    /// Adds a frame of a multi-frame message or datagram (`key.mti` tells which, the frame is
+    /// not `Only`); the whole message once its last frame came, left in its slot.
     fn reassemble<'a>(
         &mut self,
         now: Instant,
         key: ReassemblyKey,
         position: FramePosition,
         data: &[u8],
-        scratch: &'a mut Vec<u8>,
     ) -> Option<Received<'a>> {
-        let reassembler = if key.mti == Mti::DATAGRAM { &mut self.datagrams } else { &mut self.reassembly };
-        match reassembler.push(now, key, position, data) {
-            Ok(whole) => Some(Received { mti: key.mti, addressed: true, payload: copy_into(scratch, whole?) }),
+        match self.reassembler(key.mti).add(now, key, position, data) {
+            Ok(whole) => Some(Received { mti: key.mti, addressed: true, payload: Payload::Reassembled(whole?) }),
             Err(error) => {
                 self.reassembly_error(key, error);
                 None
@@ -726,19 +735,16 @@ impl CanLink {
         }
     }
 
-    /// Hands one whole message from `source` to `deliver`, named by its cached Node ID or its
-    /// provisional name. A message to us (addressed, stream data, datagram) from an alias not
-    /// in the cache starts learning it; a global one draws nothing.
-    fn deliver_from(
-        &mut self,
-        now: Instant,
-        source: NodeAlias,
-        mti: Mti,
-        addressed: bool,
-        payload: &[u8],
-        deliver: Deliver<'_>,
-    ) {
-        let name = match self.cache.node(source) {
+    /// The reassembler for messages of `mti`: datagrams or addressed messages.
+    fn reassembler(&mut self, mti: Mti) -> &mut Reassembler {
+        if mti == Mti::DATAGRAM { &mut self.datagrams } else { &mut self.reassembly }
+    }
+
+    /// The name of `source` for a whole message from it: its cached Node ID, or its
+    /// provisional name. A message to us (`addressed`: addressed, stream data, datagram) from
+    /// an alias not in the cache starts learning it; a global one draws nothing.
+    fn name_sender(&mut self, now: Instant, source: NodeAlias, addressed: bool) -> NodeId {
+        match self.cache.node(source) {
             Some(node) => node,
             None => {
                 bump(&mut self.stats.provisional_deliveries);
@@ -747,9 +753,7 @@ impl CanLink {
                 }
                 source.provisional_node_id()
             }
-        };
-        let destination = addressed.then_some(self.node);
-        deliver(MessageRef { mti, source: name, destination, payload });
+        }
     }
 
     /// Records `alias` <-> `node`, reports the renames it causes, and releases messages
@@ -808,7 +812,16 @@ impl CanLink {
     /// Stops asking `alias` for its Node ID (each alias is asked at most once at a time).
     fn stop_learning(&mut self, alias: NodeAlias) {
         if let Some(index) = self.learning.iter().position(|l| l.alias == alias) {
-            self.learning.swap_remove(index);
+            self.unlearn(index);
+        }
+    }
+
+    /// Removes entry `index` (one that exists) of the learning table; the last entry takes its
+    /// place, as the order does not matter. No panic path, unlike `swap_remove`.
+    fn unlearn(&mut self, index: usize) {
+        let Some(last) = self.learning.pop() else { return };
+        if let Some(entry) = self.learning.get_mut(index) {
+            *entry = last;
         }
     }
 
@@ -832,7 +845,7 @@ impl CanLink {
             if entry.deadline > now {
                 index += 1;
             } else if entry.asked >= self.config.learn_attempts {
-                self.learning.swap_remove(index);
+                self.unlearn(index);
                 bump(&mut self.stats.learning_given_up);
             } else {
                 // Twice the last wait: `resolve_timeout` times 2^asked, without a 64-bit shift.
@@ -887,20 +900,23 @@ impl CanLink {
         let Some(ours) = self.login.alias() else {
             return;
         };
-        let frame = Cursor::new(mti, ours, Some(to), payload.len()).ok().and_then(|mut c| c.next_frame(payload));
-        self.queue_frame(frame);
+        // Data bytes 0-1: framing flags 00 (the only frame) and the destination alias.
+        let id = CanHeader::message(mti, ours).to_id();
+        self.queue_frame(Some(CanFrame::build(id, &to.as_raw().to_be_bytes(), payload)));
     }
 
     // ----- login and alias resolution -----
 
-    fn drain_login_events(&mut self, now: Instant) {
-        while let Some(event) = self.login.poll_event() {
+    /// Acts on what the login reported, if anything.
+    fn login_event(&mut self, now: Instant, event: Option<LoginEvent>) {
+        if let Some(event) = event {
             match event {
                 LoginEvent::Permitted { alias } => {
                     if self.announced {
-                        // After a re-login the endpoint will not announce the node again.
-                        let announce = Outgoing::new(Message::initialization_complete(self.node), None);
-                        self.messages.push_front(announce);
+                        // After a re-login the endpoint will not announce the node again: the
+                        // link does, first of all (its frame queue was emptied with the alias).
+                        let header = CanHeader::message(Mti::INITIALIZATION_COMPLETE, alias);
+                        self.queue_frame(CanFrame::from_header(&header, &self.node.to_bytes()));
                     }
                     self.announced = true;
                     self.send_enquiries(now);
@@ -974,14 +990,6 @@ fn event_bound(config: &CanConfig) -> usize {
     config.alias_cache_size.saturating_add(EVENT_BOUND)
 }
 
-/// Copies a reassembled payload into the link's `scratch` buffer, which has room for the
-/// longest message and datagram: this never allocates.
-fn copy_into<'a>(scratch: &'a mut Vec<u8>, whole: &[u8]) -> &'a [u8] {
-    scratch.clear();
-    scratch.extend_from_slice(whole);
-    scratch
-}
-
 /// Counts a frame that delivers nothing.
 fn ignore<T>(counter: &mut u32) -> Option<T> {
     bump(counter);
@@ -996,16 +1004,4 @@ fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
         (a, None) => a,
         (None, b) => b,
     }
-}
-
-/// Counts one more, stopping at `u32::MAX`.
-#[inline(never)]
-fn bump(counter: &mut u32) {
-    add(counter, 1);
-}
-
-/// Counts `n` more, stopping at `u32::MAX`.
-#[inline(never)]
-fn add(counter: &mut u32, n: usize) {
-    *counter = counter.saturating_add(u32::try_from(n).unwrap_or(u32::MAX));
 }

@@ -20,10 +20,10 @@
 
 use openlcb_stream::{Duration, Instant, NodeId};
 
-use crate::NodeAlias;
 use crate::alias::AliasGenerator;
 use crate::frame::CanFrame;
 use crate::header::{CanHeader, FrameKind};
+use crate::{NodeAlias, bump};
 use openlcb_stream::Queue;
 
 /// Frames the login can have queued at once: CID 7..4, RID, AMD, AMR, one AMD answer.
@@ -79,20 +79,20 @@ pub enum LoginEvent {
     },
 }
 
-/// Counters of the login.
+/// Counters of the login. Each counter stops at `u32::MAX`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct LoginStats {
     /// Tentative aliases abandoned because another node used them.
-    pub conflicts: u64,
+    pub conflicts: u32,
     /// RIDs sent to defend our alias against a CID.
-    pub defences: u64,
+    pub defences: u32,
     /// Permitted aliases lost to another node (AMR sent).
-    pub losses: u64,
+    pub losses: u32,
     /// AMDs sent in answer to AME.
-    pub enquiry_answers: u64,
+    pub enquiry_answers: u32,
     /// Frames or events not queued because the queue was full.
-    pub dropped: u64,
+    pub dropped: u32,
 }
 
 /// The local node's alias state machine. Feed it every received frame, call `handle_timeout`
@@ -126,7 +126,7 @@ impl AliasLogin {
             reserve_wait,
             state: LoginState::Checking { alias, deadline: now },
             transmits: Queue::with_capacity(QUEUE_BOUND),
-            events: Queue::with_capacity(EVENT_BOUND),
+            events: Queue::new(),
             stats: LoginStats::default(),
             node_id_check: None,
             asked: false,
@@ -193,9 +193,16 @@ impl AliasLogin {
 
     /// Moves on to Permitted once the reserve wait is over. Early or repeated calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
+        let event = self.timeout(now);
+        self.event(event);
+    }
+
+    /// [`handle_timeout`](Self::handle_timeout), returning its event rather than queueing it
+    /// (a call has at most one).
+    pub(crate) fn timeout(&mut self, now: Instant) -> Option<LoginEvent> {
         if let LoginState::Checking { alias, deadline } = self.state {
             if now < deadline {
-                return;
+                return None;
             }
             if !self.asked {
                 self.send(FrameKind::ReserveId, alias, false);
@@ -210,10 +217,11 @@ impl AliasLogin {
                 _ => {
                     self.send(FrameKind::AliasMapDefinition, alias, true);
                     self.state = LoginState::Permitted { alias };
-                    self.event(LoginEvent::Permitted { alias });
+                    return Some(LoginEvent::Permitted { alias });
                 }
             }
         }
+        None
     }
 
     /// Feeds one received frame. Returns true if the frame came from an alias this node holds
@@ -227,8 +235,16 @@ impl AliasLogin {
 
     /// [`handle_frame`](Self::handle_frame) for a frame whose header is already parsed.
     pub fn handle_header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> bool {
+        let (ours, event) = self.header(now, header, data);
+        self.event(event);
+        ours
+    }
+
+    /// [`handle_header`](Self::handle_header), returning its event rather than queueing it (a
+    /// call has at most one).
+    pub(crate) fn header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> (bool, Option<LoginEvent>) {
         if self.state == LoginState::Stopped {
-            return false;
+            return (false, None);
         }
         let claimed = NodeId::from_slice(data);
         match header.kind {
@@ -238,7 +254,7 @@ impl AliasLogin {
                     if (data.is_empty() || claimed == Some(self.node))
                         && !self.has_queued(FrameKind::AliasMapDefinition)
                     {
-                        count(&mut self.stats.enquiry_answers);
+                        bump(&mut self.stats.enquiry_answers);
                         self.send(FrameKind::AliasMapDefinition, alias, true);
                     }
                 }
@@ -247,36 +263,36 @@ impl AliasLogin {
                 // CFT §6.2.5: another node announced our Node ID. Send nothing more.
                 self.state = LoginState::Stopped;
                 self.transmits.clear();
-                self.event(LoginEvent::DuplicateNodeId { other: header.source });
-                return false;
+                return (false, Some(LoginEvent::DuplicateNodeId { other: header.source }));
             }
             _ => {}
         }
         if !self.holds(header.source) {
-            return false;
+            return (false, None);
         }
-        match (self.state, header.kind) {
+        let event = match (self.state, header.kind) {
             (LoginState::Checking { alias, .. }, _) => {
-                count(&mut self.stats.conflicts);
-                self.event(LoginEvent::Conflict { alias });
+                bump(&mut self.stats.conflicts);
                 self.check_next(now);
+                Some(LoginEvent::Conflict { alias })
             }
             (LoginState::Permitted { alias }, FrameKind::CheckId { .. }) => {
                 if !self.has_queued(FrameKind::ReserveId) {
-                    count(&mut self.stats.defences);
+                    bump(&mut self.stats.defences);
                     self.send(FrameKind::ReserveId, alias, false);
                 }
+                None
             }
             (LoginState::Permitted { alias }, _) => {
-                count(&mut self.stats.losses);
+                bump(&mut self.stats.losses);
                 self.transmits.clear();
                 self.send(FrameKind::AliasMapReset, alias, true);
-                self.event(LoginEvent::Lost { alias });
                 self.check_next(now);
+                Some(LoginEvent::Lost { alias })
             }
-            (LoginState::Stopped, _) => {}
-        }
-        true
+            (LoginState::Stopped, _) => None,
+        };
+        (true, event)
     }
 
     // ----- helpers -----
@@ -300,8 +316,10 @@ impl AliasLogin {
     fn check(&mut self, now: Instant, alias: NodeAlias) {
         self.transmits.retain(|f| is_kind(f, FrameKind::AliasMapReset));
         let id = self.node.as_raw();
-        // Node ID bits 47-36, 35-24, 23-12 and 11-0 (constant shifts: no 64-bit shift call).
-        for (sequence, bits) in [(7, id >> 36), (6, id >> 24), (5, id >> 12), (4, id)] {
+        // Node ID bits 47-36, 35-24, 23-12 and 11-0, from its two 24-bit halves (32-bit
+        // arithmetic).
+        let (high, low) = ((id >> 24) as u32, id as u32);
+        for (sequence, bits) in [(7, high >> 12), (6, high), (5, low >> 12), (4, low)] {
             let node_id_bits = (bits & 0xFFF) as u16;
             self.send(FrameKind::CheckId { sequence, node_id_bits }, alias, false);
         }
@@ -319,23 +337,19 @@ impl AliasLogin {
         let data = if with_node_id { node.as_slice() } else { &[] };
         match CanFrame::from_header(&CanHeader::control(kind, alias), data) {
             Some(frame) if self.transmits.len() < QUEUE_BOUND => self.transmits.push_back(frame),
-            _ => count(&mut self.stats.dropped),
+            _ => bump(&mut self.stats.dropped),
         }
     }
 
-    fn event(&mut self, event: LoginEvent) {
+    /// Queues `event`, if there is one, for `poll_event`.
+    fn event(&mut self, event: Option<LoginEvent>) {
+        let Some(event) = event else { return };
         if self.events.len() < EVENT_BOUND {
             self.events.push_back(event);
         } else {
-            count(&mut self.stats.dropped);
+            bump(&mut self.stats.dropped);
         }
     }
-}
-
-/// Counts one more, stopping at `u64::MAX`.
-#[inline(never)]
-fn count(counter: &mut u64) {
-    *counter = counter.saturating_add(1);
 }
 
 fn is_kind(frame: &CanFrame, kind: FrameKind) -> bool {

@@ -6,8 +6,8 @@ use alloc::vec::Vec;
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Duration, Instant, Mti};
 
-use crate::NodeAlias;
 use crate::fragment::FramePosition;
+use crate::{NodeAlias, bump};
 
 /// The longest datagram payload, in bytes (DG §7.3.2; node-protocols §2.1).
 pub const MAX_DATAGRAM_LEN: usize = 72;
@@ -71,20 +71,21 @@ impl ReassemblyError {
     }
 }
 
-/// Reassembly errors by kind, for the counters of the link and the gateway.
+/// Reassembly errors by kind, for the counters of the link and the gateway. Each counter
+/// stops at `u32::MAX`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct ReassemblyErrorCounts {
     /// [`ReassemblyError::MiddleWithoutFirst`] (0x2041).
-    pub middle_without_first: u64,
+    pub middle_without_first: u32,
     /// [`ReassemblyError::FirstBeforeLastEnded`] (0x2042).
-    pub first_before_last_ended: u64,
+    pub first_before_last_ended: u32,
     /// [`ReassemblyError::Timeout`] (0x2011).
-    pub timeouts: u64,
+    pub timeouts: u32,
     /// [`ReassemblyError::TooLong`].
-    pub too_long: u64,
+    pub too_long: u32,
     /// [`ReassemblyError::NoFreeSlot`] (0x2020).
-    pub no_free_slot: u64,
+    pub no_free_slot: u32,
 }
 
 impl ReassemblyErrorCounts {
@@ -97,14 +98,15 @@ impl ReassemblyErrorCounts {
             ReassemblyError::TooLong => &mut self.too_long,
             ReassemblyError::NoFreeSlot => &mut self.no_free_slot,
         };
-        *counter = counter.saturating_add(1);
+        bump(counter);
     }
 
     /// All errors counted.
     pub fn total(&self) -> u64 {
         [self.middle_without_first, self.first_before_last_ended, self.timeouts, self.too_long, self.no_free_slot]
             .into_iter()
-            .fold(0, u64::saturating_add)
+            .map(u64::from)
+            .sum()
     }
 }
 
@@ -178,6 +180,19 @@ impl Reassembler {
         if position == FramePosition::Only {
             return Ok(Some(data));
         }
+        let whole = self.add(now, key, position, data)?;
+        Ok(whole.map(|slot| self.completed(slot)))
+    }
+
+    /// [`push`](Self::push) for a frame other than `Only`: the slot holding the whole payload
+    /// once `position` ends the message (see [`completed`](Self::completed)).
+    pub(crate) fn add(
+        &mut self,
+        now: Instant,
+        key: ReassemblyKey,
+        position: FramePosition,
+        data: &[u8],
+    ) -> Result<Option<usize>, ReassemblyError> {
         let first = position == FramePosition::First;
         let open = self.slots.iter().position(|s| s.key == Some(key));
         let index = match open {
@@ -203,10 +218,16 @@ impl Reassembler {
             Err(ReassemblyError::FirstBeforeLastEnded)
         } else if position == FramePosition::Last {
             slot.key = None;
-            Ok(Some(&slot.buffer))
+            Ok(Some(index))
         } else {
             Ok(None)
         }
+    }
+
+    /// The message [`add`](Self::add) completed in `slot`: it stays there until the next frame
+    /// is added.
+    pub(crate) fn completed(&self, slot: usize) -> &[u8] {
+        self.slots.get(slot).map_or(&[], |s| s.buffer.as_slice())
     }
 
     /// The key of one message whose wait ran out at `now` (it is dropped), if any. Call until
