@@ -716,11 +716,10 @@ impl StreamEndpoint {
 
     fn on_reply(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(reply) = InitiateReply::parse(payload) else { return self.count_malformed() };
-        let Some(handle) = self.find(peer, Role::Source, reply.source_stream) else {
+        let keepalive = self.config.keepalive_interval;
+        let Some((handle, stream, out)) = self.lookup(peer, Role::Source, reply.source_stream) else {
             return bump(&mut self.out.stats.stray_replies);
         };
-        let keepalive = self.config.keepalive_interval;
-        let Ok((stream, out)) = self.parts(handle) else { return };
         let Half::Source(source) = &mut stream.half else { return };
         if source.state != SourceState::AwaitingReply {
             return bump(&mut out.stats.stray_replies);
@@ -753,11 +752,10 @@ impl StreamEndpoint {
 
     fn on_data(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(data) = DataSend::parse(payload) else { return self.count_malformed() };
-        let Some(handle) = self.find(peer, Role::Destination, data.destination_stream) else {
+        let idle = self.config.idle_timeout;
+        let Some((handle, stream, out)) = self.lookup(peer, Role::Destination, data.destination_stream) else {
             return bump(&mut self.out.stats.unknown_stream_data);
         };
-        let idle = self.config.idle_timeout;
-        let Ok((stream, out)) = self.parts(handle) else { return };
         let Half::Destination(dest) = &mut stream.half else { return };
         let expected = match dest.state {
             DestinationState::Receiving => None,
@@ -806,10 +804,9 @@ impl StreamEndpoint {
 
     fn on_proceed(&mut self, _now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(proceed) = DataProceed::parse(payload) else { return self.count_malformed() };
-        let Some(handle) = self.find(peer, Role::Source, proceed.source_stream) else {
+        let Some((handle, stream, out)) = self.lookup(peer, Role::Source, proceed.source_stream) else {
             return bump(&mut self.out.stats.stray_proceeds);
         };
-        let Ok((stream, out)) = self.parts(handle) else { return };
         let Half::Source(source) = &mut stream.half else { return };
         if source.state != SourceState::Sending || stream.destination_stream != Some(proceed.destination_stream) {
             return bump(&mut out.stats.stray_proceeds);
@@ -823,11 +820,10 @@ impl StreamEndpoint {
 
     fn on_complete(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(complete) = DataComplete::parse(payload) else { return self.count_malformed() };
-        let Some(handle) = self.find(peer, Role::Destination, complete.destination_stream) else {
+        let grace = self.config.complete_grace;
+        let Some((handle, stream, out)) = self.lookup(peer, Role::Destination, complete.destination_stream) else {
             return bump(&mut self.out.stats.stray_completes);
         };
-        let grace = self.config.complete_grace;
-        let Ok((stream, out)) = self.parts(handle) else { return };
         let Half::Destination(dest) = &mut stream.half else { return };
         if stream.source_stream != complete.source_stream || dest.state != DestinationState::Receiving {
             return bump(&mut out.stats.stray_completes);
@@ -1164,16 +1160,27 @@ impl StreamEndpoint {
         })
     }
 
+    /// The slot of the stream with `peer` in `role` under the ID this node assigned.
+    #[inline(never)]
+    fn position(&self, peer: NodeId, role: Role, id: StreamId) -> Option<usize> {
+        self.slots.iter().position(|entry| {
+            entry.stream.as_ref().is_some_and(|s| s.peer == peer && s.role() == role && s.local_id() == Some(id))
+        })
+    }
+
     /// The stream with `peer` in `role` under the ID this node assigned.
     fn find(&self, peer: NodeId, role: Role, id: StreamId) -> Option<StreamHandle> {
-        let mut found = None;
-        for (handle, s) in self.streams() {
-            if s.peer == peer && s.role() == role && s.local_id() == Some(id) {
-                found = Some(handle);
-                break;
-            }
-        }
-        found
+        let slot = self.position(peer, role, id)?;
+        let entry = self.slots.get(slot)?;
+        Some(StreamHandle { slot: slot as u16, generation: entry.generation })
+    }
+
+    /// As [`find`](Self::find), with the stream itself and the outputs.
+    fn lookup(&mut self, peer: NodeId, role: Role, id: StreamId) -> Option<(StreamHandle, &mut Stream, &mut Outputs)> {
+        let slot = self.position(peer, role, id)?;
+        let entry = self.slots.get_mut(slot)?;
+        let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
+        Some((handle, entry.stream.as_mut()?, &mut self.out))
     }
 
     /// A destination stream from `peer` by the source's SID; of several (a closed one with
