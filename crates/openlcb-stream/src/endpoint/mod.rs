@@ -212,6 +212,7 @@ impl Outputs {
         self.send_wire(Mti::TERMINATE_DUE_TO_ERROR, peer, &ErrorReport { code, mti: Some(mti) });
     }
 
+    #[inline(never)]
     fn event(&mut self, event: Event) {
         self.events.push_back(event);
     }
