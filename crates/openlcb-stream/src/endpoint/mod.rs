@@ -661,41 +661,34 @@ impl StreamEndpoint {
             // The source no longer knows the old stream (it reset): that one is over.
             self.end(Event::Terminated { handle, cause: Termination::Superseded });
         }
-        if let AcceptPolicy::RejectAll(code) = self.config.accept_policy {
+        if let Err(code) = self.admit(now, peer, &request) {
             self.refuse(peer, sid, code);
-            return;
         }
+    }
+
+    /// Takes a new request into the table and accepts it or asks the application, or says
+    /// with which code to refuse it.
+    fn admit(&mut self, now: Instant, peer: NodeId, request: &InitiateRequest) -> Result<(), ReplyCode> {
+        if let AcceptPolicy::RejectAll(code) = self.config.accept_policy {
+            return Err(code);
+        }
+        let busy = ReplyCode::BUFFER_UNAVAILABLE;
         let did = match request.proposed_destination {
-            Some(did) if self.find(peer, Role::Destination, did).is_some() => {
-                self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
-                return;
-            }
+            Some(did) if self.find(peer, Role::Destination, did).is_some() => return Err(busy),
             Some(did) => did,
-            None => match self.free_id(peer, Role::Destination) {
-                Ok(did) => did,
-                Err(_) => {
-                    self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
-                    return;
-                }
-            },
+            None => self.free_id(peer, Role::Destination).map_err(|_| busy)?,
         };
-        if self.check_room(peer, Role::Destination).is_err() {
-            self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
-            return;
-        }
+        self.check_room(peer, Role::Destination).map_err(|_| busy)?;
         let stream = Stream {
             peer,
-            source_stream: sid,
+            source_stream: request.source_stream,
             destination_stream: Some(did),
             window: request.max_buffer_size,
             content_uid: request.content_uid,
             timers: TimerTable::default(),
             half: Half::Destination(Destination::pending()),
         };
-        let Ok(handle) = self.insert(stream) else {
-            self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
-            return;
-        };
+        let handle = self.insert(stream).map_err(|_| busy)?;
         if request.proposed_destination.is_none() {
             self.next_destination_id = did.next();
         }
@@ -713,6 +706,7 @@ impl StreamEndpoint {
                 self.accept_slot(now, usize::from(handle.slot), max_window, self.config.early_proceed);
             }
         }
+        Ok(())
     }
 
     fn on_reply(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
@@ -949,13 +943,7 @@ impl StreamEndpoint {
         if let Some(timeout) = first_data {
             stream.timers.start(Timer::Idle, now, timeout);
         }
-        let reply = InitiateReply {
-            max_buffer_size: window,
-            code: ReplyCode::ACCEPT,
-            source_stream: stream.source_stream,
-            destination_stream: stream.destination_stream,
-        };
-        self.out.send_wire(Mti::STREAM_INITIATE_REPLY, stream.peer, &reply);
+        send_accept(stream, &mut self.out);
         let info = stream.info();
         self.out.event(Event::Opened { handle, info });
     }
@@ -974,15 +962,9 @@ impl StreamEndpoint {
     }
 
     fn resend_accept(&mut self, handle: StreamHandle) {
-        if let Some(stream) = self.stream(handle) {
-            let reply = InitiateReply {
-                max_buffer_size: stream.window,
-                code: ReplyCode::ACCEPT,
-                source_stream: stream.source_stream,
-                destination_stream: stream.destination_stream,
-            };
-            let peer = stream.peer;
-            self.out.send_wire(Mti::STREAM_INITIATE_REPLY, peer, &reply);
+        let slot = self.slot_index(handle);
+        if let Some(stream) = slot.and_then(|slot| self.slots.get(slot)?.stream.as_ref()) {
+            send_accept(stream, &mut self.out);
         }
     }
 
@@ -1217,6 +1199,17 @@ fn send_flush(stream: &Stream, out: &mut Outputs) -> Result<(), StreamError> {
         }
         _ => Err(StreamError::NotOpen),
     }
+}
+
+/// Sends the accepting Initiate Reply of a destination stream, with its window.
+fn send_accept(stream: &Stream, out: &mut Outputs) {
+    let reply = InitiateReply {
+        max_buffer_size: stream.window,
+        code: ReplyCode::ACCEPT,
+        source_stream: stream.source_stream,
+        destination_stream: stream.destination_stream,
+    };
+    out.send_wire(Mti::STREAM_INITIATE_REPLY, stream.peer, &reply);
 }
 
 /// Sends the Proceed the destination owes, if any (never more than one ahead, see
