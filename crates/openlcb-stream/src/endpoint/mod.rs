@@ -218,6 +218,15 @@ impl Outputs {
     }
 }
 
+/// How [`StreamEndpoint::end_each`] ends each stream: the event it raises.
+#[derive(Debug, Clone, Copy)]
+enum Ending {
+    /// [`Event::Terminated`] with this cause.
+    Terminated(Termination),
+    /// [`Event::Rejected`] with this code and class.
+    Rejected(ReplyCode, ReplyClass),
+}
+
 /// One node's stream engine. See the crate documentation for the drive loop.
 #[derive(Debug)]
 pub struct StreamEndpoint {
@@ -390,7 +399,7 @@ impl StreamEndpoint {
     /// The transport lost its link (e.g. this node's CAN alias): every stream ends with
     /// [`Termination::LinkLost`].
     pub fn link_lost(&mut self) {
-        self.end_each(&|_| true, &|handle| Event::Terminated { handle, cause: Termination::LinkLost });
+        self.end_each(&|_| true, Ending::Terminated(Termination::LinkLost));
     }
 
     // ----- commands: source -----
@@ -851,7 +860,7 @@ impl StreamEndpoint {
             let waiting = |s: &Stream| {
                 s.peer == peer && matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply)
             };
-            if self.end_each(&waiting, &|handle| Event::Rejected { handle, code, class }) == 0 {
+            if self.end_each(&waiting, Ending::Rejected(code, class)) == 0 {
                 bump(&mut self.out.stats.stray_error_reports);
             }
             return;
@@ -870,11 +879,10 @@ impl StreamEndpoint {
             Some(_) => return bump(&mut self.out.stats.stray_error_reports),
             None => None,
         };
-        let terminated = |handle| Event::Terminated { handle, cause: Termination::ByPeer(report.code) };
         let mut ended = 0;
         for role in [peer_is.map(Role::other), peer_is] {
             let live = |s: &Stream| s.peer == peer && role.is_none_or(|r| r == s.role()) && !s.is_closed();
-            ended = self.end_each(&live, &terminated);
+            ended = self.end_each(&live, Ending::Terminated(Termination::ByPeer(report.code)));
             if ended > 0 || peer_is.is_none() {
                 break;
             }
@@ -1010,15 +1018,18 @@ impl StreamEndpoint {
         }
     }
 
-    /// Ends every stream that `selects` picks, in slot order, each with its `event`; returns
-    /// how many.
-    fn end_each(&mut self, selects: &dyn Fn(&Stream) -> bool, event: &dyn Fn(StreamHandle) -> Event) -> usize {
+    /// Ends every stream that `selects` picks, in slot order, each with the event of `ending`;
+    /// returns how many.
+    fn end_each(&mut self, selects: &dyn Fn(&Stream) -> bool, ending: Ending) -> usize {
         let mut ended = 0;
         for slot in 0..self.slots.len() {
             let Some(entry) = self.slots.get(slot) else { continue };
             if entry.stream.as_ref().is_some_and(selects) {
                 let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
-                self.end(event(handle));
+                self.end(match ending {
+                    Ending::Terminated(cause) => Event::Terminated { handle, cause },
+                    Ending::Rejected(code, class) => Event::Rejected { handle, code, class },
+                });
                 ended += 1;
             }
         }
@@ -1036,7 +1047,7 @@ impl StreamEndpoint {
                     Half::Destination(d) => d.state != DestinationState::Closed,
                 }
         };
-        self.end_each(&forgotten, &|handle| Event::Terminated { handle, cause: Termination::PeerRestarted });
+        self.end_each(&forgotten, Ending::Terminated(Termination::PeerRestarted));
     }
 
     /// This node just sent a TDE to `peer` about one of its streams in `role`. The TDE names
@@ -1046,8 +1057,7 @@ impl StreamEndpoint {
     /// own TDE, for a peer that ends one stream per TDE.
     fn end_siblings(&mut self, peer: NodeId, role: Role, code: ErrorCode) {
         let sibling = |s: &Stream| s.peer == peer && s.role() == role && !s.is_closed();
-        let ended =
-            self.end_each(&sibling, &|handle| Event::Terminated { handle, cause: Termination::SiblingTerminated });
+        let ended = self.end_each(&sibling, Ending::Terminated(Termination::SiblingTerminated));
         for _ in 0..ended {
             self.out.terminate(peer, code, role);
         }
@@ -1055,7 +1065,7 @@ impl StreamEndpoint {
 
     /// Ends every stream with `peer` that is not over yet, without sending anything.
     fn end_all_with(&mut self, peer: NodeId, cause: Termination) {
-        self.end_each(&|s| s.peer == peer && !s.is_closed(), &|handle| Event::Terminated { handle, cause });
+        self.end_each(&|s| s.peer == peer && !s.is_closed(), Ending::Terminated(cause));
     }
 
     fn count_malformed(&mut self) {
