@@ -218,6 +218,33 @@ impl Outputs {
     }
 }
 
+/// Which streams [`StreamEndpoint::end_each`] ends.
+#[derive(Debug, Clone, Copy)]
+enum Selection {
+    /// Every stream.
+    All,
+    /// The streams with this peer that are not closed, in this role (`None`: both roles).
+    Live(NodeId, Option<Role>),
+    /// The source streams with this peer whose request waits for its Reply.
+    Waiting(NodeId),
+    /// What this peer forgot when it restarted: its streams but requests waiting for their
+    /// Reply and closed destinations.
+    Forgotten(NodeId),
+}
+
+impl Selection {
+    /// Whether the selection takes `s`.
+    fn picks(self, s: &Stream) -> bool {
+        let waiting = matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply);
+        match self {
+            Selection::All => true,
+            Selection::Live(peer, role) => s.peer == peer && role.is_none_or(|r| r == s.role()) && !s.is_closed(),
+            Selection::Waiting(peer) => s.peer == peer && waiting,
+            Selection::Forgotten(peer) => s.peer == peer && !waiting && !s.is_closed(),
+        }
+    }
+}
+
 /// How [`StreamEndpoint::end_each`] ends each stream: the event it raises.
 #[derive(Debug, Clone, Copy)]
 enum Ending {
@@ -399,7 +426,7 @@ impl StreamEndpoint {
     /// The transport lost its link (e.g. this node's CAN alias): every stream ends with
     /// [`Termination::LinkLost`].
     pub fn link_lost(&mut self) {
-        self.end_each(&|_| true, Ending::Terminated(Termination::LinkLost));
+        self.end_each(Selection::All, Ending::Terminated(Termination::LinkLost));
     }
 
     // ----- commands: source -----
@@ -857,10 +884,7 @@ impl StreamEndpoint {
         if mti == Mti::OPTIONAL_INTERACTION_REJECTED && report.mti == Some(Mti::STREAM_INITIATE_REQUEST) {
             let code = ReplyCode(report.code.0);
             let class = if code.is_accept() { ReplyClass::Permanent } else { code.class() };
-            let waiting = |s: &Stream| {
-                s.peer == peer && matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply)
-            };
-            if self.end_each(&waiting, Ending::Rejected(code, class)) == 0 {
+            if self.end_each(Selection::Waiting(peer), Ending::Rejected(code, class)) == 0 {
                 bump(&mut self.out.stats.stray_error_reports);
             }
             return;
@@ -881,8 +905,7 @@ impl StreamEndpoint {
         };
         let mut ended = 0;
         for role in [peer_is.map(Role::other), peer_is] {
-            let live = |s: &Stream| s.peer == peer && role.is_none_or(|r| r == s.role()) && !s.is_closed();
-            ended = self.end_each(&live, Ending::Terminated(Termination::ByPeer(report.code)));
+            ended = self.end_each(Selection::Live(peer, role), Ending::Terminated(Termination::ByPeer(report.code)));
             if ended > 0 || peer_is.is_none() {
                 break;
             }
@@ -1020,11 +1043,11 @@ impl StreamEndpoint {
 
     /// Ends every stream that `selects` picks, in slot order, each with the event of `ending`;
     /// returns how many.
-    fn end_each(&mut self, selects: &dyn Fn(&Stream) -> bool, ending: Ending) -> usize {
+    fn end_each(&mut self, selection: Selection, ending: Ending) -> usize {
         let mut ended = 0;
         for slot in 0..self.slots.len() {
             let Some(entry) = self.slots.get(slot) else { continue };
-            if entry.stream.as_ref().is_some_and(selects) {
+            if entry.stream.as_ref().is_some_and(|s| selection.picks(s)) {
                 let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
                 self.end(match ending {
                     Ending::Terminated(cause) => Event::Terminated { handle, cause },
@@ -1040,14 +1063,7 @@ impl StreamEndpoint {
     /// still waiting for its Reply stays: messages from one node arrive in order, so the peer
     /// will see the request after its restart and answer it.
     fn peer_restarted(&mut self, peer: NodeId) {
-        let forgotten = |s: &Stream| {
-            s.peer == peer
-                && match &s.half {
-                    Half::Source(src) => src.state != SourceState::AwaitingReply,
-                    Half::Destination(d) => d.state != DestinationState::Closed,
-                }
-        };
-        self.end_each(&forgotten, Ending::Terminated(Termination::PeerRestarted));
+        self.end_each(Selection::Forgotten(peer), Ending::Terminated(Termination::PeerRestarted));
     }
 
     /// This node just sent a TDE to `peer` about one of its streams in `role`. The TDE names
@@ -1056,8 +1072,7 @@ impl StreamEndpoint {
     /// too, or their data would later land in a new stream given the same DID. Each gets its
     /// own TDE, for a peer that ends one stream per TDE.
     fn end_siblings(&mut self, peer: NodeId, role: Role, code: ErrorCode) {
-        let sibling = |s: &Stream| s.peer == peer && s.role() == role && !s.is_closed();
-        let ended = self.end_each(&sibling, Ending::Terminated(Termination::SiblingTerminated));
+        let ended = self.end_each(Selection::Live(peer, Some(role)), Ending::Terminated(Termination::SiblingTerminated));
         for _ in 0..ended {
             self.out.terminate(peer, code, role);
         }
@@ -1065,7 +1080,7 @@ impl StreamEndpoint {
 
     /// Ends every stream with `peer` that is not over yet, without sending anything.
     fn end_all_with(&mut self, peer: NodeId, cause: Termination) {
-        self.end_each(&|s| s.peer == peer && !s.is_closed(), Ending::Terminated(cause));
+        self.end_each(Selection::Live(peer, None), Ending::Terminated(cause));
     }
 
     fn count_malformed(&mut self) {
