@@ -184,23 +184,23 @@ struct Outputs {
 }
 
 impl Outputs {
-    fn send(&mut self, mti: Mti, peer: NodeId, payload: Vec<u8>) {
-        bump(&mut self.stats.messages_out);
-        self.transmits.push_back(Message::addressed(mti, self.node, peer, payload));
-    }
-
     /// Sends a stream control message (at most 12 bytes: the longest is a request with a
-    /// content UID), encoded on the stack so that only [`send_slice`](Self::send_slice)
+    /// content UID), encoded on the stack so that only [`send_slices`](Self::send_slices)
     /// allocates.
     fn send_wire(&mut self, mti: Mti, peer: NodeId, body: &impl Emit) {
         let mut buf = [0u8; 12];
         let n = body.emit(&mut buf).unwrap_or(0);
-        self.send_slice(mti, peer, buf.get(..n).unwrap_or_default());
+        self.send_slices(mti, peer, buf.get(..n).unwrap_or_default(), &[]);
     }
 
+    /// Sends a message whose payload is `head` then `tail`: the one place that allocates one.
     #[inline(never)]
-    fn send_slice(&mut self, mti: Mti, peer: NodeId, payload: &[u8]) {
-        self.send(mti, peer, payload.to_vec());
+    fn send_slices(&mut self, mti: Mti, peer: NodeId, head: &[u8], tail: &[u8]) {
+        let mut payload = Vec::with_capacity(head.len() + tail.len());
+        payload.extend_from_slice(head);
+        payload.extend_from_slice(tail);
+        bump(&mut self.stats.messages_out);
+        self.transmits.push_back(Message::addressed(mti, self.node, peer, payload));
     }
 
     fn terminate(&mut self, peer: NodeId, code: ErrorCode, role: Role) {
@@ -503,10 +503,7 @@ impl StreamEndpoint {
             let to_boundary = window.saturating_sub(source.window_sent).max(1);
             let n = rest.len().min(source.credit as usize).min(to_boundary as usize);
             let (chunk, tail) = rest.split_at(n);
-            let mut payload = Vec::with_capacity(n + 1);
-            payload.push(did.as_raw());
-            payload.extend_from_slice(chunk);
-            out.send(Mti::STREAM_DATA_SEND, stream.peer, payload);
+            out.send_slices(Mti::STREAM_DATA_SEND, stream.peer, &[did.as_raw()], chunk);
             source.credit -= n as u32;
             source.sent += n as u64;
             source.window_sent += n as u32;
@@ -1219,7 +1216,7 @@ fn send_flush(stream: &Stream, out: &mut Outputs) -> Result<(), StreamError> {
     let Half::Source(source) = &stream.half else { return Err(StreamError::WrongRole) };
     match (source.state, stream.destination_stream) {
         (SourceState::Sending, Some(did)) => {
-            out.send(Mti::STREAM_DATA_SEND, stream.peer, alloc::vec![did.as_raw()]);
+            out.send_slices(Mti::STREAM_DATA_SEND, stream.peer, &[did.as_raw()], &[]);
             Ok(())
         }
         _ => Err(StreamError::NotOpen),
