@@ -900,12 +900,10 @@ impl StreamEndpoint {
             Some(_) => return bump(&mut self.out.stats.stray_error_reports),
             None => None,
         };
-        let mut ended = 0;
-        for role in [peer_is.map(Role::other), peer_is] {
-            ended = self.end_each(Selection::Live(peer, role), Ending::Terminated(Termination::ByPeer(report.code)));
-            if ended > 0 || peer_is.is_none() {
-                break;
-            }
+        let ending = Ending::Terminated(Termination::ByPeer(report.code));
+        let mut ended = self.end_each(Selection::Live(peer, peer_is.map(Role::other)), ending);
+        if ended == 0 && peer_is.is_some() {
+            ended = self.end_each(Selection::Live(peer, peer_is), ending);
         }
         if ended == 0 {
             bump(&mut self.out.stats.stray_error_reports);
