@@ -453,15 +453,15 @@ impl StreamEndpoint {
             return Err(StreamError::DestinationIdInUse);
         }
         self.check_room(peer, Role::Source)?;
-        let mut timers = TimerTable::default();
-        timers.start(Timer::Reply, now, self.config.reply_timeout);
-        let stream = Stream {
+        let reply_timeout = self.config.reply_timeout;
+        let (handle, place) = self.vacant()?;
+        let stream = place.insert(Stream {
             peer,
             source_stream: sid,
             destination_stream: options.proposed_destination,
             window: options.max_buffer_size,
             content_uid: options.content_uid,
-            timers,
+            timers: TimerTable::default(),
             half: Half::Source(Source {
                 state: SourceState::AwaitingReply,
                 credit: 0,
@@ -469,8 +469,8 @@ impl StreamEndpoint {
                 window_sent: 0,
                 write_blocked: false,
             }),
-        };
-        let handle = self.insert(stream)?;
+        });
+        stream.timers.start(Timer::Reply, now, reply_timeout);
         if options.source_stream.is_none() {
             self.next_source_id = sid.next();
         }
@@ -712,7 +712,8 @@ impl StreamEndpoint {
             None => self.free_id(peer, Role::Destination).map_err(|_| busy)?,
         };
         self.check_room(peer, Role::Destination).map_err(|_| busy)?;
-        let stream = Stream {
+        let (handle, place) = self.vacant().map_err(|_| busy)?;
+        *place = Some(Stream {
             peer,
             source_stream: request.source_stream,
             destination_stream: Some(did),
@@ -720,8 +721,7 @@ impl StreamEndpoint {
             content_uid: request.content_uid,
             timers: TimerTable::default(),
             half: Half::Destination(Destination::pending()),
-        };
-        let handle = self.insert(stream).map_err(|_| busy)?;
+        });
         if request.proposed_destination.is_none() {
             self.next_destination_id = did.next();
         }
@@ -1108,8 +1108,9 @@ impl StreamEndpoint {
         Err(StreamError::NoFreeStreamId)
     }
 
-    fn insert(&mut self, stream: Stream) -> Result<StreamHandle, StreamError> {
-        stream.local_id().ok_or(StreamError::NotOpen)?;
+    /// A free slot for a new stream (a new one while there are fewer than `max_streams`): the
+    /// stream's handle and its place, to be filled in place (a `Stream` is large to move).
+    fn vacant(&mut self) -> Result<(StreamHandle, &mut Option<Stream>), StreamError> {
         let slot = match self.slots.iter().position(|s| s.stream.is_none()) {
             Some(free) => free,
             None if self.slots.len() < self.config.max_streams.min(usize::from(u16::MAX)) => {
@@ -1119,14 +1120,15 @@ impl StreamEndpoint {
             None => return Err(StreamError::TableFull),
         };
         let entry = self.slots.get_mut(slot).ok_or(StreamError::TableFull)?;
-        entry.stream = Some(stream);
-        Ok(StreamHandle { slot: slot as u16, generation: entry.generation })
+        Ok((StreamHandle { slot: slot as u16, generation: entry.generation }, &mut entry.stream))
     }
 
     fn release(&mut self, handle: StreamHandle) {
         let Some(slot) = self.slot_index(handle) else { return };
         let Some(entry) = self.slots.get_mut(slot) else { return };
-        if entry.stream.take().is_some() {
+        // Dropped in place (`take` would first move the whole stream out).
+        if entry.stream.is_some() {
+            entry.stream = None;
             entry.generation = entry.generation.wrapping_add(1);
         }
     }
