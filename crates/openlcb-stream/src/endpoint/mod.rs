@@ -1067,7 +1067,8 @@ impl StreamEndpoint {
     /// too, or their data would later land in a new stream given the same DID. Each gets its
     /// own TDE, for a peer that ends one stream per TDE.
     fn end_siblings(&mut self, peer: NodeId, role: Role, code: ErrorCode) {
-        let ended = self.end_each(Selection::Live(peer, Some(role)), Ending::Terminated(Termination::SiblingTerminated));
+        let ended =
+            self.end_each(Selection::Live(peer, Some(role)), Ending::Terminated(Termination::SiblingTerminated));
         for _ in 0..ended {
             self.out.terminate(peer, code, role);
         }
