@@ -441,7 +441,7 @@ impl StreamEndpoint {
         }
         let peer = options.destination;
         let sid = match options.source_stream {
-            Some(sid) if self.find(peer, Role::Source, sid).is_some() => return Err(StreamError::StreamIdInUse),
+            Some(sid) if self.position(peer, Role::Source, sid).is_some() => return Err(StreamError::StreamIdInUse),
             Some(sid) => sid,
             None => self.free_id(peer, Role::Source)?,
         };
@@ -707,7 +707,7 @@ impl StreamEndpoint {
         }
         let busy = ReplyCode::BUFFER_UNAVAILABLE;
         let did = match request.proposed_destination {
-            Some(did) if self.find(peer, Role::Destination, did).is_some() => return Err(busy),
+            Some(did) if self.position(peer, Role::Destination, did).is_some() => return Err(busy),
             Some(did) => did,
             None => self.free_id(peer, Role::Destination).map_err(|_| busy)?,
         };
@@ -1101,7 +1101,7 @@ impl StreamEndpoint {
             Role::Destination => self.next_destination_id,
         };
         for _ in 0..255 {
-            if self.find(peer, role, id).is_none() {
+            if self.position(peer, role, id).is_none() {
                 return Ok(id);
             }
             id = id.next();
