@@ -184,23 +184,23 @@ struct Outputs {
 }
 
 impl Outputs {
-    fn send(&mut self, mti: Mti, peer: NodeId, payload: Vec<u8>) {
-        bump(&mut self.stats.messages_out);
-        self.transmits.push_back(Message::addressed(mti, self.node, peer, payload));
-    }
-
     /// Sends a stream control message (at most 12 bytes: the longest is a request with a
-    /// content UID), encoded on the stack so that only [`send_slice`](Self::send_slice)
+    /// content UID), encoded on the stack so that only [`send_slices`](Self::send_slices)
     /// allocates.
     fn send_wire(&mut self, mti: Mti, peer: NodeId, body: &impl Emit) {
         let mut buf = [0u8; 12];
         let n = body.emit(&mut buf).unwrap_or(0);
-        self.send_slice(mti, peer, buf.get(..n).unwrap_or_default());
+        self.send_slices(mti, peer, buf.get(..n).unwrap_or_default(), &[]);
     }
 
+    /// Sends a message whose payload is `head` then `tail`: the one place that allocates one.
     #[inline(never)]
-    fn send_slice(&mut self, mti: Mti, peer: NodeId, payload: &[u8]) {
-        self.send(mti, peer, payload.to_vec());
+    fn send_slices(&mut self, mti: Mti, peer: NodeId, head: &[u8], tail: &[u8]) {
+        let mut payload = Vec::with_capacity(head.len() + tail.len());
+        payload.extend_from_slice(head);
+        payload.extend_from_slice(tail);
+        bump(&mut self.stats.messages_out);
+        self.transmits.push_back(Message::addressed(mti, self.node, peer, payload));
     }
 
     fn terminate(&mut self, peer: NodeId, code: ErrorCode, role: Role) {
@@ -212,9 +212,46 @@ impl Outputs {
         self.send_wire(Mti::TERMINATE_DUE_TO_ERROR, peer, &ErrorReport { code, mti: Some(mti) });
     }
 
+    #[inline(never)]
     fn event(&mut self, event: Event) {
         self.events.push_back(event);
     }
+}
+
+/// Which streams [`StreamEndpoint::end_each`] ends.
+#[derive(Debug, Clone, Copy)]
+enum Selection {
+    /// Every stream.
+    All,
+    /// The streams with this peer that are not closed, in this role (`None`: both roles).
+    Live(NodeId, Option<Role>),
+    /// The source streams with this peer whose request waits for its Reply.
+    Waiting(NodeId),
+    /// What this peer forgot when it restarted: its streams but requests waiting for their
+    /// Reply and closed destinations.
+    Forgotten(NodeId),
+}
+
+impl Selection {
+    /// Whether the selection takes `s`.
+    fn picks(self, s: &Stream) -> bool {
+        let waiting = matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply);
+        match self {
+            Selection::All => true,
+            Selection::Live(peer, role) => s.peer == peer && role.is_none_or(|r| r == s.role()) && !s.is_closed(),
+            Selection::Waiting(peer) => s.peer == peer && waiting,
+            Selection::Forgotten(peer) => s.peer == peer && !waiting && !s.is_closed(),
+        }
+    }
+}
+
+/// How [`StreamEndpoint::end_each`] ends each stream: the event it raises.
+#[derive(Debug, Clone, Copy)]
+enum Ending {
+    /// [`Event::Terminated`] with this cause.
+    Terminated(Termination),
+    /// [`Event::Rejected`] with this code and class.
+    Rejected(ReplyCode, ReplyClass),
 }
 
 /// One node's stream engine. See the crate documentation for the drive loop.
@@ -389,7 +426,7 @@ impl StreamEndpoint {
     /// The transport lost its link (e.g. this node's CAN alias): every stream ends with
     /// [`Termination::LinkLost`].
     pub fn link_lost(&mut self) {
-        self.end_each(&|_| true, &|handle| Event::Terminated { handle, cause: Termination::LinkLost });
+        self.end_each(Selection::All, Ending::Terminated(Termination::LinkLost));
     }
 
     // ----- commands: source -----
@@ -404,7 +441,7 @@ impl StreamEndpoint {
         }
         let peer = options.destination;
         let sid = match options.source_stream {
-            Some(sid) if self.find(peer, Role::Source, sid).is_some() => return Err(StreamError::StreamIdInUse),
+            Some(sid) if self.position(peer, Role::Source, sid).is_some() => return Err(StreamError::StreamIdInUse),
             Some(sid) => sid,
             None => self.free_id(peer, Role::Source)?,
         };
@@ -416,15 +453,15 @@ impl StreamEndpoint {
             return Err(StreamError::DestinationIdInUse);
         }
         self.check_room(peer, Role::Source)?;
-        let mut timers = TimerTable::default();
-        timers.start(Timer::Reply, now, self.config.reply_timeout);
-        let stream = Stream {
+        let reply_timeout = self.config.reply_timeout;
+        let (handle, place) = self.vacant()?;
+        let stream = place.insert(Stream {
             peer,
             source_stream: sid,
             destination_stream: options.proposed_destination,
             window: options.max_buffer_size,
             content_uid: options.content_uid,
-            timers,
+            timers: TimerTable::default(),
             half: Half::Source(Source {
                 state: SourceState::AwaitingReply,
                 credit: 0,
@@ -432,8 +469,8 @@ impl StreamEndpoint {
                 window_sent: 0,
                 write_blocked: false,
             }),
-        };
-        let handle = self.insert(stream)?;
+        });
+        stream.timers.start(Timer::Reply, now, reply_timeout);
         if options.source_stream.is_none() {
             self.next_source_id = sid.next();
         }
@@ -466,10 +503,7 @@ impl StreamEndpoint {
             let to_boundary = window.saturating_sub(source.window_sent).max(1);
             let n = rest.len().min(source.credit as usize).min(to_boundary as usize);
             let (chunk, tail) = rest.split_at(n);
-            let mut payload = Vec::with_capacity(n + 1);
-            payload.push(did.as_raw());
-            payload.extend_from_slice(chunk);
-            out.send(Mti::STREAM_DATA_SEND, stream.peer, payload);
+            out.send_slices(Mti::STREAM_DATA_SEND, stream.peer, &[did.as_raw()], chunk);
             source.credit -= n as u32;
             source.sent += n as u64;
             source.window_sent += n as u32;
@@ -660,41 +694,34 @@ impl StreamEndpoint {
             // The source no longer knows the old stream (it reset): that one is over.
             self.end(Event::Terminated { handle, cause: Termination::Superseded });
         }
-        if let AcceptPolicy::RejectAll(code) = self.config.accept_policy {
+        if let Err(code) = self.admit(now, peer, &request) {
             self.refuse(peer, sid, code);
-            return;
         }
+    }
+
+    /// Takes a new request into the table and accepts it or asks the application, or says
+    /// with which code to refuse it.
+    fn admit(&mut self, now: Instant, peer: NodeId, request: &InitiateRequest) -> Result<(), ReplyCode> {
+        if let AcceptPolicy::RejectAll(code) = self.config.accept_policy {
+            return Err(code);
+        }
+        let busy = ReplyCode::BUFFER_UNAVAILABLE;
         let did = match request.proposed_destination {
-            Some(did) if self.find(peer, Role::Destination, did).is_some() => {
-                self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
-                return;
-            }
+            Some(did) if self.position(peer, Role::Destination, did).is_some() => return Err(busy),
             Some(did) => did,
-            None => match self.free_id(peer, Role::Destination) {
-                Ok(did) => did,
-                Err(_) => {
-                    self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
-                    return;
-                }
-            },
+            None => self.free_id(peer, Role::Destination).map_err(|_| busy)?,
         };
-        if self.check_room(peer, Role::Destination).is_err() {
-            self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
-            return;
-        }
-        let stream = Stream {
+        self.check_room(peer, Role::Destination).map_err(|_| busy)?;
+        let (handle, place) = self.vacant().map_err(|_| busy)?;
+        *place = Some(Stream {
             peer,
-            source_stream: sid,
+            source_stream: request.source_stream,
             destination_stream: Some(did),
             window: request.max_buffer_size,
             content_uid: request.content_uid,
             timers: TimerTable::default(),
             half: Half::Destination(Destination::pending()),
-        };
-        let Ok(handle) = self.insert(stream) else {
-            self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
-            return;
-        };
+        });
         if request.proposed_destination.is_none() {
             self.next_destination_id = did.next();
         }
@@ -712,15 +739,15 @@ impl StreamEndpoint {
                 self.accept_slot(now, usize::from(handle.slot), max_window, self.config.early_proceed);
             }
         }
+        Ok(())
     }
 
     fn on_reply(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(reply) = InitiateReply::parse(payload) else { return self.count_malformed() };
-        let Some(handle) = self.find(peer, Role::Source, reply.source_stream) else {
+        let keepalive = self.config.keepalive_interval;
+        let Some((handle, stream, out)) = self.lookup(peer, Role::Source, reply.source_stream) else {
             return bump(&mut self.out.stats.stray_replies);
         };
-        let keepalive = self.config.keepalive_interval;
-        let Ok((stream, out)) = self.parts(handle) else { return };
         let Half::Source(source) = &mut stream.half else { return };
         if source.state != SourceState::AwaitingReply {
             return bump(&mut out.stats.stray_replies);
@@ -753,11 +780,10 @@ impl StreamEndpoint {
 
     fn on_data(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(data) = DataSend::parse(payload) else { return self.count_malformed() };
-        let Some(handle) = self.find(peer, Role::Destination, data.destination_stream) else {
+        let idle = self.config.idle_timeout;
+        let Some((handle, stream, out)) = self.lookup(peer, Role::Destination, data.destination_stream) else {
             return bump(&mut self.out.stats.unknown_stream_data);
         };
-        let idle = self.config.idle_timeout;
-        let Ok((stream, out)) = self.parts(handle) else { return };
         let Half::Destination(dest) = &mut stream.half else { return };
         let expected = match dest.state {
             DestinationState::Receiving => None,
@@ -806,10 +832,9 @@ impl StreamEndpoint {
 
     fn on_proceed(&mut self, _now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(proceed) = DataProceed::parse(payload) else { return self.count_malformed() };
-        let Some(handle) = self.find(peer, Role::Source, proceed.source_stream) else {
+        let Some((handle, stream, out)) = self.lookup(peer, Role::Source, proceed.source_stream) else {
             return bump(&mut self.out.stats.stray_proceeds);
         };
-        let Ok((stream, out)) = self.parts(handle) else { return };
         let Half::Source(source) = &mut stream.half else { return };
         if source.state != SourceState::Sending || stream.destination_stream != Some(proceed.destination_stream) {
             return bump(&mut out.stats.stray_proceeds);
@@ -823,11 +848,10 @@ impl StreamEndpoint {
 
     fn on_complete(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(complete) = DataComplete::parse(payload) else { return self.count_malformed() };
-        let Some(handle) = self.find(peer, Role::Destination, complete.destination_stream) else {
+        let grace = self.config.complete_grace;
+        let Some((handle, stream, out)) = self.lookup(peer, Role::Destination, complete.destination_stream) else {
             return bump(&mut self.out.stats.stray_completes);
         };
-        let grace = self.config.complete_grace;
-        let Ok((stream, out)) = self.parts(handle) else { return };
         let Half::Destination(dest) = &mut stream.half else { return };
         if stream.source_stream != complete.source_stream || dest.state != DestinationState::Receiving {
             return bump(&mut out.stats.stray_completes);
@@ -857,10 +881,7 @@ impl StreamEndpoint {
         if mti == Mti::OPTIONAL_INTERACTION_REJECTED && report.mti == Some(Mti::STREAM_INITIATE_REQUEST) {
             let code = ReplyCode(report.code.0);
             let class = if code.is_accept() { ReplyClass::Permanent } else { code.class() };
-            let waiting = |s: &Stream| {
-                s.peer == peer && matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply)
-            };
-            if self.end_each(&waiting, &|handle| Event::Rejected { handle, code, class }) == 0 {
+            if self.end_each(Selection::Waiting(peer), Ending::Rejected(code, class)) == 0 {
                 bump(&mut self.out.stats.stray_error_reports);
             }
             return;
@@ -879,14 +900,10 @@ impl StreamEndpoint {
             Some(_) => return bump(&mut self.out.stats.stray_error_reports),
             None => None,
         };
-        let terminated = |handle| Event::Terminated { handle, cause: Termination::ByPeer(report.code) };
-        let mut ended = 0;
-        for role in [peer_is.map(Role::other), peer_is] {
-            let live = |s: &Stream| s.peer == peer && role.is_none_or(|r| r == s.role()) && !s.is_closed();
-            ended = self.end_each(&live, &terminated);
-            if ended > 0 || peer_is.is_none() {
-                break;
-            }
+        let ending = Ending::Terminated(Termination::ByPeer(report.code));
+        let mut ended = self.end_each(Selection::Live(peer, peer_is.map(Role::other)), ending);
+        if ended == 0 && peer_is.is_some() {
+            ended = self.end_each(Selection::Live(peer, peer_is), ending);
         }
         if ended == 0 {
             bump(&mut self.out.stats.stray_error_reports);
@@ -952,13 +969,7 @@ impl StreamEndpoint {
         if let Some(timeout) = first_data {
             stream.timers.start(Timer::Idle, now, timeout);
         }
-        let reply = InitiateReply {
-            max_buffer_size: window,
-            code: ReplyCode::ACCEPT,
-            source_stream: stream.source_stream,
-            destination_stream: stream.destination_stream,
-        };
-        self.out.send_wire(Mti::STREAM_INITIATE_REPLY, stream.peer, &reply);
+        send_accept(stream, &mut self.out);
         let info = stream.info();
         self.out.event(Event::Opened { handle, info });
     }
@@ -977,15 +988,9 @@ impl StreamEndpoint {
     }
 
     fn resend_accept(&mut self, handle: StreamHandle) {
-        if let Some(stream) = self.stream(handle) {
-            let reply = InitiateReply {
-                max_buffer_size: stream.window,
-                code: ReplyCode::ACCEPT,
-                source_stream: stream.source_stream,
-                destination_stream: stream.destination_stream,
-            };
-            let peer = stream.peer;
-            self.out.send_wire(Mti::STREAM_INITIATE_REPLY, peer, &reply);
+        let slot = self.slot_index(handle);
+        if let Some(stream) = slot.and_then(|slot| self.slots.get(slot)?.stream.as_ref()) {
+            send_accept(stream, &mut self.out);
         }
     }
 
@@ -1031,15 +1036,18 @@ impl StreamEndpoint {
         }
     }
 
-    /// Ends every stream that `selects` picks, in slot order, each with its `event`; returns
-    /// how many.
-    fn end_each(&mut self, selects: &dyn Fn(&Stream) -> bool, event: &dyn Fn(StreamHandle) -> Event) -> usize {
+    /// Ends every stream that `selects` picks, in slot order, each with the event of `ending`;
+    /// returns how many.
+    fn end_each(&mut self, selection: Selection, ending: Ending) -> usize {
         let mut ended = 0;
         for slot in 0..self.slots.len() {
             let Some(entry) = self.slots.get(slot) else { continue };
-            if entry.stream.as_ref().is_some_and(selects) {
+            if entry.stream.as_ref().is_some_and(|s| selection.picks(s)) {
                 let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
-                self.end(event(handle));
+                self.end(match ending {
+                    Ending::Terminated(cause) => Event::Terminated { handle, cause },
+                    Ending::Rejected(code, class) => Event::Rejected { handle, code, class },
+                });
                 ended += 1;
             }
         }
@@ -1050,14 +1058,7 @@ impl StreamEndpoint {
     /// still waiting for its Reply stays: messages from one node arrive in order, so the peer
     /// will see the request after its restart and answer it.
     fn peer_restarted(&mut self, peer: NodeId) {
-        let forgotten = |s: &Stream| {
-            s.peer == peer
-                && match &s.half {
-                    Half::Source(src) => src.state != SourceState::AwaitingReply,
-                    Half::Destination(d) => d.state != DestinationState::Closed,
-                }
-        };
-        self.end_each(&forgotten, &|handle| Event::Terminated { handle, cause: Termination::PeerRestarted });
+        self.end_each(Selection::Forgotten(peer), Ending::Terminated(Termination::PeerRestarted));
     }
 
     /// This node just sent a TDE to `peer` about one of its streams in `role`. The TDE names
@@ -1066,9 +1067,8 @@ impl StreamEndpoint {
     /// too, or their data would later land in a new stream given the same DID. Each gets its
     /// own TDE, for a peer that ends one stream per TDE.
     fn end_siblings(&mut self, peer: NodeId, role: Role, code: ErrorCode) {
-        let sibling = |s: &Stream| s.peer == peer && s.role() == role && !s.is_closed();
         let ended =
-            self.end_each(&sibling, &|handle| Event::Terminated { handle, cause: Termination::SiblingTerminated });
+            self.end_each(Selection::Live(peer, Some(role)), Ending::Terminated(Termination::SiblingTerminated));
         for _ in 0..ended {
             self.out.terminate(peer, code, role);
         }
@@ -1076,7 +1076,7 @@ impl StreamEndpoint {
 
     /// Ends every stream with `peer` that is not over yet, without sending anything.
     fn end_all_with(&mut self, peer: NodeId, cause: Termination) {
-        self.end_each(&|s| s.peer == peer && !s.is_closed(), &|handle| Event::Terminated { handle, cause });
+        self.end_each(Selection::Live(peer, None), Ending::Terminated(cause));
     }
 
     fn count_malformed(&mut self) {
@@ -1101,7 +1101,7 @@ impl StreamEndpoint {
             Role::Destination => self.next_destination_id,
         };
         for _ in 0..255 {
-            if self.find(peer, role, id).is_none() {
+            if self.position(peer, role, id).is_none() {
                 return Ok(id);
             }
             id = id.next();
@@ -1109,8 +1109,9 @@ impl StreamEndpoint {
         Err(StreamError::NoFreeStreamId)
     }
 
-    fn insert(&mut self, stream: Stream) -> Result<StreamHandle, StreamError> {
-        stream.local_id().ok_or(StreamError::NotOpen)?;
+    /// A free slot for a new stream (a new one while there are fewer than `max_streams`): the
+    /// stream's handle and its place, to be filled in place (a `Stream` is large to move).
+    fn vacant(&mut self) -> Result<(StreamHandle, &mut Option<Stream>), StreamError> {
         let slot = match self.slots.iter().position(|s| s.stream.is_none()) {
             Some(free) => free,
             None if self.slots.len() < self.config.max_streams.min(usize::from(u16::MAX)) => {
@@ -1120,14 +1121,15 @@ impl StreamEndpoint {
             None => return Err(StreamError::TableFull),
         };
         let entry = self.slots.get_mut(slot).ok_or(StreamError::TableFull)?;
-        entry.stream = Some(stream);
-        Ok(StreamHandle { slot: slot as u16, generation: entry.generation })
+        Ok((StreamHandle { slot: slot as u16, generation: entry.generation }, &mut entry.stream))
     }
 
     fn release(&mut self, handle: StreamHandle) {
         let Some(slot) = self.slot_index(handle) else { return };
         let Some(entry) = self.slots.get_mut(slot) else { return };
-        if entry.stream.take().is_some() {
+        // Dropped in place (`take` would first move the whole stream out).
+        if entry.stream.is_some() {
+            entry.stream = None;
             entry.generation = entry.generation.wrapping_add(1);
         }
     }
@@ -1164,16 +1166,27 @@ impl StreamEndpoint {
         })
     }
 
+    /// The slot of the stream with `peer` in `role` under the ID this node assigned.
+    #[inline(never)]
+    fn position(&self, peer: NodeId, role: Role, id: StreamId) -> Option<usize> {
+        self.slots.iter().position(|entry| {
+            entry.stream.as_ref().is_some_and(|s| s.peer == peer && s.role() == role && s.local_id() == Some(id))
+        })
+    }
+
     /// The stream with `peer` in `role` under the ID this node assigned.
     fn find(&self, peer: NodeId, role: Role, id: StreamId) -> Option<StreamHandle> {
-        let mut found = None;
-        for (handle, s) in self.streams() {
-            if s.peer == peer && s.role() == role && s.local_id() == Some(id) {
-                found = Some(handle);
-                break;
-            }
-        }
-        found
+        let slot = self.position(peer, role, id)?;
+        let entry = self.slots.get(slot)?;
+        Some(StreamHandle { slot: slot as u16, generation: entry.generation })
+    }
+
+    /// As [`find`](Self::find), with the stream itself and the outputs.
+    fn lookup(&mut self, peer: NodeId, role: Role, id: StreamId) -> Option<(StreamHandle, &mut Stream, &mut Outputs)> {
+        let slot = self.position(peer, role, id)?;
+        let entry = self.slots.get_mut(slot)?;
+        let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
+        Some((handle, entry.stream.as_mut()?, &mut self.out))
     }
 
     /// A destination stream from `peer` by the source's SID; of several (a closed one with
@@ -1204,11 +1217,22 @@ fn send_flush(stream: &Stream, out: &mut Outputs) -> Result<(), StreamError> {
     let Half::Source(source) = &stream.half else { return Err(StreamError::WrongRole) };
     match (source.state, stream.destination_stream) {
         (SourceState::Sending, Some(did)) => {
-            out.send(Mti::STREAM_DATA_SEND, stream.peer, alloc::vec![did.as_raw()]);
+            out.send_slices(Mti::STREAM_DATA_SEND, stream.peer, &[did.as_raw()], &[]);
             Ok(())
         }
         _ => Err(StreamError::NotOpen),
     }
+}
+
+/// Sends the accepting Initiate Reply of a destination stream, with its window.
+fn send_accept(stream: &Stream, out: &mut Outputs) {
+    let reply = InitiateReply {
+        max_buffer_size: stream.window,
+        code: ReplyCode::ACCEPT,
+        source_stream: stream.source_stream,
+        destination_stream: stream.destination_stream,
+    };
+    out.send_wire(Mti::STREAM_INITIATE_REPLY, stream.peer, &reply);
 }
 
 /// Sends the Proceed the destination owes, if any (never more than one ahead, see

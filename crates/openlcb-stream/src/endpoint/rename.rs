@@ -35,7 +35,7 @@ impl StreamEndpoint {
                 let Some(id) = stream.local_id().filter(|_| stream.peer == from && stream.role() == role) else {
                     continue;
                 };
-                if self.find(to, role, id).is_some() {
+                if self.position(to, role, id).is_some() {
                     if let Some(handle) = self.find(from, role, id) {
                         self.end(Event::Terminated { handle, cause: Termination::Superseded });
                     }
