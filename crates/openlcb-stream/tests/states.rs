@@ -145,6 +145,26 @@ fn closed_open_refuses_a_proposed_did_still_in_use_to_that_node() {
 }
 
 #[test]
+fn initiated_reply_with_the_did_of_another_open_stream_is_stale() {
+    // A Reply naming the DID of another open stream to that node answers an earlier request
+    // with this SID (found by fuzzing: a request given up on, its SID used again): taking it
+    // would send this stream's data into the other one. The real Reply comes after.
+    let mut b = Bench::new(config());
+    let open = b.open_source(16);
+    let waiting = b.ep.open(b.now, OpenOptions::new(PEER, 16).source_stream(sid(5))).unwrap();
+    b.sent();
+    let strays = b.ep.stats().stray_replies;
+    b.peer(Mti::STREAM_INITIATE_REPLY, &[0, 16, 0x80, 0x00, 5, 7]);
+    assert!(b.events().is_empty(), "not opened by the stale Reply");
+    assert_eq!(b.ep.stats().stray_replies, strays + 1);
+    assert_eq!(b.ep.credit(waiting), Some(0));
+    b.peer(Mti::STREAM_INITIATE_REPLY, &[0, 16, 0x80, 0x00, 5, 8]);
+    assert!(matches!(b.events()[..], [Event::Opened { handle, .. }] if handle == waiting));
+    assert_eq!(b.ep.stream_info(waiting).and_then(|i| i.destination_stream), Some(sid(8)));
+    assert_eq!(b.ep.stream_info(open).and_then(|i| i.destination_stream), Some(sid(7)));
+}
+
+#[test]
 fn a_tde_sent_for_one_stream_ends_its_siblings_with_that_node() {
     // A TDE names no stream, so the peer ends every stream it has with this node in the
     // matching role (wire-spec Q5); this node ends the same ones.

@@ -445,11 +445,7 @@ impl StreamEndpoint {
             Some(sid) => sid,
             None => self.free_id(peer, Role::Source)?,
         };
-        if let Some(did) = options.proposed_destination
-            && self
-                .streams()
-                .any(|(_, s)| s.peer == peer && s.role() == Role::Source && s.destination_stream == Some(did))
-        {
+        if options.proposed_destination.is_some_and(|did| self.sends_to(peer, did)) {
             return Err(StreamError::DestinationIdInUse);
         }
         self.check_room(peer, Role::Source)?;
@@ -752,6 +748,17 @@ impl StreamEndpoint {
         if source.state != SourceState::AwaitingReply {
             return bump(&mut out.stats.stray_replies);
         }
+        // A Reply naming the DID of another of our streams to that node answers an earlier
+        // request with this SID (one this node gave up on): taking it would mix the two
+        // streams' data at the destination. The answer to this request is still to come.
+        if let (ReplyClass::Accepted, Some(did)) = (reply.class(), reply.destination_stream)
+            && stream.destination_stream != Some(did)
+            && self.sends_to(peer, did)
+        {
+            return bump(&mut self.out.stats.stray_replies);
+        }
+        let Some((handle, stream, out)) = self.lookup(peer, Role::Source, reply.source_stream) else { return };
+        let Half::Source(source) = &mut stream.half else { return };
         match (reply.class(), reply.destination_stream) {
             (ReplyClass::Accepted, Some(did)) => {
                 if reply.max_buffer_size > stream.window {
@@ -1172,6 +1179,11 @@ impl StreamEndpoint {
         self.slots.iter().position(|entry| {
             entry.stream.as_ref().is_some_and(|s| s.peer == peer && s.role() == role && s.local_id() == Some(id))
         })
+    }
+
+    /// Whether a source stream to `peer` (open, or requested proposing it) uses DID `did`.
+    fn sends_to(&self, peer: NodeId, did: StreamId) -> bool {
+        self.streams().any(|(_, s)| s.peer == peer && s.role() == Role::Source && s.destination_stream == Some(did))
     }
 
     /// The stream with `peer` in `role` under the ID this node assigned.
