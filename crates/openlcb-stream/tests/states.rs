@@ -165,6 +165,21 @@ fn initiated_reply_with_the_did_of_another_open_stream_is_stale() {
 }
 
 #[test]
+fn closed_request_after_a_proposed_did_gets_the_next_did_in_the_rotation() {
+    // Found by fuzzing: a stream with a proposed DID ended here (no data in time, TDE on its
+    // way), and the next request from that source got the same DID from the rotation; the
+    // source's data, sent before the TDE reached it, landed in the new stream.
+    let mut b = Bench::new(config());
+    b.peer(Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 4, 0]);
+    assert_eq!(b.sent()[0].1, [0, 16, 0x80, 0, 4, 0], "the proposed DID 0");
+    b.advance(Duration::from_secs(16));
+    b.events();
+    b.sent();
+    b.peer(Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 5]);
+    assert_eq!(b.sent()[0].1, [0, 16, 0x80, 0, 5, 1], "DID 0 is not given out again at once");
+}
+
+#[test]
 fn a_tde_sent_for_one_stream_ends_its_siblings_with_that_node() {
     // A TDE names no stream, so the peer ends every stream it has with this node in the
     // matching role (wire-spec Q5); this node ends the same ones.

@@ -718,9 +718,10 @@ impl StreamEndpoint {
             timers: TimerTable::default(),
             half: Half::Destination(Destination::pending()),
         });
-        if request.proposed_destination.is_none() {
-            self.next_destination_id = did.next();
-        }
+        // The rotation goes on after every DID given out, proposed ones included, so that the
+        // DID of a stream that just ended here is not given to the next request at once: its
+        // source may not have heard yet, and its data would land in the new stream.
+        self.next_destination_id = did.next();
         match self.config.accept_policy {
             AcceptPolicy::Ask => {
                 let deadline = now + self.config.decision_timeout;
@@ -741,7 +742,7 @@ impl StreamEndpoint {
     fn on_reply(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(reply) = InitiateReply::parse(payload) else { return self.count_malformed() };
         let keepalive = self.config.keepalive_interval;
-        let Some((handle, stream, out)) = self.lookup(peer, Role::Source, reply.source_stream) else {
+        let Some((_, stream, out)) = self.lookup(peer, Role::Source, reply.source_stream) else {
             return bump(&mut self.out.stats.stray_replies);
         };
         let Half::Source(source) = &mut stream.half else { return };
