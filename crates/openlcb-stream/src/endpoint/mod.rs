@@ -445,7 +445,7 @@ impl StreamEndpoint {
             Some(sid) => sid,
             None => self.free_id(peer, Role::Source)?,
         };
-        if options.proposed_destination.is_some_and(|did| self.sends_to(peer, did)) {
+        if options.proposed_destination.is_some_and(|did| self.sends_to(peer, did, None)) {
             return Err(StreamError::DestinationIdInUse);
         }
         self.check_room(peer, Role::Source)?;
@@ -742,24 +742,17 @@ impl StreamEndpoint {
     fn on_reply(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(reply) = InitiateReply::parse(payload) else { return self.count_malformed() };
         let keepalive = self.config.keepalive_interval;
-        let Some((_, stream, out)) = self.lookup(peer, Role::Source, reply.source_stream) else {
-            return bump(&mut self.out.stats.stray_replies);
-        };
-        let Half::Source(source) = &mut stream.half else { return };
-        if source.state != SourceState::AwaitingReply {
-            return bump(&mut out.stats.stray_replies);
-        }
         // A Reply naming the DID of another of our streams to that node answers an earlier
         // request with this SID (one this node gave up on): taking it would mix the two
         // streams' data at the destination. The answer to this request is still to come.
-        if let (ReplyClass::Accepted, Some(did)) = (reply.class(), reply.destination_stream)
-            && stream.destination_stream != Some(did)
-            && self.sends_to(peer, did)
-        {
+        let stale = reply.destination_stream.is_some_and(|did| self.sends_to(peer, did, Some(reply.source_stream)));
+        let Some((handle, stream, out)) = self.lookup(peer, Role::Source, reply.source_stream) else {
             return bump(&mut self.out.stats.stray_replies);
-        }
-        let Some((handle, stream, out)) = self.lookup(peer, Role::Source, reply.source_stream) else { return };
+        };
         let Half::Source(source) = &mut stream.half else { return };
+        if source.state != SourceState::AwaitingReply || (stale && reply.class() == ReplyClass::Accepted) {
+            return bump(&mut out.stats.stray_replies);
+        }
         match (reply.class(), reply.destination_stream) {
             (ReplyClass::Accepted, Some(did)) => {
                 if reply.max_buffer_size > stream.window {
@@ -1182,9 +1175,15 @@ impl StreamEndpoint {
         })
     }
 
-    /// Whether a source stream to `peer` (open, or requested proposing it) uses DID `did`.
-    fn sends_to(&self, peer: NodeId, did: StreamId) -> bool {
-        self.streams().any(|(_, s)| s.peer == peer && s.role() == Role::Source && s.destination_stream == Some(did))
+    /// Whether a source stream to `peer` (open, or requested proposing it) other than the one
+    /// with SID `except` uses DID `did`.
+    fn sends_to(&self, peer: NodeId, did: StreamId, except: Option<StreamId>) -> bool {
+        self.slots.iter().filter_map(|entry| entry.stream.as_ref()).any(|s| {
+            s.peer == peer
+                && s.role() == Role::Source
+                && s.destination_stream == Some(did)
+                && Some(s.source_stream) != except
+        })
     }
 
     /// The stream with `peer` in `role` under the ID this node assigned.
