@@ -718,10 +718,14 @@ impl StreamEndpoint {
             timers: TimerTable::default(),
             half: Half::Destination(Destination::pending()),
         });
-        // The rotation goes on after every DID given out, proposed ones included, so that the
-        // DID of a stream that just ended here is not given to the next request at once: its
-        // source may not have heard yet, and its data would land in the new stream.
-        self.next_destination_id = did.next();
+        // The rotation goes on past every DID it would give out next, a proposed one included,
+        // so that the DID of a stream that just ended here is not given to the next request at
+        // once: its source may not have heard yet, and its data would land in the new stream.
+        // A proposed DID elsewhere leaves the rotation where it is (never back onto a DID it
+        // gave out just before).
+        if did == self.next_destination_id {
+            self.next_destination_id = did.next();
+        }
         match self.config.accept_policy {
             AcceptPolicy::Ask => {
                 let deadline = now + self.config.decision_timeout;
