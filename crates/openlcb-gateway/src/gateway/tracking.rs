@@ -124,22 +124,18 @@ impl Gateway {
     }
 
     /// Tracks the stream of a Request and lowers its Max Buffer Size to `max_window`.
-    pub(super) fn on_request(&mut self, now: Instant, from: Side, message: Message) -> Message {
+    pub(super) fn on_request(&mut self, now: Instant, from: Side, mut message: Message) -> Message {
         let (Ok(request), Some(destination)) = (InitiateRequest::parse(&message.payload), message.destination) else {
             return message;
         };
         let proposed = request.max_buffer_size.min(self.config.max_window.max(1));
-        let message = if proposed < request.max_buffer_size {
+        if proposed < request.max_buffer_size {
             bump(&mut self.stats.windows_lowered);
-            // Only bytes 0-1 change: flags, IDs, UID and anything after stay as sent.
-            let mut payload = message.payload.to_vec();
-            if let Some(size) = payload.get_mut(..2) {
+            // Only bytes 0-1 change, in place: flags, IDs, UID and anything after stay as sent.
+            if let Some(size) = message.payload.get_mut(..2) {
                 size.copy_from_slice(&proposed.to_be_bytes());
             }
-            Message { payload, ..message }
-        } else {
-            message
-        };
+        }
         let key = StreamKey { source: message.source, destination, source_stream: request.source_stream };
         if let Some(index) = self.streams.iter().position(|s| s.key == key) {
             self.end_stream(index, StreamEnd::Superseded);
