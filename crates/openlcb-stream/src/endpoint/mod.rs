@@ -7,12 +7,10 @@
 
 mod rename;
 mod stream;
-mod timer;
 
 use alloc::vec::Vec;
 
-use self::stream::{Destination, DestinationState, Half, Source, SourceState, Stream};
-use self::timer::{Timer, TimerTable};
+use self::stream::{State, Stream};
 use crate::config::{AcceptPolicy, Config};
 use crate::event::{Event, Role, StreamInfo, Termination, TimeoutKind};
 use crate::wire::{
@@ -167,13 +165,6 @@ pub struct Stats {
     /// Messages claiming to come from this node's own ID.
     pub own_echoes: u32,
 }
-
-#[derive(Debug, Default)]
-struct Slot {
-    generation: u16,
-    stream: Option<Stream>,
-}
-
 /// The outputs, kept apart from the stream table so both can be borrowed at once.
 #[derive(Debug)]
 struct Outputs {
@@ -233,9 +224,9 @@ enum Selection {
 }
 
 impl Selection {
-    /// Whether the selection takes `s`.
+    /// Whether the selection takes the stream `s` (one in the table).
     fn picks(self, s: &Stream) -> bool {
-        let waiting = matches!(&s.half, Half::Source(src) if src.state == SourceState::AwaitingReply);
+        let waiting = s.state == State::AwaitingReply;
         match self {
             Selection::All => true,
             Selection::Live(peer, role) => s.peer == peer && role.is_none_or(|r| r == s.role()) && !s.is_closed(),
@@ -260,7 +251,7 @@ pub struct StreamEndpoint {
     config: Config,
     /// The stream table, searched linearly by (peer, role, the ID this node assigned): it is
     /// small (bounded by `max_streams`), and a map's code costs kilobytes of flash.
-    slots: Vec<Slot>,
+    slots: Vec<Stream>,
     next_source_id: StreamId,
     next_destination_id: StreamId,
     out: Outputs,
@@ -316,27 +307,21 @@ impl StreamEndpoint {
 
     /// As source: bytes that may be written now without waiting for a Proceed.
     pub fn credit(&self, handle: StreamHandle) -> Option<u32> {
-        match &self.stream(handle)?.half {
-            Half::Source(source) if source.state == SourceState::Sending => Some(source.credit),
-            Half::Source(_) => Some(0),
-            Half::Destination(_) => None,
+        let stream = self.stream(handle)?;
+        match stream.state {
+            State::Sending => Some(stream.credit),
+            _ => (stream.role() == Role::Source).then_some(0),
         }
     }
 
     /// As destination: bytes received and not yet read.
     pub fn buffered(&self, handle: StreamHandle) -> Option<usize> {
-        match &self.stream(handle)?.half {
-            Half::Destination(d) => Some(d.buffer.len()),
-            Half::Source(_) => None,
-        }
+        self.destination(handle).map(|d| d.buffer.len())
     }
 
     /// As destination: the most `buffered` can ever be for this stream.
     pub fn buffer_capacity(&self, handle: StreamHandle) -> Option<usize> {
-        match &self.stream(handle)?.half {
-            Half::Destination(d) => Some(d.buffer.capacity()),
-            Half::Source(_) => None,
-        }
+        self.destination(handle).map(|d| d.buffer.capacity())
     }
 
     /// The DID this endpoint will assign to the next request from `peer` that proposes
@@ -347,11 +332,7 @@ impl StreamEndpoint {
 
     /// Every live handle, in slot order.
     pub fn handles(&self) -> impl Iterator<Item = StreamHandle> + '_ {
-        self.slots
-            .iter()
-            .enumerate()
-            .filter(|(_, s)| s.stream.is_some())
-            .filter_map(|(i, s)| Some(StreamHandle { slot: u16::try_from(i).ok()?, generation: s.generation }))
+        self.streams().map(|(handle, _)| handle)
     }
 
     // ----- outputs -----
@@ -368,7 +349,7 @@ impl StreamEndpoint {
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        self.slots.iter().filter_map(|s| s.stream.as_ref()?.timers.next()).min()
+        self.slots.iter().flat_map(|s| s.deadline.into_iter().chain(s.keepalive)).min()
     }
 
     // ----- inputs -----
@@ -396,7 +377,7 @@ impl StreamEndpoint {
             Mti::STREAM_INITIATE_REQUEST => self.on_request(now, peer, msg.payload),
             Mti::STREAM_INITIATE_REPLY => self.on_reply(now, peer, msg.payload),
             Mti::STREAM_DATA_SEND => self.on_data(now, peer, msg.payload),
-            Mti::STREAM_DATA_PROCEED => self.on_proceed(now, peer, msg.payload),
+            Mti::STREAM_DATA_PROCEED => self.on_proceed(peer, msg.payload),
             Mti::STREAM_DATA_COMPLETE => self.on_complete(now, peer, msg.payload),
             Mti::OPTIONAL_INTERACTION_REJECTED | Mti::TERMINATE_DUE_TO_ERROR => {
                 self.on_error_report(msg.mti, peer, ErrorReport::parse(msg.payload));
@@ -406,13 +387,24 @@ impl StreamEndpoint {
         }
     }
 
-    /// Runs every timer due at `now`. Calling it early or twice is harmless.
+    /// Runs every wait due at `now`. Calling it early or twice is harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
-        for index in 0..self.slots.len() {
-            while let Some(timer) =
-                self.slots.get_mut(index).and_then(|s| s.stream.as_mut()).and_then(|s| s.timers.take_expired(now))
+        let keepalive = self.config.keepalive_interval;
+        for slot in 0..self.slots.len() {
+            if let Some(stream) = self.slots.get_mut(slot)
+                && stream.deadline.is_some_and(|at| at <= now)
             {
-                self.on_timer(now, index, timer);
+                stream.deadline = None;
+                self.on_deadline(slot);
+            }
+            // After the deadline: a stream that it ended sends no keep-alive.
+            if let Some(stream) = self.slots.get_mut(slot)
+                && stream.keepalive.is_some_and(|at| at <= now)
+            {
+                stream.keepalive = None;
+                if send_flush(stream, &mut self.out).is_ok() {
+                    stream.keepalive = later(now, keepalive);
+                }
             }
         }
     }
@@ -449,24 +441,11 @@ impl StreamEndpoint {
             return Err(StreamError::DestinationIdInUse);
         }
         self.check_room(peer, Role::Source)?;
-        let reply_timeout = self.config.reply_timeout;
-        let (handle, place) = self.vacant()?;
-        let stream = place.insert(Stream {
-            peer,
-            source_stream: sid,
-            destination_stream: options.proposed_destination,
-            window: options.max_buffer_size,
-            content_uid: options.content_uid,
-            timers: TimerTable::default(),
-            half: Half::Source(Source {
-                state: SourceState::AwaitingReply,
-                credit: 0,
-                sent: 0,
-                window_sent: 0,
-                write_blocked: false,
-            }),
-        });
-        stream.timers.start(Timer::Reply, now, reply_timeout);
+        let (handle, stream) = vacant(&mut self.slots, self.config.max_streams)?;
+        stream.start(State::AwaitingReply, peer, sid, options.max_buffer_size);
+        stream.destination_stream = options.proposed_destination;
+        stream.content_uid = options.content_uid;
+        stream.deadline = later(now, Some(self.config.reply_timeout));
         if options.source_stream.is_none() {
             self.next_source_id = sid.next();
         }
@@ -487,40 +466,34 @@ impl StreamEndpoint {
         let keepalive = self.config.keepalive_interval;
         let proceed_timeout = self.config.proceed_timeout;
         let (stream, out) = self.parts(handle)?;
-        let Half::Source(source) = &mut stream.half else { return Err(StreamError::WrongRole) };
-        if source.state != SourceState::Sending {
-            return Err(StreamError::NotOpen);
-        }
-        let did = stream.destination_stream.ok_or(StreamError::NotOpen)?;
+        let did = sending_to(stream)?;
         let window = u32::from(stream.window.max(1));
         let mut rest = data;
-        while !rest.is_empty() && source.credit > 0 {
+        while !rest.is_empty() && stream.credit > 0 {
             // Never merge bytes of two windows into one message (draft §7.3, gateways count on it).
-            let to_boundary = window.saturating_sub(source.window_sent).max(1);
-            let n = rest.len().min(source.credit as usize).min(to_boundary as usize);
+            let to_boundary = window.saturating_sub(stream.window_sent).max(1);
+            let n = rest.len().min(stream.credit as usize).min(to_boundary as usize);
             let (chunk, tail) = rest.split_at(n);
             out.send_slices(Mti::STREAM_DATA_SEND, stream.peer, &[did.as_raw()], chunk);
-            source.credit -= n as u32;
-            source.sent += n as u64;
-            source.window_sent += n as u32;
-            if source.window_sent >= window {
-                source.window_sent = 0;
+            stream.credit -= n as u32;
+            stream.count += n as u64;
+            stream.window_sent += n as u32;
+            if stream.window_sent >= window {
+                stream.window_sent = 0;
             }
             rest = tail;
         }
         let taken = data.len() - rest.len();
         if !rest.is_empty() {
-            source.write_blocked = true;
-        }
-        // One deadline, from the moment credit ran out: a write that finds no credit changes
-        // no timer (drivers call `write` on every wake-up).
-        if source.credit == 0 && taken > 0 {
-            stream.timers.start(Timer::Proceed, now, proceed_timeout);
+            stream.write_blocked = true;
         }
         if taken > 0 {
-            if let Some(interval) = keepalive {
-                stream.timers.start(Timer::Keepalive, now, interval);
+            // One deadline, from the moment credit ran out: a write that finds no credit
+            // changes no timer (drivers call `write` on every wake-up).
+            if stream.credit == 0 {
+                stream.deadline = later(now, Some(proceed_timeout));
             }
+            stream.keepalive = later(now, keepalive);
         }
         Ok(taken)
     }
@@ -530,9 +503,7 @@ impl StreamEndpoint {
         let keepalive = self.config.keepalive_interval;
         let (stream, out) = self.parts(handle)?;
         send_flush(stream, out)?;
-        if let Some(interval) = keepalive {
-            stream.timers.start(Timer::Keepalive, now, interval);
-        }
+        stream.keepalive = later(now, keepalive);
         Ok(())
     }
 
@@ -540,20 +511,14 @@ impl StreamEndpoint {
     /// releases the stream. Its SID is not reused until the rotation comes round again.
     pub fn finish(&mut self, _now: Instant, handle: StreamHandle) -> Result<(), StreamError> {
         let (stream, out) = self.parts(handle)?;
-        let Half::Source(source) = &stream.half else { return Err(StreamError::WrongRole) };
-        let did = match (source.state, stream.destination_stream) {
-            (SourceState::Sending, Some(did)) => did,
-            _ => return Err(StreamError::NotOpen),
-        };
         let complete = DataComplete {
             source_stream: stream.source_stream,
-            destination_stream: did,
-            count: CompleteCount::Total(source.sent as u32),
+            destination_stream: sending_to(stream)?,
+            count: CompleteCount::Total(stream.count as u32),
         };
         out.send_wire(Mti::STREAM_DATA_COMPLETE, stream.peer, &complete);
-        let total = source.sent;
-        out.event(Event::Sent { handle, total });
-        self.release(handle);
+        let total = stream.count;
+        self.end(Event::Sent { handle, total });
         Ok(())
     }
 
@@ -576,34 +541,22 @@ impl StreamEndpoint {
         handle: StreamHandle,
         options: AcceptOptions,
     ) -> Result<(), StreamError> {
-        let slot = self.slot_index(handle).ok_or(StreamError::UnknownStream)?;
-        match &self.stream(handle).ok_or(StreamError::UnknownStream)?.half {
-            Half::Destination(d) if d.state == DestinationState::AwaitingDecision => {}
-            Half::Destination(_) => return Err(StreamError::NotOpen),
-            Half::Source(_) => return Err(StreamError::WrongRole),
-        }
+        self.pending(handle)?;
         let mut most = self.config.max_window;
         if options.early_proceed && !self.config.early_proceed {
             most = (most / 2).max(1);
         }
         let local = options.window.unwrap_or(most).min(most);
-        self.accept_slot(now, slot, local, options.early_proceed);
+        self.accept_stream(now, handle, local, options.early_proceed);
         Ok(())
     }
 
     /// Refuses a request raised by `IncomingRequest` with `code` (a reject code: 0x1xxx or
     /// 0x2xxx; an accept code is replaced by 0x1000).
     pub fn reject(&mut self, _now: Instant, handle: StreamHandle, code: ReplyCode) -> Result<(), StreamError> {
-        match &self.stream(handle).ok_or(StreamError::UnknownStream)?.half {
-            Half::Destination(d) if d.state == DestinationState::AwaitingDecision => {}
-            Half::Destination(_) => return Err(StreamError::NotOpen),
-            Half::Source(_) => return Err(StreamError::WrongRole),
-        }
+        let (peer, sid) = self.pending(handle)?;
         let code = if code.is_accept() { ReplyCode::PERMANENT } else { code };
-        if let Some(stream) = self.stream(handle) {
-            let (peer, sid) = (stream.peer, stream.source_stream);
-            self.refuse(peer, sid, code);
-        }
+        self.refuse(peer, sid, code);
         self.release(handle);
         Ok(())
     }
@@ -613,19 +566,16 @@ impl StreamEndpoint {
     /// Proceed. Once a closed stream has been read empty its handle is released.
     pub fn read(&mut self, now: Instant, handle: StreamHandle, buf: &mut [u8]) -> Result<usize, StreamError> {
         let idle = self.config.idle_timeout;
-        let slot = self.slot_index(handle).ok_or(StreamError::UnknownStream)?;
-        let Some(stream) = self.slots.get_mut(slot).and_then(|s| s.stream.as_mut()) else {
-            return Err(StreamError::UnknownStream);
-        };
-        let Half::Destination(dest) = &mut stream.half else { return Err(StreamError::WrongRole) };
-        if dest.state == DestinationState::AwaitingDecision {
-            return Err(StreamError::NotOpen);
+        let (stream, out) = self.parts(handle)?;
+        match stream.state {
+            State::AwaitingReply | State::Sending => return Err(StreamError::WrongRole),
+            State::AwaitingDecision => return Err(StreamError::NotOpen),
+            _ => {}
         }
-        let n = dest.buffer.pop(buf);
-        let drained_and_closed = dest.state == DestinationState::Closed && dest.buffer.is_empty();
-        if drained_and_closed {
-            self.release(handle);
-        } else if send_due_proceed(stream, &mut self.out) {
+        let n = stream.buffer.pop(buf);
+        if stream.is_closed() && stream.buffer.is_empty() {
+            stream.release();
+        } else if send_due_proceed(stream, out) {
             restart_idle(now, stream, idle);
         }
         Ok(n)
@@ -639,21 +589,15 @@ impl StreamEndpoint {
     /// streams in the same role with that node end too ([`Termination::SiblingTerminated`]).
     pub fn abort(&mut self, _now: Instant, handle: StreamHandle, code: ErrorCode) -> Result<(), StreamError> {
         let stream = self.stream(handle).ok_or(StreamError::UnknownStream)?;
-        let (peer, role, sid) = (stream.peer, stream.role(), stream.source_stream);
-        let terminated = match &stream.half {
-            Half::Destination(d) if d.state == DestinationState::AwaitingDecision => {
-                self.refuse(peer, sid, ReplyCode(code.0));
-                false
-            }
-            Half::Destination(d) if d.state == DestinationState::Closed => false,
+        let (peer, role, sid, state) = (stream.peer, stream.role(), stream.source_stream, stream.state);
+        self.release(handle);
+        match state {
+            State::AwaitingDecision => self.refuse(peer, sid, ReplyCode(code.0)),
+            State::Closed => {}
             _ => {
                 self.out.terminate(peer, code, role);
-                true
+                self.end_siblings(peer, role, code);
             }
-        };
-        self.release(handle);
-        if terminated {
-            self.end_siblings(peer, role, code);
         }
         Ok(())
     }
@@ -682,10 +626,11 @@ impl StreamEndpoint {
         };
         let sid = request.source_stream;
         if let Some(handle) = self.find_by_source_id(peer, sid) {
-            if self.is_duplicate_request(handle, &request) {
+            if let Ok((stream, out)) = self.parts(handle)
+                && is_duplicate_request(stream, &request)
+            {
                 // The same request again (a duplicated frame): answer it the same way.
-                self.resend_accept(handle);
-                return;
+                return send_accept(stream, out);
             }
             // The source no longer knows the old stream (it reset): that one is over.
             self.end(Event::Terminated { handle, cause: Termination::Superseded });
@@ -708,16 +653,10 @@ impl StreamEndpoint {
             None => self.free_id(peer, Role::Destination).map_err(|_| busy)?,
         };
         self.check_room(peer, Role::Destination).map_err(|_| busy)?;
-        let (handle, place) = self.vacant().map_err(|_| busy)?;
-        *place = Some(Stream {
-            peer,
-            source_stream: request.source_stream,
-            destination_stream: Some(did),
-            window: request.max_buffer_size,
-            content_uid: request.content_uid,
-            timers: TimerTable::default(),
-            half: Half::Destination(Destination::pending()),
-        });
+        let (handle, stream) = vacant(&mut self.slots, self.config.max_streams).map_err(|_| busy)?;
+        stream.start(State::AwaitingDecision, peer, request.source_stream, request.max_buffer_size);
+        stream.destination_stream = Some(did);
+        stream.content_uid = request.content_uid;
         // The rotation goes on past every DID it would give out next, a proposed one included,
         // so that the DID of a stream that just ended here is not given to the next request at
         // once: its source may not have heard yet, and its data would land in the new stream.
@@ -726,19 +665,12 @@ impl StreamEndpoint {
         if did == self.next_destination_id {
             self.next_destination_id = did.next();
         }
-        match self.config.accept_policy {
-            AcceptPolicy::Ask => {
-                let deadline = now + self.config.decision_timeout;
-                if let Some(stream) = self.stream_mut(handle) {
-                    stream.timers.set(Timer::Decision, deadline);
-                    let info = stream.info();
-                    self.out.event(Event::IncomingRequest { handle, info });
-                }
-            }
-            _ => {
-                let max_window = self.config.max_window;
-                self.accept_slot(now, usize::from(handle.slot), max_window, self.config.early_proceed);
-            }
+        if self.config.accept_policy == AcceptPolicy::Ask {
+            stream.deadline = later(now, Some(self.config.decision_timeout));
+            let info = stream.info();
+            self.out.event(Event::IncomingRequest { handle, info });
+        } else {
+            self.accept_stream(now, handle, self.config.max_window, self.config.early_proceed);
         }
         Ok(())
     }
@@ -753,8 +685,7 @@ impl StreamEndpoint {
         let Some((handle, stream, out)) = self.lookup(peer, Role::Source, reply.source_stream) else {
             return bump(&mut self.out.stats.stray_replies);
         };
-        let Half::Source(source) = &mut stream.half else { return };
-        if source.state != SourceState::AwaitingReply || (stale && reply.class() == ReplyClass::Accepted) {
+        if stream.state != State::AwaitingReply || (stale && reply.class() == ReplyClass::Accepted) {
             return bump(&mut out.stats.stray_replies);
         }
         match (reply.class(), reply.destination_stream) {
@@ -764,14 +695,12 @@ impl StreamEndpoint {
                     // here would deadlock, so take it as given (and count the oddity).
                     bump(&mut out.stats.oversized_windows);
                 }
-                source.state = SourceState::Sending;
-                source.credit = u32::from(reply.max_buffer_size);
+                stream.state = State::Sending;
+                stream.credit = u32::from(reply.max_buffer_size);
                 stream.window = reply.max_buffer_size;
                 stream.destination_stream = Some(did);
-                stream.timers.stop(Timer::Reply);
-                if let Some(interval) = keepalive {
-                    stream.timers.start(Timer::Keepalive, now, interval);
-                }
+                stream.deadline = None;
+                stream.keepalive = later(now, keepalive);
                 let info = stream.info();
                 out.event(Event::Opened { handle, info });
             }
@@ -789,64 +718,49 @@ impl StreamEndpoint {
         let Some((handle, stream, out)) = self.lookup(peer, Role::Destination, data.destination_stream) else {
             return bump(&mut self.out.stats.unknown_stream_data);
         };
-        let Half::Destination(dest) = &mut stream.half else { return };
-        let expected = match dest.state {
-            DestinationState::Receiving => None,
-            DestinationState::Draining { expected } => Some(expected),
-            DestinationState::AwaitingDecision | DestinationState::Closed => {
-                return bump(&mut out.stats.excess_data);
-            }
-        };
+        if !matches!(stream.state, State::Receiving | State::Draining) {
+            return bump(&mut out.stats.excess_data);
+        }
         let bytes = data.data;
-        if bytes.len() > dest.free_space() {
+        if bytes.len() > stream.buffer.free() {
             // Overrun beyond what the buffer holds: data would be lost, so end the stream.
-            dest.state = DestinationState::Closed;
-            stream.timers.stop_all();
             out.terminate(peer, ErrorCode::OUT_OF_ORDER, Role::Destination);
-            out.event(Event::Terminated { handle, cause: Termination::WindowOverrun });
-            if dest.buffer.is_empty() {
-                self.release(handle);
-            }
+            self.end(Event::Terminated { handle, cause: Termination::WindowOverrun });
             return self.end_siblings(peer, Role::Destination, ErrorCode::OUT_OF_ORDER);
         }
-        let len = bytes.len() as u64;
-        if len > dest.outstanding() {
+        // At most two windows: the buffer's size.
+        let len = bytes.len() as u32;
+        if len > stream.credit {
             bump(&mut out.stats.window_overruns);
-            dest.granted = dest.received + len;
         }
-        let was_empty = dest.buffer.is_empty();
-        dest.buffer.push(bytes);
-        dest.received += len;
-        if was_empty && !bytes.is_empty() {
+        stream.credit = stream.credit.saturating_sub(len);
+        if stream.buffer.is_empty() && !bytes.is_empty() {
             out.event(Event::Readable { handle });
         }
-        match expected {
-            Some(expected) if dest.received >= expected => {
-                let total = dest.received;
-                self.finish_destination(handle, total, Some(expected));
-            }
-            _ => {
-                send_due_proceed(stream, out);
-                // A keep-alive before any data does not lift the first-data wait.
-                if stream_received(stream) > 0 {
-                    restart_idle(now, stream, idle);
-                }
-            }
+        stream.buffer.push(bytes);
+        stream.count += u64::from(len);
+        if stream.state == State::Draining && stream.count >= stream.expected {
+            let (total, expected) = (stream.count, stream.expected);
+            return self.end(finished(handle, total, Some(expected)));
+        }
+        send_due_proceed(stream, out);
+        // A keep-alive before any data does not lift the first-data wait.
+        if stream.count > 0 {
+            restart_idle(now, stream, idle);
         }
     }
 
-    fn on_proceed(&mut self, _now: Instant, peer: NodeId, payload: &[u8]) {
+    fn on_proceed(&mut self, peer: NodeId, payload: &[u8]) {
         let Ok(proceed) = DataProceed::parse(payload) else { return self.count_malformed() };
         let Some((handle, stream, out)) = self.lookup(peer, Role::Source, proceed.source_stream) else {
             return bump(&mut self.out.stats.stray_proceeds);
         };
-        let Half::Source(source) = &mut stream.half else { return };
-        if source.state != SourceState::Sending || stream.destination_stream != Some(proceed.destination_stream) {
+        if stream.state != State::Sending || stream.destination_stream != Some(proceed.destination_stream) {
             return bump(&mut out.stats.stray_proceeds);
         }
-        source.credit = source.credit.saturating_add(u32::from(stream.window));
-        stream.timers.stop(Timer::Proceed);
-        if core::mem::take(&mut source.write_blocked) {
+        stream.credit = stream.credit.saturating_add(u32::from(stream.window));
+        stream.deadline = None;
+        if core::mem::take(&mut stream.write_blocked) {
             out.event(Event::Writable { handle });
         }
     }
@@ -857,27 +771,25 @@ impl StreamEndpoint {
         let Some((handle, stream, out)) = self.lookup(peer, Role::Destination, complete.destination_stream) else {
             return bump(&mut self.out.stats.stray_completes);
         };
-        let Half::Destination(dest) = &mut stream.half else { return };
-        if stream.source_stream != complete.source_stream || dest.state != DestinationState::Receiving {
+        if stream.source_stream != complete.source_stream || stream.state != State::Receiving {
             return bump(&mut out.stats.stray_completes);
         }
-        let received = dest.received;
-        match complete.count.missing_after(received) {
-            None => self.finish_destination(handle, received, None),
-            Some(0) => self.finish_destination(handle, received, Some(received)),
+        let received = stream.count;
+        let stated = match complete.count.missing_after(received) {
+            None => None,
+            Some(0) => Some(received),
             // On CAN a Complete out-arbitrates data frames still queued (wire-spec §6.3 note):
             // wait for what the source may still have in flight, never more than its credit.
-            Some(missing) if missing <= dest.outstanding() => {
-                let expected = received + missing;
-                dest.state = DestinationState::Draining { expected };
-                stream.timers.start(Timer::Idle, now, grace);
+            Some(missing) if missing <= u64::from(stream.credit) => {
+                stream.state = State::Draining;
+                stream.expected = received + missing;
+                stream.deadline = later(now, Some(grace));
+                return;
             }
             // The count cannot be reached: it is below what arrived, or beyond any credit.
-            Some(_) => {
-                let stated = complete.count.stated().map(u64::from);
-                self.finish_destination(handle, received, stated);
-            }
-        }
+            Some(_) => complete.count.stated().map(u64::from),
+        };
+        self.end(finished(handle, received, stated));
     }
 
     fn on_error_report(&mut self, mti: Mti, peer: NodeId, report: ErrorReport) {
@@ -915,87 +827,63 @@ impl StreamEndpoint {
         }
     }
 
-    fn on_timer(&mut self, now: Instant, slot: usize, timer: Timer) {
-        let keepalive = self.config.keepalive_interval;
-        let Some(s) = self.slots.get_mut(slot) else { return };
-        let generation = s.generation;
-        let Some(stream) = s.stream.as_mut() else { return };
-        let handle = StreamHandle { slot: slot as u16, generation };
-        let (peer, role) = (stream.peer, stream.role());
-        let draining = match &stream.half {
-            Half::Destination(Destination { state: DestinationState::Draining { expected }, .. }) => Some(*expected),
-            _ => None,
-        };
-        match timer {
-            Timer::Keepalive => {
-                if let (Ok(()), Some(interval)) = (send_flush(stream, &mut self.out), keepalive) {
-                    stream.timers.start(Timer::Keepalive, now, interval);
-                }
-            }
-            Timer::Reply => self.end(Event::TimedOut { handle, kind: TimeoutKind::Reply }),
-            Timer::Idle if draining.is_some() => {
-                // The grace for in-flight data is over: the count cannot be made up.
-                let total = stream_received(stream);
-                self.finish_destination(handle, total, draining);
-            }
-            Timer::Proceed | Timer::Idle => {
-                self.out.terminate(peer, ErrorCode::TIMEOUT, role);
-                let kind = match timer {
-                    Timer::Proceed => TimeoutKind::Proceed,
-                    _ if stream_received(stream) == 0 => TimeoutKind::FirstData,
-                    _ => TimeoutKind::Idle,
-                };
-                self.end(Event::TimedOut { handle, kind });
-                self.end_siblings(peer, role, ErrorCode::TIMEOUT);
-            }
-            Timer::Decision => {
-                let sid = stream.source_stream;
+    /// The wait of the stream in `slot` ran out; what that means follows from its state.
+    fn on_deadline(&mut self, slot: usize) {
+        let Some(stream) = self.slots.get(slot) else { return };
+        let handle = handle_of(slot, stream);
+        let (peer, role, sid, received) = (stream.peer, stream.role(), stream.source_stream, stream.count);
+        let kind = match stream.state {
+            State::AwaitingReply => TimeoutKind::Reply,
+            State::AwaitingDecision => {
                 self.refuse(peer, sid, ReplyCode::BUFFER_UNAVAILABLE);
-                self.end(Event::TimedOut { handle, kind: TimeoutKind::Decision });
+                TimeoutKind::Decision
             }
-        }
+            State::Draining => {
+                // The grace for in-flight data is over: the count cannot be made up.
+                let expected = stream.expected;
+                return self.end(finished(handle, received, Some(expected)));
+            }
+            State::Sending | State::Receiving => {
+                self.out.terminate(peer, ErrorCode::TIMEOUT, role);
+                self.end(Event::TimedOut {
+                    handle,
+                    kind: match (role, received) {
+                        (Role::Source, _) => TimeoutKind::Proceed,
+                        (_, 0) => TimeoutKind::FirstData,
+                        _ => TimeoutKind::Idle,
+                    },
+                });
+                return self.end_siblings(peer, role, ErrorCode::TIMEOUT);
+            }
+            State::Free | State::Closed => return,
+        };
+        self.end(Event::TimedOut { handle, kind });
     }
 
     // ----- helpers -----
 
-    fn accept_slot(&mut self, now: Instant, slot: usize, local_window: u16, early: bool) {
+    /// Opens the pending destination stream `handle` with at most `local_window`.
+    fn accept_stream(&mut self, now: Instant, handle: StreamHandle, local_window: u16, early: bool) {
         let (idle, first_data) = (self.config.idle_timeout, self.config.first_data_timeout);
-        let Some(s) = self.slots.get_mut(slot) else { return };
-        let handle = StreamHandle { slot: slot as u16, generation: s.generation };
-        let Some(stream) = s.stream.as_mut() else { return };
-        let window = stream.window.min(local_window).max(1);
-        stream.window = window;
-        stream.half = Half::Destination(Destination::new(window, early));
-        stream.timers.stop(Timer::Decision);
+        let Ok((stream, out)) = self.parts(handle) else { return };
+        stream.open_destination(stream.window.min(local_window).max(1), early);
         let first_data = match (idle, first_data) {
             (Some(idle), Some(first)) => Some(if first < idle { first } else { idle }),
             (idle, first) => idle.or(first),
         };
-        if let Some(timeout) = first_data {
-            stream.timers.start(Timer::Idle, now, timeout);
-        }
-        send_accept(stream, &mut self.out);
+        stream.deadline = later(now, first_data);
+        send_accept(stream, out);
         let info = stream.info();
-        self.out.event(Event::Opened { handle, info });
+        out.event(Event::Opened { handle, info });
     }
 
-    fn is_duplicate_request(&self, handle: StreamHandle, request: &InitiateRequest) -> bool {
-        self.stream(handle).is_some_and(|s| match &s.half {
-            Half::Destination(d) => {
-                d.state == DestinationState::Receiving
-                    && d.received == 0
-                    && s.content_uid == request.content_uid
-                    && request.proposed_destination.is_none_or(|did| s.destination_stream == Some(did))
-                    && s.window <= request.max_buffer_size
-            }
-            Half::Source(_) => false,
-        })
-    }
-
-    fn resend_accept(&mut self, handle: StreamHandle) {
-        let slot = self.slot_index(handle);
-        if let Some(stream) = slot.and_then(|slot| self.slots.get(slot)?.stream.as_ref()) {
-            send_accept(stream, &mut self.out);
+    /// The peer and SID of the pending request `handle`, or why it is not one.
+    fn pending(&self, handle: StreamHandle) -> Result<(NodeId, StreamId), StreamError> {
+        let stream = self.stream(handle).ok_or(StreamError::UnknownStream)?;
+        match stream.state {
+            State::AwaitingDecision => Ok((stream.peer, stream.source_stream)),
+            State::AwaitingReply | State::Sending => Err(StreamError::WrongRole),
+            _ => Err(StreamError::NotOpen),
         }
     }
 
@@ -1008,37 +896,17 @@ impl StreamEndpoint {
         self.out.send_wire(Mti::STREAM_INITIATE_REPLY, peer, &reply);
     }
 
-    /// Completes a destination stream: the `Finished` event, then release once read empty.
-    fn finish_destination(&mut self, handle: StreamHandle, total: u64, stated: Option<u64>) {
-        let Some(stream) = self.stream_mut(handle) else { return };
-        stream.timers.stop_all();
-        let Half::Destination(dest) = &mut stream.half else { return };
-        dest.state = DestinationState::Closed;
-        let empty = dest.buffer.is_empty();
-        let matched = stated.is_none_or(|s| s == total);
-        self.out.event(Event::Finished { handle, total, stated, matched });
-        if empty {
-            self.release(handle);
-        }
-    }
-
     /// Ends a stream with `event` (about it): a source or pending stream is released at once,
     /// a destination keeps its unread data until the application has read it.
     fn end(&mut self, event: Event) {
-        let handle = event.handle();
-        let Some(stream) = self.stream_mut(handle) else { return };
-        stream.timers.stop_all();
-        let keep = match &mut stream.half {
-            Half::Destination(d) if !d.buffer.is_empty() => {
-                d.state = DestinationState::Closed;
-                true
-            }
-            _ => false,
-        };
-        self.out.event(event);
-        if !keep {
-            self.release(handle);
+        let Ok((stream, out)) = self.parts(event.handle()) else { return };
+        if stream.role() == Role::Destination && !stream.buffer.is_empty() {
+            stream.state = State::Closed;
+            stream.stop_timers();
+        } else {
+            stream.release();
         }
+        out.event(event);
     }
 
     /// Ends every stream that `selects` picks, in slot order, each with the event of `ending`;
@@ -1046,9 +914,9 @@ impl StreamEndpoint {
     fn end_each(&mut self, selection: Selection, ending: Ending) -> usize {
         let mut ended = 0;
         for slot in 0..self.slots.len() {
-            let Some(entry) = self.slots.get(slot) else { continue };
-            if entry.stream.as_ref().is_some_and(|s| selection.picks(s)) {
-                let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
+            let Some(stream) = self.slots.get(slot) else { continue };
+            if stream.is_live() && selection.picks(stream) {
+                let handle = handle_of(slot, stream);
                 self.end(match ending {
                     Ending::Terminated(cause) => Event::Terminated { handle, cause },
                     Ending::Rejected(code, class) => Event::Rejected { handle, code, class },
@@ -1092,7 +960,7 @@ impl StreamEndpoint {
         if self.stream_count() >= self.config.max_streams {
             return Err(StreamError::TableFull);
         }
-        let with_peer = self.streams().filter(|(_, s)| s.peer == peer && s.role() == role).count();
+        let with_peer = self.slots.iter().filter(|s| s.is_with(peer, role)).count();
         if with_peer >= self.config.max_streams_per_peer.min(255) {
             return Err(StreamError::NoFreeStreamId);
         }
@@ -1114,112 +982,100 @@ impl StreamEndpoint {
         Err(StreamError::NoFreeStreamId)
     }
 
-    /// A free slot for a new stream (a new one while there are fewer than `max_streams`): the
-    /// stream's handle and its place, to be filled in place (a `Stream` is large to move).
-    fn vacant(&mut self) -> Result<(StreamHandle, &mut Option<Stream>), StreamError> {
-        let slot = match self.slots.iter().position(|s| s.stream.is_none()) {
-            Some(free) => free,
-            None if self.slots.len() < self.config.max_streams.min(usize::from(u16::MAX)) => {
-                self.slots.push(Slot::default());
-                self.slots.len() - 1
-            }
-            None => return Err(StreamError::TableFull),
-        };
-        let entry = self.slots.get_mut(slot).ok_or(StreamError::TableFull)?;
-        Ok((StreamHandle { slot: slot as u16, generation: entry.generation }, &mut entry.stream))
-    }
-
+    /// Frees the slot of `handle`, if it still names a stream.
     fn release(&mut self, handle: StreamHandle) {
-        let Some(slot) = self.slot_index(handle) else { return };
-        let Some(entry) = self.slots.get_mut(slot) else { return };
-        // Dropped in place (`take` would first move the whole stream out).
-        if entry.stream.is_some() {
-            entry.stream = None;
-            entry.generation = entry.generation.wrapping_add(1);
+        if let Ok((stream, _)) = self.parts(handle) {
+            stream.release();
         }
     }
 
-    fn slot_index(&self, handle: StreamHandle) -> Option<usize> {
-        let slot = usize::from(handle.slot);
-        let entry = self.slots.get(slot)?;
-        (entry.generation == handle.generation && entry.stream.is_some()).then_some(slot)
-    }
-
+    /// The stream `handle` names, if it is still in the table.
     #[inline(never)]
     fn stream(&self, handle: StreamHandle) -> Option<&Stream> {
-        self.slots.get(self.slot_index(handle)?)?.stream.as_ref()
+        self.slots.get(usize::from(handle.slot)).filter(|s| s.is_live() && s.generation == handle.generation)
     }
 
-    #[inline(never)]
-    fn stream_mut(&mut self, handle: StreamHandle) -> Option<&mut Stream> {
-        let slot = self.slot_index(handle)?;
-        self.slots.get_mut(slot)?.stream.as_mut()
+    /// As [`stream`](Self::stream), a destination only.
+    fn destination(&self, handle: StreamHandle) -> Option<&Stream> {
+        self.stream(handle).filter(|s| s.role() == Role::Destination)
     }
 
+    /// The stream `handle` names, with the outputs.
     #[inline(never)]
     fn parts(&mut self, handle: StreamHandle) -> Result<(&mut Stream, &mut Outputs), StreamError> {
-        let slot = self.slot_index(handle).ok_or(StreamError::UnknownStream)?;
-        let stream = self.slots.get_mut(slot).and_then(|s| s.stream.as_mut()).ok_or(StreamError::UnknownStream)?;
+        let stream = self
+            .slots
+            .get_mut(usize::from(handle.slot))
+            .filter(|s| s.is_live() && s.generation == handle.generation)
+            .ok_or(StreamError::UnknownStream)?;
         Ok((stream, &mut self.out))
     }
 
     /// Every stream in the table with its handle, in slot order.
     fn streams(&self) -> impl Iterator<Item = (StreamHandle, &Stream)> {
-        self.slots.iter().enumerate().filter_map(|(slot, entry)| {
-            let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
-            entry.stream.as_ref().map(|stream| (handle, stream))
-        })
+        self.slots.iter().enumerate().filter(|(_, s)| s.is_live()).map(|(slot, s)| (handle_of(slot, s), s))
     }
 
     /// The slot of the stream with `peer` in `role` under the ID this node assigned.
     #[inline(never)]
     fn position(&self, peer: NodeId, role: Role, id: StreamId) -> Option<usize> {
-        self.slots.iter().position(|entry| {
-            entry.stream.as_ref().is_some_and(|s| s.peer == peer && s.role() == role && s.local_id() == Some(id))
-        })
+        self.slots.iter().position(|s| s.is_with(peer, role) && s.local_id() == Some(id))
     }
 
     /// Whether a source stream to `peer` (open, or requested proposing it) other than the one
     /// with SID `except` uses DID `did`.
     fn sends_to(&self, peer: NodeId, did: StreamId, except: Option<StreamId>) -> bool {
-        self.slots.iter().filter_map(|entry| entry.stream.as_ref()).any(|s| {
-            s.peer == peer
-                && s.role() == Role::Source
-                && s.destination_stream == Some(did)
-                && Some(s.source_stream) != except
+        self.slots.iter().any(|s| {
+            s.is_with(peer, Role::Source) && s.destination_stream == Some(did) && Some(s.source_stream) != except
         })
     }
 
     /// The stream with `peer` in `role` under the ID this node assigned.
     fn find(&self, peer: NodeId, role: Role, id: StreamId) -> Option<StreamHandle> {
         let slot = self.position(peer, role, id)?;
-        let entry = self.slots.get(slot)?;
-        Some(StreamHandle { slot: slot as u16, generation: entry.generation })
+        Some(handle_of(slot, self.slots.get(slot)?))
     }
 
     /// As [`find`](Self::find), with the stream itself and the outputs.
     fn lookup(&mut self, peer: NodeId, role: Role, id: StreamId) -> Option<(StreamHandle, &mut Stream, &mut Outputs)> {
         let slot = self.position(peer, role, id)?;
-        let entry = self.slots.get_mut(slot)?;
-        let handle = StreamHandle { slot: slot as u16, generation: entry.generation };
-        Some((handle, entry.stream.as_mut()?, &mut self.out))
+        let stream = self.slots.get_mut(slot)?;
+        Some((handle_of(slot, stream), stream, &mut self.out))
     }
 
     /// A destination stream from `peer` by the source's SID; of several (a closed one with
     /// unread data and a newer one), the one with the lowest DID.
     fn find_by_source_id(&self, peer: NodeId, sid: StreamId) -> Option<StreamHandle> {
-        let mut found: Option<(StreamId, StreamHandle)> = None;
-        for (handle, s) in self.streams() {
-            if let (Role::Destination, Some(did)) = (s.role(), s.destination_stream)
-                && s.peer == peer
-                && s.source_stream == sid
-                && found.is_none_or(|(lowest, _)| did < lowest)
-            {
-                found = Some((did, handle));
-            }
-        }
-        found.map(|(_, handle)| handle)
+        let found = self.streams().filter(|(_, s)| s.is_with(peer, Role::Destination) && s.source_stream == sid);
+        found.min_by_key(|(_, s)| s.destination_stream).map(|(handle, _)| handle)
     }
+}
+
+/// The handle of the stream in `slot`.
+fn handle_of(slot: usize, stream: &Stream) -> StreamHandle {
+    StreamHandle { slot: slot as u16, generation: stream.generation }
+}
+
+/// A free slot for a new stream (a new one while there are fewer than `max_streams`), to be
+/// filled in place, and the handle it will have.
+fn vacant(slots: &mut Vec<Stream>, max_streams: usize) -> Result<(StreamHandle, &mut Stream), StreamError> {
+    let slot = match slots.iter().position(|s| !s.is_live()) {
+        Some(free) => free,
+        None if slots.len() < max_streams.min(usize::from(u16::MAX)) => {
+            slots.push(Stream::free());
+            slots.len() - 1
+        }
+        None => return Err(StreamError::TableFull),
+    };
+    let stream = slots.get_mut(slot).ok_or(StreamError::TableFull)?;
+    Ok((handle_of(slot, stream), stream))
+}
+
+/// The deadline `after` from `now`, if there is a wait (one place for the saturating 64-bit
+/// add).
+#[inline(never)]
+fn later(now: Instant, after: Option<Duration>) -> Option<Instant> {
+    after.map(|after| now + after)
 }
 
 /// Adds one to a counter. Out of line: one call is smaller than the saturating add.
@@ -1228,16 +1084,33 @@ fn bump(counter: &mut u32) {
     *counter = counter.saturating_add(1);
 }
 
+/// The `Finished` event of a destination stream that received `total` bytes of `stated`.
+fn finished(handle: StreamHandle, total: u64, stated: Option<u64>) -> Event {
+    Event::Finished { handle, total, stated, matched: stated.is_none_or(|s| s == total) }
+}
+
+/// The DID of an open source stream, or why `stream` is not one.
+fn sending_to(stream: &Stream) -> Result<StreamId, StreamError> {
+    match (stream.state, stream.destination_stream) {
+        (State::Sending, Some(did)) => Ok(did),
+        (State::AwaitingReply | State::Sending, _) => Err(StreamError::NotOpen),
+        _ => Err(StreamError::WrongRole),
+    }
+}
+
 /// A zero-length Data Send on an open source stream.
 fn send_flush(stream: &Stream, out: &mut Outputs) -> Result<(), StreamError> {
-    let Half::Source(source) = &stream.half else { return Err(StreamError::WrongRole) };
-    match (source.state, stream.destination_stream) {
-        (SourceState::Sending, Some(did)) => {
-            out.send_slices(Mti::STREAM_DATA_SEND, stream.peer, &[did.as_raw()], &[]);
-            Ok(())
-        }
-        _ => Err(StreamError::NotOpen),
-    }
+    out.send_slices(Mti::STREAM_DATA_SEND, stream.peer, &[sending_to(stream)?.as_raw()], &[]);
+    Ok(())
+}
+
+/// The same request again, for an open stream nothing has arrived on yet.
+fn is_duplicate_request(stream: &Stream, request: &InitiateRequest) -> bool {
+    stream.state == State::Receiving
+        && stream.count == 0
+        && stream.content_uid == request.content_uid
+        && request.proposed_destination.is_none_or(|did| stream.destination_stream == Some(did))
+        && stream.window <= request.max_buffer_size
 }
 
 /// Sends the accepting Initiate Reply of a destination stream, with its window.
@@ -1252,34 +1125,17 @@ fn send_accept(stream: &Stream, out: &mut Outputs) {
 }
 
 /// Sends the Proceed the destination owes, if any (never more than one ahead, see
-/// `Destination::proceed_due`), and says whether it did.
+/// `Stream::proceed_due`), and says whether it did.
 fn send_due_proceed(stream: &mut Stream, out: &mut Outputs) -> bool {
-    let window = stream.window;
-    let Half::Destination(dest) = &mut stream.half else { return false };
-    let Some(did) = stream.destination_stream else { return false };
-    if !dest.proceed_due(window) {
-        return false;
-    }
-    dest.granted += u64::from(window);
+    let Some(did) = stream.destination_stream.filter(|_| stream.proceed_due()) else { return false };
+    stream.credit += u32::from(stream.window);
     let proceed = DataProceed { source_stream: stream.source_stream, destination_stream: did };
     out.send_wire(Mti::STREAM_DATA_PROCEED, stream.peer, &proceed);
     true
 }
 
-/// Payload bytes a destination stream has received (0 for a source).
-fn stream_received(stream: &Stream) -> u64 {
-    match &stream.half {
-        Half::Destination(d) => d.received,
-        Half::Source(_) => 0,
-    }
-}
-
 /// Runs the idle timer only while the source holds credit: a source waiting for a Proceed
 /// (because our reader is slow) is not idle.
 fn restart_idle(now: Instant, stream: &mut Stream, idle: Option<Duration>) {
-    let waiting_for_source = matches!(&stream.half, Half::Destination(d) if d.outstanding() > 0);
-    match idle {
-        Some(timeout) if waiting_for_source => stream.timers.start(Timer::Idle, now, timeout),
-        _ => stream.timers.stop(Timer::Idle),
-    }
+    stream.deadline = if stream.credit > 0 { later(now, idle) } else { None };
 }

@@ -31,15 +31,13 @@ impl StreamEndpoint {
         // Role by role (sources first), each in slot order.
         for role in [Role::Source, Role::Destination] {
             for slot in 0..self.slots.len() {
-                let Some(stream) = self.slots.get(slot).and_then(|s| s.stream.as_ref()) else { continue };
-                let Some(id) = stream.local_id().filter(|_| stream.peer == from && stream.role() == role) else {
-                    continue;
-                };
+                let Some(stream) = self.slots.get(slot).filter(|s| s.is_with(from, role)) else { continue };
+                let Some(id) = stream.local_id() else { continue };
                 if self.position(to, role, id).is_some() {
                     if let Some(handle) = self.find(from, role, id) {
                         self.end(Event::Terminated { handle, cause: Termination::Superseded });
                     }
-                } else if let Some(stream) = self.slots.get_mut(slot).and_then(|s| s.stream.as_mut()) {
+                } else if let Some(stream) = self.slots.get_mut(slot) {
                     stream.peer = to;
                 }
             }

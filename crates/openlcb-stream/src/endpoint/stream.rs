@@ -1,101 +1,147 @@
-//! One stream's state: the fields both roles share, and the source or destination half.
+//! One slot of the stream table: a stream of either role, or nothing.
+//!
+//! The fields are flat: one state byte says which role and where in its life the stream is,
+//! and the fields both roles need (the credit, the byte count) are shared, so that the code
+//! never matches on a role-specific half.
 
 use alloc::vec;
 use alloc::vec::Vec;
 
-use super::timer::TimerTable;
 use crate::event::{Role, StreamInfo};
-use crate::{ContentUid, NodeId, StreamId};
+use crate::{ContentUid, Instant, NodeId, StreamId};
 
-/// A stream in the endpoint's table.
+/// Where a stream is in its life; the role follows from it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum State {
+    /// The slot holds no stream.
+    Free,
+    /// Source: Initiate Request sent (draft state "Initiated").
+    AwaitingReply,
+    /// Source: accepted (draft state "Open").
+    Sending,
+    /// Destination: request received; the application decides
+    /// ([`AcceptPolicy::Ask`](crate::AcceptPolicy)).
+    AwaitingDecision,
+    /// Destination: accepted (draft state "Open").
+    Receiving,
+    /// Destination: Complete arrived before all the data it counted: wait for `expected`
+    /// bytes in total.
+    Draining,
+    /// Destination: ended (finished, terminated or timed out); buffered data waits for the
+    /// application. A source stream leaves the table as soon as it ends.
+    Closed,
+}
+
+/// A slot of the endpoint's table. Each state has at most one wait running, in `deadline`:
+/// the Reply (`AwaitingReply`), a Proceed while out of credit (`Sending`), the application's
+/// decision (`AwaitingDecision`), the source's silence while it holds credit (`Receiving`),
+/// the grace for data still in flight (`Draining`). A sending source also keeps alive.
 #[derive(Debug)]
 pub(crate) struct Stream {
+    /// Bumped when the slot is freed, so that old handles no longer match.
+    pub(crate) generation: u16,
+    pub(crate) state: State,
     pub(crate) peer: NodeId,
     pub(crate) source_stream: StreamId,
     pub(crate) destination_stream: Option<StreamId>,
     /// Proposed Max Buffer Size until open, then the negotiated window.
     pub(crate) window: u16,
     pub(crate) content_uid: Option<ContentUid>,
-    pub(crate) timers: TimerTable,
-    pub(crate) half: Half,
-}
-
-/// The role-specific part.
-#[derive(Debug)]
-pub(crate) enum Half {
-    Source(Source),
-    Destination(Destination),
-}
-
-/// Source states. A source stream leaves the table as soon as it ends, so there is no
-/// closed state.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum SourceState {
-    /// Initiate Request sent (draft state "Initiated").
-    AwaitingReply,
-    /// Accepted (draft state "Open").
-    Sending,
-}
-
-#[derive(Debug)]
-pub(crate) struct Source {
-    pub(crate) state: SourceState,
-    /// Bytes the source may still send; never negative, grows by a window per Proceed.
+    /// When the wait of the current state runs out.
+    pub(crate) deadline: Option<Instant>,
+    /// Source: when to send the next keep-alive.
+    pub(crate) keepalive: Option<Instant>,
+    /// Bytes the source may still send before the next Proceed: the same figure at both
+    /// ends (grows by a window per Proceed).
     pub(crate) credit: u32,
-    /// Payload bytes sent so far.
-    pub(crate) sent: u64,
-    /// Payload bytes sent into the current window (`sent` modulo the window, kept so that
-    /// `write` needs no 64-bit division).
+    /// Payload bytes sent (source) or received (destination) so far. 64 bits cannot
+    /// overflow, so it adds without saturating.
+    pub(crate) count: u64,
+    /// Source: payload bytes sent into the current window (`count` modulo the window, kept so
+    /// that `write` needs no 64-bit division).
     pub(crate) window_sent: u32,
-    /// A write came up short: raise `Writable` when credit returns.
+    /// Destination, draining: the byte count the Complete stated.
+    pub(crate) expected: u64,
+    /// Source: a write came up short: raise `Writable` when credit returns.
     pub(crate) write_blocked: bool,
-}
-
-/// Destination states.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum DestinationState {
-    /// Request received; the application decides ([`AcceptPolicy::Ask`](crate::AcceptPolicy)).
-    AwaitingDecision,
-    /// Accepted (draft state "Open").
-    Receiving,
-    /// Complete arrived before all the data it counted: wait for `expected` bytes in total.
-    Draining { expected: u64 },
-    /// Ended (finished, terminated or timed out); buffered data waits for the application.
-    Closed,
-}
-
-#[derive(Debug)]
-pub(crate) struct Destination {
-    pub(crate) state: DestinationState,
-    /// Received, not yet read: one window, or two with early Proceed.
-    pub(crate) buffer: ByteRing,
-    /// Total bytes the source has been allowed to send (a window per Proceed, plus the first).
-    /// The 64-bit byte counts cannot overflow (2^64 bytes), so they add without saturating.
-    pub(crate) granted: u64,
-    /// Total payload bytes received.
-    pub(crate) received: u64,
+    /// Destination: one Proceed goes ahead of the data.
     pub(crate) early_proceed: bool,
+    /// Destination: received, not yet read (one window, or two with early Proceed).
+    pub(crate) buffer: ByteRing,
 }
 
 impl Stream {
-    pub(crate) fn role(&self) -> Role {
-        match self.half {
-            Half::Source(_) => Role::Source,
-            Half::Destination(_) => Role::Destination,
+    /// An empty slot.
+    pub(crate) fn free() -> Self {
+        Stream {
+            generation: 0,
+            state: State::Free,
+            peer: NodeId::default(),
+            source_stream: StreamId::MIN,
+            destination_stream: None,
+            window: 0,
+            content_uid: None,
+            deadline: None,
+            keepalive: None,
+            credit: 0,
+            count: 0,
+            window_sent: 0,
+            expected: 0,
+            write_blocked: false,
+            early_proceed: false,
+            buffer: ByteRing::new(0),
         }
+    }
+
+    /// Fills a free slot with a stream that has just been requested, in `state`.
+    pub(crate) fn start(&mut self, state: State, peer: NodeId, source_stream: StreamId, window: u16) {
+        self.state = state;
+        self.peer = peer;
+        self.source_stream = source_stream;
+        self.window = window;
+    }
+
+    /// Frees the slot: every field back to empty, the receive buffer released, the
+    /// generation on.
+    pub(crate) fn release(&mut self) {
+        let generation = self.generation.wrapping_add(1);
+        *self = Stream::free();
+        self.generation = generation;
+    }
+
+    pub(crate) fn is_live(&self) -> bool {
+        self.state != State::Free
+    }
+
+    pub(crate) fn role(&self) -> Role {
+        match self.state {
+            State::AwaitingReply | State::Sending => Role::Source,
+            _ => Role::Destination,
+        }
+    }
+
+    /// A stream in the table with `peer` in `role`.
+    pub(crate) fn is_with(&self, peer: NodeId, role: Role) -> bool {
+        self.is_live() && self.peer == peer && self.role() == role
     }
 
     /// The ID this node assigned: SID as source, DID as destination.
     pub(crate) fn local_id(&self) -> Option<StreamId> {
-        match self.half {
-            Half::Source(_) => Some(self.source_stream),
-            Half::Destination(_) => self.destination_stream,
+        match self.role() {
+            Role::Source => Some(self.source_stream),
+            Role::Destination => self.destination_stream,
         }
     }
 
     /// A destination that has ended and only waits for its data to be read.
     pub(crate) fn is_closed(&self) -> bool {
-        matches!(&self.half, Half::Destination(d) if d.state == DestinationState::Closed)
+        self.state == State::Closed
+    }
+
+    /// Stops every wait.
+    pub(crate) fn stop_timers(&mut self) {
+        self.deadline = None;
+        self.keepalive = None;
     }
 
     pub(crate) fn info(&self) -> StreamInfo {
@@ -108,53 +154,28 @@ impl Stream {
             content_uid: self.content_uid,
         }
     }
-}
 
-impl Destination {
-    pub(crate) fn new(window: u16, early_proceed: bool) -> Self {
+    /// Destination: accepted with `window`; the receive buffer is allocated here.
+    pub(crate) fn open_destination(&mut self, window: u16, early_proceed: bool) {
         let capacity = usize::from(window) * if early_proceed { 2 } else { 1 };
-        Destination {
-            state: DestinationState::Receiving,
-            buffer: ByteRing::new(capacity),
-            granted: u64::from(window),
-            received: 0,
-            early_proceed,
-        }
-    }
-
-    /// A pending request has no buffer yet.
-    pub(crate) fn pending() -> Self {
-        Destination {
-            state: DestinationState::AwaitingDecision,
-            buffer: ByteRing::new(0),
-            granted: 0,
-            received: 0,
-            early_proceed: false,
-        }
-    }
-
-    /// Credit the source still holds.
-    pub(crate) fn outstanding(&self) -> u64 {
-        self.granted.saturating_sub(self.received)
-    }
-
-    pub(crate) fn free_space(&self) -> usize {
-        self.buffer.free()
+        self.state = State::Receiving;
+        self.window = window;
+        self.buffer = ByteRing::new(capacity);
+        self.credit = u32::from(window);
+        self.early_proceed = early_proceed;
     }
 
     /// Draft §7.3: a Proceed grants one more window. Without early Proceed it goes once the
     /// current window has fully arrived; with it, one window ahead as soon as the first byte
     /// of the current window is in. Either way only while the buffer can hold everything the
     /// source could then send: this is where a slow reader slows the source.
-    pub(crate) fn proceed_due(&self, window: u16) -> bool {
-        if self.state != DestinationState::Receiving {
+    pub(crate) fn proceed_due(&self) -> bool {
+        if self.state != State::Receiving {
             return false;
         }
-        let window = u64::from(window);
-        let outstanding = self.outstanding();
-        let due = if self.early_proceed { outstanding < window } else { outstanding == 0 };
-        let room = self.free_space() as u64;
-        due && room >= outstanding + window
+        let window = u32::from(self.window);
+        let due = if self.early_proceed { self.credit < window } else { self.credit == 0 };
+        due && self.buffer.free() as u32 >= self.credit + window
     }
 }
 
