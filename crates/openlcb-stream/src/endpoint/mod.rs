@@ -349,7 +349,17 @@ impl StreamEndpoint {
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        self.slots.iter().flat_map(|s| s.deadline.into_iter().chain(s.keepalive)).min()
+        let mut next = None;
+        for stream in &self.slots {
+            for at in [stream.deadline, stream.keepalive] {
+                if let Some(at) = at
+                    && next.is_none_or(|next| at < next)
+                {
+                    next = Some(at);
+                }
+            }
+        }
+        next
     }
 
     // ----- inputs -----
