@@ -297,7 +297,7 @@ impl StreamEndpoint {
 
     /// Streams in the table (open, pending, or closed with unread data).
     pub fn stream_count(&self) -> usize {
-        self.streams().count()
+        self.slots.iter().filter(|s| s.is_live()).count()
     }
 
     /// What is known about a stream.
@@ -1056,8 +1056,16 @@ impl StreamEndpoint {
     /// A destination stream from `peer` by the source's SID; of several (a closed one with
     /// unread data and a newer one), the one with the lowest DID.
     fn find_by_source_id(&self, peer: NodeId, sid: StreamId) -> Option<StreamHandle> {
-        let found = self.streams().filter(|(_, s)| s.is_with(peer, Role::Destination) && s.source_stream == sid);
-        found.min_by_key(|(_, s)| s.destination_stream).map(|(handle, _)| handle)
+        let mut found: Option<(usize, &Stream)> = None;
+        for (slot, s) in self.slots.iter().enumerate() {
+            if s.is_with(peer, Role::Destination)
+                && s.source_stream == sid
+                && found.is_none_or(|(_, lowest)| s.destination_stream < lowest.destination_stream)
+            {
+                found = Some((slot, s));
+            }
+        }
+        found.map(|(slot, s)| handle_of(slot, s))
     }
 }
 
