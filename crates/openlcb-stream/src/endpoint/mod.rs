@@ -332,7 +332,7 @@ impl StreamEndpoint {
 
     /// Every live handle, in slot order.
     pub fn handles(&self) -> impl Iterator<Item = StreamHandle> + '_ {
-        self.streams().map(|(handle, _)| handle)
+        self.slots.iter().enumerate().filter(|(_, s)| s.is_live()).map(|(slot, s)| handle_of(slot, s))
     }
 
     // ----- outputs -----
@@ -967,10 +967,14 @@ impl StreamEndpoint {
     }
 
     fn check_room(&self, peer: NodeId, role: Role) -> Result<(), StreamError> {
-        if self.stream_count() >= self.config.max_streams {
+        let (mut streams, mut with_peer) = (0, 0);
+        for stream in &self.slots {
+            streams += usize::from(stream.is_live());
+            with_peer += usize::from(stream.is_with(peer, role));
+        }
+        if streams >= self.config.max_streams {
             return Err(StreamError::TableFull);
         }
-        let with_peer = self.slots.iter().filter(|s| s.is_with(peer, role)).count();
         if with_peer >= self.config.max_streams_per_peer.min(255) {
             return Err(StreamError::NoFreeStreamId);
         }
@@ -1019,11 +1023,6 @@ impl StreamEndpoint {
             .filter(|s| s.is_live() && s.generation == handle.generation)
             .ok_or(StreamError::UnknownStream)?;
         Ok((stream, &mut self.out))
-    }
-
-    /// Every stream in the table with its handle, in slot order.
-    fn streams(&self) -> impl Iterator<Item = (StreamHandle, &Stream)> {
-        self.slots.iter().enumerate().filter(|(_, s)| s.is_live()).map(|(slot, s)| (handle_of(slot, s), s))
     }
 
     /// The slot of the stream with `peer` in `role` under the ID this node assigned.
