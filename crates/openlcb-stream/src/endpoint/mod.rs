@@ -10,7 +10,7 @@ mod stream;
 
 use alloc::vec::Vec;
 
-use self::stream::{State, Stream};
+use self::stream::{LAST, NEVER, State, Stream};
 use crate::config::{AcceptPolicy, Config};
 use crate::event::{Event, Role, StreamInfo, Termination, TimeoutKind};
 use crate::wire::{
@@ -349,17 +349,11 @@ impl StreamEndpoint {
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let mut next = None;
+        let mut next = NEVER;
         for stream in &self.slots {
-            for at in [stream.deadline, stream.keepalive] {
-                if let Some(at) = at
-                    && next.is_none_or(|next| at < next)
-                {
-                    next = Some(at);
-                }
-            }
+            next = next.min(stream.deadline).min(stream.keepalive);
         }
-        next
+        (next != NEVER).then_some(next)
     }
 
     // ----- inputs -----
@@ -399,19 +393,21 @@ impl StreamEndpoint {
 
     /// Runs every wait due at `now`. Calling it early or twice is harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
+        // A wait that is not running never comes due, not even at the end of time.
+        let now = now.min(LAST);
         let keepalive = self.config.keepalive_interval;
         for slot in 0..self.slots.len() {
             if let Some(stream) = self.slots.get_mut(slot)
-                && stream.deadline.is_some_and(|at| at <= now)
+                && stream.deadline <= now
             {
-                stream.deadline = None;
+                stream.deadline = NEVER;
                 self.on_deadline(slot);
             }
             // After the deadline: a stream that it ended sends no keep-alive.
             if let Some(stream) = self.slots.get_mut(slot)
-                && stream.keepalive.is_some_and(|at| at <= now)
+                && stream.keepalive <= now
             {
-                stream.keepalive = None;
+                stream.keepalive = NEVER;
                 if send_flush(stream, &mut self.out).is_ok() {
                     stream.keepalive = later(now, keepalive);
                 }
@@ -709,7 +705,7 @@ impl StreamEndpoint {
                 stream.credit = u32::from(reply.max_buffer_size);
                 stream.window = reply.max_buffer_size;
                 stream.destination_stream = Some(did);
-                stream.deadline = None;
+                stream.deadline = NEVER;
                 stream.keepalive = later(now, keepalive);
                 let info = stream.info();
                 out.event(Event::Opened { handle, info });
@@ -769,7 +765,7 @@ impl StreamEndpoint {
             return bump(&mut out.stats.stray_proceeds);
         }
         stream.credit = stream.credit.saturating_add(u32::from(stream.window));
-        stream.deadline = None;
+        stream.deadline = NEVER;
         if core::mem::take(&mut stream.write_blocked) {
             out.event(Event::Writable { handle });
         }
@@ -1091,8 +1087,8 @@ fn vacant(slots: &mut Vec<Stream>, max_streams: usize) -> Result<(StreamHandle, 
 /// The deadline `after` from `now`, if there is a wait (one place for the saturating 64-bit
 /// add).
 #[inline(never)]
-fn later(now: Instant, after: Option<Duration>) -> Option<Instant> {
-    after.map(|after| now + after)
+fn later(now: Instant, after: Option<Duration>) -> Instant {
+    after.map_or(NEVER, |after| now + after)
 }
 
 /// Adds one to a counter. Out of line: one call is smaller than the saturating add.
@@ -1154,5 +1150,5 @@ fn send_due_proceed(stream: &mut Stream, out: &mut Outputs) -> bool {
 /// Runs the idle timer only while the source holds credit: a source waiting for a Proceed
 /// (because our reader is slow) is not idle.
 fn restart_idle(now: Instant, stream: &mut Stream, idle: Option<Duration>) {
-    stream.deadline = if stream.credit > 0 { later(now, idle) } else { None };
+    stream.deadline = if stream.credit > 0 { later(now, idle) } else { NEVER };
 }

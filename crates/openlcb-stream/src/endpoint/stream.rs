@@ -32,6 +32,12 @@ pub(crate) enum State {
     Closed,
 }
 
+/// The deadline of a wait that is not running (the end of time: 584 000 years on).
+pub(crate) const NEVER: Instant = Instant::from_micros(u64::MAX);
+
+/// The latest time a wait can come due: just before [`NEVER`].
+pub(crate) const LAST: Instant = Instant::from_micros(u64::MAX - 1);
+
 /// A slot of the endpoint's table. Each state has at most one wait running, in `deadline`:
 /// the Reply (`AwaitingReply`), a Proceed while out of credit (`Sending`), the application's
 /// decision (`AwaitingDecision`), the source's silence while it holds credit (`Receiving`),
@@ -48,9 +54,9 @@ pub(crate) struct Stream {
     pub(crate) window: u16,
     pub(crate) content_uid: Option<ContentUid>,
     /// When the wait of the current state runs out.
-    pub(crate) deadline: Option<Instant>,
+    pub(crate) deadline: Instant,
     /// Source: when to send the next keep-alive.
-    pub(crate) keepalive: Option<Instant>,
+    pub(crate) keepalive: Instant,
     /// Bytes the source may still send before the next Proceed: the same figure at both
     /// ends (grows by a window per Proceed).
     pub(crate) credit: u32,
@@ -81,8 +87,8 @@ impl Stream {
             destination_stream: None,
             window: 0,
             content_uid: None,
-            deadline: None,
-            keepalive: None,
+            deadline: NEVER,
+            keepalive: NEVER,
             credit: 0,
             count: 0,
             window_sent: 0,
@@ -140,8 +146,8 @@ impl Stream {
 
     /// Stops every wait.
     pub(crate) fn stop_timers(&mut self) {
-        self.deadline = None;
-        self.keepalive = None;
+        self.deadline = NEVER;
+        self.keepalive = NEVER;
     }
 
     pub(crate) fn info(&self) -> StreamInfo {
