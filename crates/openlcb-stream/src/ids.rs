@@ -1,6 +1,7 @@
 //! Validated identifiers: [`NodeId`], [`StreamId`] and [`ContentUid`].
 
 use core::fmt;
+use core::num::NonZeroU8;
 use core::str::FromStr;
 
 /// A 48-bit OpenLCB Node ID, printed and parsed as `05.01.01.01.22.00`.
@@ -105,42 +106,62 @@ impl FromStr for NodeId {
 /// A stream ID (SID or DID): 0..=254. The value 0xFF is reserved and is never a `StreamId`.
 ///
 /// Draft §4 / TN §2.5: "0xFF must never be sent and must be ignored upon receipt".
-#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct StreamId(u8);
+/// Held inverted (0xFF becomes 0), so that `Option<StreamId>` is one byte with `None` where
+/// 0xFF would be.
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+pub struct StreamId(NonZeroU8);
 
 impl StreamId {
     /// The lowest stream ID, 0.
-    pub const MIN: StreamId = StreamId(0);
+    pub const MIN: StreamId = StreamId(NonZeroU8::MAX);
     /// The highest stream ID, 254.
-    pub const MAX: StreamId = StreamId(0xFE);
+    pub const MAX: StreamId = StreamId(NonZeroU8::MIN);
     /// The reserved raw value, used on the wire only as "no DID proposed" (wire-spec §10 C-17).
     pub const RESERVED: u8 = 0xFF;
 
     /// A stream ID, or `None` for the reserved 0xFF.
     pub const fn new(raw: u8) -> Option<Self> {
-        if raw == Self::RESERVED { None } else { Some(StreamId(raw)) }
+        match NonZeroU8::new(!raw) {
+            Some(inverted) => Some(StreamId(inverted)),
+            None => None,
+        }
     }
 
     /// The raw byte.
     pub const fn as_raw(self) -> u8 {
-        self.0
+        !self.0.get()
     }
 
     /// The next ID in the rotation 0, 1, .., 254, 0, ..
     pub const fn next(self) -> Self {
-        if self.0 >= Self::RESERVED - 1 { StreamId(0) } else { StreamId(self.0 + 1) }
+        match StreamId::new(self.as_raw().wrapping_add(1)) {
+            Some(next) => next,
+            None => StreamId::MIN,
+        }
+    }
+}
+
+impl PartialOrd for StreamId {
+    fn partial_cmp(&self, other: &Self) -> Option<core::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for StreamId {
+    fn cmp(&self, other: &Self) -> core::cmp::Ordering {
+        self.as_raw().cmp(&other.as_raw())
     }
 }
 
 impl fmt::Debug for StreamId {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "StreamId(0x{:02X})", self.0)
+        write!(f, "StreamId(0x{:02X})", self.as_raw())
     }
 }
 
 impl fmt::Display for StreamId {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "0x{:02X}", self.0)
+        write!(f, "0x{:02X}", self.as_raw())
     }
 }
 
