@@ -1,7 +1,7 @@
 //! Validated identifiers: [`NodeId`], [`StreamId`] and [`ContentUid`].
 
 use core::fmt;
-use core::num::NonZeroU8;
+use core::num::{NonZeroU64, NonZeroU8};
 use core::str::FromStr;
 
 /// A 48-bit OpenLCB Node ID, printed and parsed as `05.01.01.01.22.00`.
@@ -166,30 +166,34 @@ impl fmt::Display for StreamId {
 }
 
 /// A 6-byte Stream Content UID (draft §4): names what a stream carries. Never all zero.
+/// Held as its 48-bit big-endian value, so that `Option<ContentUid>` is as small as one.
 #[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct ContentUid([u8; 6]);
+pub struct ContentUid(NonZeroU64);
 
 impl ContentUid {
     /// A content UID, or `None` if all six bytes are zero.
     pub const fn new(bytes: [u8; 6]) -> Option<Self> {
-        if NodeId::from_bytes(bytes).as_raw() == 0 { None } else { Some(ContentUid(bytes)) }
+        match NonZeroU64::new(NodeId::from_bytes(bytes).as_raw()) {
+            Some(value) => Some(ContentUid(value)),
+            None => None,
+        }
     }
 
     /// The six bytes.
     pub const fn to_bytes(self) -> [u8; 6] {
-        self.0
+        NodeId(self.0.get()).to_bytes()
     }
 }
 
 impl fmt::Debug for ContentUid {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "ContentUid({})", NodeId::from_bytes(self.0))
+        write!(f, "ContentUid({})", NodeId(self.0.get()))
     }
 }
 
 impl fmt::Display for ContentUid {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        fmt::Display::fmt(&NodeId::from_bytes(self.0), f)
+        fmt::Display::fmt(&NodeId(self.0.get()), f)
     }
 }
 
