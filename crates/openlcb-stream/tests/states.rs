@@ -890,6 +890,26 @@ fn open_request_reusing_a_live_sid_supersedes() {
 }
 
 #[test]
+fn closed_stream_with_unread_data_is_not_superseded_by_its_sid_again() {
+    let mut b = Bench::new(config());
+    let (h, did) = b.open_destination();
+    b.peer(Mti::STREAM_DATA_SEND, &data(did, b"xy"));
+    b.peer(Mti::STREAM_DATA_COMPLETE, &[4, did, 0, 0, 0, 2]);
+    let events = b.events();
+    assert!(events.iter().any(|e| matches!(e, Event::Finished { handle, total: 2, .. } if *handle == h)));
+    b.sent();
+    // The source starts a new stream with the same SID: the finished one is not ended again.
+    b.peer(Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 4]);
+    let events = b.events();
+    assert_eq!(events.len(), 1, "{events:?}");
+    let Event::Opened { handle: second, info } = events[0] else { panic!("not opened: {events:?}") };
+    assert_ne!(second, h);
+    assert_ne!(info.destination_stream, Some(sid(did)), "the closed stream keeps its DID");
+    // The old data is still there to read.
+    assert_eq!(read_all(&mut b, h), b"xy");
+}
+
+#[test]
 fn any_peer_lost_ends_its_streams() {
     let mut b = Bench::new(config());
     let s = b.open_source(16);

@@ -1048,19 +1048,13 @@ impl StreamEndpoint {
         Some((handle_of(slot, stream), stream, &mut self.out))
     }
 
-    /// A destination stream from `peer` by the source's SID; of several (a closed one with
-    /// unread data and a newer one), the one with the lowest DID.
+    /// The destination stream from `peer` with the source's SID `sid` that is not over yet
+    /// (a closed one, with unread data, has ended already: a new request cannot end it again).
     fn find_by_source_id(&self, peer: NodeId, sid: StreamId) -> Option<StreamHandle> {
-        let mut found: Option<(usize, &Stream)> = None;
-        for (slot, s) in self.slots.iter().enumerate() {
-            if s.is_with(peer, Role::Destination)
-                && s.source_stream == sid
-                && found.is_none_or(|(_, lowest)| s.destination_stream < lowest.destination_stream)
-            {
-                found = Some((slot, s));
-            }
-        }
-        found.map(|(slot, s)| handle_of(slot, s))
+        let slot = self.slots.iter().position(|s| {
+            s.is_with(peer, Role::Destination) && s.source_stream == sid && !s.is_closed()
+        })?;
+        Some(handle_of(slot, self.slots.get(slot)?))
     }
 }
 
