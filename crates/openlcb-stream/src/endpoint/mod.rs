@@ -849,21 +849,21 @@ impl StreamEndpoint {
                 let expected = stream.expected;
                 return self.end(finished(handle, received, Some(expected)));
             }
-            State::Sending | State::Receiving => {
-                self.out.terminate(peer, ErrorCode::TIMEOUT, role);
-                self.end(Event::TimedOut {
-                    handle,
-                    kind: match (role, received) {
-                        (Role::Source, _) => TimeoutKind::Proceed,
-                        (_, 0) => TimeoutKind::FirstData,
-                        _ => TimeoutKind::Idle,
-                    },
-                });
-                return self.end_siblings(peer, role, ErrorCode::TIMEOUT);
-            }
+            State::Sending => TimeoutKind::Proceed,
+            State::Receiving if received == 0 => TimeoutKind::FirstData,
+            State::Receiving => TimeoutKind::Idle,
             State::Free | State::Closed => return,
         };
+        // An open stream that timed out is terminated, and with it its siblings (see
+        // `end_siblings`).
+        let open = matches!(kind, TimeoutKind::Proceed | TimeoutKind::FirstData | TimeoutKind::Idle);
+        if open {
+            self.out.terminate(peer, ErrorCode::TIMEOUT, role);
+        }
         self.end(Event::TimedOut { handle, kind });
+        if open {
+            self.end_siblings(peer, role, ErrorCode::TIMEOUT);
+        }
     }
 
     // ----- helpers -----
