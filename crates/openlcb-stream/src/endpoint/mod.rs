@@ -438,23 +438,16 @@ impl StreamEndpoint {
             return Err(StreamError::SelfAddressed);
         }
         let peer = options.destination;
-        let sid = match options.source_stream {
-            Some(sid) if self.position(peer, Role::Source, sid).is_some() => return Err(StreamError::StreamIdInUse),
-            Some(sid) => sid,
-            None => self.free_id(peer, Role::Source)?,
-        };
         if options.proposed_destination.is_some_and(|did| self.sends_to(peer, did, None)) {
             return Err(StreamError::DestinationIdInUse);
         }
-        self.check_room(peer, Role::Source)?;
-        let (handle, stream) = vacant(&mut self.slots, self.config.max_streams)?;
-        stream.start(State::AwaitingReply, peer, sid, options.max_buffer_size);
+        let reply_timeout = self.config.reply_timeout;
+        let (handle, stream, sid) =
+            self.add_stream(State::AwaitingReply, peer, options.source_stream, options.max_buffer_size)?;
+        stream.source_stream = sid;
         stream.destination_stream = options.proposed_destination;
         stream.content_uid = options.content_uid;
-        stream.deadline = later(now, Some(self.config.reply_timeout));
-        if options.source_stream.is_none() {
-            self.next_source_id = sid.next();
-        }
+        stream.deadline = later(now, Some(reply_timeout));
         let request = InitiateRequest {
             max_buffer_size: options.max_buffer_size,
             source_stream: sid,
@@ -652,27 +645,15 @@ impl StreamEndpoint {
         if let AcceptPolicy::RejectAll(code) = self.config.accept_policy {
             return Err(code);
         }
-        let busy = ReplyCode::BUFFER_UNAVAILABLE;
-        let did = match request.proposed_destination {
-            Some(did) if self.position(peer, Role::Destination, did).is_some() => return Err(busy),
-            Some(did) => did,
-            None => self.free_id(peer, Role::Destination).map_err(|_| busy)?,
-        };
-        self.check_room(peer, Role::Destination).map_err(|_| busy)?;
-        let (handle, stream) = vacant(&mut self.slots, self.config.max_streams).map_err(|_| busy)?;
-        stream.start(State::AwaitingDecision, peer, request.source_stream, request.max_buffer_size);
+        let (ask, decision_timeout) = (self.config.accept_policy == AcceptPolicy::Ask, self.config.decision_timeout);
+        let (handle, stream, did) = self
+            .add_stream(State::AwaitingDecision, peer, request.proposed_destination, request.max_buffer_size)
+            .map_err(|_| ReplyCode::BUFFER_UNAVAILABLE)?;
+        stream.source_stream = request.source_stream;
         stream.destination_stream = Some(did);
         stream.content_uid = request.content_uid;
-        // The rotation goes on past every DID it would give out next, a proposed one included,
-        // so that the DID of a stream that just ended here is not given to the next request at
-        // once: its source may not have heard yet, and its data would land in the new stream.
-        // A proposed DID elsewhere leaves the rotation where it is (never back onto a DID it
-        // gave out just before).
-        if did == self.next_destination_id {
-            self.next_destination_id = did.next();
-        }
-        if self.config.accept_policy == AcceptPolicy::Ask {
-            stream.deadline = later(now, Some(self.config.decision_timeout));
+        if ask {
+            stream.deadline = later(now, Some(decision_timeout));
             let info = stream.info();
             self.out.event(Event::IncomingRequest { handle, info });
         } else {
@@ -960,6 +941,41 @@ impl StreamEndpoint {
 
     fn count_malformed(&mut self) {
         bump(&mut self.out.stats.malformed);
+    }
+
+    /// Takes a slot for a new stream with `peer` in `state`, proposing `window`, under the ID
+    /// this node assigns: `wanted` if it is free, else the next free one in the rotation. The
+    /// rotation goes on past every ID it gives out, and past a wanted one it would give out
+    /// next: so that the ID of a stream that just ended here is not given out again at once
+    /// (its peer may not have heard yet, and its data would land in the new stream). A wanted
+    /// ID elsewhere leaves the rotation where it is (never back onto an ID it gave out just
+    /// before).
+    fn add_stream(
+        &mut self,
+        state: State,
+        peer: NodeId,
+        wanted: Option<StreamId>,
+        window: u16,
+    ) -> Result<(StreamHandle, &mut Stream, StreamId), StreamError> {
+        let role = state.role();
+        let id = match wanted {
+            Some(id) if self.position(peer, role, id).is_some() => return Err(StreamError::StreamIdInUse),
+            Some(id) => id,
+            None => self.free_id(peer, role)?,
+        };
+        self.check_room(peer, role)?;
+        let rotation = match role {
+            Role::Source => &mut self.next_source_id,
+            Role::Destination => &mut self.next_destination_id,
+        };
+        if wanted.is_none() || id == *rotation {
+            *rotation = id.next();
+        }
+        let (handle, stream) = vacant(&mut self.slots, self.config.max_streams)?;
+        stream.state = state;
+        stream.peer = peer;
+        stream.window = window;
+        Ok((handle, stream, id))
     }
 
     fn check_room(&self, peer: NodeId, role: Role) -> Result<(), StreamError> {

@@ -38,6 +38,16 @@ pub(crate) const NEVER: Instant = Instant::from_micros(u64::MAX);
 /// The latest time a wait can come due: just before [`NEVER`].
 pub(crate) const LAST: Instant = Instant::from_micros(u64::MAX - 1);
 
+impl State {
+    /// The role of a stream in this state (a free slot's is meaningless).
+    pub(crate) fn role(self) -> Role {
+        match self {
+            State::AwaitingReply | State::Sending => Role::Source,
+            _ => Role::Destination,
+        }
+    }
+}
+
 /// A slot of the endpoint's table. Each state has at most one wait running, in `deadline`:
 /// the Reply (`AwaitingReply`), a Proceed while out of credit (`Sending`), the application's
 /// decision (`AwaitingDecision`), the source's silence while it holds credit (`Receiving`),
@@ -99,14 +109,6 @@ impl Stream {
         }
     }
 
-    /// Fills a free slot with a stream that has just been requested, in `state`.
-    pub(crate) fn start(&mut self, state: State, peer: NodeId, source_stream: StreamId, window: u16) {
-        self.state = state;
-        self.peer = peer;
-        self.source_stream = source_stream;
-        self.window = window;
-    }
-
     /// Frees the slot: every field back to empty, the receive buffer released, the
     /// generation on.
     pub(crate) fn release(&mut self) {
@@ -120,10 +122,7 @@ impl Stream {
     }
 
     pub(crate) fn role(&self) -> Role {
-        match self.state {
-            State::AwaitingReply | State::Sending => Role::Source,
-            _ => Role::Destination,
-        }
+        self.state.role()
     }
 
     /// A stream in the table with `peer` in `role`.
