@@ -1,7 +1,7 @@
 //! Validated identifiers: [`NodeId`], [`StreamId`] and [`ContentUid`].
 
 use core::fmt;
-use core::num::{NonZeroU64, NonZeroU8};
+use core::num::{NonZeroU8, NonZeroU64};
 use core::str::FromStr;
 
 /// A 48-bit OpenLCB Node ID, printed and parsed as `05.01.01.01.22.00`.

@@ -1067,9 +1067,10 @@ impl StreamEndpoint {
     /// The destination stream from `peer` with the source's SID `sid` that is not over yet
     /// (a closed one, with unread data, has ended already: a new request cannot end it again).
     fn find_by_source_id(&self, peer: NodeId, sid: StreamId) -> Option<StreamHandle> {
-        let slot = self.slots.iter().position(|s| {
-            s.is_with(peer, Role::Destination) && s.source_stream == sid && !s.is_closed()
-        })?;
+        let slot = self
+            .slots
+            .iter()
+            .position(|s| s.is_with(peer, Role::Destination) && s.source_stream == sid && !s.is_closed())?;
         Some(handle_of(slot, self.slots.get(slot)?))
     }
 }
