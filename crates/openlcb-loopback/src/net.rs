@@ -77,7 +77,8 @@ pub struct FrameFaults {
 pub enum ScheduledFault {
     /// The node restarts: new node and link, a new alias, its streams forgotten.
     Reset(NodeIndex),
-    /// The node stops receiving and sending, for good.
+    /// The node stops receiving and sending, for good. The transfers it has not opened yet
+    /// end as `Terminated(LinkLost)`; its open streams are left to the peers' timeouts.
     Silence(NodeIndex),
     /// A frame from another node appears with this node's alias as its source: the node
     /// must give the alias up and log in again.
@@ -541,6 +542,7 @@ impl Network {
         if let Some(node) = self.nodes.get_mut(spec.from) {
             node.wake = Some(node.wake.map_or(spec.start, |w| w.min(spec.start)));
         }
+        self.abandon_unopened(spec.from);
         self.transfers.len() - 1
     }
 
@@ -724,6 +726,22 @@ impl Network {
         if let Port::Can { bus, port, .. } = &node.port {
             if let Some(bus) = self.buses.get_mut(*bus) {
                 bus.clear(*port);
+            }
+        }
+        self.abandon_unopened(index);
+    }
+
+    /// A silent node never runs again, so the transfers it was still to open never start:
+    /// they end as `LinkLost` (the node lost its link for good). Its open streams are left to
+    /// the peers' timeouts.
+    fn abandon_unopened(&mut self, index: NodeIndex) {
+        if !self.nodes.get(index).is_some_and(|n| n.silent) {
+            return;
+        }
+        for t in 0..self.transfers.len() {
+            let Some(transfer) = self.transfers.get(t) else { continue };
+            if transfer.report.spec.from == index && transfer.report.opened_at.is_none() {
+                self.decide(t, Outcome::Terminated(Termination::LinkLost));
             }
         }
     }

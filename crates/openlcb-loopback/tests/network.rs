@@ -198,6 +198,23 @@ fn source_goes_silent_mid_stream() {
 }
 
 #[test]
+fn transfers_a_silent_node_was_still_to_open_end_as_link_lost() {
+    let (mut net, a, b) = can_pair(11, options(256, true), options(256, true));
+    // Due after the silence, and added after it: neither can ever start.
+    let due_later = net.add_transfer(TransferSpec::new(a, b, 1_000, 256).at(Instant::from_millis(2_000)));
+    net.schedule(Instant::ZERO, ScheduledFault::Silence(a));
+    net.run_until(Instant::from_millis(10), 10_000).unwrap();
+    let added_after = net.add_transfer(TransferSpec::new(a, b, 1_000, 256));
+    for t in [due_later, added_after] {
+        assert_eq!(assert_safe(&mut net, t), Outcome::Terminated(Termination::LinkLost));
+        assert_eq!(net.transfers()[t].sent, 0);
+    }
+    // The other way round is up to the protocol: no node answers for that Node ID.
+    let to_silent = net.add_transfer(TransferSpec::new(b, a, 1_000, 256).at(net.now()));
+    assert_eq!(assert_safe(&mut net, to_silent), Outcome::Terminated(Termination::PeerLost));
+}
+
+#[test]
 fn dropped_frames_are_reported_never_silent() {
     for seed in 0..8 {
         let (mut net, a, b) = can_pair(100 + seed, options(256, true), options(256, true));
