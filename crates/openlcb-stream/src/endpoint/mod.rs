@@ -209,30 +209,51 @@ impl Outputs {
     }
 }
 
-/// Which streams [`StreamEndpoint::end_each`] ends.
+/// Which streams [`StreamEndpoint::end_each`] ends: those in one of `states` (a bit per
+/// [`State`]), with `peer` unless [`ANY_PEER`] is among them.
 #[derive(Debug, Clone, Copy)]
-enum Selection {
-    /// Every stream.
-    All,
-    /// The streams with this peer that are not closed, in this role (`None`: both roles).
-    Live(NodeId, Option<Role>),
-    /// The source streams with this peer whose request waits for its Reply.
-    Waiting(NodeId),
-    /// What this peer forgot when it restarted: its streams but requests waiting for their
-    /// Reply and closed destinations.
-    Forgotten(NodeId),
+struct Selection {
+    peer: NodeId,
+    states: u8,
 }
 
+/// In a [`Selection`]'s states: whatever the peer (no state has this bit).
+const ANY_PEER: u8 = 1 << 7;
+const _: () = assert!(State::Closed.bit() < ANY_PEER, "a state's bit is ANY_PEER");
+
+/// A source stream, waiting for its Reply or sending.
+const SOURCE: u8 = State::AwaitingReply.bit() | State::Sending.bit();
+/// A destination stream that is not over yet.
+const LIVE_DESTINATION: u8 = State::AwaitingDecision.bit() | State::Receiving.bit() | State::Draining.bit();
+
 impl Selection {
-    /// Whether the selection takes the stream `s` (one in the table).
+    /// Every stream.
+    const ALL: Selection = Selection { peer: NodeId::MAX, states: ANY_PEER | SOURCE | LIVE_DESTINATION | State::Closed.bit() };
+
+    /// The streams with `peer` that are not closed, in `role` (`None`: both roles).
+    fn live(peer: NodeId, role: Option<Role>) -> Self {
+        let states = match role {
+            Some(Role::Source) => SOURCE,
+            Some(Role::Destination) => LIVE_DESTINATION,
+            None => SOURCE | LIVE_DESTINATION,
+        };
+        Selection { peer, states }
+    }
+
+    /// The source streams with `peer` whose request waits for its Reply.
+    fn waiting(peer: NodeId) -> Self {
+        Selection { peer, states: State::AwaitingReply.bit() }
+    }
+
+    /// What `peer` forgot when it restarted: its streams but requests waiting for their Reply
+    /// and closed destinations.
+    fn forgotten(peer: NodeId) -> Self {
+        Selection { peer, states: State::Sending.bit() | LIVE_DESTINATION }
+    }
+
+    /// Whether the selection takes the stream `s`.
     fn picks(self, s: &Stream) -> bool {
-        let waiting = s.state == State::AwaitingReply;
-        match self {
-            Selection::All => true,
-            Selection::Live(peer, role) => s.peer == peer && role.is_none_or(|r| r == s.role()) && !s.is_closed(),
-            Selection::Waiting(peer) => s.peer == peer && waiting,
-            Selection::Forgotten(peer) => s.peer == peer && !waiting && !s.is_closed(),
-        }
+        self.states & s.state.bit() != 0 && (self.states & ANY_PEER != 0 || self.peer == s.peer)
     }
 }
 
@@ -424,7 +445,7 @@ impl StreamEndpoint {
     /// The transport lost its link (e.g. this node's CAN alias): every stream ends with
     /// [`Termination::LinkLost`].
     pub fn link_lost(&mut self) {
-        self.end_each(Selection::All, Ending::Terminated(Termination::LinkLost));
+        self.end_each(Selection::ALL, Ending::Terminated(Termination::LinkLost));
     }
 
     // ----- commands: source -----
@@ -785,7 +806,7 @@ impl StreamEndpoint {
         if mti == Mti::OPTIONAL_INTERACTION_REJECTED && report.mti == Some(Mti::STREAM_INITIATE_REQUEST) {
             let code = ReplyCode(report.code.0);
             let class = if code.is_accept() { ReplyClass::Permanent } else { code.class() };
-            if self.end_each(Selection::Waiting(peer), Ending::Rejected(code, class)) == 0 {
+            if self.end_each(Selection::waiting(peer), Ending::Rejected(code, class)) == 0 {
                 bump(&mut self.out.stats.stray_error_reports);
             }
             return;
@@ -805,9 +826,9 @@ impl StreamEndpoint {
             None => None,
         };
         let ending = Ending::Terminated(Termination::ByPeer(report.code));
-        let mut ended = self.end_each(Selection::Live(peer, peer_is.map(Role::other)), ending);
+        let mut ended = self.end_each(Selection::live(peer, peer_is.map(Role::other)), ending);
         if ended == 0 && peer_is.is_some() {
-            ended = self.end_each(Selection::Live(peer, peer_is), ending);
+            ended = self.end_each(Selection::live(peer, peer_is), ending);
         }
         if ended == 0 {
             bump(&mut self.out.stats.stray_error_reports);
@@ -902,7 +923,7 @@ impl StreamEndpoint {
         let mut ended = 0;
         for slot in 0..self.slots.len() {
             let Some(stream) = self.slots.get(slot) else { continue };
-            if stream.is_live() && selection.picks(stream) {
+            if selection.picks(stream) {
                 let handle = handle_of(slot, stream);
                 self.end(match ending {
                     Ending::Terminated(cause) => Event::Terminated { handle, cause },
@@ -918,7 +939,7 @@ impl StreamEndpoint {
     /// still waiting for its Reply stays: messages from one node arrive in order, so the peer
     /// will see the request after its restart and answer it.
     fn peer_restarted(&mut self, peer: NodeId) {
-        self.end_each(Selection::Forgotten(peer), Ending::Terminated(Termination::PeerRestarted));
+        self.end_each(Selection::forgotten(peer), Ending::Terminated(Termination::PeerRestarted));
     }
 
     /// This node just sent a TDE to `peer` about one of its streams in `role`. The TDE names
@@ -928,7 +949,7 @@ impl StreamEndpoint {
     /// own TDE, for a peer that ends one stream per TDE.
     fn end_siblings(&mut self, peer: NodeId, role: Role, code: ErrorCode) {
         let ended =
-            self.end_each(Selection::Live(peer, Some(role)), Ending::Terminated(Termination::SiblingTerminated));
+            self.end_each(Selection::live(peer, Some(role)), Ending::Terminated(Termination::SiblingTerminated));
         for _ in 0..ended {
             self.out.terminate(peer, code, role);
         }
@@ -936,7 +957,7 @@ impl StreamEndpoint {
 
     /// Ends every stream with `peer` that is not over yet, without sending anything.
     fn end_all_with(&mut self, peer: NodeId, cause: Termination) {
-        self.end_each(Selection::Live(peer, None), Ending::Terminated(cause));
+        self.end_each(Selection::live(peer, None), Ending::Terminated(cause));
     }
 
     fn count_malformed(&mut self) {

@@ -39,6 +39,11 @@ pub(crate) const NEVER: Instant = Instant::from_micros(u64::MAX);
 pub(crate) const LAST: Instant = Instant::from_micros(u64::MAX - 1);
 
 impl State {
+    /// The state's bit in a set of states.
+    pub(crate) const fn bit(self) -> u8 {
+        1 << self as u8
+    }
+
     /// The role of a stream in this state (a free slot's is meaningless).
     pub(crate) fn role(self) -> Role {
         match self {
