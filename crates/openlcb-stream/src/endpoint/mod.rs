@@ -690,12 +690,10 @@ impl StreamEndpoint {
         // request with this SID (one this node gave up on): taking it would mix the two
         // streams' data at the destination. The answer to this request is still to come.
         let stale = reply.destination_stream.is_some_and(|did| self.sends_to(peer, did, Some(reply.source_stream)));
-        let Some((handle, stream, out)) = self.lookup(peer, Role::Source, reply.source_stream) else {
-            return bump(&mut self.out.stats.stray_replies);
-        };
-        if stream.state != State::AwaitingReply || (stale && reply.class() == ReplyClass::Accepted) {
-            return bump(&mut out.stats.stray_replies);
-        }
+        let found = self.lookup(peer, Role::Source, reply.source_stream).filter(|(_, stream, _)| {
+            stream.state == State::AwaitingReply && !(stale && reply.class() == ReplyClass::Accepted)
+        });
+        let Some((handle, stream, out)) = found else { return bump(&mut self.out.stats.stray_replies) };
         match (reply.class(), reply.destination_stream) {
             (ReplyClass::Accepted, Some(did)) => {
                 if reply.max_buffer_size > stream.window {
@@ -760,12 +758,10 @@ impl StreamEndpoint {
 
     fn on_proceed(&mut self, peer: NodeId, payload: &[u8]) {
         let Ok(proceed) = DataProceed::parse(payload) else { return self.count_malformed() };
-        let Some((handle, stream, out)) = self.lookup(peer, Role::Source, proceed.source_stream) else {
-            return bump(&mut self.out.stats.stray_proceeds);
-        };
-        if stream.state != State::Sending || stream.destination_stream != Some(proceed.destination_stream) {
-            return bump(&mut out.stats.stray_proceeds);
-        }
+        let found = self.lookup(peer, Role::Source, proceed.source_stream).filter(|(_, stream, _)| {
+            stream.state == State::Sending && stream.destination_stream == Some(proceed.destination_stream)
+        });
+        let Some((handle, stream, out)) = found else { return bump(&mut self.out.stats.stray_proceeds) };
         stream.credit = stream.credit.saturating_add(u32::from(stream.window));
         stream.deadline = NEVER;
         if core::mem::take(&mut stream.write_blocked) {
@@ -776,12 +772,10 @@ impl StreamEndpoint {
     fn on_complete(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(complete) = DataComplete::parse(payload) else { return self.count_malformed() };
         let grace = self.config.complete_grace;
-        let Some((handle, stream, out)) = self.lookup(peer, Role::Destination, complete.destination_stream) else {
-            return bump(&mut self.out.stats.stray_completes);
-        };
-        if stream.source_stream != complete.source_stream || stream.state != State::Receiving {
-            return bump(&mut out.stats.stray_completes);
-        }
+        let found = self.lookup(peer, Role::Destination, complete.destination_stream).filter(|(_, stream, _)| {
+            stream.source_stream == complete.source_stream && stream.state == State::Receiving
+        });
+        let Some((handle, stream, _)) = found else { return bump(&mut self.out.stats.stray_completes) };
         let received = stream.count;
         let stated = match complete.count.missing_after(received) {
             None => None,
