@@ -585,7 +585,7 @@ impl StreamEndpoint {
     /// buffered now (wait for `Readable`). Reading frees buffer space, which may send a
     /// Proceed. Once a closed stream has been read empty its handle is released.
     pub fn read(&mut self, now: Instant, handle: StreamHandle, buf: &mut [u8]) -> Result<usize, StreamError> {
-        let idle = self.config.idle_timeout;
+        let idle_at = later(now, self.config.idle_timeout);
         let (stream, out) = self.parts(handle)?;
         match stream.state {
             State::AwaitingReply | State::Sending => return Err(StreamError::WrongRole),
@@ -596,7 +596,7 @@ impl StreamEndpoint {
         if stream.is_closed() && stream.buffer.is_empty() {
             stream.release();
         } else if send_due_proceed(stream, out) {
-            restart_idle(now, stream, idle);
+            restart_idle(stream, idle_at);
         }
         Ok(n)
     }
@@ -720,7 +720,7 @@ impl StreamEndpoint {
 
     fn on_data(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(data) = DataSend::parse(payload) else { return self.count_malformed() };
-        let idle = self.config.idle_timeout;
+        let idle_at = later(now, self.config.idle_timeout);
         let Some((handle, stream, out)) = self.lookup(peer, Role::Destination, data.destination_stream) else {
             return bump(&mut self.out.stats.unknown_stream_data);
         };
@@ -752,7 +752,7 @@ impl StreamEndpoint {
         send_due_proceed(stream, out);
         // A keep-alive before any data does not lift the first-data wait.
         if stream.count > 0 {
-            restart_idle(now, stream, idle);
+            restart_idle(stream, idle_at);
         }
     }
 
@@ -1175,6 +1175,6 @@ fn send_due_proceed(stream: &mut Stream, out: &mut Outputs) -> bool {
 
 /// Runs the idle timer only while the source holds credit: a source waiting for a Proceed
 /// (because our reader is slow) is not idle.
-fn restart_idle(now: Instant, stream: &mut Stream, idle: Option<Duration>) {
-    stream.deadline = if stream.credit > 0 { later(now, idle) } else { NEVER };
+fn restart_idle(stream: &mut Stream, idle_at: Instant) {
+    stream.deadline = if stream.credit > 0 { idle_at } else { NEVER };
 }
