@@ -416,7 +416,7 @@ impl StreamEndpoint {
     pub fn handle_timeout(&mut self, now: Instant) {
         // A wait that is not running never comes due, not even at the end of time.
         let now = now.min(LAST);
-        let keepalive = self.config.keepalive_interval;
+        let keepalive_at = later(now, self.config.keepalive_interval);
         for slot in 0..self.slots.len() {
             if let Some(stream) = self.slots.get_mut(slot)
                 && stream.deadline <= now
@@ -430,7 +430,7 @@ impl StreamEndpoint {
             {
                 stream.keepalive = NEVER;
                 if send_flush(stream, &mut self.out).is_ok() {
-                    stream.keepalive = later(now, keepalive);
+                    stream.keepalive = keepalive_at;
                 }
             }
         }
@@ -462,13 +462,13 @@ impl StreamEndpoint {
         if options.proposed_destination.is_some_and(|did| self.sends_to(peer, did, None)) {
             return Err(StreamError::DestinationIdInUse);
         }
-        let reply_timeout = self.config.reply_timeout;
+        let reply_at = later(now, Some(self.config.reply_timeout));
         let (handle, stream, sid) =
             self.add_stream(State::AwaitingReply, peer, options.source_stream, options.max_buffer_size)?;
         stream.source_stream = sid;
         stream.destination_stream = options.proposed_destination;
         stream.content_uid = options.content_uid;
-        stream.deadline = later(now, Some(reply_timeout));
+        stream.deadline = reply_at;
         let request = InitiateRequest {
             max_buffer_size: options.max_buffer_size,
             source_stream: sid,
@@ -483,8 +483,8 @@ impl StreamEndpoint {
     /// window boundary, and returns how many bytes were taken. A short count means: wait for
     /// `Writable`. Each message is one allocation (its payload); nothing is buffered.
     pub fn write(&mut self, now: Instant, handle: StreamHandle, data: &[u8]) -> Result<usize, StreamError> {
-        let keepalive = self.config.keepalive_interval;
-        let proceed_timeout = self.config.proceed_timeout;
+        let keepalive_at = later(now, self.config.keepalive_interval);
+        let proceed_at = later(now, Some(self.config.proceed_timeout));
         let (stream, out) = self.parts(handle)?;
         let did = sending_to(stream)?;
         let window = u32::from(stream.window.max(1));
@@ -511,9 +511,9 @@ impl StreamEndpoint {
             // One deadline, from the moment credit ran out: a write that finds no credit
             // changes no timer (drivers call `write` on every wake-up).
             if stream.credit == 0 {
-                stream.deadline = later(now, Some(proceed_timeout));
+                stream.deadline = proceed_at;
             }
-            stream.keepalive = later(now, keepalive);
+            stream.keepalive = keepalive_at;
         }
         Ok(taken)
     }
