@@ -520,10 +520,10 @@ impl StreamEndpoint {
 
     /// Sends a zero-length Data Send (a flush: gateways pass on what they hold). Uses no credit.
     pub fn flush(&mut self, now: Instant, handle: StreamHandle) -> Result<(), StreamError> {
-        let keepalive = self.config.keepalive_interval;
+        let keepalive_at = later(now, self.config.keepalive_interval);
         let (stream, out) = self.parts(handle)?;
         send_flush(stream, out)?;
-        stream.keepalive = later(now, keepalive);
+        stream.keepalive = keepalive_at;
         Ok(())
     }
 
@@ -666,7 +666,8 @@ impl StreamEndpoint {
         if let AcceptPolicy::RejectAll(code) = self.config.accept_policy {
             return Err(code);
         }
-        let (ask, decision_timeout) = (self.config.accept_policy == AcceptPolicy::Ask, self.config.decision_timeout);
+        let ask = self.config.accept_policy == AcceptPolicy::Ask;
+        let decision_at = later(now, Some(self.config.decision_timeout));
         let (handle, stream, did) = self
             .add_stream(State::AwaitingDecision, peer, request.proposed_destination, request.max_buffer_size)
             .map_err(|_| ReplyCode::BUFFER_UNAVAILABLE)?;
@@ -674,7 +675,7 @@ impl StreamEndpoint {
         stream.destination_stream = Some(did);
         stream.content_uid = request.content_uid;
         if ask {
-            stream.deadline = later(now, Some(decision_timeout));
+            stream.deadline = decision_at;
             let info = stream.info();
             self.out.event(Event::IncomingRequest { handle, info });
         } else {
@@ -685,7 +686,7 @@ impl StreamEndpoint {
 
     fn on_reply(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(reply) = InitiateReply::parse(payload) else { return self.count_malformed() };
-        let keepalive = self.config.keepalive_interval;
+        let keepalive_at = later(now, self.config.keepalive_interval);
         // A Reply naming the DID of another of our streams to that node answers an earlier
         // request with this SID (one this node gave up on): taking it would mix the two
         // streams' data at the destination. The answer to this request is still to come.
@@ -706,7 +707,7 @@ impl StreamEndpoint {
                 stream.window = reply.max_buffer_size;
                 stream.destination_stream = Some(did);
                 stream.deadline = NEVER;
-                stream.keepalive = later(now, keepalive);
+                stream.keepalive = keepalive_at;
                 let info = stream.info();
                 out.event(Event::Opened { handle, info });
             }
@@ -771,7 +772,7 @@ impl StreamEndpoint {
 
     fn on_complete(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(complete) = DataComplete::parse(payload) else { return self.count_malformed() };
-        let grace = self.config.complete_grace;
+        let grace_at = later(now, Some(self.config.complete_grace));
         let found = self.lookup(peer, Role::Destination, complete.destination_stream).filter(|(_, stream, _)| {
             stream.source_stream == complete.source_stream && stream.state == State::Receiving
         });
@@ -785,7 +786,7 @@ impl StreamEndpoint {
             Some(missing) if missing <= u64::from(stream.credit) => {
                 stream.state = State::Draining;
                 stream.expected = received + missing;
-                stream.deadline = later(now, Some(grace));
+                stream.deadline = grace_at;
                 return;
             }
             // The count cannot be reached: it is below what arrived, or beyond any credit.
