@@ -615,8 +615,7 @@ impl StreamEndpoint {
             State::AwaitingDecision => self.refuse(peer, sid, ReplyCode(code.0)),
             State::Closed => {}
             _ => {
-                self.out.terminate(peer, code, role);
-                self.end_siblings(peer, role, code);
+                self.terminate(peer, role, code);
             }
         }
         Ok(())
@@ -731,9 +730,8 @@ impl StreamEndpoint {
         let bytes = data.data;
         if bytes.len() > stream.buffer.free() {
             // Overrun beyond what the buffer holds: data would be lost, so end the stream.
-            out.terminate(peer, ErrorCode::OUT_OF_ORDER, Role::Destination);
             self.end(Event::Terminated { handle, cause: Termination::WindowOverrun });
-            return self.end_siblings(peer, Role::Destination, ErrorCode::OUT_OF_ORDER);
+            return self.terminate(peer, Role::Destination, ErrorCode::OUT_OF_ORDER);
         }
         // At most two windows: the buffer's size.
         let len = bytes.len() as u32;
@@ -851,15 +849,10 @@ impl StreamEndpoint {
             State::Receiving => TimeoutKind::Idle,
             State::Free | State::Closed => return,
         };
-        // An open stream that timed out is terminated, and with it its siblings (see
-        // `end_siblings`).
-        let open = matches!(kind, TimeoutKind::Proceed | TimeoutKind::FirstData | TimeoutKind::Idle);
-        if open {
-            self.out.terminate(peer, ErrorCode::TIMEOUT, role);
-        }
         self.end(Event::TimedOut { handle, kind });
-        if open {
-            self.end_siblings(peer, role, ErrorCode::TIMEOUT);
+        // An open stream that timed out is terminated.
+        if matches!(kind, TimeoutKind::Proceed | TimeoutKind::FirstData | TimeoutKind::Idle) {
+            self.terminate(peer, role, ErrorCode::TIMEOUT);
         }
     }
 
@@ -937,15 +930,16 @@ impl StreamEndpoint {
         self.end_each(Selection::forgotten(peer), Ending::Terminated(Termination::PeerRestarted));
     }
 
-    /// This node just sent a TDE to `peer` about one of its streams in `role`. The TDE names
-    /// no stream, so the peer may end every stream it has with this node in the other role
-    /// (wire-spec §6.4, Q5; this endpoint does): the streams here that it ends must end here
-    /// too, or their data would later land in a new stream given the same DID. Each gets its
-    /// own TDE, for a peer that ends one stream per TDE.
-    fn end_siblings(&mut self, peer: NodeId, role: Role, code: ErrorCode) {
-        let ended =
+    /// Sends `peer` the TDE `code` for a stream of this node in `role` that just ended here.
+    /// The TDE names no stream, so the peer may end every stream it has with this node in the
+    /// other role (wire-spec §6.4, Q5; this endpoint does): the streams here that it ends must
+    /// end here too ([`Termination::SiblingTerminated`]), or their data would later land in a
+    /// new stream given the same DID. Each gets its own TDE, for a peer that ends one stream
+    /// per TDE.
+    fn terminate(&mut self, peer: NodeId, role: Role, code: ErrorCode) {
+        let siblings =
             self.end_each(Selection::live(peer, Some(role)), Ending::Terminated(Termination::SiblingTerminated));
-        for _ in 0..ended {
+        for _ in 0..=siblings {
             self.out.terminate(peer, code, role);
         }
     }
