@@ -194,15 +194,6 @@ impl Outputs {
         self.transmits.push_back(Message::addressed(mti, self.node, peer, payload));
     }
 
-    fn terminate(&mut self, peer: NodeId, code: ErrorCode, role: Role) {
-        // Draft §7.4: the source terminates naming 0x0888, the destination naming 0x1F88.
-        let mti = match role {
-            Role::Source => Mti::STREAM_DATA_PROCEED,
-            Role::Destination => Mti::STREAM_DATA_SEND,
-        };
-        self.send_wire(Mti::TERMINATE_DUE_TO_ERROR, peer, &ErrorReport { code, mti: Some(mti) });
-    }
-
     #[inline(never)]
     fn event(&mut self, event: Event) {
         self.events.push_back(event);
@@ -939,8 +930,14 @@ impl StreamEndpoint {
     fn terminate(&mut self, peer: NodeId, role: Role, code: ErrorCode) {
         let siblings =
             self.end_each(Selection::live(peer, Some(role)), Ending::Terminated(Termination::SiblingTerminated));
+        // Draft §7.4: the source terminates naming 0x0888, the destination naming 0x1F88.
+        let mti = match role {
+            Role::Source => Mti::STREAM_DATA_PROCEED,
+            Role::Destination => Mti::STREAM_DATA_SEND,
+        };
+        let report = ErrorReport { code, mti: Some(mti) };
         for _ in 0..=siblings {
-            self.out.terminate(peer, code, role);
+            self.out.send_wire(Mti::TERMINATE_DUE_TO_ERROR, peer, &report);
         }
     }
 
