@@ -681,11 +681,12 @@ impl StreamEndpoint {
         // request with this SID (one this node gave up on): taking it would mix the two
         // streams' data at the destination. The answer to this request is still to come.
         let stale = reply.destination_stream.is_some_and(|did| self.sends_to(peer, did, Some(reply.source_stream)));
+        let class = reply.class();
         let found = self.lookup(peer, Role::Source, reply.source_stream).filter(|(_, stream, _)| {
-            stream.state == State::AwaitingReply && !(stale && reply.class() == ReplyClass::Accepted)
+            stream.state == State::AwaitingReply && !(stale && class == ReplyClass::Accepted)
         });
         let Some((handle, stream, out)) = found else { return bump(&mut self.out.stats.stray_replies) };
-        match (reply.class(), reply.destination_stream) {
+        match (class, reply.destination_stream) {
             (ReplyClass::Accepted, Some(did)) => {
                 if reply.max_buffer_size > stream.window {
                     // The destination counts windows of the size it chose; using a smaller one
