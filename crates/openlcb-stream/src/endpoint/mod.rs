@@ -622,9 +622,12 @@ impl StreamEndpoint {
                 // Wire-spec §6.3: answer what can be answered. With a usable SID, a Reply with
                 // buffer 0 and 0x1080; without enough bytes for one, an OIR so the source
                 // stops waiting. A SID of 0xFF must be ignored.
-                match payload.get(4).copied().map(StreamId::new) {
-                    Some(Some(sid)) => self.refuse(peer, sid, ReplyCode::INVALID_REQUEST),
-                    Some(None) => {}
+                match payload.get(4) {
+                    Some(&raw) => {
+                        if let Some(sid) = StreamId::new(raw) {
+                            self.refuse(peer, sid, ReplyCode::INVALID_REQUEST);
+                        }
+                    }
                     None => {
                         let oir =
                             ErrorReport { code: ErrorCode::INVALID_ARGUMENTS, mti: Some(Mti::STREAM_INITIATE_REQUEST) };
