@@ -902,7 +902,7 @@ impl CanLink {
         };
         // Data bytes 0-1: framing flags 00 (the only frame) and the destination alias.
         let id = CanHeader::message(mti, ours).to_id();
-        self.queue_frame(Some(CanFrame::build(id, &to.as_raw().to_be_bytes(), payload)));
+        self.queue_frame(id, &to.as_raw().to_be_bytes(), payload);
     }
 
     // ----- login and alias resolution -----
@@ -915,8 +915,8 @@ impl CanLink {
                     if self.announced {
                         // After a re-login the endpoint will not announce the node again: the
                         // link does, first of all (its frame queue was emptied with the alias).
-                        let header = CanHeader::message(Mti::INITIALIZATION_COMPLETE, alias);
-                        self.queue_frame(CanFrame::from_header(&header, &self.node.to_bytes()));
+                        let id = CanHeader::message(Mti::INITIALIZATION_COMPLETE, alias).to_id();
+                        self.queue_frame(id, &self.node.to_bytes(), &[]);
                     }
                     self.announced = true;
                     self.send_enquiries(now);
@@ -963,16 +963,18 @@ impl CanLink {
                     waiting.deadline = Some(deadline);
                 }
             }
-            let enquiry =
-                CanFrame::from_header(&CanHeader::control(FrameKind::AliasMapEnquiry, ours), &node.to_bytes());
-            self.queue_frame(enquiry);
+            let id = CanHeader::control(FrameKind::AliasMapEnquiry, ours).to_id();
+            self.queue_frame(id, &node.to_bytes(), &[]);
         }
     }
 
-    fn queue_frame(&mut self, frame: Option<CanFrame>) {
-        match frame {
-            Some(frame) if self.frames.len() < self.config.frame_queue_limit => self.frames.push_back(frame),
-            _ => bump(&mut self.stats.queue_overflows),
+    /// Queues a frame of the link's own: identifier `id`, data `head` then `body` (at most 8
+    /// bytes in all).
+    fn queue_frame(&mut self, id: u32, head: &[u8], body: &[u8]) {
+        if self.frames.len() < self.config.frame_queue_limit {
+            self.frames.push_back(CanFrame::build(id, head, body));
+        } else {
+            bump(&mut self.stats.queue_overflows);
         }
     }
 

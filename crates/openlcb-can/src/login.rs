@@ -335,9 +335,10 @@ impl AliasLogin {
     fn send(&mut self, kind: FrameKind, alias: NodeAlias, with_node_id: bool) {
         let node = self.node.to_bytes();
         let data = if with_node_id { node.as_slice() } else { &[] };
-        match CanFrame::from_header(&CanHeader::control(kind, alias), data) {
-            Some(frame) if self.transmits.len() < QUEUE_BOUND => self.transmits.push_back(frame),
-            _ => bump(&mut self.stats.dropped),
+        if self.transmits.len() < QUEUE_BOUND {
+            self.transmits.push_back(CanFrame::build(CanHeader::control(kind, alias).to_id(), data, &[]));
+        } else {
+            bump(&mut self.stats.dropped);
         }
     }
 
