@@ -337,7 +337,8 @@ pub struct CanLink {
     current: Option<Fragments<Vec<u8>>>,
     /// Messages waiting for their destination's alias (an AME answer).
     unresolved: Queue<Outgoing>,
-    learning: Vec<Learning>,
+    /// [`CanConfig::learn_slots`] slots, `None` when free (fixed: no growing, no moving).
+    learning: Vec<Option<Learning>>,
     events: Queue<LinkEvent>,
     stats: LinkStats,
 }
@@ -359,7 +360,7 @@ impl CanLink {
             messages: Queue::with_capacity(config.transmit_queue_limit),
             current: None,
             unresolved: Queue::with_capacity(config.transmit_queue_limit),
-            learning: Vec::with_capacity(config.learn_slots),
+            learning: (0..config.learn_slots).map(|_| None).collect(),
             events: Queue::with_capacity(event_bound(&config)),
             stats: LinkStats::default(),
             config,
@@ -416,7 +417,7 @@ impl CanLink {
 
     /// Aliases whose Node ID is being asked for now (at most [`CanConfig::learn_slots`]).
     pub fn learning(&self) -> usize {
-        self.learning.len()
+        self.learning.iter().flatten().count()
     }
 
     /// Payload bytes held in partly reassembled messages and datagrams; never more than
@@ -559,7 +560,7 @@ impl CanLink {
         for waiting in self.unresolved.iter() {
             next = earliest(next, waiting.deadline);
         }
-        for entry in self.learning.iter() {
+        for entry in self.learning.iter().flatten() {
             next = earliest(next, Some(entry.deadline));
         }
         next
@@ -811,41 +812,37 @@ impl CanLink {
 
     /// Stops asking `alias` for its Node ID (each alias is asked at most once at a time).
     fn stop_learning(&mut self, alias: NodeAlias) {
-        if let Some(index) = self.learning.iter().position(|l| l.alias == alias) {
-            self.unlearn(index);
-        }
-    }
-
-    /// Removes entry `index` (one that exists) of the learning table; the last entry takes its
-    /// place, as the order does not matter. No panic path, unlike `swap_remove`.
-    fn unlearn(&mut self, index: usize) {
-        let Some(last) = self.learning.pop() else { return };
-        if let Some(entry) = self.learning.get_mut(index) {
-            *entry = last;
+        for slot in self.learning.iter_mut() {
+            if slot.is_some_and(|l| l.alias == alias) {
+                *slot = None;
+            }
         }
     }
 
     /// Starts asking `alias` for its Node ID, if it is not asked already and there is room.
     fn start_learning(&mut self, now: Instant, alias: NodeAlias) {
-        if self.config.learn_attempts == 0 || self.learning.iter().any(|l| l.alias == alias) {
+        if self.config.learn_attempts == 0 || self.learning.iter().flatten().any(|l| l.alias == alias) {
             return;
         }
-        if self.learning.len() >= self.config.learn_slots {
+        let Some(free) = self.learning.iter_mut().find(|slot| slot.is_none()) else {
             return bump(&mut self.stats.learning_table_full);
-        }
-        self.learning.push(Learning { alias, asked: 1, deadline: now + self.config.resolve_timeout });
+        };
+        *free = Some(Learning { alias, asked: 1, deadline: now + self.config.resolve_timeout });
         self.send_verify(alias);
     }
 
     /// Asks again each alias whose wait ran out, waiting twice as long as before, or gives it
     /// up after `learn_attempts` asks.
     fn ask_again(&mut self, now: Instant) {
-        let mut index = 0;
-        while let Some(entry) = self.learning.get(index).copied() {
+        for index in 0..self.learning.len() {
+            let Some(Some(entry)) = self.learning.get(index).copied() else { continue };
             if entry.deadline > now {
-                index += 1;
-            } else if entry.asked >= self.config.learn_attempts {
-                self.unlearn(index);
+                continue;
+            }
+            if entry.asked >= self.config.learn_attempts {
+                if let Some(slot) = self.learning.get_mut(index) {
+                    *slot = None;
+                }
                 bump(&mut self.stats.learning_given_up);
             } else {
                 // Twice the last wait: `resolve_timeout` times 2^asked, without a 64-bit shift.
@@ -853,12 +850,11 @@ impl CanLink {
                 for _ in 0..entry.asked.min(32) {
                     wait = wait.saturating_add(wait);
                 }
+                let deadline = now + Duration::from_micros(wait);
                 if let Some(slot) = self.learning.get_mut(index) {
-                    slot.asked = entry.asked + 1;
-                    slot.deadline = now + Duration::from_micros(wait);
+                    *slot = Some(Learning { asked: entry.asked + 1, deadline, ..entry });
                 }
                 self.send_verify(entry.alias);
-                index += 1;
             }
         }
     }
@@ -946,7 +942,7 @@ impl CanLink {
         self.frames.clear();
         self.reassembly.clear();
         self.datagrams.clear();
-        self.learning.clear();
+        self.learning.fill(None);
     }
 
     /// Sends an AME for every node waiting for its alias that has not had one, once permitted.
