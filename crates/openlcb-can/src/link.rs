@@ -605,6 +605,7 @@ impl CanLink {
 
     /// [`handle_frame`](Self::handle_frame) through a `dyn` closure: one copy of the receive
     /// path whatever the caller's closure type.
+    #[inline(never)]
     fn receive(&mut self, now: Instant, frame: &CanFrame, deliver: Deliver<'_>) {
         bump(&mut self.stats.frames_in);
         let header = match frame.header() {
