@@ -555,13 +555,14 @@ impl CanLink {
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let mut next = earliest(self.login.poll_timeout(), self.reassembly.poll_timeout());
-        next = earliest(next, self.datagrams.poll_timeout());
+        let mut next = self.login.poll_timeout();
+        earlier(&mut next, self.reassembly.poll_timeout());
+        earlier(&mut next, self.datagrams.poll_timeout());
         for waiting in self.unresolved.iter() {
-            next = earliest(next, waiting.deadline);
+            earlier(&mut next, waiting.deadline);
         }
         for entry in self.learning.iter().flatten() {
-            next = earliest(next, Some(entry.deadline));
+            earlier(&mut next, Some(entry.deadline));
         }
         next
     }
@@ -995,12 +996,12 @@ fn ignore<T>(counter: &mut u32) -> Option<T> {
     None
 }
 
-/// The earlier of two optional times.
+/// Moves `next` to `time` if that is earlier (or `next` is `None`).
 #[inline(never)]
-fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
-    match (a, b) {
-        (Some(a), Some(b)) => Some(a.min(b)),
-        (a, None) => a,
-        (None, b) => b,
+fn earlier(next: &mut Option<Instant>, time: Option<Instant>) {
+    if let Some(time) = time {
+        if next.is_none_or(|next| time < next) {
+            *next = Some(time);
+        }
     }
 }
