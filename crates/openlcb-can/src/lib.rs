@@ -151,6 +151,17 @@ fn bump(counter: &mut u32) {
     add(counter, 1);
 }
 
+/// Moves `next` to `time` if that is earlier (or `next` is `None`): one copy of the 64-bit
+/// comparison for every `poll_timeout`.
+#[inline(never)]
+fn earlier(next: &mut Option<openlcb_stream::Instant>, time: Option<openlcb_stream::Instant>) {
+    if let Some(time) = time {
+        if next.is_none_or(|next| time < next) {
+            *next = Some(time);
+        }
+    }
+}
+
 /// Counts `n` more, stopping at `u32::MAX`.
 #[inline(never)]
 fn add(counter: &mut u32, n: usize) {

@@ -63,7 +63,7 @@ use crate::frame::{CanFrame, FrameError};
 use crate::header::{self, CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
-use crate::{NodeAlias, add, bump};
+use crate::{NodeAlias, add, bump, earlier};
 use openlcb_stream::Queue;
 
 /// Where received messages go: the caller's closure.
@@ -556,8 +556,8 @@ impl CanLink {
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
         let mut next = self.login.poll_timeout();
-        earlier(&mut next, self.reassembly.poll_timeout());
-        earlier(&mut next, self.datagrams.poll_timeout());
+        self.reassembly.earliest_into(&mut next);
+        self.datagrams.earliest_into(&mut next);
         for waiting in self.unresolved.iter() {
             earlier(&mut next, waiting.deadline);
         }
@@ -994,14 +994,4 @@ fn event_bound(config: &CanConfig) -> usize {
 fn ignore<T>(counter: &mut u32) -> Option<T> {
     bump(counter);
     None
-}
-
-/// Moves `next` to `time` if that is earlier (or `next` is `None`).
-#[inline(never)]
-fn earlier(next: &mut Option<Instant>, time: Option<Instant>) {
-    if let Some(time) = time {
-        if next.is_none_or(|next| time < next) {
-            *next = Some(time);
-        }
-    }
 }

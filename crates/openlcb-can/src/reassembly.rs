@@ -7,7 +7,7 @@ use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Duration, Instant, Mti};
 
 use crate::fragment::FramePosition;
-use crate::{NodeAlias, bump};
+use crate::{NodeAlias, bump, earlier};
 
 /// The longest datagram payload, in bytes (DG §7.3.2; node-protocols §2.1).
 pub const MAX_DATAGRAM_LEN: usize = 72;
@@ -240,12 +240,15 @@ impl Reassembler {
     /// When the next open message times out.
     pub fn poll_timeout(&self) -> Option<Instant> {
         let mut next = None;
-        for slot in &self.slots {
-            if slot.key.is_some() && next.is_none_or(|next| slot.deadline < next) {
-                next = Some(slot.deadline);
-            }
-        }
+        self.earliest_into(&mut next);
         next
+    }
+
+    /// Moves `next` to the time the next open message times out, if that is earlier.
+    pub(crate) fn earliest_into(&self, next: &mut Option<Instant>) {
+        for slot in &self.slots {
+            earlier(next, slot.key.map(|_| slot.deadline));
+        }
     }
 
     /// Drops the open message with `key`, if there is one; true if there was.
