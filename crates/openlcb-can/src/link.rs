@@ -871,25 +871,26 @@ impl CanLink {
     /// MTI if so configured (never for 0x2042).
     fn reassembly_error(&mut self, key: ReassemblyKey, error: ReassemblyError) {
         let ReassemblyKey { source, mti, .. } = key;
-        if mti == Mti::DATAGRAM {
+        // The answer's payload: the error code, then (OIR only) the MTI it answers.
+        let (answer, code, len) = if mti == Mti::DATAGRAM {
             self.stats.datagram_errors.record(error);
-            return self.queue_addressed(Mti::DATAGRAM_REJECTED, source, &error.datagram_code().0.to_be_bytes());
-        }
-        let counter = match error {
-            ReassemblyError::MiddleWithoutFirst => &mut self.stats.middle_without_first,
-            ReassemblyError::FirstBeforeLastEnded => &mut self.stats.first_before_last_ended,
-            ReassemblyError::Timeout => &mut self.stats.reassembly_timeouts,
-            _ => &mut self.stats.reassembly_overflows,
+            (Mti::DATAGRAM_REJECTED, error.datagram_code(), 2)
+        } else {
+            let counter = match error {
+                ReassemblyError::MiddleWithoutFirst => &mut self.stats.middle_without_first,
+                ReassemblyError::FirstBeforeLastEnded => &mut self.stats.first_before_last_ended,
+                ReassemblyError::Timeout => &mut self.stats.reassembly_timeouts,
+                _ => &mut self.stats.reassembly_overflows,
+            };
+            bump(counter);
+            if !self.config.reject_reassembly_errors || error == ReassemblyError::FirstBeforeLastEnded {
+                return;
+            }
+            (Mti::OPTIONAL_INTERACTION_REJECTED, error.code(), 4)
         };
-        bump(counter);
-        let answer = self.config.reject_reassembly_errors && error != ReassemblyError::FirstBeforeLastEnded;
-        if !answer {
-            return;
-        }
-        // The Optional Interaction Rejected payload: the error code, then the MTI it answers.
-        let [c0, c1] = error.code().0.to_be_bytes();
+        let [c0, c1] = code.0.to_be_bytes();
         let [m0, m1] = mti.0.to_be_bytes();
-        self.queue_addressed(Mti::OPTIONAL_INTERACTION_REJECTED, source, &[c0, c1, m0, m1]);
+        self.queue_addressed(answer, source, [c0, c1, m0, m1].get(..len).unwrap_or(&[]));
     }
 
     /// Queues a one-frame addressed message of the link's own (at most 6 payload bytes) from
