@@ -242,6 +242,8 @@ impl AliasLogin {
 
     /// [`handle_header`](Self::handle_header), returning its event rather than queueing it (a
     /// call has at most one).
+    // Out of line: inlined into its caller it cost more flash on a Cortex-M3.
+    #[inline(never)]
     pub(crate) fn header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> (bool, Option<LoginEvent>) {
         if self.state == LoginState::Stopped {
             return (false, None);
