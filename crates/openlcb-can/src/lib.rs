@@ -162,6 +162,13 @@ fn earlier(next: &mut Option<openlcb_stream::Instant>, time: Option<openlcb_stre
     }
 }
 
+/// The six wire bytes of `node`: one copy of the byte shuffle for every frame that carries a
+/// Node ID.
+#[inline(never)]
+fn node_bytes(node: openlcb_stream::NodeId) -> [u8; 6] {
+    node.to_bytes()
+}
+
 /// Counts `n` more, stopping at `u32::MAX`.
 #[inline(never)]
 fn add(counter: &mut u32, n: usize) {

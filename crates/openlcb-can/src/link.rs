@@ -63,7 +63,7 @@ use crate::frame::{CanFrame, FrameError};
 use crate::header::{self, CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
-use crate::{NodeAlias, add, bump, earlier};
+use crate::{NodeAlias, add, bump, earlier, node_bytes};
 use openlcb_stream::Queue;
 
 /// Where received messages go: the caller's closure.
@@ -915,7 +915,7 @@ impl CanLink {
                         // After a re-login the endpoint will not announce the node again: the
                         // link does, first of all (its frame queue was emptied with the alias).
                         let id = CanHeader::message(Mti::INITIALIZATION_COMPLETE, alias).to_id();
-                        self.queue_frame(id, &self.node.to_bytes(), &[]);
+                        self.queue_frame(id, &node_bytes(self.node), &[]);
                     }
                     self.announced = true;
                     self.send_enquiries(now);
@@ -963,7 +963,7 @@ impl CanLink {
                 }
             }
             let id = CanHeader::control(FrameKind::AliasMapEnquiry, ours).to_id();
-            self.queue_frame(id, &node.to_bytes(), &[]);
+            self.queue_frame(id, &node_bytes(node), &[]);
         }
     }
 

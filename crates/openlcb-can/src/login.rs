@@ -23,7 +23,7 @@ use openlcb_stream::{Duration, Instant, NodeId};
 use crate::alias::AliasGenerator;
 use crate::frame::CanFrame;
 use crate::header::{CanHeader, FrameKind};
-use crate::{NodeAlias, bump};
+use crate::{NodeAlias, bump, node_bytes};
 use openlcb_stream::Queue;
 
 /// Frames the login can have queued at once: CID 7..4, RID, AMD, AMR, one AMD answer.
@@ -335,7 +335,7 @@ impl AliasLogin {
 
     /// Queues the control frame `kind` from `alias`, carrying our Node ID if `with_node_id`.
     fn send(&mut self, kind: FrameKind, alias: NodeAlias, with_node_id: bool) {
-        let node = self.node.to_bytes();
+        let node = node_bytes(self.node);
         let data = if with_node_id { node.as_slice() } else { &[] };
         if self.transmits.len() < QUEUE_BOUND {
             self.transmits.push_back(CanFrame::build(CanHeader::control(kind, alias).to_id(), data, &[]));
