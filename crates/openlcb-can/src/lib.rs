@@ -148,7 +148,7 @@ pub use reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyE
 /// microcontroller).
 #[inline(never)]
 fn bump(counter: &mut u32) {
-    add(counter, 1);
+    *counter = counter.saturating_add(1);
 }
 
 /// Moves `next` to `time` if that is earlier (or `next` is `None`): one copy of the 64-bit
