@@ -194,7 +194,7 @@ impl Reassembler {
         data: &[u8],
     ) -> Result<Option<usize>, ReassemblyError> {
         let first = position == FramePosition::First;
-        let open = self.slots.iter().position(|s| s.key == Some(key));
+        let open = self.slots.iter().position(|s| s.key.is_some_and(|k| k == key));
         let index = match open {
             Some(index) => index,
             None if first => self.slots.iter().position(|s| s.key.is_none()).ok_or(ReassemblyError::NoFreeSlot)?,
@@ -253,7 +253,7 @@ impl Reassembler {
 
     /// Drops the open message with `key`, if there is one; true if there was.
     pub fn discard(&mut self, key: ReassemblyKey) -> bool {
-        let open = self.slots.iter_mut().find(|s| s.key == Some(key));
+        let open = self.slots.iter_mut().find(|s| s.key.is_some_and(|k| k == key));
         open.map(|slot| slot.key = None).is_some()
     }
 
