@@ -506,10 +506,10 @@ impl CanLink {
             return Ok(alias);
         }
         // A node already being resolved shares the AME out for it and its deadline.
-        let waiting = self.unresolved.iter().find(|u| u.is_for(node)).map(|u| u.deadline);
-        match (self.cache.alias(node), waiting) {
-            (Some(alias), None) => Ok(alias),
-            (_, deadline) => Err(deadline.flatten()),
+        let alias = self.cache.alias(node);
+        match self.unresolved.iter().find(|u| u.is_for(node)) {
+            Some(waiting) => Err(waiting.deadline),
+            None => alias.ok_or(None),
         }
     }
 
