@@ -837,7 +837,7 @@ impl CanLink {
     /// up after `learn_attempts` asks.
     fn ask_again(&mut self, now: Instant) {
         for index in 0..self.learning.len() {
-            let Some(Some(entry)) = self.learning.get(index).copied() else { continue };
+            let Some(&Some(entry)) = self.learning.get(index) else { continue };
             if entry.deadline > now {
                 continue;
             }
