@@ -616,7 +616,9 @@ impl CanLink {
             Err(_) => return bump(&mut self.stats.invalid_frames),
         };
         let data = frame.payload();
-        let (from_our_alias, event) = self.login.header(now, &header, data);
+        // Before the login sees the frame, which may move it to another alias.
+        let from_our_alias = self.login.holds(header.source);
+        let event = self.login.header(now, &header, data);
         self.login_event(now, event);
         if from_our_alias {
             return;

@@ -235,18 +235,21 @@ impl AliasLogin {
 
     /// [`handle_frame`](Self::handle_frame) for a frame whose header is already parsed.
     pub fn handle_header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> bool {
-        let (ours, event) = self.header(now, header, data);
+        let ours = self.holds(header.source);
+        let event = self.header(now, header, data);
         self.event(event);
         ours
     }
 
     /// [`handle_header`](Self::handle_header), returning its event rather than queueing it (a
-    /// call has at most one).
+    /// call has at most one). Whether the frame came from our alias is
+    /// [`holds`](Self::holds) of its source, asked before this call (the frame may move the
+    /// login to another alias).
     // Out of line: inlined into its caller it cost more flash on a Cortex-M3.
     #[inline(never)]
-    pub(crate) fn header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> (bool, Option<LoginEvent>) {
+    pub(crate) fn header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> Option<LoginEvent> {
         if self.state == LoginState::Stopped {
-            return (false, None);
+            return None;
         }
         let claimed = NodeId::from_slice(data);
         match header.kind {
@@ -265,14 +268,14 @@ impl AliasLogin {
                 // CFT §6.2.5: another node announced our Node ID. Send nothing more.
                 self.state = LoginState::Stopped;
                 self.transmits.clear();
-                return (false, Some(LoginEvent::DuplicateNodeId { other: header.source }));
+                return Some(LoginEvent::DuplicateNodeId { other: header.source });
             }
             _ => {}
         }
         if !self.holds(header.source) {
-            return (false, None);
+            return None;
         }
-        let event = match (self.state, header.kind) {
+        match (self.state, header.kind) {
             (LoginState::Checking { alias, .. }, _) => {
                 bump(&mut self.stats.conflicts);
                 self.check_next(now);
@@ -293,14 +296,13 @@ impl AliasLogin {
                 Some(LoginEvent::Lost { alias })
             }
             (LoginState::Stopped, _) => None,
-        };
-        (true, event)
+        }
     }
 
     // ----- helpers -----
 
     /// The alias is ours: permitted, or being checked.
-    fn holds(&self, alias: NodeAlias) -> bool {
+    pub(crate) fn holds(&self, alias: NodeAlias) -> bool {
         match self.state {
             LoginState::Checking { alias: ours, .. } | LoginState::Permitted { alias: ours } => ours == alias,
             LoginState::Stopped => false,
