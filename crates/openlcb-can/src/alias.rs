@@ -2,20 +2,25 @@
 //! [`AliasGenerator`].
 
 use core::fmt;
+use core::num::NonZeroU16;
 
 use openlcb_stream::NodeId;
 
-/// A 12-bit CAN node alias (CFT §6.3): 0x001..=0xFFF. Zero is never an alias.
+/// A 12-bit CAN node alias (CFT §6.3): 0x001..=0xFFF. Zero is never an alias, which makes
+/// `Option<NodeAlias>` as small and cheap as the alias itself.
 #[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct NodeAlias(u16);
+pub struct NodeAlias(NonZeroU16);
 
 impl NodeAlias {
     /// The largest alias, 0xFFF.
-    pub const MAX: NodeAlias = NodeAlias(0xFFF);
+    pub const MAX: NodeAlias = NodeAlias(NonZeroU16::MIN.saturating_add(0xFFE));
 
     /// An alias, or `None` for 0 or a value above 12 bits.
     pub const fn new(raw: u16) -> Option<Self> {
-        if raw == 0 || raw > Self::MAX.0 { None } else { Some(NodeAlias(raw)) }
+        match NonZeroU16::new(raw) {
+            Some(raw) if raw.get() <= 0xFFF => Some(NodeAlias(raw)),
+            _ => None,
+        }
     }
 
     /// The alias in the low 12 bits of `bits` (higher bits are dropped), or `None` if those
@@ -26,7 +31,7 @@ impl NodeAlias {
 
     /// The raw 12-bit value.
     pub const fn as_raw(self) -> u16 {
-        self.0
+        self.0.get()
     }
 
     /// The provisional name of a peer known only by this alias: the alias in the low 12 bits,
@@ -35,7 +40,7 @@ impl NodeAlias {
     /// [`CanLink`](crate::CanLink) delivers messages from an alias whose Node ID it does not
     /// know under this name, and sends messages addressed to it straight to the alias.
     pub const fn provisional_node_id(self) -> NodeId {
-        let [high, low] = self.0.to_be_bytes();
+        let [high, low] = self.as_raw().to_be_bytes();
         NodeId::from_bytes([0, 0, 0, 0, high, low])
     }
 
@@ -49,13 +54,13 @@ impl NodeAlias {
 
 impl fmt::Debug for NodeAlias {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "NodeAlias(0x{:03X})", self.0)
+        write!(f, "NodeAlias(0x{:03X})", self.as_raw())
     }
 }
 
 impl fmt::Display for NodeAlias {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "0x{:03X}", self.0)
+        write!(f, "0x{:03X}", self.as_raw())
     }
 }
 
@@ -124,6 +129,7 @@ mod tests {
         assert_eq!(NodeAlias::from_low_bits(0x1F45_6123).map(NodeAlias::as_raw), Some(0x123));
         assert_eq!(NodeAlias::from_low_bits(0x1000), None);
         assert_eq!(format!("{:?} {}", NodeAlias::MAX, NodeAlias::MAX), "NodeAlias(0xFFF) 0xFFF");
+        assert_eq!(size_of::<Option<NodeAlias>>(), 2, "zero is the niche of `None`");
     }
 
     #[test]

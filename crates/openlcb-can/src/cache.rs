@@ -50,13 +50,15 @@ impl AliasCache {
     /// The node holding `alias`, marking the entry used.
     pub fn node(&mut self, alias: NodeAlias) -> Option<NodeId> {
         let index = self.entries.iter().position(|e| e.alias == alias)?;
-        self.touch(index).map(|e| e.node)
+        self.touch(index);
+        self.entries.last().map(|e| e.node)
     }
 
     /// The alias of `node`, marking the entry used.
     pub fn alias(&mut self, node: NodeId) -> Option<NodeAlias> {
         let index = self.entries.iter().position(|e| e.node == node)?;
-        self.touch(index).map(|e| e.alias)
+        self.touch(index);
+        self.entries.last().map(|e| e.alias)
     }
 
     /// The node holding `alias`, without marking it used.
@@ -96,13 +98,12 @@ impl AliasCache {
     }
 
     /// Marks the entry at `index` used: it moves to the back (where it usually is already).
-    fn touch(&mut self, index: usize) -> Option<Entry> {
-        if index + 1 == self.entries.len() {
-            return self.entries.last().copied();
+    fn touch(&mut self, index: usize) {
+        if index + 1 < self.entries.len() {
+            if let Some(entry) = self.take(index) {
+                self.entries.push(entry);
+            }
         }
-        let entry = self.take(index)?;
-        self.entries.push(entry);
-        Some(entry)
     }
 
     /// The most mappings held at once.

@@ -8,11 +8,19 @@ use crate::header::{CanHeader, HeaderError};
 /// represented because a bus carries them and a driver hands them over (they are ignored).
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]
 pub struct CanFrame {
-    id: Id,
-    remote: bool,
+    /// The raw identifier (29 or 11 bits) with the [`EXTENDED`] and [`REMOTE`] flags above
+    /// it: one word, cheaper to build, test and copy than an [`Id`] and a flag.
+    id: u32,
     len: u8,
     data: [u8; 8],
 }
+
+/// The flag bit of [`CanFrame::id`] for an extended (29-bit) identifier.
+const EXTENDED: u32 = 1 << 31;
+/// The flag bit of [`CanFrame::id`] for a remote frame.
+const REMOTE: u32 = 1 << 30;
+/// The identifier bits of [`CanFrame::id`].
+const ID_BITS: u32 = 0x1FFF_FFFF;
 
 impl CanFrame {
     /// The most data bytes a classic CAN frame carries.
@@ -21,14 +29,13 @@ impl CanFrame {
     /// An extended data frame with the 29-bit `id` (bits above 28 are dropped) and `data`,
     /// or `None` if `data` is longer than 8 bytes.
     pub fn extended(id: u32, data: &[u8]) -> Option<Self> {
-        let id = ExtendedId::new(id & ExtendedId::MAX.as_raw())?;
-        Self::with_id(Id::Extended(id), data)
+        Self::with_raw(id & ID_BITS | EXTENDED, data)
     }
 
     /// A standard (11-bit) data frame, or `None` if `id` exceeds 11 bits or `data` 8 bytes.
     /// OpenLCB never sends one; a bus may carry them.
     pub fn standard(id: u16, data: &[u8]) -> Option<Self> {
-        Self::with_id(Id::Standard(StandardId::new(id)?), data)
+        Self::with_raw(u32::from(StandardId::new(id)?.as_raw()), data)
     }
 
     /// The data frame for an OpenLCB header.
@@ -36,8 +43,9 @@ impl CanFrame {
         Self::extended(header.to_id(), data)
     }
 
-    fn with_id(id: Id, data: &[u8]) -> Option<Self> {
-        let mut frame = CanFrame { id, remote: false, len: 0, data: [0; 8] };
+    /// A data frame with `id` as stored in [`CanFrame::id`].
+    fn with_raw(id: u32, data: &[u8]) -> Option<Self> {
+        let mut frame = CanFrame { id, len: 0, data: [0; 8] };
         frame.data.get_mut(..data.len())?.copy_from_slice(data);
         frame.len = data.len() as u8;
         Some(frame)
@@ -49,30 +57,36 @@ impl CanFrame {
         let mut data = [0u8; 8];
         let at = copy_into(&mut data, 0, head);
         let len = copy_into(&mut data, at, body) as u8;
-        let id = ExtendedId::new(id & ExtendedId::MAX.as_raw()).unwrap_or(ExtendedId::ZERO);
-        CanFrame { id: Id::Extended(id), remote: false, len, data }
+        CanFrame { id: id & ID_BITS | EXTENDED, len, data }
     }
 
     /// The raw identifier: 29 bits for an extended frame, 11 for a standard one.
     pub fn raw_id(&self) -> u32 {
-        match self.id {
-            Id::Extended(id) => id.as_raw(),
-            Id::Standard(id) => u32::from(id.as_raw()),
-        }
+        self.id & ID_BITS
     }
 
     /// The OpenLCB view of an extended data frame's identifier.
     pub fn header(&self) -> Result<CanHeader, FrameError> {
-        match (self.id, self.remote) {
-            (Id::Standard(_), _) => Err(FrameError::Standard),
-            (_, true) => Err(FrameError::Remote),
-            (Id::Extended(id), false) => CanHeader::parse(id.as_raw()).map_err(FrameError::Header),
+        if self.id & EXTENDED == 0 {
+            Err(FrameError::Standard)
+        } else if self.id & REMOTE != 0 {
+            Err(FrameError::Remote)
+        } else {
+            CanHeader::parse(self.raw_id()).map_err(FrameError::Header)
         }
     }
 
     /// The data bytes.
     pub fn payload(&self) -> &[u8] {
         self.data.get(..usize::from(self.len)).unwrap_or(&[])
+    }
+}
+
+/// `id` as stored in [`CanFrame::id`].
+fn stored_id(id: Id) -> u32 {
+    match id {
+        Id::Extended(id) => id.as_raw() | EXTENDED,
+        Id::Standard(id) => u32::from(id.as_raw()),
     }
 }
 
@@ -90,11 +104,12 @@ fn copy_into(data: &mut [u8; 8], at: usize, bytes: &[u8]) -> usize {
 
 impl core::fmt::Debug for CanFrame {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self.id {
-            Id::Extended(id) => write!(f, "CanFrame(X{:08X}", id.as_raw())?,
-            Id::Standard(id) => write!(f, "CanFrame(S{:03X}", id.as_raw())?,
+        if self.id & EXTENDED != 0 {
+            write!(f, "CanFrame(X{:08X}", self.raw_id())?;
+        } else {
+            write!(f, "CanFrame(S{:03X}", self.raw_id())?;
         }
-        f.write_str(if self.remote { " R" } else { " N" })?;
+        f.write_str(if self.id & REMOTE != 0 { " R" } else { " N" })?;
         for byte in self.payload() {
             write!(f, "{byte:02X}")?;
         }
@@ -119,26 +134,31 @@ pub enum FrameError {
 
 impl embedded_can::Frame for CanFrame {
     fn new(id: impl Into<Id>, data: &[u8]) -> Option<Self> {
-        Self::with_id(id.into(), data)
+        Self::with_raw(stored_id(id.into()), data)
     }
 
     fn new_remote(id: impl Into<Id>, dlc: usize) -> Option<Self> {
         if dlc > Self::MAX_DATA {
             return None;
         }
-        Some(CanFrame { id: id.into(), remote: true, len: dlc as u8, data: [0; 8] })
+        Some(CanFrame { id: stored_id(id.into()) | REMOTE, len: dlc as u8, data: [0; 8] })
     }
 
     fn is_extended(&self) -> bool {
-        matches!(self.id, Id::Extended(_))
+        self.id & EXTENDED != 0
     }
 
     fn is_remote_frame(&self) -> bool {
-        self.remote
+        self.id & REMOTE != 0
     }
 
     fn id(&self) -> Id {
-        self.id
+        // The stored bits always fit: the fallbacks are never taken.
+        if self.is_extended() {
+            Id::Extended(ExtendedId::new(self.raw_id()).unwrap_or(ExtendedId::ZERO))
+        } else {
+            Id::Standard(StandardId::new(self.raw_id() as u16).unwrap_or(StandardId::ZERO))
+        }
     }
 
     fn dlc(&self) -> usize {
@@ -147,7 +167,7 @@ impl embedded_can::Frame for CanFrame {
 
     /// The data bytes (empty for a remote frame, whose DLC only states a length).
     fn data(&self) -> &[u8] {
-        if self.remote { &[] } else { self.payload() }
+        if self.is_remote_frame() { &[] } else { self.payload() }
     }
 }
 

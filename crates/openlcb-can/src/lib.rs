@@ -148,7 +148,25 @@ pub use reassembly::{MAX_DATAGRAM_LEN, Reassembler, ReassemblyError, ReassemblyE
 /// microcontroller).
 #[inline(never)]
 fn bump(counter: &mut u32) {
-    add(counter, 1);
+    *counter = counter.saturating_add(1);
+}
+
+/// Moves `next` to `time` if that is earlier (or `next` is `None`): one copy of the 64-bit
+/// comparison for every `poll_timeout`.
+#[inline(never)]
+fn earlier(next: &mut Option<openlcb_stream::Instant>, time: Option<openlcb_stream::Instant>) {
+    if let Some(time) = time {
+        if next.is_none_or(|next| time < next) {
+            *next = Some(time);
+        }
+    }
+}
+
+/// The six wire bytes of `node`: one copy of the byte shuffle for every frame that carries a
+/// Node ID.
+#[inline(never)]
+fn node_bytes(node: openlcb_stream::NodeId) -> [u8; 6] {
+    node.to_bytes()
 }
 
 /// Counts `n` more, stopping at `u32::MAX`.

@@ -63,7 +63,7 @@ use crate::frame::{CanFrame, FrameError};
 use crate::header::{self, CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
-use crate::{NodeAlias, add, bump};
+use crate::{NodeAlias, add, bump, earlier, node_bytes};
 use openlcb_stream::Queue;
 
 /// Where received messages go: the caller's closure.
@@ -337,7 +337,8 @@ pub struct CanLink {
     current: Option<Fragments<Vec<u8>>>,
     /// Messages waiting for their destination's alias (an AME answer).
     unresolved: Queue<Outgoing>,
-    learning: Vec<Learning>,
+    /// [`CanConfig::learn_slots`] slots, `None` when free (fixed: no growing, no moving).
+    learning: Vec<Option<Learning>>,
     events: Queue<LinkEvent>,
     stats: LinkStats,
 }
@@ -359,7 +360,7 @@ impl CanLink {
             messages: Queue::with_capacity(config.transmit_queue_limit),
             current: None,
             unresolved: Queue::with_capacity(config.transmit_queue_limit),
-            learning: Vec::with_capacity(config.learn_slots),
+            learning: (0..config.learn_slots).map(|_| None).collect(),
             events: Queue::with_capacity(event_bound(&config)),
             stats: LinkStats::default(),
             config,
@@ -416,7 +417,7 @@ impl CanLink {
 
     /// Aliases whose Node ID is being asked for now (at most [`CanConfig::learn_slots`]).
     pub fn learning(&self) -> usize {
-        self.learning.len()
+        self.learning.iter().flatten().count()
     }
 
     /// Payload bytes held in partly reassembled messages and datagrams; never more than
@@ -505,10 +506,10 @@ impl CanLink {
             return Ok(alias);
         }
         // A node already being resolved shares the AME out for it and its deadline.
-        let waiting = self.unresolved.iter().find(|u| u.is_for(node)).map(|u| u.deadline);
-        match (self.cache.alias(node), waiting) {
-            (Some(alias), None) => Ok(alias),
-            (_, deadline) => Err(deadline.flatten()),
+        let alias = self.cache.alias(node);
+        match self.unresolved.iter().find(|u| u.is_for(node)) {
+            Some(waiting) => Err(waiting.deadline),
+            None => alias.ok_or(None),
         }
     }
 
@@ -554,13 +555,14 @@ impl CanLink {
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let mut next = earliest(self.login.poll_timeout(), self.reassembly.poll_timeout());
-        next = earliest(next, self.datagrams.poll_timeout());
+        let mut next = self.login.poll_timeout();
+        self.reassembly.earliest_into(&mut next);
+        self.datagrams.earliest_into(&mut next);
         for waiting in self.unresolved.iter() {
-            next = earliest(next, waiting.deadline);
+            earlier(&mut next, waiting.deadline);
         }
-        for entry in self.learning.iter() {
-            next = earliest(next, Some(entry.deadline));
+        for entry in self.learning.iter().flatten() {
+            earlier(&mut next, Some(entry.deadline));
         }
         next
     }
@@ -604,6 +606,7 @@ impl CanLink {
 
     /// [`handle_frame`](Self::handle_frame) through a `dyn` closure: one copy of the receive
     /// path whatever the caller's closure type.
+    #[inline(never)]
     fn receive(&mut self, now: Instant, frame: &CanFrame, deliver: Deliver<'_>) {
         bump(&mut self.stats.frames_in);
         let header = match frame.header() {
@@ -613,7 +616,9 @@ impl CanLink {
             Err(_) => return bump(&mut self.stats.invalid_frames),
         };
         let data = frame.payload();
-        let (from_our_alias, event) = self.login.header(now, &header, data);
+        // Before the login sees the frame, which may move it to another alias.
+        let from_our_alias = self.login.holds(header.source);
+        let event = self.login.header(now, &header, data);
         self.login_event(now, event);
         if from_our_alias {
             return;
@@ -811,41 +816,37 @@ impl CanLink {
 
     /// Stops asking `alias` for its Node ID (each alias is asked at most once at a time).
     fn stop_learning(&mut self, alias: NodeAlias) {
-        if let Some(index) = self.learning.iter().position(|l| l.alias == alias) {
-            self.unlearn(index);
-        }
-    }
-
-    /// Removes entry `index` (one that exists) of the learning table; the last entry takes its
-    /// place, as the order does not matter. No panic path, unlike `swap_remove`.
-    fn unlearn(&mut self, index: usize) {
-        let Some(last) = self.learning.pop() else { return };
-        if let Some(entry) = self.learning.get_mut(index) {
-            *entry = last;
+        for slot in self.learning.iter_mut() {
+            if slot.is_some_and(|l| l.alias == alias) {
+                *slot = None;
+            }
         }
     }
 
     /// Starts asking `alias` for its Node ID, if it is not asked already and there is room.
     fn start_learning(&mut self, now: Instant, alias: NodeAlias) {
-        if self.config.learn_attempts == 0 || self.learning.iter().any(|l| l.alias == alias) {
+        if self.config.learn_attempts == 0 || self.learning.iter().flatten().any(|l| l.alias == alias) {
             return;
         }
-        if self.learning.len() >= self.config.learn_slots {
+        let Some(free) = self.learning.iter_mut().find(|slot| slot.is_none()) else {
             return bump(&mut self.stats.learning_table_full);
-        }
-        self.learning.push(Learning { alias, asked: 1, deadline: now + self.config.resolve_timeout });
+        };
+        *free = Some(Learning { alias, asked: 1, deadline: now + self.config.resolve_timeout });
         self.send_verify(alias);
     }
 
     /// Asks again each alias whose wait ran out, waiting twice as long as before, or gives it
     /// up after `learn_attempts` asks.
     fn ask_again(&mut self, now: Instant) {
-        let mut index = 0;
-        while let Some(entry) = self.learning.get(index).copied() {
+        for index in 0..self.learning.len() {
+            let Some(&Some(entry)) = self.learning.get(index) else { continue };
             if entry.deadline > now {
-                index += 1;
-            } else if entry.asked >= self.config.learn_attempts {
-                self.unlearn(index);
+                continue;
+            }
+            if entry.asked >= self.config.learn_attempts {
+                if let Some(slot) = self.learning.get_mut(index) {
+                    *slot = None;
+                }
                 bump(&mut self.stats.learning_given_up);
             } else {
                 // Twice the last wait: `resolve_timeout` times 2^asked, without a 64-bit shift.
@@ -853,12 +854,11 @@ impl CanLink {
                 for _ in 0..entry.asked.min(32) {
                     wait = wait.saturating_add(wait);
                 }
+                let deadline = now + Duration::from_micros(wait);
                 if let Some(slot) = self.learning.get_mut(index) {
-                    slot.asked = entry.asked + 1;
-                    slot.deadline = now + Duration::from_micros(wait);
+                    *slot = Some(Learning { asked: entry.asked + 1, deadline, ..entry });
                 }
                 self.send_verify(entry.alias);
-                index += 1;
             }
         }
     }
@@ -873,25 +873,26 @@ impl CanLink {
     /// MTI if so configured (never for 0x2042).
     fn reassembly_error(&mut self, key: ReassemblyKey, error: ReassemblyError) {
         let ReassemblyKey { source, mti, .. } = key;
-        if mti == Mti::DATAGRAM {
+        // The answer's payload: the error code, then (OIR only) the MTI it answers.
+        let (answer, code, len) = if mti == Mti::DATAGRAM {
             self.stats.datagram_errors.record(error);
-            return self.queue_addressed(Mti::DATAGRAM_REJECTED, source, &error.datagram_code().0.to_be_bytes());
-        }
-        let counter = match error {
-            ReassemblyError::MiddleWithoutFirst => &mut self.stats.middle_without_first,
-            ReassemblyError::FirstBeforeLastEnded => &mut self.stats.first_before_last_ended,
-            ReassemblyError::Timeout => &mut self.stats.reassembly_timeouts,
-            _ => &mut self.stats.reassembly_overflows,
+            (Mti::DATAGRAM_REJECTED, error.datagram_code(), 2)
+        } else {
+            let counter = match error {
+                ReassemblyError::MiddleWithoutFirst => &mut self.stats.middle_without_first,
+                ReassemblyError::FirstBeforeLastEnded => &mut self.stats.first_before_last_ended,
+                ReassemblyError::Timeout => &mut self.stats.reassembly_timeouts,
+                _ => &mut self.stats.reassembly_overflows,
+            };
+            bump(counter);
+            if !self.config.reject_reassembly_errors || error == ReassemblyError::FirstBeforeLastEnded {
+                return;
+            }
+            (Mti::OPTIONAL_INTERACTION_REJECTED, error.code(), 4)
         };
-        bump(counter);
-        let answer = self.config.reject_reassembly_errors && error != ReassemblyError::FirstBeforeLastEnded;
-        if !answer {
-            return;
-        }
-        // The Optional Interaction Rejected payload: the error code, then the MTI it answers.
-        let [c0, c1] = error.code().0.to_be_bytes();
+        let [c0, c1] = code.0.to_be_bytes();
         let [m0, m1] = mti.0.to_be_bytes();
-        self.queue_addressed(Mti::OPTIONAL_INTERACTION_REJECTED, source, &[c0, c1, m0, m1]);
+        self.queue_addressed(answer, source, [c0, c1, m0, m1].get(..len).unwrap_or(&[]));
     }
 
     /// Queues a one-frame addressed message of the link's own (at most 6 payload bytes) from
@@ -902,7 +903,7 @@ impl CanLink {
         };
         // Data bytes 0-1: framing flags 00 (the only frame) and the destination alias.
         let id = CanHeader::message(mti, ours).to_id();
-        self.queue_frame(Some(CanFrame::build(id, &to.as_raw().to_be_bytes(), payload)));
+        self.queue_frame(id, &to.as_raw().to_be_bytes(), payload);
     }
 
     // ----- login and alias resolution -----
@@ -915,8 +916,8 @@ impl CanLink {
                     if self.announced {
                         // After a re-login the endpoint will not announce the node again: the
                         // link does, first of all (its frame queue was emptied with the alias).
-                        let header = CanHeader::message(Mti::INITIALIZATION_COMPLETE, alias);
-                        self.queue_frame(CanFrame::from_header(&header, &self.node.to_bytes()));
+                        let id = CanHeader::message(Mti::INITIALIZATION_COMPLETE, alias).to_id();
+                        self.queue_frame(id, &node_bytes(self.node), &[]);
                     }
                     self.announced = true;
                     self.send_enquiries(now);
@@ -946,7 +947,7 @@ impl CanLink {
         self.frames.clear();
         self.reassembly.clear();
         self.datagrams.clear();
-        self.learning.clear();
+        self.learning.fill(None);
     }
 
     /// Sends an AME for every node waiting for its alias that has not had one, once permitted.
@@ -963,16 +964,18 @@ impl CanLink {
                     waiting.deadline = Some(deadline);
                 }
             }
-            let enquiry =
-                CanFrame::from_header(&CanHeader::control(FrameKind::AliasMapEnquiry, ours), &node.to_bytes());
-            self.queue_frame(enquiry);
+            let id = CanHeader::control(FrameKind::AliasMapEnquiry, ours).to_id();
+            self.queue_frame(id, &node_bytes(node), &[]);
         }
     }
 
-    fn queue_frame(&mut self, frame: Option<CanFrame>) {
-        match frame {
-            Some(frame) if self.frames.len() < self.config.frame_queue_limit => self.frames.push_back(frame),
-            _ => bump(&mut self.stats.queue_overflows),
+    /// Queues a frame of the link's own: identifier `id`, data `head` then `body` (at most 8
+    /// bytes in all).
+    fn queue_frame(&mut self, id: u32, head: &[u8], body: &[u8]) {
+        if self.frames.len() < self.config.frame_queue_limit {
+            self.frames.push_back(CanFrame::build(id, head, body));
+        } else {
+            bump(&mut self.stats.queue_overflows);
         }
     }
 
@@ -994,14 +997,4 @@ fn event_bound(config: &CanConfig) -> usize {
 fn ignore<T>(counter: &mut u32) -> Option<T> {
     bump(counter);
     None
-}
-
-/// The earlier of two optional times.
-#[inline(never)]
-fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
-    match (a, b) {
-        (Some(a), Some(b)) => Some(a.min(b)),
-        (a, None) => a,
-        (None, b) => b,
-    }
 }

@@ -23,7 +23,7 @@ use openlcb_stream::{Duration, Instant, NodeId};
 use crate::alias::AliasGenerator;
 use crate::frame::CanFrame;
 use crate::header::{CanHeader, FrameKind};
-use crate::{NodeAlias, bump};
+use crate::{NodeAlias, bump, node_bytes};
 use openlcb_stream::Queue;
 
 /// Frames the login can have queued at once: CID 7..4, RID, AMD, AMR, one AMD answer.
@@ -235,16 +235,21 @@ impl AliasLogin {
 
     /// [`handle_frame`](Self::handle_frame) for a frame whose header is already parsed.
     pub fn handle_header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> bool {
-        let (ours, event) = self.header(now, header, data);
+        let ours = self.holds(header.source);
+        let event = self.header(now, header, data);
         self.event(event);
         ours
     }
 
     /// [`handle_header`](Self::handle_header), returning its event rather than queueing it (a
-    /// call has at most one).
-    pub(crate) fn header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> (bool, Option<LoginEvent>) {
+    /// call has at most one). Whether the frame came from our alias is
+    /// [`holds`](Self::holds) of its source, asked before this call (the frame may move the
+    /// login to another alias).
+    // Out of line: inlined into its caller it cost more flash on a Cortex-M3.
+    #[inline(never)]
+    pub(crate) fn header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> Option<LoginEvent> {
         if self.state == LoginState::Stopped {
-            return (false, None);
+            return None;
         }
         let claimed = NodeId::from_slice(data);
         match header.kind {
@@ -263,14 +268,14 @@ impl AliasLogin {
                 // CFT §6.2.5: another node announced our Node ID. Send nothing more.
                 self.state = LoginState::Stopped;
                 self.transmits.clear();
-                return (false, Some(LoginEvent::DuplicateNodeId { other: header.source }));
+                return Some(LoginEvent::DuplicateNodeId { other: header.source });
             }
             _ => {}
         }
         if !self.holds(header.source) {
-            return (false, None);
+            return None;
         }
-        let event = match (self.state, header.kind) {
+        match (self.state, header.kind) {
             (LoginState::Checking { alias, .. }, _) => {
                 bump(&mut self.stats.conflicts);
                 self.check_next(now);
@@ -291,14 +296,13 @@ impl AliasLogin {
                 Some(LoginEvent::Lost { alias })
             }
             (LoginState::Stopped, _) => None,
-        };
-        (true, event)
+        }
     }
 
     // ----- helpers -----
 
     /// The alias is ours: permitted, or being checked.
-    fn holds(&self, alias: NodeAlias) -> bool {
+    pub(crate) fn holds(&self, alias: NodeAlias) -> bool {
         match self.state {
             LoginState::Checking { alias: ours, .. } | LoginState::Permitted { alias: ours } => ours == alias,
             LoginState::Stopped => false,
@@ -333,11 +337,12 @@ impl AliasLogin {
 
     /// Queues the control frame `kind` from `alias`, carrying our Node ID if `with_node_id`.
     fn send(&mut self, kind: FrameKind, alias: NodeAlias, with_node_id: bool) {
-        let node = self.node.to_bytes();
+        let node = node_bytes(self.node);
         let data = if with_node_id { node.as_slice() } else { &[] };
-        match CanFrame::from_header(&CanHeader::control(kind, alias), data) {
-            Some(frame) if self.transmits.len() < QUEUE_BOUND => self.transmits.push_back(frame),
-            _ => bump(&mut self.stats.dropped),
+        if self.transmits.len() < QUEUE_BOUND {
+            self.transmits.push_back(CanFrame::build(CanHeader::control(kind, alias).to_id(), data, &[]));
+        } else {
+            bump(&mut self.stats.dropped);
         }
     }
 

@@ -7,7 +7,7 @@ use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Duration, Instant, Mti};
 
 use crate::fragment::FramePosition;
-use crate::{NodeAlias, bump};
+use crate::{NodeAlias, bump, earlier};
 
 /// The longest datagram payload, in bytes (DG §7.3.2; node-protocols §2.1).
 pub const MAX_DATAGRAM_LEN: usize = 72;
@@ -194,7 +194,7 @@ impl Reassembler {
         data: &[u8],
     ) -> Result<Option<usize>, ReassemblyError> {
         let first = position == FramePosition::First;
-        let open = self.slots.iter().position(|s| s.key == Some(key));
+        let open = self.slots.iter().position(|s| s.key.is_some_and(|k| k == key));
         let index = match open {
             Some(index) => index,
             None if first => self.slots.iter().position(|s| s.key.is_none()).ok_or(ReassemblyError::NoFreeSlot)?,
@@ -240,17 +240,20 @@ impl Reassembler {
     /// When the next open message times out.
     pub fn poll_timeout(&self) -> Option<Instant> {
         let mut next = None;
-        for slot in &self.slots {
-            if slot.key.is_some() && next.is_none_or(|next| slot.deadline < next) {
-                next = Some(slot.deadline);
-            }
-        }
+        self.earliest_into(&mut next);
         next
+    }
+
+    /// Moves `next` to the time the next open message times out, if that is earlier.
+    pub(crate) fn earliest_into(&self, next: &mut Option<Instant>) {
+        for slot in &self.slots {
+            earlier(next, slot.key.map(|_| slot.deadline));
+        }
     }
 
     /// Drops the open message with `key`, if there is one; true if there was.
     pub fn discard(&mut self, key: ReassemblyKey) -> bool {
-        let open = self.slots.iter_mut().find(|s| s.key == Some(key));
+        let open = self.slots.iter_mut().find(|s| s.key.is_some_and(|k| k == key));
         open.map(|slot| slot.key = None).is_some()
     }
 
