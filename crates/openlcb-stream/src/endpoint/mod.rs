@@ -219,7 +219,8 @@ const LIVE_DESTINATION: u8 = State::AwaitingDecision.bit() | State::Receiving.bi
 
 impl Selection {
     /// Every stream.
-    const ALL: Selection = Selection { peer: NodeId::MAX, states: ANY_PEER | SOURCE | LIVE_DESTINATION | State::Closed.bit() };
+    const ALL: Selection =
+        Selection { peer: NodeId::MAX, states: ANY_PEER | SOURCE | LIVE_DESTINATION | State::Closed.bit() };
 
     /// The streams with `peer` that are not closed, in `role` (`None`: both roles).
     fn live(peer: NodeId, role: Option<Role>) -> Self {
@@ -685,9 +686,9 @@ impl StreamEndpoint {
         // streams' data at the destination. The answer to this request is still to come.
         let stale = reply.destination_stream.is_some_and(|did| self.sends_to(peer, did, Some(reply.source_stream)));
         let class = reply.class();
-        let found = self.lookup(peer, Role::Source, reply.source_stream).filter(|(_, stream, _)| {
-            stream.state == State::AwaitingReply && !(stale && class == ReplyClass::Accepted)
-        });
+        let found = self
+            .lookup(peer, Role::Source, reply.source_stream)
+            .filter(|(_, stream, _)| stream.state == State::AwaitingReply && !(stale && class == ReplyClass::Accepted));
         let Some((handle, stream, out)) = found else { return bump(&mut self.out.stats.stray_replies) };
         match (class, reply.destination_stream) {
             (ReplyClass::Accepted, Some(did)) => {
