@@ -357,8 +357,11 @@ impl AliasLogin {
     }
 }
 
+/// `frame` (one of the login's own control frames) is a `kind` frame: its identifier apart
+/// from the source alias is that of `kind`.
 fn is_kind(frame: &CanFrame, kind: FrameKind) -> bool {
-    frame.header().is_ok_and(|h| h.kind == kind)
+    let id = CanHeader::control(kind, NodeAlias::MAX).to_id();
+    (frame.raw_id() ^ id) & !0xFFF == 0
 }
 
 #[cfg(test)]
