@@ -147,17 +147,22 @@ pub mod exercise {
         }
         buf.copy_within(input() as usize % (half + 1).., 0);
         output(buf.iter().map(|b| u32::from(*b)).sum());
-        // The same on word-aligned memory (the runtime's aligned variants).
+        // The same on word-aligned memory, of opaque length (the runtime's aligned variants:
+        // `__aeabi_memcpy8`, `__aeabi_memmove8`, `__aeabi_memclr8`).
         let mut words = [0u64; 16];
         let n = input() as usize % words.len();
         if let Some(part) = words.get_mut(..n) {
             part.fill(u64::from(input()));
         }
         let (low, high) = words.split_at_mut(8);
-        low.copy_from_slice(high);
+        let m = n % 8;
+        if let (Some(to), Some(from)) = (low.get_mut(..m), high.get(..m)) {
+            to.copy_from_slice(from);
+        }
         if let Some(part) = low.get_mut(n / 2..) {
             part.fill(0);
         }
+        words.copy_within(n / 4..n, 0);
         let mut cleared = [0u32; 16];
         if let Some(part) = cleared.get_mut(..n) {
             part.fill(0);
