@@ -132,7 +132,13 @@ impl Stream {
 
     /// A stream in the table with `peer` in `role`.
     pub(crate) fn is_with(&self, peer: NodeId, role: Role) -> bool {
-        self.is_live() && self.peer == peer && self.role() == role
+        let states = match role {
+            Role::Source => State::AwaitingReply.bit() | State::Sending.bit(),
+            Role::Destination => {
+                State::AwaitingDecision.bit() | State::Receiving.bit() | State::Draining.bit() | State::Closed.bit()
+            }
+        };
+        states & self.state.bit() != 0 && self.peer == peer
     }
 
     /// The ID this node assigned: SID as source, DID as destination.
