@@ -1052,7 +1052,7 @@ impl StreamEndpoint {
     /// The slot of the stream with `peer` in `role` under the ID this node assigned.
     #[inline(never)]
     fn position(&self, peer: NodeId, role: Role, id: StreamId) -> Option<usize> {
-        self.slots.iter().position(|s| s.is_with(peer, role) && s.local_id() == Some(id))
+        self.slots.iter().position(|s| s.is(peer, role, id))
     }
 
     /// Whether a source stream to `peer` (open, or requested proposing it) other than the one

@@ -130,6 +130,11 @@ impl Stream {
         self.state.role()
     }
 
+    /// A stream in the table with `peer` in `role` under the ID this node assigned, `id`.
+    pub(crate) fn is(&self, peer: NodeId, role: Role, id: StreamId) -> bool {
+        self.is_with(peer, role) && self.assigned(role) == Some(id)
+    }
+
     /// A stream in the table with `peer` in `role`.
     pub(crate) fn is_with(&self, peer: NodeId, role: Role) -> bool {
         let states = match role {
@@ -143,7 +148,13 @@ impl Stream {
 
     /// The ID this node assigned: SID as source, DID as destination.
     pub(crate) fn local_id(&self) -> Option<StreamId> {
-        match self.role() {
+        self.assigned(self.role())
+    }
+
+    /// The ID this node assigns to a stream in `role`: the SID as source, the DID as
+    /// destination.
+    fn assigned(&self, role: Role) -> Option<StreamId> {
+        match role {
             Role::Source => Some(self.source_stream),
             Role::Destination => self.destination_stream,
         }
