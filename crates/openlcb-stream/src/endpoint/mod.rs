@@ -892,7 +892,8 @@ impl StreamEndpoint {
     /// a destination keeps its unread data until the application has read it.
     fn end(&mut self, event: Event) {
         let Ok((stream, out)) = self.parts(event.handle()) else { return };
-        if stream.role() == Role::Destination && !stream.buffer.is_empty() {
+        // Only a destination buffers data.
+        if !stream.buffer.is_empty() {
             stream.state = State::Closed;
             stream.stop_timers();
         } else {
