@@ -323,7 +323,8 @@ impl StreamEndpoint {
         let stream = self.stream(handle)?;
         match stream.state {
             State::Sending => Some(stream.credit),
-            _ => (stream.role() == Role::Source).then_some(0),
+            State::AwaitingReply => Some(0),
+            _ => None,
         }
     }
 
