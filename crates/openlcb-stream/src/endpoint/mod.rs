@@ -188,8 +188,9 @@ impl Outputs {
     #[inline(never)]
     fn send_slices(&mut self, mti: Mti, peer: NodeId, head: &[u8], tail: &[u8]) {
         let mut payload = Vec::with_capacity(head.len() + tail.len());
-        payload.extend_from_slice(head);
-        payload.extend_from_slice(tail);
+        for part in [head, tail] {
+            payload.extend_from_slice(part);
+        }
         bump(&mut self.stats.messages_out);
         self.transmits.push_back(Message::addressed(mti, self.node, peer, payload));
     }
