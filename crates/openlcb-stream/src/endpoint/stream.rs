@@ -57,38 +57,43 @@ impl State {
 /// the Reply (`AwaitingReply`), a Proceed while out of credit (`Sending`), the application's
 /// decision (`AwaitingDecision`), the source's silence while it holds credit (`Receiving`),
 /// the grace for data still in flight (`Draining`). A sending source also keeps alive.
+///
+/// The fields stay in the order written (`repr(C)`): the small ones read at every message
+/// come first, where Thumb's short loads and stores reach them (this saves about 170 bytes of
+/// flash on a Cortex-M3).
 #[derive(Debug)]
+#[repr(C)]
 pub(crate) struct Stream {
-    /// Bumped when the slot is freed, so that old handles no longer match.
-    pub(crate) generation: u16,
     pub(crate) state: State,
-    pub(crate) peer: NodeId,
     pub(crate) source_stream: StreamId,
     pub(crate) destination_stream: Option<StreamId>,
+    /// Source: a write came up short: raise `Writable` when credit returns.
+    pub(crate) write_blocked: bool,
+    /// Destination: one Proceed goes ahead of the data.
+    pub(crate) early_proceed: bool,
     /// Proposed Max Buffer Size until open, then the negotiated window.
     pub(crate) window: u16,
+    /// Bumped when the slot is freed, so that old handles no longer match.
+    pub(crate) generation: u16,
+    /// Bytes the source may still send before the next Proceed: the same figure at both
+    /// ends (grows by a window per Proceed).
+    pub(crate) credit: u32,
+    /// Source: payload bytes sent into the current window (`count` modulo the window, kept so
+    /// that `write` needs no 64-bit division).
+    pub(crate) window_sent: u32,
+    /// Destination: received, not yet read (one window, or two with early Proceed).
+    pub(crate) buffer: ByteRing,
+    pub(crate) peer: NodeId,
     pub(crate) content_uid: Option<ContentUid>,
     /// When the wait of the current state runs out.
     pub(crate) deadline: Instant,
     /// Source: when to send the next keep-alive.
     pub(crate) keepalive: Instant,
-    /// Bytes the source may still send before the next Proceed: the same figure at both
-    /// ends (grows by a window per Proceed).
-    pub(crate) credit: u32,
     /// Payload bytes sent (source) or received (destination) so far. 64 bits cannot
     /// overflow, so it adds without saturating.
     pub(crate) count: u64,
-    /// Source: payload bytes sent into the current window (`count` modulo the window, kept so
-    /// that `write` needs no 64-bit division).
-    pub(crate) window_sent: u32,
     /// Destination, draining: the byte count the Complete stated.
     pub(crate) expected: u64,
-    /// Source: a write came up short: raise `Writable` when credit returns.
-    pub(crate) write_blocked: bool,
-    /// Destination: one Proceed goes ahead of the data.
-    pub(crate) early_proceed: bool,
-    /// Destination: received, not yet read (one window, or two with early Proceed).
-    pub(crate) buffer: ByteRing,
 }
 
 impl Stream {
