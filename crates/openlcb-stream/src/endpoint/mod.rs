@@ -261,14 +261,15 @@ enum Ending {
 
 /// One node's stream engine. See the crate documentation for the drive loop.
 #[derive(Debug)]
+#[repr(C)] // The table first, the configuration last: short loads reach what is read most.
 pub struct StreamEndpoint {
-    config: Config,
     /// The stream table, searched linearly by (peer, role, the ID this node assigned): it is
     /// small (bounded by `max_streams`), and a map's code costs kilobytes of flash.
     slots: Vec<Stream>,
     next_source_id: StreamId,
     next_destination_id: StreamId,
     out: Outputs,
+    config: Config,
 }
 
 impl StreamEndpoint {
