@@ -22,15 +22,16 @@ pub struct MessageRef<'a> {
 /// A message to send, owning its payload: one allocation, built once and moved (never
 /// copied) by the core and the transports until it is framed.
 #[derive(Debug, Clone, PartialEq, Eq)]
+#[repr(C)]
 pub struct Message {
     /// The message type.
     pub mti: Mti,
+    /// The data after the MTI and Node IDs.
+    pub payload: Vec<u8>,
     /// The sending node.
     pub source: NodeId,
     /// The addressed node, for MTIs with the address bit (`None` for global messages).
     pub destination: Option<NodeId>,
-    /// The data after the MTI and Node IDs.
-    pub payload: Vec<u8>,
 }
 
 impl Message {
