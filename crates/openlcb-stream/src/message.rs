@@ -20,7 +20,8 @@ pub struct MessageRef<'a> {
 }
 
 /// A message to send, owning its payload: one allocation, built once and moved (never
-/// copied) by the core and the transports until it is framed.
+/// copied) by the core and the transports until it is framed. Its fields are laid out in the
+/// order written (`repr(C)`), what every layer reads first at the front.
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[repr(C)]
 pub struct Message {
