@@ -360,7 +360,7 @@ impl CanLink {
             messages: Queue::with_capacity(config.transmit_queue_limit),
             current: None,
             unresolved: Queue::with_capacity(config.transmit_queue_limit),
-            learning: (0..config.learn_slots).map(|_| None).collect(),
+            learning: alloc::vec![None; config.learn_slots],
             events: Queue::with_capacity(event_bound(&config)),
             stats: LinkStats::default(),
             config,
@@ -898,12 +898,16 @@ impl CanLink {
     /// Queues a one-frame addressed message of the link's own (at most 6 payload bytes) from
     /// our alias to `to`, once permitted.
     fn queue_addressed(&mut self, mti: Mti, to: NodeAlias, payload: &[u8]) {
-        let Some(ours) = self.login.alias() else {
-            return;
-        };
         // Data bytes 0-1: framing flags 00 (the only frame) and the destination alias.
-        let id = CanHeader::message(mti, ours).to_id();
-        self.queue_frame(id, &to.as_raw().to_be_bytes(), payload);
+        self.queue_message(mti, &to.as_raw().to_be_bytes(), payload);
+    }
+
+    /// Queues a one-frame message of the link's own from our alias, data `head` then `body`
+    /// (at most 8 bytes in all), once permitted.
+    fn queue_message(&mut self, mti: Mti, head: &[u8], body: &[u8]) {
+        if let Some(ours) = self.login.alias() {
+            self.queue_frame(CanHeader::message(mti, ours).to_id(), head, body);
+        }
     }
 
     // ----- login and alias resolution -----
@@ -916,8 +920,7 @@ impl CanLink {
                     if self.announced {
                         // After a re-login the endpoint will not announce the node again: the
                         // link does, first of all (its frame queue was emptied with the alias).
-                        let id = CanHeader::message(Mti::INITIALIZATION_COMPLETE, alias).to_id();
-                        self.queue_frame(id, &node_bytes(self.node), &[]);
+                        self.queue_message(Mti::INITIALIZATION_COMPLETE, &node_bytes(self.node), &[]);
                     }
                     self.announced = true;
                     self.send_enquiries(now);
