@@ -825,10 +825,18 @@ impl CanLink {
 
     /// Starts asking `alias` for its Node ID, if it is not asked already and there is room.
     fn start_learning(&mut self, now: Instant, alias: NodeAlias) {
-        if self.config.learn_attempts == 0 || self.learning.iter().flatten().any(|l| l.alias == alias) {
+        if self.config.learn_attempts == 0 {
             return;
         }
-        let Some(free) = self.learning.iter_mut().find(|slot| slot.is_none()) else {
+        let mut free = None;
+        for slot in self.learning.iter_mut() {
+            match slot {
+                Some(learning) if learning.alias == alias => return,
+                None if free.is_none() => free = Some(slot),
+                _ => {}
+            }
+        }
+        let Some(free) = free else {
             return bump(&mut self.stats.learning_table_full);
         };
         *free = Some(Learning { alias, asked: 1, deadline: now + self.config.resolve_timeout });
