@@ -43,7 +43,7 @@ impl AliasCache {
             return None;
         }
         let evicted = if self.entries.len() >= self.capacity { self.take(0) } else { None };
-        self.entries.push(Entry { alias, node });
+        self.push(Entry { alias, node });
         evicted.map(|e| (e.alias, e.node))
     }
 
@@ -97,11 +97,19 @@ impl AliasCache {
         (index < self.entries.len()).then(|| self.entries.remove(index))
     }
 
+    /// Adds `entry` at the back, within the allocation made by [`new`](Self::new) (callers
+    /// make room first): the cache never grows, and this takes no grow path.
+    fn push(&mut self, entry: Entry) {
+        if self.entries.len() < self.entries.capacity() {
+            self.entries.push(entry);
+        }
+    }
+
     /// Marks the entry at `index` used: it moves to the back (where it usually is already).
     fn touch(&mut self, index: usize) {
         if index + 1 < self.entries.len() {
             if let Some(entry) = self.take(index) {
-                self.entries.push(entry);
+                self.push(entry);
             }
         }
     }
