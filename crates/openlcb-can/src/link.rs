@@ -63,7 +63,7 @@ use crate::frame::{CanFrame, FrameError};
 use crate::header::{self, CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
-use crate::{NodeAlias, add, bump, earlier, node_bytes};
+use crate::{NodeAlias, add, bump, earlier, node_bytes, push_bounded};
 use openlcb_stream::Queue;
 
 /// Where received messages go: the caller's closure.
@@ -983,11 +983,8 @@ impl CanLink {
     /// Queues a frame of the link's own: identifier `id`, data `head` then `body` (at most 8
     /// bytes in all).
     fn queue_frame(&mut self, id: u32, head: &[u8], body: &[u8]) {
-        if self.frames.len() < self.config.frame_queue_limit {
-            self.frames.push_back(CanFrame::build(id, head, body));
-        } else {
-            bump(&mut self.stats.queue_overflows);
-        }
+        let frame = CanFrame::build(id, head, body);
+        push_bounded(&mut self.frames, self.config.frame_queue_limit, frame, &mut self.stats.queue_overflows);
     }
 
     fn event(&mut self, event: LinkEvent) {

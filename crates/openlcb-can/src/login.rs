@@ -23,7 +23,7 @@ use openlcb_stream::{Duration, Instant, NodeId};
 use crate::alias::AliasGenerator;
 use crate::frame::CanFrame;
 use crate::header::{CanHeader, FrameKind};
-use crate::{NodeAlias, bump, node_bytes};
+use crate::{NodeAlias, bump, node_bytes, push_bounded};
 use openlcb_stream::Queue;
 
 /// Frames the login can have queued at once: CID 7..4, RID, AMD, AMR, one AMD answer.
@@ -339,11 +339,8 @@ impl AliasLogin {
     fn send(&mut self, kind: FrameKind, alias: NodeAlias, with_node_id: bool) {
         let node = node_bytes(self.node);
         let data = if with_node_id { node.as_slice() } else { &[] };
-        if self.transmits.len() < QUEUE_BOUND {
-            self.transmits.push_back(CanFrame::build(CanHeader::control(kind, alias).to_id(), data, &[]));
-        } else {
-            bump(&mut self.stats.dropped);
-        }
+        let frame = CanFrame::build(CanHeader::control(kind, alias).to_id(), data, &[]);
+        push_bounded(&mut self.transmits, QUEUE_BOUND, frame, &mut self.stats.dropped);
     }
 
     /// Queues `event`, if there is one, for `poll_event`.
