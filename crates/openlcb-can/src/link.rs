@@ -988,11 +988,7 @@ impl CanLink {
     }
 
     fn event(&mut self, event: LinkEvent) {
-        if self.events.len() < event_bound(&self.config) {
-            self.events.push_back(event);
-        } else {
-            bump(&mut self.stats.queue_overflows);
-        }
+        push_bounded(&mut self.events, event_bound(&self.config), event, &mut self.stats.queue_overflows);
     }
 }
 
