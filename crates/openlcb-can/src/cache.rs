@@ -15,11 +15,21 @@ struct Entry {
 
 /// Alias mappings of remote nodes, at most `capacity` of them. Each alias and each Node ID
 /// appears at most once. Lookups that find an entry mark it used.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct AliasCache {
     /// Least recently used first: marking an entry used moves it to the back.
     entries: Vec<Entry>,
     capacity: usize,
+}
+
+/// A copy keeps the room for `capacity` entries (a derived clone would allocate only the
+/// entries held, and the cache never grows).
+impl Clone for AliasCache {
+    fn clone(&self) -> Self {
+        let mut entries = Vec::with_capacity(self.capacity);
+        entries.extend_from_slice(&self.entries);
+        AliasCache { entries, capacity: self.capacity }
+    }
 }
 
 impl AliasCache {
@@ -140,6 +150,18 @@ mod tests {
 
     fn node(raw: u64) -> NodeId {
         NodeId::new(raw).unwrap()
+    }
+
+    #[test]
+    fn a_copy_has_room_for_capacity_entries() {
+        let mut cache = AliasCache::new(3);
+        cache.insert(alias(0x456), node(2));
+        let mut copy = cache.clone();
+        copy.insert(alias(0x457), node(3));
+        copy.insert(alias(0x458), node(4));
+        assert_eq!(copy.len(), 3);
+        assert_eq!(copy.peek_node(alias(0x458)), Some(node(4)));
+        assert_eq!(cache.len(), 1);
     }
 
     #[test]

@@ -180,10 +180,18 @@ fn add(counter: &mut u32, n: usize) {
 /// is made, so checking its capacity as well refuses nothing more, and lets the compiler leave
 /// out `Vec`'s grow path.
 fn push_bounded<T>(queue: &mut openlcb_stream::Queue<T>, limit: usize, item: T, overflows: &mut u32) {
-    let len = queue.len();
-    if len < limit && len < queue.capacity() {
-        queue.push_back(item);
-    } else {
+    if !push_within(queue, limit, item) {
         bump(overflows);
     }
+}
+
+/// Adds `item` at the back of `queue` if it holds fewer than `limit` items (see
+/// [`push_bounded`]); false if it was dropped.
+fn push_within<T>(queue: &mut openlcb_stream::Queue<T>, limit: usize, item: T) -> bool {
+    let len = queue.len();
+    let room = len < limit && len < queue.capacity();
+    if room {
+        queue.push_back(item);
+    }
+    room
 }
