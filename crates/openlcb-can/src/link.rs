@@ -970,6 +970,7 @@ impl CanLink {
             return;
         };
         let deadline = now + self.config.resolve_timeout;
+        let id = CanHeader::control(FrameKind::AliasMapEnquiry, ours).to_id();
         loop {
             let unasked = self.unresolved.iter().find(|u| u.deadline.is_none());
             let Some(node) = unasked.and_then(|u| u.message.destination) else { break };
@@ -978,7 +979,6 @@ impl CanLink {
                     waiting.deadline = Some(deadline);
                 }
             }
-            let id = CanHeader::control(FrameKind::AliasMapEnquiry, ours).to_id();
             self.queue_frame(id, &node_bytes(node), &[]);
         }
     }
