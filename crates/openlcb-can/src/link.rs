@@ -779,12 +779,7 @@ impl CanLink {
         if previous.is_none() {
             self.event(LinkEvent::PeerRenamed { from: alias.provisional_node_id(), to: node, alias });
         }
-        let mut index = 0;
-        while let Some(waiting) = self.unresolved.get(index) {
-            if !waiting.is_for(node) {
-                index += 1;
-                continue;
-            }
+        while let Some(index) = self.unresolved.iter().position(|waiting| waiting.is_for(node)) {
             if let Some(Outgoing { message, .. }) = self.unresolved.remove(index) {
                 // Never refused: the two queues together hold at most the limit.
                 let outgoing = Outgoing::new(message, Some(alias));
