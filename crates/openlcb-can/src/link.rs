@@ -285,9 +285,9 @@ impl Outgoing {
 
 /// A whole message taken from received frames, to deliver.
 struct Received<'a> {
+    /// Its MTI tells whether it is addressed to us (addressed, stream data and datagram MTIs
+    /// have the address bit) or global.
     mti: Mti,
-    /// Addressed to us (addressed, stream data, datagram) rather than global.
-    addressed: bool,
     payload: Payload<'a>,
 }
 
@@ -649,7 +649,8 @@ impl CanLink {
             FrameKind::ReservedFormat { .. } => ignore(&mut self.stats.unsupported_ignored),
             _ => None,
         };
-        if let Some(Received { mti, addressed, payload }) = message {
+        if let Some(Received { mti, payload }) = message {
+            let addressed = mti.is_addressed();
             let name = self.name_sender(now, source, addressed);
             let destination = addressed.then_some(self.node);
             let payload = match payload {
@@ -672,7 +673,7 @@ impl CanLink {
                     None => {}
                 }
             }
-            return Some(Received { mti, addressed: false, payload: Payload::Frame(data) });
+            return Some(Received { mti, payload: Payload::Frame(data) });
         }
         let [flags_and_high, low, body @ ..] = data else {
             return ignore(&mut self.stats.invalid_frames);
@@ -684,7 +685,7 @@ impl CanLink {
         let position = FramePosition::from_flags(*flags_and_high);
         if position == FramePosition::Only {
             // The usual case: the payload is handed over straight from the frame.
-            return Some(Received { mti, addressed: true, payload: Payload::Frame(body) });
+            return Some(Received { mti, payload: Payload::Frame(body) });
         }
         self.reassemble(now, ReassemblyKey { source, destination: ours, mti }, position, body)
     }
@@ -698,7 +699,7 @@ impl CanLink {
             // Wire-spec §7.3: DLC 0 is invalid (no DID).
             return ignore(&mut self.stats.invalid_frames);
         }
-        Some(Received { mti: Mti::STREAM_DATA_SEND, addressed: true, payload: Payload::Frame(data) })
+        Some(Received { mti: Mti::STREAM_DATA_SEND, payload: Payload::Frame(data) })
     }
 
     /// A datagram frame (formats 2-5): the datagram once whole.
@@ -718,7 +719,7 @@ impl CanLink {
         if position == FramePosition::Only {
             // A whole datagram: the sender has given up any datagram it left open.
             self.datagrams.discard(key);
-            return Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: Payload::Frame(data) });
+            return Some(Received { mti: Mti::DATAGRAM, payload: Payload::Frame(data) });
         }
         self.reassemble(now, key, position, data)
     }
@@ -733,7 +734,7 @@ impl CanLink {
         data: &[u8],
     ) -> Option<Received<'a>> {
         match self.reassembler(key.mti).add(now, key, position, data) {
-            Ok(whole) => Some(Received { mti: key.mti, addressed: true, payload: Payload::Reassembled(whole?) }),
+            Ok(whole) => Some(Received { mti: key.mti, payload: Payload::Reassembled(whole?) }),
             Err(error) => {
                 self.reassembly_error(key, error);
                 None
