@@ -349,6 +349,11 @@ impl CanLink {
     pub fn new(now: Instant, node: NodeId, config: CanConfig) -> Self {
         let login = AliasLogin::new(now, node, config.first_alias, config.reserve_wait)
             .with_node_id_check(config.node_id_check);
+        let mut learning = Vec::with_capacity(config.learn_slots);
+        // Within the capacity just allocated: no grow path.
+        while learning.len() < config.learn_slots && learning.len() < learning.capacity() {
+            learning.push(None);
+        }
         CanLink {
             node,
             login,
@@ -360,7 +365,7 @@ impl CanLink {
             messages: Queue::with_capacity(config.transmit_queue_limit),
             current: None,
             unresolved: Queue::with_capacity(config.transmit_queue_limit),
-            learning: alloc::vec![None; config.learn_slots],
+            learning,
             events: Queue::with_capacity(event_bound(&config)),
             stats: LinkStats::default(),
             config,
