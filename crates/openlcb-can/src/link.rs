@@ -453,8 +453,13 @@ impl CanLink {
     /// `send` has room for another message. A driver that must not lose stream data polls
     /// the endpoint only while this holds (the endpoint keeps the rest queued).
     pub fn can_send(&self) -> bool {
-        self.login.state() != LoginState::Stopped
-            && self.messages.len() + self.unresolved.len() < self.config.transmit_queue_limit
+        self.login.state() != LoginState::Stopped && !self.queue_full()
+    }
+
+    /// [`CanConfig::transmit_queue_limit`] messages are queued (ready or waiting for an alias).
+    #[inline(always)]
+    fn queue_full(&self) -> bool {
+        self.messages.len() + self.unresolved.len() >= self.config.transmit_queue_limit
     }
 
     // ----- commands -----
@@ -482,7 +487,7 @@ impl CanLink {
         // Check the message has a CAN form now, so that failures reach the caller.
         let placeholder = NodeAlias::MAX;
         Cursor::new(message.mti, placeholder, destination.map(|_| placeholder), message.payload.len())?;
-        if !self.can_send() {
+        if self.queue_full() {
             return Err(SendError::QueueFull);
         }
         let resolved = destination.map(|node| self.alias_for(node)).transpose();
