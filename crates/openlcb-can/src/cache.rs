@@ -15,11 +15,21 @@ struct Entry {
 
 /// Alias mappings of remote nodes, at most `capacity` of them. Each alias and each Node ID
 /// appears at most once. Lookups that find an entry mark it used.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct AliasCache {
     /// Least recently used first: marking an entry used moves it to the back.
     entries: Vec<Entry>,
     capacity: usize,
+}
+
+/// A copy keeps the room for `capacity` entries (a derived clone would allocate only the
+/// entries held, and the cache never grows).
+impl Clone for AliasCache {
+    fn clone(&self) -> Self {
+        let mut entries = Vec::with_capacity(self.capacity);
+        entries.extend_from_slice(&self.entries);
+        AliasCache { entries, capacity: self.capacity }
+    }
 }
 
 impl AliasCache {
@@ -43,7 +53,7 @@ impl AliasCache {
             return None;
         }
         let evicted = if self.entries.len() >= self.capacity { self.take(0) } else { None };
-        self.entries.push(Entry { alias, node });
+        self.push(Entry { alias, node });
         evicted.map(|e| (e.alias, e.node))
     }
 
@@ -97,11 +107,19 @@ impl AliasCache {
         (index < self.entries.len()).then(|| self.entries.remove(index))
     }
 
+    /// Adds `entry` at the back, within the allocation made by [`new`](Self::new) (callers
+    /// make room first): the cache never grows, and this takes no grow path.
+    fn push(&mut self, entry: Entry) {
+        if self.entries.len() < self.entries.capacity() {
+            self.entries.push(entry);
+        }
+    }
+
     /// Marks the entry at `index` used: it moves to the back (where it usually is already).
     fn touch(&mut self, index: usize) {
         if index + 1 < self.entries.len() {
             if let Some(entry) = self.take(index) {
-                self.entries.push(entry);
+                self.push(entry);
             }
         }
     }
@@ -132,6 +150,18 @@ mod tests {
 
     fn node(raw: u64) -> NodeId {
         NodeId::new(raw).unwrap()
+    }
+
+    #[test]
+    fn a_copy_has_room_for_capacity_entries() {
+        let mut cache = AliasCache::new(3);
+        cache.insert(alias(0x456), node(2));
+        let mut copy = cache.clone();
+        copy.insert(alias(0x457), node(3));
+        copy.insert(alias(0x458), node(4));
+        assert_eq!(copy.len(), 3);
+        assert_eq!(copy.peek_node(alias(0x458)), Some(node(4)));
+        assert_eq!(cache.len(), 1);
     }
 
     #[test]

@@ -63,7 +63,7 @@ use crate::frame::{CanFrame, FrameError};
 use crate::header::{self, CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
-use crate::{NodeAlias, add, bump, earlier, node_bytes};
+use crate::{NodeAlias, add, bump, earlier, node_bytes, push_bounded, push_within};
 use openlcb_stream::Queue;
 
 /// Where received messages go: the caller's closure.
@@ -285,9 +285,9 @@ impl Outgoing {
 
 /// A whole message taken from received frames, to deliver.
 struct Received<'a> {
+    /// Its MTI tells whether it is addressed to us (addressed, stream data and datagram MTIs
+    /// have the address bit) or global.
     mti: Mti,
-    /// Addressed to us (addressed, stream data, datagram) rather than global.
-    addressed: bool,
     payload: Payload<'a>,
 }
 
@@ -349,6 +349,11 @@ impl CanLink {
     pub fn new(now: Instant, node: NodeId, config: CanConfig) -> Self {
         let login = AliasLogin::new(now, node, config.first_alias, config.reserve_wait)
             .with_node_id_check(config.node_id_check);
+        let mut learning = Vec::with_capacity(config.learn_slots);
+        // Within the capacity just allocated: no grow path.
+        while learning.len() < config.learn_slots && learning.len() < learning.capacity() {
+            learning.push(None);
+        }
         CanLink {
             node,
             login,
@@ -360,7 +365,7 @@ impl CanLink {
             messages: Queue::with_capacity(config.transmit_queue_limit),
             current: None,
             unresolved: Queue::with_capacity(config.transmit_queue_limit),
-            learning: (0..config.learn_slots).map(|_| None).collect(),
+            learning,
             events: Queue::with_capacity(event_bound(&config)),
             stats: LinkStats::default(),
             config,
@@ -448,8 +453,13 @@ impl CanLink {
     /// `send` has room for another message. A driver that must not lose stream data polls
     /// the endpoint only while this holds (the endpoint keeps the rest queued).
     pub fn can_send(&self) -> bool {
-        self.login.state() != LoginState::Stopped
-            && self.messages.len() + self.unresolved.len() < self.config.transmit_queue_limit
+        self.login.state() != LoginState::Stopped && !self.queue_full()
+    }
+
+    /// [`CanConfig::transmit_queue_limit`] messages are queued (ready or waiting for an alias).
+    #[inline(always)]
+    fn queue_full(&self) -> bool {
+        self.messages.len() + self.unresolved.len() >= self.config.transmit_queue_limit
     }
 
     // ----- commands -----
@@ -477,7 +487,7 @@ impl CanLink {
         // Check the message has a CAN form now, so that failures reach the caller.
         let placeholder = NodeAlias::MAX;
         Cursor::new(message.mti, placeholder, destination.map(|_| placeholder), message.payload.len())?;
-        if !self.can_send() {
+        if self.queue_full() {
             return Err(SendError::QueueFull);
         }
         let resolved = destination.map(|node| self.alias_for(node)).transpose();
@@ -492,7 +502,8 @@ impl CanLink {
                 &mut self.unresolved
             }
         };
-        queue.push_back(outgoing);
+        // Never refused: `can_send` found both queues together below the limit.
+        push_within(queue, self.config.transmit_queue_limit, outgoing);
         if resolved.is_err() {
             self.send_enquiries(now);
         }
@@ -648,7 +659,8 @@ impl CanLink {
             FrameKind::ReservedFormat { .. } => ignore(&mut self.stats.unsupported_ignored),
             _ => None,
         };
-        if let Some(Received { mti, addressed, payload }) = message {
+        if let Some(Received { mti, payload }) = message {
+            let addressed = mti.is_addressed();
             let name = self.name_sender(now, source, addressed);
             let destination = addressed.then_some(self.node);
             let payload = match payload {
@@ -671,7 +683,7 @@ impl CanLink {
                     None => {}
                 }
             }
-            return Some(Received { mti, addressed: false, payload: Payload::Frame(data) });
+            return Some(Received { mti, payload: Payload::Frame(data) });
         }
         let [flags_and_high, low, body @ ..] = data else {
             return ignore(&mut self.stats.invalid_frames);
@@ -683,7 +695,7 @@ impl CanLink {
         let position = FramePosition::from_flags(*flags_and_high);
         if position == FramePosition::Only {
             // The usual case: the payload is handed over straight from the frame.
-            return Some(Received { mti, addressed: true, payload: Payload::Frame(body) });
+            return Some(Received { mti, payload: Payload::Frame(body) });
         }
         self.reassemble(now, ReassemblyKey { source, destination: ours, mti }, position, body)
     }
@@ -697,7 +709,7 @@ impl CanLink {
             // Wire-spec §7.3: DLC 0 is invalid (no DID).
             return ignore(&mut self.stats.invalid_frames);
         }
-        Some(Received { mti: Mti::STREAM_DATA_SEND, addressed: true, payload: Payload::Frame(data) })
+        Some(Received { mti: Mti::STREAM_DATA_SEND, payload: Payload::Frame(data) })
     }
 
     /// A datagram frame (formats 2-5): the datagram once whole.
@@ -717,7 +729,7 @@ impl CanLink {
         if position == FramePosition::Only {
             // A whole datagram: the sender has given up any datagram it left open.
             self.datagrams.discard(key);
-            return Some(Received { mti: Mti::DATAGRAM, addressed: true, payload: Payload::Frame(data) });
+            return Some(Received { mti: Mti::DATAGRAM, payload: Payload::Frame(data) });
         }
         self.reassemble(now, key, position, data)
     }
@@ -732,7 +744,7 @@ impl CanLink {
         data: &[u8],
     ) -> Option<Received<'a>> {
         match self.reassembler(key.mti).add(now, key, position, data) {
-            Ok(whole) => Some(Received { mti: key.mti, addressed: true, payload: Payload::Reassembled(whole?) }),
+            Ok(whole) => Some(Received { mti: key.mti, payload: Payload::Reassembled(whole?) }),
             Err(error) => {
                 self.reassembly_error(key, error);
                 None
@@ -778,14 +790,11 @@ impl CanLink {
         if previous.is_none() {
             self.event(LinkEvent::PeerRenamed { from: alias.provisional_node_id(), to: node, alias });
         }
-        let mut index = 0;
-        while let Some(waiting) = self.unresolved.get(index) {
-            if !waiting.is_for(node) {
-                index += 1;
-                continue;
-            }
+        while let Some(index) = self.unresolved.iter().position(|waiting| waiting.is_for(node)) {
             if let Some(Outgoing { message, .. }) = self.unresolved.remove(index) {
-                self.messages.push_back(Outgoing::new(message, Some(alias)));
+                // Never refused: the two queues together hold at most the limit.
+                let outgoing = Outgoing::new(message, Some(alias));
+                push_within(&mut self.messages, self.config.transmit_queue_limit, outgoing);
             }
         }
     }
@@ -825,10 +834,18 @@ impl CanLink {
 
     /// Starts asking `alias` for its Node ID, if it is not asked already and there is room.
     fn start_learning(&mut self, now: Instant, alias: NodeAlias) {
-        if self.config.learn_attempts == 0 || self.learning.iter().flatten().any(|l| l.alias == alias) {
+        if self.config.learn_attempts == 0 {
             return;
         }
-        let Some(free) = self.learning.iter_mut().find(|slot| slot.is_none()) else {
+        let mut free = None;
+        for slot in self.learning.iter_mut() {
+            match slot {
+                Some(learning) if learning.alias == alias => return,
+                None if free.is_none() => free = Some(slot),
+                _ => {}
+            }
+        }
+        let Some(free) = free else {
             return bump(&mut self.stats.learning_table_full);
         };
         *free = Some(Learning { alias, asked: 1, deadline: now + self.config.resolve_timeout });
@@ -898,12 +915,16 @@ impl CanLink {
     /// Queues a one-frame addressed message of the link's own (at most 6 payload bytes) from
     /// our alias to `to`, once permitted.
     fn queue_addressed(&mut self, mti: Mti, to: NodeAlias, payload: &[u8]) {
-        let Some(ours) = self.login.alias() else {
-            return;
-        };
         // Data bytes 0-1: framing flags 00 (the only frame) and the destination alias.
-        let id = CanHeader::message(mti, ours).to_id();
-        self.queue_frame(id, &to.as_raw().to_be_bytes(), payload);
+        self.queue_message(mti, &to.as_raw().to_be_bytes(), payload);
+    }
+
+    /// Queues a one-frame message of the link's own from our alias, data `head` then `body`
+    /// (at most 8 bytes in all), once permitted.
+    fn queue_message(&mut self, mti: Mti, head: &[u8], body: &[u8]) {
+        if let Some(ours) = self.login.alias() {
+            self.queue_frame(CanHeader::message(mti, ours).to_id(), head, body);
+        }
     }
 
     // ----- login and alias resolution -----
@@ -916,8 +937,7 @@ impl CanLink {
                     if self.announced {
                         // After a re-login the endpoint will not announce the node again: the
                         // link does, first of all (its frame queue was emptied with the alias).
-                        let id = CanHeader::message(Mti::INITIALIZATION_COMPLETE, alias).to_id();
-                        self.queue_frame(id, &node_bytes(self.node), &[]);
+                        self.queue_message(Mti::INITIALIZATION_COMPLETE, &node_bytes(self.node), &[]);
                     }
                     self.announced = true;
                     self.send_enquiries(now);
@@ -956,6 +976,7 @@ impl CanLink {
             return;
         };
         let deadline = now + self.config.resolve_timeout;
+        let id = CanHeader::control(FrameKind::AliasMapEnquiry, ours).to_id();
         loop {
             let unasked = self.unresolved.iter().find(|u| u.deadline.is_none());
             let Some(node) = unasked.and_then(|u| u.message.destination) else { break };
@@ -964,7 +985,6 @@ impl CanLink {
                     waiting.deadline = Some(deadline);
                 }
             }
-            let id = CanHeader::control(FrameKind::AliasMapEnquiry, ours).to_id();
             self.queue_frame(id, &node_bytes(node), &[]);
         }
     }
@@ -972,19 +992,12 @@ impl CanLink {
     /// Queues a frame of the link's own: identifier `id`, data `head` then `body` (at most 8
     /// bytes in all).
     fn queue_frame(&mut self, id: u32, head: &[u8], body: &[u8]) {
-        if self.frames.len() < self.config.frame_queue_limit {
-            self.frames.push_back(CanFrame::build(id, head, body));
-        } else {
-            bump(&mut self.stats.queue_overflows);
-        }
+        let frame = CanFrame::build(id, head, body);
+        push_bounded(&mut self.frames, self.config.frame_queue_limit, frame, &mut self.stats.queue_overflows);
     }
 
     fn event(&mut self, event: LinkEvent) {
-        if self.events.len() < event_bound(&self.config) {
-            self.events.push_back(event);
-        } else {
-            bump(&mut self.stats.queue_overflows);
-        }
+        push_bounded(&mut self.events, event_bound(&self.config), event, &mut self.stats.queue_overflows);
     }
 }
 

@@ -23,7 +23,7 @@ use openlcb_stream::{Duration, Instant, NodeId};
 use crate::alias::AliasGenerator;
 use crate::frame::CanFrame;
 use crate::header::{CanHeader, FrameKind};
-use crate::{NodeAlias, bump, node_bytes};
+use crate::{NodeAlias, bump, node_bytes, push_bounded};
 use openlcb_stream::Queue;
 
 /// Frames the login can have queued at once: CID 7..4, RID, AMD, AMR, one AMD answer.
@@ -98,7 +98,7 @@ pub struct LoginStats {
 /// The local node's alias state machine. Feed it every received frame, call `handle_timeout`
 /// when `poll_timeout` says, and send what `poll_transmit` returns, promptly: the reserve wait
 /// counts from when the CID frames were queued.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct AliasLogin {
     node: NodeId,
     generator: AliasGenerator,
@@ -111,6 +111,28 @@ pub struct AliasLogin {
     node_id_check: Option<Duration>,
     /// RID and the AME have gone out for the alias being checked.
     asked: bool,
+}
+
+/// A copy keeps the room of the transmit queue (a derived clone would allocate only what is
+/// queued, and the queue never grows).
+impl Clone for AliasLogin {
+    fn clone(&self) -> Self {
+        let mut transmits = Queue::with_capacity(QUEUE_BOUND);
+        for frame in self.transmits.iter() {
+            transmits.push_back(*frame);
+        }
+        AliasLogin {
+            node: self.node,
+            generator: self.generator,
+            reserve_wait: self.reserve_wait,
+            state: self.state,
+            transmits,
+            events: self.events.clone(),
+            stats: self.stats,
+            node_id_check: self.node_id_check,
+            asked: self.asked,
+        }
+    }
 }
 
 impl AliasLogin {
@@ -339,11 +361,8 @@ impl AliasLogin {
     fn send(&mut self, kind: FrameKind, alias: NodeAlias, with_node_id: bool) {
         let node = node_bytes(self.node);
         let data = if with_node_id { node.as_slice() } else { &[] };
-        if self.transmits.len() < QUEUE_BOUND {
-            self.transmits.push_back(CanFrame::build(CanHeader::control(kind, alias).to_id(), data, &[]));
-        } else {
-            bump(&mut self.stats.dropped);
-        }
+        let frame = CanFrame::build(CanHeader::control(kind, alias).to_id(), data, &[]);
+        push_bounded(&mut self.transmits, QUEUE_BOUND, frame, &mut self.stats.dropped);
     }
 
     /// Queues `event`, if there is one, for `poll_event`.
@@ -399,6 +418,17 @@ mod tests {
         assert_eq!(l.poll_event(), Some(LoginEvent::Permitted { alias: alias(0x555) }));
         assert_eq!(l.alias(), Some(alias(0x555)));
         assert_eq!(l.poll_timeout(), None);
+    }
+
+    #[test]
+    fn a_copy_queues_frames_like_the_original() {
+        let mut l = login();
+        ids(&mut l);
+        let mut copy = l.clone();
+        copy.handle_timeout(Instant::from_millis(200));
+        assert_eq!(ids(&mut copy), [0x1070_0555, 0x1070_1555]);
+        assert_eq!(copy.alias(), Some(alias(0x555)));
+        assert_eq!(l.alias(), None);
     }
 
     #[test]

@@ -162,10 +162,12 @@ impl Reassembler {
     }
 
     fn with_rules(slots: usize, max_len: usize, timeout: Duration, rules: Rules) -> Self {
-        let slots = (0..slots)
-            .map(|_| Slot { key: None, buffer: Vec::with_capacity(max_len), deadline: Instant::ZERO })
-            .collect();
-        Reassembler { slots, max_len, timeout, rules }
+        let mut list = Vec::with_capacity(slots);
+        // Within the capacity just allocated: no grow path.
+        while list.len() < slots && list.len() < list.capacity() {
+            list.push(Slot { key: None, buffer: Vec::with_capacity(max_len), deadline: Instant::ZERO });
+        }
+        Reassembler { slots: list, max_len, timeout, rules }
     }
 
     /// Adds one frame's payload (data bytes 2..). Returns the whole payload when `position`
