@@ -8,6 +8,7 @@ use openlcb_stream::NodeId;
 use crate::NodeAlias;
 
 #[derive(Debug, Clone, Copy)]
+#[repr(C)] // Fields in the order written: short Thumb loads reach the ones read first.
 struct Entry {
     alias: NodeAlias,
     node: NodeId,

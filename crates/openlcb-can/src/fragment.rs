@@ -114,11 +114,12 @@ pub struct Fragments<P> {
 /// Where a [`Fragments`] stands, apart from its payload: the framing code is the same for
 /// every payload type.
 #[derive(Debug, Clone, Copy)]
+#[repr(C)] // Fields in the order written: short Thumb loads reach the ones read first.
 pub(crate) struct Cursor {
-    id: u32,
     layout: Layout,
-    offset: usize,
     finished: bool,
+    id: u32,
+    offset: usize,
 }
 
 impl<P: AsRef<[u8]>> Fragments<P> {

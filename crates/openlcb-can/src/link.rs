@@ -302,6 +302,7 @@ enum Payload<'a> {
 
 /// An alias whose Node ID is being asked for.
 #[derive(Debug, Clone, Copy)]
+#[repr(C)] // Fields in the order written: short Thumb loads reach the ones read first.
 struct Learning {
     alias: NodeAlias,
     /// Verify Node ID frames sent so far.
@@ -324,6 +325,7 @@ struct Learning {
 /// alias. The driver drains [`poll_event`](Self::poll_event) after every
 /// [`handle_frame`](Self::handle_frame) and applies each rename above the link.
 #[derive(Debug)]
+#[repr(C)] // Fields in the order written: short Thumb loads reach the ones read first.
 pub struct CanLink {
     node: NodeId,
     config: CanConfig,

@@ -121,6 +121,7 @@ enum Rules {
 }
 
 #[derive(Debug)]
+#[repr(C)] // Fields in the order written: short Thumb loads reach the ones read first.
 struct Slot {
     key: Option<ReassemblyKey>,
     buffer: Vec<u8>,
