@@ -175,23 +175,11 @@ fn add(counter: &mut u32, n: usize) {
     *counter = counter.saturating_add(u32::try_from(n).unwrap_or(u32::MAX));
 }
 
-/// Adds `item` at the back of `queue` if it holds fewer than `limit` items, else drops it and
-/// counts it in `overflows`. Every such queue is allocated with room for `limit` items when it
-/// is made, so checking its capacity as well refuses nothing more, and lets the compiler leave
-/// out `Vec`'s grow path.
+/// Adds `item` at the back of `queue` if it holds fewer than `limit` items
+/// ([`Queue::push_within`](openlcb_stream::Queue::push_within)), else drops it and counts it
+/// in `overflows`. Every such queue is allocated with room for `limit` items when it is made.
 fn push_bounded<T>(queue: &mut openlcb_stream::Queue<T>, limit: usize, item: T, overflows: &mut u32) {
-    if !push_within(queue, limit, item) {
+    if !queue.push_within(limit, item) {
         bump(overflows);
     }
-}
-
-/// Adds `item` at the back of `queue` if it holds fewer than `limit` items (see
-/// [`push_bounded`]); false if it was dropped.
-fn push_within<T>(queue: &mut openlcb_stream::Queue<T>, limit: usize, item: T) -> bool {
-    let len = queue.len();
-    let room = len < limit && len < queue.capacity();
-    if room {
-        queue.push_back(item);
-    }
-    room
 }

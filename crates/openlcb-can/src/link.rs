@@ -63,7 +63,7 @@ use crate::frame::{CanFrame, FrameError};
 use crate::header::{self, CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
-use crate::{NodeAlias, add, bump, earlier, node_bytes, push_bounded, push_within};
+use crate::{NodeAlias, add, bump, earlier, node_bytes, push_bounded};
 use openlcb_stream::Queue;
 
 /// Where received messages go: the caller's closure.
@@ -505,7 +505,7 @@ impl CanLink {
             }
         };
         // Never refused: `can_send` found both queues together below the limit.
-        push_within(queue, self.config.transmit_queue_limit, outgoing);
+        queue.push_within(self.config.transmit_queue_limit, outgoing);
         if resolved.is_err() {
             self.send_enquiries(now);
         }
@@ -796,7 +796,7 @@ impl CanLink {
             if let Some(Outgoing { message, .. }) = self.unresolved.remove(index) {
                 // Never refused: the two queues together hold at most the limit.
                 let outgoing = Outgoing::new(message, Some(alias));
-                push_within(&mut self.messages, self.config.transmit_queue_limit, outgoing);
+                self.messages.push_within(self.config.transmit_queue_limit, outgoing);
             }
         }
     }

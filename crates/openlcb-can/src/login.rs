@@ -98,7 +98,7 @@ pub struct LoginStats {
 /// The local node's alias state machine. Feed it every received frame, call `handle_timeout`
 /// when `poll_timeout` says, and send what `poll_transmit` returns, promptly: the reserve wait
 /// counts from when the CID frames were queued.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct AliasLogin {
     node: NodeId,
     generator: AliasGenerator,
@@ -111,28 +111,6 @@ pub struct AliasLogin {
     node_id_check: Option<Duration>,
     /// RID and the AME have gone out for the alias being checked.
     asked: bool,
-}
-
-/// A copy keeps the room of the transmit queue (a derived clone would allocate only what is
-/// queued, and the queue never grows).
-impl Clone for AliasLogin {
-    fn clone(&self) -> Self {
-        let mut transmits = Queue::with_capacity(QUEUE_BOUND);
-        for frame in self.transmits.iter() {
-            transmits.push_back(*frame);
-        }
-        AliasLogin {
-            node: self.node,
-            generator: self.generator,
-            reserve_wait: self.reserve_wait,
-            state: self.state,
-            transmits,
-            events: self.events.clone(),
-            stats: self.stats,
-            node_id_check: self.node_id_check,
-            asked: self.asked,
-        }
-    }
 }
 
 impl AliasLogin {

@@ -22,10 +22,19 @@ use alloc::vec::Vec;
 /// assert_eq!(queue.pop_front(), Some(2));
 /// assert_eq!(queue.pop_front(), None);
 /// ```
-#[derive(Clone)]
 pub struct Queue<T> {
     /// The items, front first.
     items: Vec<T>,
+}
+
+/// A copy has the same room as the original (a queue filled with
+/// [`push_within`](Queue::push_within) never grows, so its copy must not be smaller).
+impl<T: Clone> Clone for Queue<T> {
+    fn clone(&self) -> Self {
+        let mut items = Vec::with_capacity(self.items.capacity());
+        items.extend_from_slice(&self.items);
+        Queue { items }
+    }
 }
 
 impl<T> Queue<T> {
@@ -57,6 +66,19 @@ impl<T> Queue<T> {
     /// Adds `item` at the back.
     pub fn push_back(&mut self, item: T) {
         self.items.push(item);
+    }
+
+    /// Adds `item` at the back if the queue holds fewer than `limit` items and has room for
+    /// one more without growing; says whether it did (else `item` is dropped). For a queue
+    /// made [`with_capacity`](Self::with_capacity)`(limit)` the room check refuses nothing
+    /// more, and lets the compiler leave out the grow path.
+    pub fn push_within(&mut self, limit: usize, item: T) -> bool {
+        let len = self.items.len();
+        let room = len < limit && len < self.items.capacity();
+        if room {
+            self.items.push(item);
+        }
+        room
     }
 
     /// Adds `item` at the front.
@@ -147,6 +169,20 @@ mod tests {
 
     fn items(queue: &Queue<u32>) -> Vec<u32> {
         queue.iter().copied().collect()
+    }
+
+    #[test]
+    fn push_within_stops_at_the_limit_and_a_copy_keeps_the_room() {
+        let mut queue = Queue::with_capacity(3);
+        assert!(queue.push_within(2, 1));
+        assert!(queue.push_within(2, 2));
+        assert!(!queue.push_within(2, 3), "at the limit");
+        let mut copy = queue.clone();
+        assert!(copy.push_within(3, 3), "the copy has the original's room");
+        assert!(!copy.push_within(4, 4), "no room left: never grows");
+        assert_eq!(items(&copy), [1, 2, 3]);
+        assert_eq!(items(&queue), [1, 2]);
+        assert!(!Queue::new().push_within(1, 0), "no room allocated");
     }
 
     #[test]

@@ -10,7 +10,7 @@ mod stream;
 
 use alloc::vec::Vec;
 
-use self::stream::{LAST, NEVER, State, Stream};
+use self::stream::{LAST, LIVE_DESTINATION, NEVER, SOURCE, State, Stream};
 use crate::config::{AcceptPolicy, Config};
 use crate::event::{Event, Role, StreamInfo, Termination, TimeoutKind};
 use crate::wire::{
@@ -212,11 +212,6 @@ struct Selection {
 /// In a [`Selection`]'s states: whatever the peer (no state has this bit).
 const ANY_PEER: u8 = 1 << 7;
 const _: () = assert!(State::Closed.bit() < ANY_PEER, "a state's bit is ANY_PEER");
-
-/// A source stream, waiting for its Reply or sending.
-const SOURCE: u8 = State::AwaitingReply.bit() | State::Sending.bit();
-/// A destination stream that is not over yet.
-const LIVE_DESTINATION: u8 = State::AwaitingDecision.bit() | State::Receiving.bit() | State::Draining.bit();
 
 impl Selection {
     /// Every stream.

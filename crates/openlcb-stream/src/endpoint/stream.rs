@@ -38,6 +38,12 @@ pub(crate) const NEVER: Instant = Instant::from_micros(u64::MAX);
 /// The latest time a wait can come due: just before [`NEVER`].
 pub(crate) const LAST: Instant = Instant::from_micros(u64::MAX - 1);
 
+/// The states of a source stream (a bit each, see [`State::bit`]): waiting for its Reply, or
+/// sending.
+pub(crate) const SOURCE: u8 = State::AwaitingReply.bit() | State::Sending.bit();
+/// The states of a destination stream that is not over yet.
+pub(crate) const LIVE_DESTINATION: u8 = State::AwaitingDecision.bit() | State::Receiving.bit() | State::Draining.bit();
+
 impl State {
     /// The state's bit in a set of states.
     pub(crate) const fn bit(self) -> u8 {
@@ -143,10 +149,8 @@ impl Stream {
     /// A stream in the table with `peer` in `role`.
     pub(crate) fn is_with(&self, peer: NodeId, role: Role) -> bool {
         let states = match role {
-            Role::Source => State::AwaitingReply.bit() | State::Sending.bit(),
-            Role::Destination => {
-                State::AwaitingDecision.bit() | State::Receiving.bit() | State::Draining.bit() | State::Closed.bit()
-            }
+            Role::Source => SOURCE,
+            Role::Destination => LIVE_DESTINATION | State::Closed.bit(),
         };
         states & self.state.bit() != 0 && self.peer == peer
     }
