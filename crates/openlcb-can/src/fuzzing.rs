@@ -23,7 +23,6 @@ fn permitted_link() -> CanLink {
         max_message_len: 32,
         transmit_queue_limit: 8,
         frame_queue_limit: 4,
-        learn_slots: 2,
         datagram_slots: 2,
         ..CanConfig::default()
     };

@@ -43,6 +43,12 @@
 //!             LinkEvent::AliasLost { .. } => node.link_lost(),
 //!             LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
 //!             LinkEvent::PeerRenamed { from, to, .. } => node.rename_peer(from, to),
+//!             // Another node has our Node ID: say so; the one that came second leaves.
+//!             LinkEvent::DuplicateNodeId { newcomer: false, .. } => node.report_duplicate_node_id(),
+//!             LinkEvent::DuplicateNodeId { newcomer: true, .. } => {
+//!                 link.leave(Some(node.duplicate_node_id_report()));
+//!                 node.link_lost();
+//!             }
 //!             _ => {}
 //!         }
 //!     }
@@ -73,10 +79,11 @@
 //! let wake = turn(Instant::ZERO, &[], &mut bus);
 //! assert_eq!(bus.len(), 4);
 //! assert_eq!(wake, Some(Instant::from_millis(200)));
-//! // 200 ms later: RID, AMD, then Initialization Complete.
+//! // 200 ms later: RID, AMD, then Initialization Complete and a global Verify Node ID
+//! // naming this node (a node already holding its Node ID would answer).
 //! turn(Instant::from_millis(200), &[], &mut bus);
 //! let ids: Vec<u32> = bus[4..].iter().map(CanFrame::raw_id).collect();
-//! assert_eq!(ids, [0x1070_0343, 0x1070_1343, 0x1910_0343]);
+//! assert_eq!(ids, [0x1070_0343, 0x1070_1343, 0x1910_0343, 0x1949_0343]);
 //! ```
 //!
 //! # Choices where the standards leave room
@@ -88,15 +95,19 @@
 //!   is only counted: the new first frame starts a message that may well complete, and an
 //!   OIR quoting the same MTI would read as a rejection of it.
 //! - A message from an alias not in the cache is delivered at once under the alias's
-//!   provisional name, [`NodeAlias::provisional_node_id`] (`00.00.00.00.0A.AA`); for a
-//!   message to us the link learns the Node ID in the background (addressed Verify Node ID,
-//!   [`CanConfig::learn_attempts`] asks with doubling waits, at most
-//!   [`CanConfig::learn_slots`] aliases at once). A global message never draws a Verify. When
+//!   provisional name, [`NodeAlias::provisional_node_id`] (`00.00.00.00.0A.AA`), and its
+//!   Node ID is learnt passively, from the AMD, Verified Node ID or Initialization Complete it
+//!   sends anyway: the link never sends a frame just to learn a name. When
 //!   the name of an alias changes (learnt, evicted from the cache, global AME) the link
 //!   raises [`LinkEvent::PeerRenamed`]; see [`CanLink`].
 //! - A message to a provisional name goes straight to its alias. A message for a node whose
 //!   alias is unknown waits while an AME for that Node ID is out; after
 //!   [`CanConfig::resolve_timeout`] it is dropped with [`LinkEvent::Unreachable`].
+//! - A duplicate Node ID is found after the login, by the standard's means (CFT §6.2.5): an
+//!   AMD, Verified Node ID or Initialization Complete carrying this node's Node ID from
+//!   another alias. The login itself is CID 7..4, RID, AMD and nothing else (CFT §6.2.1).
+//!   [`LinkEvent::DuplicateNodeId`] says whether this node is the newcomer, which then
+//!   [`leave`](CanLink::leave)s with AMR; the node that was there first keeps running.
 //! - After losing its alias the link logs in again with the generator's next alias and sends
 //!   Initialization Complete itself (the endpoint sends it only once, when created).
 //! - Datagrams (formats 2-5, at most 72 bytes) are framed and reassembled by the link

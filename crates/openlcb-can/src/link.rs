@@ -9,16 +9,11 @@
 //!   from an alias whose Node ID is not cached is delivered at once, with the alias's
 //!   provisional name as its source: [`NodeAlias::provisional_node_id`], `00.00.00.00.0A.AA`
 //!   (a first byte of 0x00 is reserved and never a real node, UID §5.13). Nothing is held.
-//! - **Learning in the background.** An addressed message, stream data or a datagram to us
-//!   from an unknown alias starts learning it: an addressed Verify Node ID goes to the alias,
-//!   sent [`CanConfig::learn_attempts`] times in all, waiting [`CanConfig::resolve_timeout`]
-//!   after the first and twice as long after each next one (1 s, 2 s, 4 s), then given up
-//!   ([`LinkStats::learning_given_up`]). At most [`CanConfig::learn_slots`] aliases are asked
-//!   at once; when the table is full an alias is not asked now
-//!   ([`LinkStats::learning_table_full`]) and a later message from it asks again. A global
-//!   message from an unknown alias never draws a Verify, nor any other frame. Mappings are
-//!   learnt from AMD, Verified Node ID and Initialization Complete (a claimed Node ID that is
-//!   itself provisional-looking, 00.00.00.00.0x.xx, is never learnt).
+//! - **Learning passively.** The link never asks a peer for its Node ID just to serve it:
+//!   conformance tools and busy 125 kbit/s buses see every frame. Mappings are learnt from
+//!   what peers send anyway: AMD, Verified Node ID and Initialization Complete (a claimed
+//!   Node ID that is itself provisional-looking, 00.00.00.00.0x.xx, is never learnt), and the
+//!   AMDs a global AME provokes.
 //! - **Renames.** Whenever the name the link uses for an alias changes, it queues
 //!   [`LinkEvent::PeerRenamed`]: on learning (provisional -> Node ID), on eviction of the least
 //!   recently used entry from the full cache (Node ID -> provisional), and on a global AME for
@@ -31,6 +26,11 @@
 //!   [`CanConfig::alias_cache_size`] renames plus other events, so a global AME never drops
 //!   one. With renames applied above the link (the rule on [`CanLink::handle_frame`]),
 //!   evicting an entry loses no message and no stream.
+//! - **Duplicate Node ID.** An AMD, Verified Node ID or Initialization Complete carrying this
+//!   node's Node ID from another alias means another node holds it (CFT §6.2.5): the link
+//!   reports [`LinkEvent::DuplicateNodeId`], saying whether it came within
+//!   [`CanConfig::newcomer_window`] of this node's login (this node is then the newcomer: its
+//!   owner should send the well-known event and [`leave`](CanLink::leave)), and goes on.
 //! - **Outbound.** A message addressed to a provisional name goes straight to that alias: no
 //!   cache lookup, no AME. A message to a real Node ID goes to its cached alias, or waits for
 //!   an AME answer and is dropped with [`LinkEvent::Unreachable`] after `resolve_timeout`.
@@ -101,20 +101,17 @@ pub struct CanConfig {
     /// Messages accepted by [`CanLink::send`] and not yet framed (including those waiting
     /// for an alias). More are refused with [`SendError::QueueFull`].
     pub transmit_queue_limit: usize,
-    /// Frames the link itself queues (AME, OIR, Verify Node ID, Datagram Rejected, and
+    /// Frames the link itself queues (AME, OIR, Datagram Rejected, and
     /// Initialization Complete after a re-login, first into the queue emptied with the old
     /// alias); more are dropped and counted.
     pub frame_queue_limit: usize,
-    /// How long to wait for an AME answer for a Node ID we want to send to; and the wait
-    /// after the first Verify Node ID to an alias being learnt (doubled after each next one).
+    /// How long to wait for an AME answer for a Node ID we want to send to.
     pub resolve_timeout: Duration,
-    /// Aliases whose Node ID is being asked for at once (addressed Verify Node ID).
-    pub learn_slots: usize,
-    /// Verify Node ID frames sent to an alias being learnt, in all, before giving up.
-    pub learn_attempts: u32,
-    /// Ask for our own Node ID (AME) before claiming it, waiting this long for an answer
-    /// ([`AliasLogin::with_node_id_check`]); `None` (the default) does not ask.
-    pub node_id_check: Option<Duration>,
+    /// A duplicate Node ID found within this long of the alias being permitted makes this
+    /// node the newcomer ([`LinkEvent::DuplicateNodeId`]): the node that was there first
+    /// answers the newcomer's announcements within it (the global Verify Node ID naming
+    /// itself that nodes send after Initialization Complete).
+    pub newcomer_window: Duration,
 }
 
 impl Default for CanConfig {
@@ -130,10 +127,8 @@ impl Default for CanConfig {
             transmit_queue_limit: 64,
             frame_queue_limit: 16,
             resolve_timeout: Duration::from_secs(1),
-            learn_slots: 16,
-            learn_attempts: 3,
+            newcomer_window: Duration::from_millis(500),
             datagram_slots: 4,
-            node_id_check: None,
         }
     }
 }
@@ -154,10 +149,16 @@ pub enum LinkEvent {
         /// The released alias.
         alias: NodeAlias,
     },
-    /// Another node announced this node's Node ID: the link sends nothing more.
+    /// Another node announced this node's Node ID (AMD, Verified Node ID or Initialization
+    /// Complete from another alias). The link goes on; it reports one alias at most once a
+    /// second. Send the well-known event Duplicate Node ID Detected; a `newcomer` should then
+    /// [`leave`](CanLink::leave) the network, the node that was there first keeps running.
     DuplicateNodeId {
         /// That node's alias.
         other: NodeAlias,
+        /// Found within [`CanConfig::newcomer_window`] of this node's login: this node came
+        /// second.
+        newcomer: bool,
     },
     /// A peer released its alias (AMR), or its alias now maps to another Node ID. Call
     /// `StreamEndpoint::peer_lost(node)`.
@@ -199,8 +200,8 @@ pub enum LinkEvent {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum SendError {
-    /// A duplicate Node ID stopped the link.
-    #[error("the link stopped after a duplicate Node ID")]
+    /// The link has left the network ([`CanLink::leave`]).
+    #[error("the link has left the network")]
     Stopped,
     /// [`CanConfig::transmit_queue_limit`] messages are queued.
     #[error("the transmit queue is full")]
@@ -230,7 +231,8 @@ pub struct LinkStats {
     pub not_for_us: u32,
     /// Frames of the reserved formats 0 and 6 ignored.
     pub unsupported_ignored: u32,
-    /// Global messages claiming our Node ID from another alias.
+    /// AMD, Verified Node ID or Initialization Complete claiming our Node ID from another
+    /// alias (each a duplicate Node ID; the messages are not delivered).
     pub own_node_claims: u32,
     /// 0x2041: a middle or last frame of an addressed message without a first (datagrams:
     /// `datagram_errors`).
@@ -245,13 +247,6 @@ pub struct LinkStats {
     pub datagram_errors: ReassemblyErrorCounts,
     /// Messages delivered with a provisional name (their sender's Node ID was not cached).
     pub provisional_deliveries: u32,
-    /// Addressed Verify Node ID frames sent to learn an alias's Node ID (first asks and
-    /// retries).
-    pub verifies_sent: u32,
-    /// Aliases whose Node ID was not learnt after `learn_attempts` Verify Node ID frames.
-    pub learning_given_up: u32,
-    /// Aliases not asked because `learn_slots` aliases were being asked already.
-    pub learning_table_full: u32,
     /// Messages to send dropped because no alias was found for their destination.
     pub unresolved_dropped: u32,
     /// Messages refused by `send`.
@@ -300,24 +295,13 @@ enum Payload<'a> {
     Reassembled(usize),
 }
 
-/// An alias whose Node ID is being asked for.
-#[derive(Debug, Clone, Copy)]
-#[repr(C)] // Fields in the order written: short Thumb loads reach the ones read first.
-struct Learning {
-    alias: NodeAlias,
-    /// Verify Node ID frames sent so far.
-    asked: u32,
-    /// When to ask again, or give up.
-    deadline: Instant,
-}
-
 /// One node's CAN adapter: alias login, framing, reassembly (messages and datagrams) and
 /// alias resolution, so that the stream endpoint speaks in Node IDs only. See the crate
 /// documentation for the drive loop.
 ///
 /// A peer whose Node ID is not cached is served at once under its provisional name
-/// ([`NodeAlias::provisional_node_id`]); its Node ID is learnt in the background (addressed
-/// Verify Node ID for messages to us, never for global ones) and every change of the name of
+/// ([`NodeAlias::provisional_node_id`]); its Node ID is learnt from what it sends anyway
+/// (AMD, Verified Node ID, Initialization Complete), never asked for, and every change of the name of
 /// an alias is reported as [`LinkEvent::PeerRenamed`]: learnt (provisional -> Node ID),
 /// evicted from the full cache or a global AME (Node ID -> provisional). A mapping to another
 /// Node ID than cached reports [`LinkEvent::PeerLost`] for the old one; an AMR reports
@@ -339,8 +323,12 @@ pub struct CanLink {
     current: Option<Fragments<Vec<u8>>>,
     /// Messages waiting for their destination's alias (an AME answer).
     unresolved: Queue<Outgoing>,
-    /// [`CanConfig::learn_slots`] slots, `None` when free (fixed: no growing, no moving).
-    learning: Vec<Option<Learning>>,
+    /// When the alias was last permitted (for [`CanConfig::newcomer_window`]).
+    permitted_at: Instant,
+    /// The last duplicate Node ID reported: the other alias, and when.
+    last_duplicate: Option<(NodeAlias, Instant)>,
+    /// [`leave`](Self::leave) was called: AMR goes out once the queued messages have.
+    leaving: bool,
     events: Queue<LinkEvent>,
     stats: LinkStats,
 }
@@ -349,13 +337,7 @@ impl CanLink {
     /// A link for `node`, starting its alias login at `now` (the CID frames are the first
     /// transmits). All tables are allocated here, at their configured bounds.
     pub fn new(now: Instant, node: NodeId, config: CanConfig) -> Self {
-        let login = AliasLogin::new(now, node, config.first_alias, config.reserve_wait)
-            .with_node_id_check(config.node_id_check);
-        let mut learning = Vec::with_capacity(config.learn_slots);
-        // Within the capacity just allocated: no grow path.
-        while learning.len() < config.learn_slots && learning.len() < learning.capacity() {
-            learning.push(None);
-        }
+        let login = AliasLogin::new(now, node, config.first_alias, config.reserve_wait);
         CanLink {
             node,
             login,
@@ -367,7 +349,9 @@ impl CanLink {
             messages: Queue::with_capacity(config.transmit_queue_limit),
             current: None,
             unresolved: Queue::with_capacity(config.transmit_queue_limit),
-            learning,
+            permitted_at: now,
+            last_duplicate: None,
+            leaving: false,
             events: Queue::with_capacity(event_bound(&config)),
             stats: LinkStats::default(),
             config,
@@ -422,11 +406,6 @@ impl CanLink {
         self.cache.len()
     }
 
-    /// Aliases whose Node ID is being asked for now (at most [`CanConfig::learn_slots`]).
-    pub fn learning(&self) -> usize {
-        self.learning.iter().flatten().count()
-    }
-
     /// Payload bytes held in partly reassembled messages and datagrams; never more than
     /// [`reassembly_bound`](Self::reassembly_bound).
     pub fn reassembly_in_use(&self) -> usize {
@@ -455,7 +434,18 @@ impl CanLink {
     /// `send` has room for another message. A driver that must not lose stream data polls
     /// the endpoint only while this holds (the endpoint keeps the rest queued).
     pub fn can_send(&self) -> bool {
-        self.login.state() != LoginState::Stopped && !self.queue_full()
+        !self.has_stopped() && !self.queue_full()
+    }
+
+    /// [`leave`](Self::leave) was called: the link takes no more messages.
+    fn has_stopped(&self) -> bool {
+        self.leaving || self.login.state() == LoginState::Stopped
+    }
+
+    /// The link has left the network: its AMR is out (or it never held an alias) and it will
+    /// send nothing more.
+    pub fn has_left(&self) -> bool {
+        self.login.state() == LoginState::Stopped
     }
 
     /// [`CanConfig::transmit_queue_limit`] messages are queued (ready or waiting for an alias).
@@ -481,7 +471,7 @@ impl CanLink {
     }
 
     fn enqueue(&mut self, now: Instant, message: Message) -> Result<(), SendError> {
-        if self.login.state() == LoginState::Stopped {
+        if self.has_stopped() {
             return Err(SendError::Stopped);
         }
         let addressed = message.mti.is_addressed();
@@ -526,6 +516,19 @@ impl CanLink {
         }
     }
 
+    /// Leaves the network, as a node does that found it came second with a duplicate Node
+    /// ID: every queued message is dropped, `farewell` goes out (a global message, such as
+    /// the well-known event Duplicate Node ID Detected), then AMR releases the alias (CFT
+    /// §6.2.4), and nothing more. `send` refuses from now on; [`has_left`](Self::has_left)
+    /// tells when the AMR is out.
+    pub fn leave(&mut self, farewell: Option<Message>) {
+        self.drop_traffic();
+        if let Some(message) = farewell.filter(|m| !m.mti.is_addressed()) {
+            self.messages.push_within(self.config.transmit_queue_limit, Outgoing::new(message, None));
+        }
+        self.leaving = true;
+    }
+
     // ----- outputs -----
 
     /// The next frame to put on the bus. Login frames first; once permitted, frames the link
@@ -553,12 +556,25 @@ impl CanLink {
                 return Some(frame);
             }
             self.current = None;
-            let Outgoing { message, destination, .. } = self.messages.pop_front()?;
+            let Some(Outgoing { message, destination, .. }) = self.messages.pop_front() else {
+                return self.leave_now();
+            };
             match Fragments::new(message.mti, alias, destination, message.payload) {
                 Ok(fragments) => self.current = Some(fragments),
                 Err(_) => bump(&mut self.stats.send_refused),
             }
         }
+    }
+
+    /// Once leaving and nothing is left to send but frames of the link's own: the AMR.
+    fn leave_now(&mut self) -> Option<CanFrame> {
+        if !self.leaving {
+            return None;
+        }
+        self.leaving = false;
+        self.frames.clear();
+        self.login.release();
+        self.login.poll_transmit()
     }
 
     /// The next event.
@@ -574,17 +590,14 @@ impl CanLink {
         for waiting in self.unresolved.iter() {
             earlier(&mut next, waiting.deadline);
         }
-        for entry in self.learning.iter().flatten() {
-            earlier(&mut next, Some(entry.deadline));
-        }
         next
     }
 
     // ----- inputs -----
 
     /// Runs every timer due at `now`: the login's reserve wait, reassembly timeouts (0x2011,
-    /// for messages and datagrams), alias resolutions that ran out, and the next Verify Node
-    /// ID (or giving up) for aliases being learnt. Early or repeated calls are harmless.
+    /// for messages and datagrams) and alias resolutions that ran out. Early or repeated
+    /// calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
         let event = self.login.timeout(now);
         self.login_event(now, event);
@@ -593,7 +606,6 @@ impl CanLink {
             let Some(key) = expired else { break };
             self.reassembly_error(key, ReassemblyError::Timeout);
         }
-        self.ask_again(now);
         loop {
             let expired = self.unresolved.iter().find(|u| u.deadline.is_some_and(|d| d <= now));
             let Some(node) = expired.and_then(|u| u.message.destination) else { break };
@@ -639,6 +651,7 @@ impl CanLink {
         let source = header.source;
         let message = match header.kind {
             FrameKind::AliasMapDefinition => {
+                // One with our Node ID is the login's to report.
                 if let Some(node) = NodeId::from_slice(data) {
                     self.learn(source, node);
                 }
@@ -663,7 +676,7 @@ impl CanLink {
         };
         if let Some(Received { mti, payload }) = message {
             let addressed = mti.is_addressed();
-            let name = self.name_sender(now, source, addressed);
+            let name = self.name_sender(source);
             let destination = addressed.then_some(self.node);
             let payload = match payload {
                 Payload::Frame(data) => data,
@@ -680,7 +693,10 @@ impl CanLink {
         if !mti.is_addressed() {
             if mti.announces_sender() {
                 match NodeId::from_slice(data) {
-                    Some(node) if node == self.node => return ignore(&mut self.stats.own_node_claims),
+                    Some(node) if node == self.node => {
+                        self.duplicate(now, source);
+                        return None;
+                    }
                     Some(node) => self.learn(source, node),
                     None => {}
                 }
@@ -760,19 +776,27 @@ impl CanLink {
     }
 
     /// The name of `source` for a whole message from it: its cached Node ID, or its
-    /// provisional name. A message to us (`addressed`: addressed, stream data, datagram) from
-    /// an alias not in the cache starts learning it; a global one draws nothing.
-    fn name_sender(&mut self, now: Instant, source: NodeAlias, addressed: bool) -> NodeId {
+    /// provisional name (nothing is asked: the Node ID is learnt from what the peer sends).
+    fn name_sender(&mut self, source: NodeAlias) -> NodeId {
         match self.cache.node(source) {
             Some(node) => node,
             None => {
                 bump(&mut self.stats.provisional_deliveries);
-                if addressed {
-                    self.start_learning(now, source);
-                }
                 source.provisional_node_id()
             }
         }
+    }
+
+    /// Another alias claimed our Node ID: reported, at most once a second per alias.
+    fn duplicate(&mut self, now: Instant, other: NodeAlias) {
+        bump(&mut self.stats.own_node_claims);
+        let again = Duration::from_secs(1);
+        if self.last_duplicate.is_some_and(|(alias, at)| alias == other && now < at + again) {
+            return;
+        }
+        self.last_duplicate = Some((other, now));
+        let newcomer = now < self.permitted_at + self.config.newcomer_window;
+        self.event(LinkEvent::DuplicateNodeId { other, newcomer });
     }
 
     /// Records `alias` <-> `node`, reports the renames it causes, and releases messages
@@ -781,7 +805,6 @@ impl CanLink {
         if node == self.node || NodeAlias::from_provisional(node).is_some() {
             return;
         }
-        self.stop_learning(alias);
         let previous = self.cache.peek_node(alias);
         if let Some(old) = previous.filter(|old| *old != node) {
             self.event(LinkEvent::PeerLost { node: old, alias });
@@ -806,7 +829,6 @@ impl CanLink {
     fn forget(&mut self, alias: NodeAlias) {
         self.reassembly.forget_source(alias);
         self.datagrams.forget_source(alias);
-        self.stop_learning(alias);
         let dropped = self.messages.retain(|m| m.destination != Some(alias));
         add(&mut self.stats.messages_dropped, dropped);
         let node = self.cache.remove_alias(alias).unwrap_or(alias.provisional_node_id());
@@ -823,68 +845,6 @@ impl CanLink {
         while let Some((alias, node)) = self.cache.pop() {
             self.unname(alias, node);
         }
-    }
-
-    /// Stops asking `alias` for its Node ID (each alias is asked at most once at a time).
-    fn stop_learning(&mut self, alias: NodeAlias) {
-        for slot in self.learning.iter_mut() {
-            if slot.is_some_and(|l| l.alias == alias) {
-                *slot = None;
-            }
-        }
-    }
-
-    /// Starts asking `alias` for its Node ID, if it is not asked already and there is room.
-    fn start_learning(&mut self, now: Instant, alias: NodeAlias) {
-        if self.config.learn_attempts == 0 {
-            return;
-        }
-        let mut free = None;
-        for slot in self.learning.iter_mut() {
-            match slot {
-                Some(learning) if learning.alias == alias => return,
-                None if free.is_none() => free = Some(slot),
-                _ => {}
-            }
-        }
-        let Some(free) = free else {
-            return bump(&mut self.stats.learning_table_full);
-        };
-        *free = Some(Learning { alias, asked: 1, deadline: now + self.config.resolve_timeout });
-        self.send_verify(alias);
-    }
-
-    /// Asks again each alias whose wait ran out, waiting twice as long as before, or gives it
-    /// up after `learn_attempts` asks.
-    fn ask_again(&mut self, now: Instant) {
-        for index in 0..self.learning.len() {
-            let Some(&Some(entry)) = self.learning.get(index) else { continue };
-            if entry.deadline > now {
-                continue;
-            }
-            if entry.asked >= self.config.learn_attempts {
-                if let Some(slot) = self.learning.get_mut(index) {
-                    *slot = None;
-                }
-                bump(&mut self.stats.learning_given_up);
-            } else {
-                // Twice the last wait: `resolve_timeout` times 2^asked, without a 64-bit shift.
-                let mut wait = self.config.resolve_timeout.as_micros();
-                for _ in 0..entry.asked.min(32) {
-                    wait = wait.saturating_add(wait);
-                }
-                let deadline = now + Duration::from_micros(wait);
-                if let Some(slot) = self.learning.get_mut(index) {
-                    *slot = Some(Learning { asked: entry.asked + 1, deadline, ..entry });
-                }
-                self.send_verify(entry.alias);
-            }
-        }
-    }
-
-    fn send_verify(&mut self, alias: NodeAlias) {
-        bump(&mut self.stats.verifies_sent);
-        self.queue_addressed(Mti::VERIFY_NODE_ID_ADDRESSED, alias, &[]);
     }
 
     /// Counts an error of the message or datagram `key` and answers it: a datagram with
@@ -936,6 +896,7 @@ impl CanLink {
         if let Some(event) = event {
             match event {
                 LoginEvent::Permitted { alias } => {
+                    self.permitted_at = now;
                     if self.announced {
                         // After a re-login the endpoint will not announce the node again: the
                         // link does, first of all (its frame queue was emptied with the alias).
@@ -949,17 +910,14 @@ impl CanLink {
                     self.drop_traffic();
                     self.event(LinkEvent::AliasLost { alias });
                 }
-                LoginEvent::DuplicateNodeId { other } => {
-                    self.drop_traffic();
-                    self.event(LinkEvent::DuplicateNodeId { other });
-                }
+                LoginEvent::DuplicateNodeId { other } => self.duplicate(now, other),
                 _ => {}
             }
         }
     }
 
     /// Everything tied to the old alias goes: queued messages, partial messages and
-    /// datagrams, frames of the link's own, aliases being learnt.
+    /// datagrams, frames of the link's own.
     fn drop_traffic(&mut self) {
         let queued = self.messages.len() + self.unresolved.len() + usize::from(self.current.is_some());
         add(&mut self.stats.messages_dropped, queued);
@@ -969,7 +927,6 @@ impl CanLink {
         self.frames.clear();
         self.reassembly.clear();
         self.datagrams.clear();
-        self.learning.fill(None);
     }
 
     /// Sends an AME for every node waiting for its alias that has not had one, once permitted.

@@ -6,17 +6,13 @@
 //!    ^  |                                            |
 //!    |  +-- frame from our alias: next alias, CIDs   +-- CID with our alias: RID (defence)
 //!    +------- other frame from our alias: AMR, Lost -+
-//! any state --(AMD with our Node ID from another alias)--> Stopped (sends nothing more)
+//! Permitted --(release: AMR)--> Stopped (sends nothing more)
 //! ```
 //!
-//! With [`AliasLogin::with_node_id_check`], the node asks before it claims its Node ID: after
-//! the reserve wait it sends RID and an AME carrying its own Node ID, waits once more, and
-//! only then sends AMD. A node already holding that Node ID answers the AME with its AMD
-//! (CFT §6.2.3), which stops this login *before* it has announced anything that would make
-//! the running node stop too (CFT §6.2.5 stops every node that sees its own Node ID in an
-//! AMD). The standard lists only CID, RID and AMD for a node in the Inhibited state; the AME
-//! is the one question the standard makes a holder of a Node ID answer, which is why the
-//! check is opt-in.
+//! An AMD carrying this node's Node ID from another alias means a duplicate Node ID (CFT
+//! §6.2.5): the login reports it and goes on, since only its owner can tell whether this node
+//! is the newcomer (which then leaves, [`AliasLogin::release`]) or the node that was there
+//! first (which keeps running).
 
 use openlcb_stream::{Duration, Instant, NodeId};
 
@@ -47,7 +43,8 @@ pub enum LoginState {
         /// The alias.
         alias: NodeAlias,
     },
-    /// Another node announced our Node ID: nothing more is sent until the node is reset.
+    /// The alias was released ([`AliasLogin::release`]): nothing more is sent until the node
+    /// is reset.
     Stopped,
 }
 
@@ -72,7 +69,8 @@ pub enum LoginEvent {
         /// The released alias.
         alias: NodeAlias,
     },
-    /// Another node (`other`) announced this node's Node ID. The login has stopped.
+    /// Another node (`other`) announced this node's Node ID in an AMD. The login goes on; its
+    /// owner decides whether to [`release`](AliasLogin::release) the alias.
     DuplicateNodeId {
         /// The alias of the other node.
         other: NodeAlias,
@@ -107,10 +105,6 @@ pub struct AliasLogin {
     transmits: Queue<CanFrame>,
     events: Queue<LoginEvent>,
     stats: LoginStats,
-    /// How long to wait for an answer to the AME for our own Node ID; `None`: no check.
-    node_id_check: Option<Duration>,
-    /// RID and the AME have gone out for the alias being checked.
-    asked: bool,
 }
 
 impl AliasLogin {
@@ -128,20 +122,9 @@ impl AliasLogin {
             transmits: Queue::with_capacity(QUEUE_BOUND),
             events: Queue::new(),
             stats: LoginStats::default(),
-            node_id_check: None,
-            asked: false,
         };
         login.check(now, alias);
         login
-    }
-
-    /// Asks whether another node holds this Node ID before claiming it (see the module
-    /// documentation), waiting `wait` for an answer; `None` turns the check off (the default).
-    /// A node that answers ends the login with [`LoginEvent::DuplicateNodeId`] before this
-    /// node has sent AMD.
-    pub fn with_node_id_check(mut self, wait: Option<Duration>) -> Self {
-        self.node_id_check = wait;
-        self
     }
 
     // ----- getters -----
@@ -204,22 +187,11 @@ impl AliasLogin {
             if now < deadline {
                 return None;
             }
-            if !self.asked {
-                self.send(FrameKind::ReserveId, alias, false);
-            }
-            match self.node_id_check {
-                Some(wait) if !self.asked => {
-                    // Alias reserved; before claiming the Node ID, ask who holds it.
-                    self.asked = true;
-                    self.send(FrameKind::AliasMapEnquiry, alias, true);
-                    self.state = LoginState::Checking { alias, deadline: now + wait };
-                }
-                _ => {
-                    self.send(FrameKind::AliasMapDefinition, alias, true);
-                    self.state = LoginState::Permitted { alias };
-                    return Some(LoginEvent::Permitted { alias });
-                }
-            }
+            // CFT §6.2.1: RID ends the reservation, AMD enters Permitted.
+            self.send(FrameKind::ReserveId, alias, false);
+            self.send(FrameKind::AliasMapDefinition, alias, true);
+            self.state = LoginState::Permitted { alias };
+            return Some(LoginEvent::Permitted { alias });
         }
         None
     }
@@ -265,9 +237,7 @@ impl AliasLogin {
                 }
             }
             FrameKind::AliasMapDefinition if claimed == Some(self.node) && !self.holds(header.source) => {
-                // CFT §6.2.5: another node announced our Node ID. Send nothing more.
-                self.state = LoginState::Stopped;
-                self.transmits.clear();
+                // CFT §6.2.5: another node announced our Node ID.
                 return Some(LoginEvent::DuplicateNodeId { other: header.source });
             }
             _ => {}
@@ -299,6 +269,19 @@ impl AliasLogin {
         }
     }
 
+    // ----- commands -----
+
+    /// Leaves the network: AMR for the permitted alias (CFT §6.2.4; nothing for an alias still
+    /// being checked), then nothing more. Frames queued before are dropped, the AMR is not.
+    pub fn release(&mut self) {
+        let permitted = self.alias();
+        self.transmits.clear();
+        if let Some(alias) = permitted {
+            self.send(FrameKind::AliasMapReset, alias, true);
+        }
+        self.state = LoginState::Stopped;
+    }
+
     // ----- helpers -----
 
     /// The alias is ours: permitted, or being checked.
@@ -328,7 +311,6 @@ impl AliasLogin {
             self.send(FrameKind::CheckId { sequence, node_id_bits }, alias, false);
         }
         self.state = LoginState::Checking { alias, deadline: now + self.reserve_wait };
-        self.asked = false;
     }
 
     fn has_queued(&self, kind: FrameKind) -> bool {
@@ -467,52 +449,42 @@ mod tests {
         assert_eq!(l.stats().enquiry_answers, 2);
     }
 
-    fn checked_login() -> AliasLogin {
-        login().with_node_id_check(Some(Duration::from_millis(200)))
-    }
-
     #[test]
-    fn checking_with_node_id_check_asks_before_claiming() {
-        let mut l = checked_login();
-        ids(&mut l);
-        l.handle_timeout(Instant::from_millis(200));
-        let sent: Vec<CanFrame> = core::iter::from_fn(|| l.poll_transmit()).collect();
-        let sent_ids: Vec<u32> = sent.iter().map(|f| f.raw_id()).collect();
-        assert_eq!(sent_ids, [0x1070_0555, 0x1070_2555], "RID, then AME");
-        assert_eq!(sent[1].payload(), &NodeId::new(NODE).unwrap().to_bytes(), "the AME carries our own Node ID");
-        assert_eq!(l.poll_event(), None, "not permitted yet");
-        l.handle_timeout(Instant::from_millis(399));
-        assert!(ids(&mut l).is_empty());
-        l.handle_timeout(Instant::from_millis(400));
-        assert_eq!(ids(&mut l), [0x1070_1555], "AMD only after nobody answered");
-        assert_eq!(l.poll_event(), Some(LoginEvent::Permitted { alias: alias(0x555) }));
-    }
-
-    #[test]
-    fn checking_amd_answering_our_enquiry_stops_before_claiming() {
-        let mut l = checked_login();
-        ids(&mut l);
-        l.handle_timeout(Instant::from_millis(200));
-        ids(&mut l);
-        // The running node with our Node ID answers the AME.
-        l.handle_frame(Instant::from_millis(210), &frame(0x1070_1777, &NodeId::new(NODE).unwrap().to_bytes()));
-        assert_eq!(l.poll_event(), Some(LoginEvent::DuplicateNodeId { other: alias(0x777) }));
-        assert_eq!(l.state(), LoginState::Stopped);
-        l.handle_timeout(Instant::from_millis(9000));
-        assert!(ids(&mut l).is_empty(), "no AMD ever went out: the running node keeps its ID");
-    }
-
-    #[test]
-    fn amd_with_our_node_id_from_another_alias_stops_everything() {
+    fn permitted_amd_with_our_node_id_from_another_alias_is_reported_and_the_login_goes_on() {
         let mut l = login();
         l.handle_timeout(Instant::from_millis(200));
         ids(&mut l);
         l.poll_event();
         l.handle_frame(Instant::from_millis(300), &frame(0x1070_1777, &NodeId::new(NODE).unwrap().to_bytes()));
         assert_eq!(l.poll_event(), Some(LoginEvent::DuplicateNodeId { other: alias(0x777) }));
-        assert_eq!(l.state(), LoginState::Stopped);
+        assert_eq!(l.alias(), Some(alias(0x555)), "the node that was there first keeps running");
         l.handle_frame(Instant::from_millis(300), &frame(0x1070_2777, &[]));
+        assert_eq!(ids(&mut l), [0x1070_1555], "it still answers a global AME");
+    }
+
+    #[test]
+    fn permitted_release_sends_amr_and_then_nothing() {
+        let mut l = login();
+        l.handle_timeout(Instant::from_millis(200));
+        ids(&mut l);
+        l.handle_frame(Instant::from_millis(300), &frame(0x1070_2777, &[]));
+        l.release();
+        let sent: Vec<CanFrame> = core::iter::from_fn(|| l.poll_transmit()).collect();
+        assert_eq!(sent.iter().map(|f| f.raw_id()).collect::<Vec<_>>(), [0x1070_3555], "AMR only");
+        assert_eq!(sent[0].payload(), &NodeId::new(NODE).unwrap().to_bytes(), "the AMR carries our Node ID");
+        assert_eq!(l.state(), LoginState::Stopped);
+        l.handle_frame(Instant::from_millis(400), &frame(0x1070_2777, &[]));
+        l.handle_frame(Instant::from_millis(400), &frame(0x1712_3555, &[]));
         l.handle_timeout(Instant::from_millis(9000));
         assert!(ids(&mut l).is_empty());
+    }
+
+    #[test]
+    fn checking_release_sends_nothing() {
+        let mut l = login();
+        ids(&mut l);
+        l.release();
+        assert!(ids(&mut l).is_empty());
+        assert_eq!(l.state(), LoginState::Stopped);
     }
 }

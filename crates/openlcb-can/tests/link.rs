@@ -17,7 +17,12 @@ fn login_clean_holds_messages_until_permitted() {
     assert_eq!(solo.sent(), [":X17050123N;", ":X16101123N;", ":X15012123N;", ":X14200123N;"]);
     assert_eq!(solo.node.link.poll_timeout(), Some(Instant::from_millis(200)));
     assert_eq!(solo.advance_ms(199), Vec::<String>::new(), "the core's Initialization Complete waits");
-    assert_eq!(solo.advance_ms(1), [":X10700123N;", ":X10701123N050101012200;", ":X19100123N050101012200;"]);
+    // RID and AMD, nothing between them (CFT §6.2.1); then Initialization Complete and the
+    // global Verify Node ID naming itself that a node holding the same Node ID answers.
+    assert_eq!(
+        solo.advance_ms(1),
+        [":X10700123N;", ":X10701123N050101012200;", ":X19100123N050101012200;", ":X19490123N050101012200;"]
+    );
     assert_eq!(solo.node.link_events, [LinkEvent::Permitted { alias: alias(0x123) }]);
     assert_eq!(solo.node.link.poll_timeout(), None);
 }
@@ -38,7 +43,10 @@ fn checking_collision_picks_a_new_alias_and_waits_again() {
     assert_eq!(sent, [":X17050343N;", ":X16101343N;", ":X15012343N;", ":X14200343N;"]);
     assert_eq!(solo.node.link.login().stats().conflicts, 1);
     assert_eq!(solo.advance_ms(199), Vec::<String>::new(), "a full wait for the new alias");
-    assert_eq!(solo.advance_ms(1), [":X10700343N;", ":X10701343N050101012200;", ":X19100343N050101012200;"]);
+    assert_eq!(
+        solo.advance_ms(1),
+        [":X10700343N;", ":X10701343N050101012200;", ":X19100343N050101012200;", ":X19490343N050101012200;"]
+    );
     assert_eq!(solo.node.link.alias(), Some(alias(0x343)));
 }
 
@@ -83,10 +91,39 @@ fn global_ame_drops_the_cache_and_the_next_send_asks_again() {
 }
 
 #[test]
-fn duplicate_node_id_stops_the_link() {
+fn duplicate_node_id_after_the_newcomer_window_is_reported_and_the_link_goes_on() {
     let mut solo = Solo::permitted();
-    assert_eq!(solo.inject(&[":X10701777N050101012200;"]), Vec::<String>::new());
-    assert_eq!(solo.node.link_events, [LinkEvent::DuplicateNodeId { other: alias(0x777) }]);
+    solo.advance_ms(1000);
+    // The newcomer's AMD, then its Initialization Complete: one report for its alias.
+    assert_eq!(solo.inject(&[":X10701777N050101012200;", ":X19100777N050101012200;"]), Vec::<String>::new());
+    assert_eq!(solo.node.link_events, [LinkEvent::DuplicateNodeId { other: alias(0x777), newcomer: false }]);
+    assert_eq!(solo.node.link.stats().own_node_claims, 2);
+    assert!(solo.node.delivered.is_empty(), "a claim of our Node ID is not delivered");
+    // A Verified Node ID with our Node ID from a third alias (OlcbChecker's me50_dup).
+    solo.inject(&[":X19170888N050101012200;"]);
+    assert_eq!(solo.node.link_events[1], LinkEvent::DuplicateNodeId { other: alias(0x888), newcomer: false });
+    // The node that was there first keeps running: it answers and sends.
+    assert_eq!(solo.inject(&[":X10702777N;"]), [":X10701123N050101012200;"]);
+    let msg = Message::global(Mti::VERIFY_NODE_ID_GLOBAL, node_id(A_ID), Vec::new());
+    solo.node.link.send(solo.now, msg).unwrap();
+    assert_eq!(solo.sent(), [":X19490123N;"]);
+}
+
+#[test]
+fn duplicate_node_id_in_the_newcomer_window_and_leave_sends_the_farewell_then_amr_then_nothing() {
+    let mut solo = Solo::permitted();
+    // The node that was there first answers our Verify Node ID at once.
+    solo.inject(&[":X19170777N050101012200;"]);
+    assert_eq!(solo.node.link_events, [LinkEvent::DuplicateNodeId { other: alias(0x777), newcomer: true }]);
+    let queued = Message::global(Mti::VERIFY_NODE_ID_GLOBAL, node_id(A_ID), Vec::new());
+    solo.node.link.send(solo.now, queued).unwrap();
+    let report = Message::global(Mti(0x05B4), node_id(A_ID), &[1, 1, 0, 0, 0, 0, 2, 1][..]);
+    solo.node.link.leave(Some(report));
+    assert!(!solo.node.link.has_left());
+    let frames: Vec<String> =
+        core::iter::from_fn(|| solo.node.link.poll_transmit()).map(|f| common::text(&f)).collect();
+    assert_eq!(frames, [":X195B4123N0101000000000201;", ":X10703123N050101012200;"], "the queued message is dropped");
+    assert!(solo.node.link.has_left());
     let msg = Message::global(Mti::VERIFY_NODE_ID_GLOBAL, node_id(A_ID), Vec::new());
     assert_eq!(solo.node.link.send(solo.now, msg), Err(SendError::Stopped));
     assert_eq!(solo.inject(&[":X10702777N;", ":X17999123N;"]), Vec::<String>::new());

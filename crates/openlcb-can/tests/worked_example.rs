@@ -31,8 +31,15 @@ fn login_frames_of_a_and_b() {
     bus.advance_to(Instant::from_millis(199));
     assert_eq!(bus.trace.len(), 8);
     bus.advance_to(Instant::from_millis(200));
-    assert_eq!(bus.sent_by(A)[4..], [":X10700123N;", ":X10701123N050101012200;", ":X19100123N050101012200;"]);
-    assert_eq!(bus.sent_by(B)[4..], [":X10700456N;", ":X10701456N050101012201;", ":X19100456N050101012201;"]);
+    let (a, b) = (bus.sent_by(A), bus.sent_by(B));
+    assert_eq!(
+        a[4..],
+        [":X10700123N;", ":X10701123N050101012200;", ":X19100123N050101012200;", ":X19490123N050101012200;"]
+    );
+    assert_eq!(
+        b[4..],
+        [":X10700456N;", ":X10701456N050101012201;", ":X19100456N050101012201;", ":X19490456N050101012201;"]
+    );
     // Each learnt the other's alias from its AMD / Initialization Complete.
     assert_eq!(bus.nodes[A].link.alias_of(node_id(B_ID)).map(|a| a.as_raw()), Some(0x456));
     assert_eq!(bus.nodes[B].link.alias_of(node_id(A_ID)).map(|a| a.as_raw()), Some(0x123));

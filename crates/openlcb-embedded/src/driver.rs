@@ -2,7 +2,7 @@
 
 use embedded_can::Frame;
 use embedded_can::nb::Can;
-use openlcb_can::{CanFrame, CanLink};
+use openlcb_can::{CanFrame, CanLink, LinkEvent};
 use openlcb_stream::Instant;
 
 use crate::upper::{Clock, Upper};
@@ -229,6 +229,10 @@ impl<C: Can, K: Clock> Driver<C, K> {
     /// Link events up, upper-layer messages down while the link has room.
     fn pump<U: Upper + ?Sized>(&mut self, now: Instant, upper: &mut U) {
         while let Some(event) = self.link.poll_event() {
+            if matches!(event, LinkEvent::DuplicateNodeId { newcomer: true, .. }) {
+                // Another node had this Node ID first: release the alias and go quiet.
+                self.link.leave(None);
+            }
             upper.handle_link_event(now, event);
         }
         while self.link.can_send() {

@@ -41,13 +41,16 @@ macro_rules! upper_by_name {
                 <$layer>::handle_message(self, now, message);
             }
 
-            /// Alias lost or Node ID taken: everything open ends (`link_lost`); a peer
+            /// Alias lost, or Node ID taken by a node that was there first: everything open
+            /// ends (`link_lost`; the driver has the link leave); a peer
             /// released its alias or could not be found: what is open with it ends
             /// (`peer_lost`); a peer renamed: what is open with it goes on under the new
             /// name (`rename_peer`).
             fn handle_link_event(&mut self, _now: Instant, event: LinkEvent) {
                 match event {
-                    LinkEvent::AliasLost { .. } | LinkEvent::DuplicateNodeId { .. } => self.link_lost(),
+                    LinkEvent::AliasLost { .. } | LinkEvent::DuplicateNodeId { newcomer: true, .. } => {
+                        self.link_lost()
+                    }
                     LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.peer_lost(node),
                     LinkEvent::PeerRenamed { from, to, .. } => self.rename_peer(from, to),
                     _ => {}

@@ -91,9 +91,10 @@ fn nodes_on_memory_bus_announce_themselves_and_answer_snip_by_alias() {
     for _ in 0..64 {
         let pa = a.poll(&mut na).unwrap();
         let pb = b.poll(&mut nb).unwrap();
-        if a.link().alias().is_some() && b.link().alias().is_some() && bus.stats().frames == 14 {
-            // 4 CID + RID + AMD + Initialization Complete (the node's) each.
-            assert_eq!(a.stats().frames_transmitted, 7);
+        if a.link().alias().is_some() && b.link().alias().is_some() && bus.stats().frames == 16 {
+            // 4 CID + RID + AMD + Initialization Complete and Verify Node ID naming itself
+            // (the node's) each.
+            assert_eq!(a.stats().frames_transmitted, 8);
             na.request_snip(time.get(), node(B)).unwrap();
         }
         while let Some(event) = na.poll_event() {

@@ -162,7 +162,7 @@ fn traffic_between_nodes_of_one_side_stays_there() {
 }
 
 #[test]
-fn another_node_with_the_proxied_node_id_stops_its_traffic() {
+fn another_node_with_the_proxied_node_id_makes_the_proxy_release_its_alias_and_go_quiet() {
     let mut net = started();
     let before = net.from_gateway.len();
     net.gateway.handle_can_frame(net.now, &frame(0x1070_1777, &node_id(FULL_NODE).to_bytes()));
@@ -170,7 +170,8 @@ fn another_node_with_the_proxied_node_id_stops_its_traffic() {
     net.gateway.handle_message(net.now, verify.as_ref());
     net.settle();
     assert!(net.gateway_events.iter().any(|e| matches!(e, GatewayEvent::DuplicateNodeId { .. })));
-    assert_eq!(net.from_gateway.len(), before, "nothing more is sent for the node");
+    let sent: Vec<u32> = net.from_gateway[before..].iter().map(|f| f.raw_id() & !0xFFF).collect();
+    assert_eq!(sent, [0x1070_3000], "AMR for the proxy's alias, then nothing more for the node");
     assert_eq!(net.gateway.stats().lost_with_alias, 1);
 }
 

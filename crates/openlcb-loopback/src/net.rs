@@ -1197,6 +1197,11 @@ fn apply_link_events(link: &mut CanLink, node: &mut Node) -> bool {
             LinkEvent::AliasLost { .. } => node.link_lost(),
             LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
             LinkEvent::PeerRenamed { from, to, .. } => node.rename_peer(from, to),
+            LinkEvent::DuplicateNodeId { newcomer: true, .. } => {
+                link.leave(Some(node.duplicate_node_id_report()));
+                node.link_lost();
+            }
+            LinkEvent::DuplicateNodeId { newcomer: false, .. } => node.report_duplicate_node_id(),
             _ => {}
         }
     }

@@ -153,5 +153,5 @@ pub use memconfig::{
     MemoryConfigOptions, MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, MemorySpace,
     RamSpace, ReadOnlySpace, SpaceError, TransferPath,
 };
-pub use node::{Node, NodeEvent, NodeStats};
+pub use node::{DUPLICATE_NODE_ID_DETECTED, Node, NodeEvent, NodeStats};
 pub use snip::{MAX_REPLY_LEN, SnipFailure, SnipField, SnipInfo, SnipRequestError, SnipTooLong};

@@ -17,6 +17,9 @@ use crate::memconfig::{MemoryOperation, MemoryRequestError, TransferPath};
 use crate::snip::{PendingSnip, SnipFailure, SnipInfo, SnipRequestError};
 use crate::{DatagramStats, NodeConfig, Protocols};
 
+/// The well-known Event ID Duplicate Node ID Detected.
+pub const DUPLICATE_NODE_ID_DETECTED: u64 = 0x0101_0000_0000_0201;
+
 /// Something the application must know. Drain with [`Node::poll_event`] after every call.
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[non_exhaustive]
@@ -241,6 +244,9 @@ impl Node {
         };
         if config.send_initialization_complete {
             out.transmit(Message::initialization_complete(id));
+            // A node already holding this Node ID answers; the link sees its Verified Node ID
+            // from another alias and reports a duplicate (CFT §6.2.5; MN §3.3.2).
+            out.transmit(Message::global(Mti::VERIFY_NODE_ID_GLOBAL, id, id.to_bytes()));
         }
         let mut protocols = Protocols::DATAGRAM | Protocols::SIMPLE_NODE_INFORMATION | config.extra_protocols;
         if config.streams_enabled {
@@ -580,6 +586,22 @@ impl Node {
     /// ID (how a tool finds who is there).
     pub fn verify_all(&mut self) {
         self.out.transmit(Message::global(Mti::VERIFY_NODE_ID_GLOBAL, self.out.node, Vec::new()));
+    }
+
+    /// Tells the network that another node holds this node's Node ID, by the well-known
+    /// event Duplicate Node ID Detected (`01.01.00.00.00.00.02.01`, a Producer/Consumer
+    /// Event Report). Call it when the transport reports a duplicate (on CAN,
+    /// `LinkEvent::DuplicateNodeId`).
+    pub fn report_duplicate_node_id(&mut self) {
+        let report = self.duplicate_node_id_report();
+        self.out.transmit(report);
+    }
+
+    /// The message [`report_duplicate_node_id`](Self::report_duplicate_node_id) sends, for a
+    /// transport that sends it itself as it leaves the network (`CanLink::leave`).
+    pub fn duplicate_node_id_report(&self) -> Message {
+        let event = DUPLICATE_NODE_ID_DETECTED.to_be_bytes();
+        Message::global(Mti::PRODUCER_CONSUMER_EVENT_REPORT, self.out.node, event.to_vec())
     }
 
     /// Asks `peer` which protocols it supports; `ProtocolsReceived` follows if it answers.

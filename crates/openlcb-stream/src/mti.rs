@@ -48,6 +48,8 @@ impl Mti {
     pub const STREAM_DATA_PROCEED: Mti = Mti(0x0888);
     /// Stream Data Complete.
     pub const STREAM_DATA_COMPLETE: Mti = Mti(0x08A8);
+    /// Producer/Consumer Event Report (Event Transport): an event happened.
+    pub const PRODUCER_CONSUMER_EVENT_REPORT: Mti = Mti(0x05B4);
 
     /// The raw value.
     pub const fn as_raw(self) -> u16 {

@@ -139,9 +139,10 @@ impl Driver {
         loop {
             let busy = match self.step() {
                 Ok(busy) => busy,
-                Err(error) => return error,
+                Err(error) => return self.stop(error).await,
             };
-            if self.wire.is_up() {
+            let now = self.now();
+            if self.wire.is_up(now) {
                 if let Some(up) = up.take() {
                     let _ = up.send(());
                 }
@@ -163,7 +164,7 @@ impl Driver {
             tokio::select! {
                 read = self.reader.read(&mut self.read_buf) => {
                     if let Err(error) = self.received(read) {
-                        return error;
+                        return self.stop(error).await;
                     }
                 }
                 written = self.writer.write(self.wire.pending()), if want_write => {
@@ -184,6 +185,15 @@ impl Driver {
                 () = tokio::task::yield_now(), if busy => {}
             }
         }
+    }
+
+    /// Ends the drive loop with `error`; a node leaving the network for a duplicate Node ID
+    /// first writes its farewell (the well-known event, AMR), for at most a second.
+    async fn stop(&mut self, error: Error) -> Error {
+        if matches!(error, Error::DuplicateNodeId { .. }) {
+            let _ = tokio::time::timeout(std::time::Duration::from_secs(1), self.flush()).await;
+        }
+        error
     }
 
     /// When the pending output counts as stalled: [`NodeOptions::write_timeout`] after the
@@ -208,7 +218,7 @@ impl Driver {
         }
         let mut busy = false;
         for _ in 0..ROUNDS {
-            self.wire.poll_events(&mut self.stack)?;
+            self.wire.poll_events(now, &mut self.stack)?;
             self.node_events(now);
             let moved = self.feed_writes(now) + self.fill_reads(now);
             self.node_events(now);

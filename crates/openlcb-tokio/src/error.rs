@@ -42,20 +42,16 @@ pub enum Error {
     /// The CAN alias could not be used: another node has this Node ID, or the login stalled.
     #[error("CAN alias login failed: {0}")]
     Login(&'static str),
-    /// Another node on the network has this node's Node ID. Found at login (`at_login`: this
-    /// node asked before claiming it, and the other node answered), the node never joined;
-    /// found later (the other node announced it), this node stopped sending at once, as the
-    /// CAN frame transfer standard requires.
-    #[error("{}", if *.at_login {
-        format!("another node on the network already has Node ID {node}; this node did not join (choose another Node ID)")
-    } else {
-        format!("another node announced Node ID {node}, this node's own; this node stopped (two nodes must never share a Node ID)")
-    })]
+    /// Another node on the network already had this node's Node ID when this node joined:
+    /// it answered this node's announcements. This node sent the well-known event Duplicate
+    /// Node ID Detected, released its alias and left. (A node that was there first and sees
+    /// a newcomer with its Node ID keeps running: it sends the event and logs a warning.)
+    #[error(
+        "another node on the network already has Node ID {node}: this node reported Duplicate Node ID Detected, released its alias and left (give it another Node ID)"
+    )]
     DuplicateNodeId {
         /// The Node ID both nodes have.
         node: NodeId,
-        /// Found before this node claimed the ID (it never joined).
-        at_login: bool,
     },
     /// The destination refused the stream.
     #[error("node {peer} rejected the stream with code {code}{}", if code.class() == ReplyClass::Temporary { "; it may accept later" } else { "" })]

@@ -27,10 +27,11 @@ pub struct NodeOptions {
     /// decides incoming requests (`AcceptAll` by default: every accepted stream comes out of
     /// [`Node::accept`]).
     pub node: NodeConfig,
-    /// The CAN link's bounds and timers (GridConnect only). By default the node asks
-    /// whether its Node ID is taken before claiming it (200 ms more at login): a second node
-    /// with a running node's ID then fails with [`Error::DuplicateNodeId`] and the running
-    /// node is not disturbed.
+    /// The CAN link's bounds and timers (GridConnect only). After its login the node sends a
+    /// global Verify Node ID naming itself and joins only once
+    /// [`CanConfig::newcomer_window`] has passed without an answer: a second node with a
+    /// running node's ID then fails with [`Error::DuplicateNodeId`], and the running node
+    /// keeps running.
     pub can: CanConfig,
     /// How long to wait for the TCP connection and the alias login.
     pub connect_timeout: Duration,
@@ -43,12 +44,10 @@ pub struct NodeOptions {
 impl NodeOptions {
     /// Defaults for the node `node_id`.
     pub fn new(node_id: NodeId) -> Self {
-        let mut can = CanConfig::default();
-        can.node_id_check = Some(can.reserve_wait);
         NodeOptions {
             node_id,
             node: NodeConfig::default(),
-            can,
+            can: CanConfig::default(),
             connect_timeout: Duration::from_secs(5),
             write_timeout: Duration::from_secs(30),
         }

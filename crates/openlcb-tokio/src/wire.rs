@@ -44,23 +44,38 @@ pub struct WireStats {
 pub(crate) const HIGH_WATER: usize = 256 * 1024;
 
 /// Drains the CAN link's events into the node. Returns an error the node cannot recover
-/// from.
+/// from: a duplicate Node ID found as this node joined (it then leaves the network, the
+/// driver flushes its farewell).
 fn apply_link_events(
+    now: Instant,
     link: &mut CanLink,
-    permitted: &mut bool,
+    joining: &mut Joining,
     waiting: &mut VecDeque<Message>,
     node: &mut Node,
 ) -> Result<(), Error> {
     while let Some(event) = link.poll_event() {
         match event {
-            LinkEvent::Permitted { .. } => *permitted = true,
+            LinkEvent::Permitted { .. } => *joining = Joining::Until(now + link.config().newcomer_window),
             LinkEvent::AliasLost { .. } => {
-                *permitted = false;
+                *joining = Joining::LoggingIn;
                 node.link_lost();
             }
-            LinkEvent::DuplicateNodeId { .. } => {
+            LinkEvent::DuplicateNodeId { other, newcomer: true } => {
+                tracing::error!(
+                    alias = other.as_raw(),
+                    "duplicate Node ID: the node at this alias was here first; leaving"
+                );
+                waiting.clear();
+                link.leave(Some(node.duplicate_node_id_report()));
                 node.link_lost();
-                return Err(Error::DuplicateNodeId { node: link.node_id(), at_login: !*permitted });
+                return Err(Error::DuplicateNodeId { node: link.node_id() });
+            }
+            LinkEvent::DuplicateNodeId { other, newcomer: false } => {
+                tracing::warn!(
+                    alias = other.as_raw(),
+                    "duplicate Node ID: another node announced this node's Node ID; reporting it and staying"
+                );
+                node.report_duplicate_node_id();
             }
             LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
             LinkEvent::PeerRenamed { from, to, .. } => {
@@ -73,6 +88,17 @@ fn apply_link_events(
         }
     }
     Ok(())
+}
+
+/// How far a CAN node is in joining the network.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Joining {
+    /// The alias login runs.
+    LoggingIn,
+    /// The alias is permitted; a node already holding this Node ID may answer until then.
+    Until(Instant),
+    /// Joined.
+    Joined,
 }
 
 /// Messages handed to the CAN link at once; the rest wait in the driver's own queue (which
@@ -88,8 +114,8 @@ pub(crate) enum Wire {
         /// Encoded text; bytes before `taken` are written.
         out: Vec<u8>,
         taken: usize,
-        /// Set once the alias is permitted.
-        permitted: bool,
+        /// How far the node is in joining the network.
+        joining: Joining,
     },
     Tcp {
         link: TcpLink,
@@ -105,16 +131,22 @@ impl Wire {
                 waiting: VecDeque::new(),
                 out: Vec::with_capacity(HIGH_WATER + 4096),
                 taken: 0,
-                permitted: false,
+                joining: Joining::LoggingIn,
             },
             Protocol::Tcp => Wire::Tcp { link: TcpLink::new(node) },
         }
     }
 
-    /// The node may talk: its alias is permitted (always true on OpenLCB-TCP).
-    pub(crate) fn is_up(&self) -> bool {
+    /// The node has joined: its alias is permitted and nobody claimed its Node ID within the
+    /// newcomer window (always true on OpenLCB-TCP).
+    pub(crate) fn is_up(&mut self, now: Instant) -> bool {
         match self {
-            Wire::GridConnect { permitted, .. } => *permitted,
+            Wire::GridConnect { joining, .. } => {
+                if matches!(*joining, Joining::Until(at) if at <= now) {
+                    *joining = Joining::Joined;
+                }
+                *joining == Joining::Joined
+            }
             Wire::Tcp { .. } => true,
         }
     }
@@ -130,7 +162,7 @@ impl Wire {
     ) -> Result<(), Error> {
         stats.bytes_in += bytes.len() as u64;
         match self {
-            Wire::GridConnect { link, decoder, permitted, waiting, .. } => {
+            Wire::GridConnect { link, decoder, joining, waiting, .. } => {
                 let mut result = Ok(());
                 decoder.decode_all(bytes, |decoded| match decoded {
                     Ok(frame) => {
@@ -138,7 +170,7 @@ impl Wire {
                         link.handle_frame(now, &frame, |msg| node.handle_message(now, msg));
                         // Renames must reach the node before the next frame (the rule of
                         // `CanLink::handle_frame`).
-                        let applied = apply_link_events(link, permitted, waiting, node);
+                        let applied = apply_link_events(now, link, joining, waiting, node);
                         if result.is_ok() {
                             result = applied;
                         }
@@ -175,15 +207,18 @@ impl Wire {
 
     pub(crate) fn poll_timeout(&self) -> Option<Instant> {
         match self {
+            Wire::GridConnect { link, joining: Joining::Until(at), .. } => {
+                Some(link.poll_timeout().map_or(*at, |next| next.min(*at)))
+            }
             Wire::GridConnect { link, .. } => link.poll_timeout(),
             Wire::Tcp { .. } => None,
         }
     }
 
     /// The link's events, for the node. Returns an error the node cannot recover from.
-    pub(crate) fn poll_events(&mut self, node: &mut Node) -> Result<(), Error> {
-        let Wire::GridConnect { link, permitted, waiting, .. } = self else { return Ok(()) };
-        apply_link_events(link, permitted, waiting, node)
+    pub(crate) fn poll_events(&mut self, now: Instant, node: &mut Node) -> Result<(), Error> {
+        let Wire::GridConnect { link, joining, waiting, .. } = self else { return Ok(()) };
+        apply_link_events(now, link, joining, waiting, node)
     }
 
     /// The CAN alias the link knows for `node`.

@@ -183,6 +183,82 @@ async fn transfer(sender: &Node, receiver: &mut Node, len: usize, window: u16) {
     assert!(got == payload, "the data arrived changed");
 }
 
+/// Reads GridConnect frames from a raw hub client until one starts with `last` (bounded).
+async fn frames_until(socket: &mut TcpStream, last: &str) -> Vec<String> {
+    let mut text = String::new();
+    let mut buf = vec![0u8; 4096];
+    bounded("the frames", async {
+        loop {
+            let frames: Vec<String> = text.split_whitespace().map(str::to_owned).collect();
+            if frames.iter().any(|f| f.starts_with(last)) {
+                return frames;
+            }
+            let n = socket.read(&mut buf).await.unwrap();
+            assert!(n > 0, "the hub closed; got {text}");
+            text.push_str(&String::from_utf8_lossy(&buf[..n]));
+        }
+    })
+    .await
+}
+
+/// A frame's identifier without its source alias, and its data, as GridConnect text.
+fn kind_and_data(frame: &str) -> (String, String) {
+    let (id, data) = frame.trim_start_matches(":X").trim_end_matches(';').split_once('N').unwrap();
+    (id[..id.len() - 3].to_owned(), data.to_owned())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_logs_in_with_four_cids_rid_and_amd_and_nothing_between() {
+    let hub = start_hub(HubOptions::default()).await;
+    let mut observer = TcpStream::connect(hub.local_addr()).await.unwrap();
+    until_clients(&hub, 1).await;
+    let me = id(0x30);
+    let _node =
+        bounded("joining", Node::connect(&hub.local_addr().to_string(), Protocol::GridConnect, NodeOptions::new(me)))
+            .await
+            .unwrap();
+    let frames = frames_until(&mut observer, ":X19490").await;
+    let kinds: Vec<(String, String)> = frames.iter().map(|f| kind_and_data(f)).collect();
+    let own = "050101012230".to_owned();
+    let prefixes: Vec<&str> = kinds.iter().map(|(k, _)| &k[..2]).take(4).collect();
+    assert_eq!(prefixes, ["17", "16", "15", "14"], "four CIDs first: {frames:?}");
+    assert_eq!(
+        kinds[4..],
+        [
+            ("10700".to_owned(), String::new()),
+            ("10701".to_owned(), own.clone()),
+            ("19100".to_owned(), own.clone()),
+            ("19490".to_owned(), own)
+        ],
+        "RID, AMD (CFT §6.2.1), Initialization Complete, then a Verify Node ID naming itself: {frames:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_running_node_reports_a_claim_of_its_node_id_and_keeps_running() {
+    let hub = start_hub(HubOptions::default()).await;
+    let me = id(0x31);
+    let _node =
+        bounded("joining", Node::connect(&hub.local_addr().to_string(), Protocol::GridConnect, NodeOptions::new(me)))
+            .await
+            .unwrap();
+    let mut checker = TcpStream::connect(hub.local_addr()).await.unwrap();
+    until_clients(&hub, 2).await;
+    // OlcbChecker's me50_dup: a Verified Node ID carrying the node's own ID from its alias.
+    checker.write_all(b":X19170ABCN050101012231;\n").await.unwrap();
+    let frames = frames_until(&mut checker, ":X195B4").await;
+    let report = frames.last().unwrap();
+    assert_eq!(
+        kind_and_data(report),
+        ("195B4".to_owned(), "0101000000000201".to_owned()),
+        "Duplicate Node ID Detected"
+    );
+    // It keeps running: it answers a global Verify Node ID.
+    checker.write_all(b":X19490ABCN;\n").await.unwrap();
+    let frames = frames_until(&mut checker, ":X19170").await;
+    assert_eq!(kind_and_data(frames.last().unwrap()), ("19170".to_owned(), "050101012231".to_owned()));
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_second_node_with_a_taken_node_id_refuses_to_join_and_the_first_keeps_running() {
     let hub = start_hub(HubOptions::default()).await;
@@ -190,8 +266,18 @@ async fn a_second_node_with_a_taken_node_id_refuses_to_join_and_the_first_keeps_
     let taken = id(0x20);
     let join = |node| Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(node));
     let mut first = bounded("joining", join(taken)).await.unwrap();
+    let mut observer = TcpStream::connect(hub.local_addr()).await.unwrap();
+    until_clients(&hub, 2).await;
     let second = bounded("joining again", join(taken)).await;
-    assert!(matches!(second, Err(Error::DuplicateNodeId { at_login: true, .. })), "got {second:?}");
+    assert!(matches!(second, Err(Error::DuplicateNodeId { .. })), "got {second:?}");
+    // The newcomer said so and released its alias; the first node reported it too.
+    let frames = frames_until(&mut observer, ":X10703").await;
+    let newcomer = &frames.last().unwrap()[7..10];
+    let from_newcomer: Vec<String> =
+        frames.iter().filter(|f| &f[7..10] == newcomer).map(|f| kind_and_data(f).0).collect();
+    assert_eq!(from_newcomer[from_newcomer.len() - 2..], ["195B4", "10703"], "the event, then AMR: {frames:?}");
+    let reports = frames.iter().filter(|f| f.starts_with(":X195B4") && f.ends_with("N0101000000000201;")).count();
+    assert_eq!(reports, 2, "both nodes report it: {frames:?}");
     let sender = bounded("joining", join(id(0x21))).await.unwrap();
     transfer(&sender, &mut first, 10_000, 2048).await;
 }

@@ -97,7 +97,10 @@ impl Gateway {
                         self.avoid_taken_alias(index);
                     }
                     LoginEvent::DuplicateNodeId { other } => {
-                        // Nothing more is sent for this node (CFT §6.2.5).
+                        // The proxy leaves the CAN side: AMR, then nothing more (CFT §6.2.5).
+                        if let Some(proxy) = self.proxies.get_mut(index) {
+                            proxy.login.release();
+                        }
                         self.end_streams_of(node, StreamEnd::NodeGone);
                         if let Some(alias) = self.proxies.get(index).and_then(|p| p.announced) {
                             self.drop_ready(|source, _| source == alias);
