@@ -277,10 +277,10 @@ impl State {
         &self.options
     }
 
-    /// Removes a client and stops its tasks; `true` if it was still there. The aliases it
-    /// still held are released for it (an AMR each, to every other GridConnect client and
-    /// the bridge): a node that left without a word is forgotten, and its Node ID may join
-    /// again, on either side.
+    /// Removes a client and stops its tasks; `true` if it was still there. The bridge forgets
+    /// the aliases it still held: a node that left without a word is forgotten, and its Node
+    /// ID may join again, on either side. Nothing goes on the wire for it: a GridConnect hub
+    /// is a wire, it relays and never originates a frame.
     fn remove(&self, client: ClientId) -> bool {
         let removed = self.clients.lock().ok().and_then(|mut clients| clients.remove(&client));
         match removed {
@@ -288,15 +288,15 @@ impl State {
                 entry.tasks.iter().for_each(AbortHandle::abort);
                 // Its queue goes with it: nothing it held counts any more.
                 entry.queued.store(0, Ordering::Relaxed);
-                self.relay_amrs(client, &entry.aliases);
+                self.bridge_forgets(&entry.aliases);
                 true
             }
             None => false,
         }
     }
 
-    /// A client that stopped sending cannot hold or defend an alias any more: its aliases
-    /// are released for it at once, even though it still receives.
+    /// A client that stopped sending cannot hold or defend an alias any more: the bridge
+    /// forgets its aliases at once, even though it still receives.
     fn release_aliases(&self, client: ClientId) {
         let aliases = self
             .clients
@@ -304,10 +304,12 @@ impl State {
             .ok()
             .and_then(|mut clients| clients.get_mut(&client).map(|c| std::mem::take(&mut c.aliases)))
             .unwrap_or_default();
-        self.relay_amrs(client, &aliases);
+        self.bridge_forgets(&aliases);
     }
 
-    fn relay_amrs(&self, client: ClientId, aliases: &[(NodeAlias, NodeId)]) {
+    /// Tells the bridge (and only the bridge: no client sees it) that `aliases` were released,
+    /// as if an AMR for each had come from the CAN side.
+    fn bridge_forgets(&self, aliases: &[(NodeAlias, NodeId)]) {
         let mut chunk = BytesMut::new();
         let mut text = [0u8; gridconnect::MAX_ENCODED_LEN];
         for (alias, node) in aliases {
@@ -318,8 +320,13 @@ impl State {
                 chunk.extend_from_slice(b"\n");
             }
         }
-        if !chunk.is_empty() {
-            self.relay(client, Protocol::GridConnect, &chunk.freeze());
+        if chunk.is_empty() {
+            return;
+        }
+        if let Ok(clients) = self.clients.lock() {
+            if let Some(bridge) = clients.get(&BRIDGE_GRIDCONNECT) {
+                let _ = bridge.queue.send(chunk.freeze());
+            }
         }
     }
 

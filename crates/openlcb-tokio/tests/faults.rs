@@ -282,6 +282,25 @@ async fn a_second_node_with_a_taken_node_id_refuses_to_join_and_the_first_keeps_
     transfer(&sender, &mut first, 10_000, 2048).await;
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_hub_never_speaks_for_a_client_that_left() {
+    let hub = start_hub(HubOptions::default()).await;
+    let mut observer = TcpStream::connect(hub.local_addr()).await.unwrap();
+    let mut leaver = TcpStream::connect(hub.local_addr()).await.unwrap();
+    until_clients(&hub, 2).await;
+    leaver.write_all(b":X10701342N050101012201;\n").await.unwrap();
+    assert_eq!(frames_until(&mut observer, ":X10701").await, [":X10701342N050101012201;"]);
+    drop(leaver);
+    // Nothing comes: no AMR for the departed client's alias (a GridConnect hub is a wire).
+    let mut buf = [0u8; 256];
+    let read = tokio::time::timeout(Duration::from_millis(800), observer.read(&mut buf)).await;
+    assert!(
+        read.is_err(),
+        "the hub sent {:?}",
+        read.map(|n| String::from_utf8_lossy(&buf[..n.unwrap_or(0)]).into_owned())
+    );
+}
+
 /// Waits (bounded in rounds) until the hub has `n` clients.
 async fn until_clients(hub: &Hub, n: usize) {
     for _ in 0..500 {
