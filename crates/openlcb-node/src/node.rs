@@ -281,16 +281,11 @@ impl Node {
     }
 
     /// The protocols this node announces in its Protocol Support Reply: exactly what it
-    /// implements. With a memory server: Memory Configuration, and with space 0xEF
-    /// Firmware Upgrade (Firmware Upgrade Active while frozen, FWU §5.3).
+    /// implements, and with a memory server what it serves ([`MemoryServer::protocols`]).
     pub fn protocols(&self) -> Protocols {
         match &self.memory_server {
             None => self.protocols,
-            Some(server) if !server.has_firmware() => self.protocols | Protocols::MEMORY_CONFIGURATION,
-            Some(server) if server.is_frozen() => {
-                self.protocols | Protocols::MEMORY_CONFIGURATION | Protocols::FIRMWARE_UPGRADE_ACTIVE
-            }
-            Some(_) => self.protocols | Protocols::MEMORY_CONFIGURATION | Protocols::FIRMWARE_UPGRADE,
+            Some(server) => self.protocols | server.protocols(),
         }
     }
 
@@ -484,9 +479,11 @@ impl Node {
         self.last_now = now;
         self.streams.handle_timeout(now);
         self.datagrams.handle_timeout(now, &mut self.out);
-        if let Some(server) = &mut self.memory_server {
-            server.handle_timeout(now);
-        }
+        self.with_memory(now, |cx, server, _| {
+            if let Some(server) = server {
+                server.handle_timeout(cx);
+            }
+        });
         self.with_client(now, |cx, client| client.handle_timeout(cx));
         while let Some(index) = self.snip_requests.iter().position(|p| p.deadline <= now) {
             let expired = self.snip_requests.swap_remove(index);

@@ -304,6 +304,42 @@ fn reply_of(answers: &[Message]) -> Option<Reply> {
     answers.iter().find(|m| m.mti == Mti::DATAGRAM).and_then(|m| Reply::parse(&m.payload).ok())
 }
 
+/// The reply datagram among `answers`, as bytes.
+fn reply_bytes(answers: &[Message]) -> Vec<u8> {
+    answers.iter().find(|m| m.mti == Mti::DATAGRAM).map(|m| m.payload.to_vec()).unwrap_or_default()
+}
+
+#[test]
+fn every_command_is_answered_in_the_form_it_was_asked() {
+    // OlcbChecker's mc30_read: a read naming 0xFD in byte 6 gets `20 50 addr FD data`.
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+    let space = read_back(&mut pair.server, 0xFD);
+    let long = reply_bytes(&exchange(&mut pair, &[0x20, 0x40, 0, 0, 0, 0, 0xFD, 2]));
+    assert_eq!(long, [&[0x20, 0x50, 0, 0, 0, 0, 0xFD][..], &space[..2]].concat());
+    let short = reply_bytes(&exchange(&mut pair, &[0x20, 0x41, 0, 0, 0, 0, 2]));
+    assert_eq!(short, [&[0x20, 0x51, 0, 0, 0, 0][..], &space[..2]].concat());
+    // Write, and a failed read, in both forms.
+    assert_eq!(reply_bytes(&exchange(&mut pair, &[0x20, 0x00, 0, 0, 0, 1, 0xFD, 9])), [0x20, 0x10, 0, 0, 0, 1, 0xFD]);
+    assert_eq!(reply_bytes(&exchange(&mut pair, &[0x20, 0x01, 0, 0, 0, 1, 9])), [0x20, 0x11, 0, 0, 0, 1]);
+    let past = reply_bytes(&exchange(&mut pair, &[0x20, 0x40, 0, 0, 1, 0, 0xFD, 2]));
+    assert_eq!(past, [0x20, 0x58, 0, 0, 1, 0, 0xFD, 0x10, 0x82]);
+    let past = reply_bytes(&exchange(&mut pair, &[0x20, 0x41, 0, 0, 1, 0, 2]));
+    assert_eq!(past, [0x20, 0x59, 0, 0, 1, 0, 0x10, 0x82]);
+    // A space with no short code is always in byte 6.
+    let cdi = reply_bytes(&exchange(&mut pair, &[0x20, 0x40, 0, 0, 0, 0, 0xFB, 1]));
+    assert_eq!(cdi[..7], [0x20, 0x50, 0, 0, 0, 0, 0xFB]);
+}
+
+#[test]
+fn read_stream_with_did_0xff_proposes_none_and_is_served() {
+    // Wire-spec §4.1: 0xFF means "no DID proposed" (OlcbChecker's stream helper, OpenMRN).
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+    let answers = exchange(&mut pair, &[0x20, 0x60, 0, 0, 0, 0, 0xFD, 0xFF, 0xFF, 0, 0, 0, 16]);
+    assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0x80][..]), "{answers:?}");
+    let request = answers.iter().find(|m| m.mti == Mti::STREAM_INITIATE_REQUEST).expect("the stream is offered");
+    assert_eq!(request.payload.len(), 5, "no DID proposed: {:?}", request.payload);
+}
+
 #[test]
 fn server_control_commands() {
     let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
@@ -585,6 +621,18 @@ fn pip_has_memory_configuration_exactly_with_a_server() {
     assert!(!bits.contains(Protocols::FIRMWARE_UPGRADE) && !bits.contains(Protocols::FIRMWARE_UPGRADE_ACTIVE));
     let firmware = server_with(NodeConfig::default(), 16);
     assert!(firmware.protocols().contains(Protocols::FIRMWARE_UPGRADE));
+    assert!(!bits.contains(Protocols::CDI) && !bits.contains(Protocols::ACDI), "neither is served");
+}
+
+#[test]
+fn pip_announces_cdi_and_acdi_exactly_when_they_are_served() {
+    let cdi = Node::new(SERVER, NodeConfig::default())
+        .with_memory_server(MemoryServer::new().with_space(0xFF, RamSpace::new(16)));
+    assert!(cdi.protocols().contains(Protocols::CDI));
+    assert!(!cdi.protocols().contains(Protocols::ACDI));
+    let acdi = Node::new(SERVER, NodeConfig::default()).with_memory_server(MemoryServer::new().with_acdi());
+    assert!(acdi.protocols().contains(Protocols::ACDI));
+    assert!(!acdi.protocols().contains(Protocols::CDI));
 }
 
 /// An OpenLcbCLib-style target as node-protocols.md §3.11 reads it: Datagram OK 0x80 to
@@ -631,17 +679,24 @@ fn write_stream_reply_after_complete_without_the_space_byte() {
 }
 
 #[test]
-fn write_stream_reply_names_the_did_the_server_then_assigns() {
-    // C-2, as target: OK with Reply Pending, then at once `20 3x addr [space] SID DID`, the
-    // DID being the one the Initiate Reply then carries; the window is the server's bound.
+fn write_stream_reply_to_a_client_that_waits_names_the_did_the_server_then_assigns() {
+    // C-2, as target, for a client that waits for the reply before it initiates (OpenMRN's
+    // bootloader_client): OK with Reply Pending, then after the reply delay `20 3x addr
+    // [space] SID DID`, the DID being the one the Initiate Reply then carries; the window is
+    // the server's bound.
     let mut config = NodeConfig::default();
     config.memory.write_stream_window = 512;
+    let delay = config.memory.write_stream_reply_delay;
     let mut pair = Pair::new(NodeConfig::default(), server_with(config, 4096));
     let _ = std::iter::from_fn(|| pair.server.poll_transmit()).count();
     let command = Message::addressed(Mti::DATAGRAM, CLIENT, SERVER, vec![0x20, 0x21, 0, 0, 0, 0x10, 0x42]);
     pair.server.handle_message(pair.now, command.as_ref());
-    let answers: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    let mut answers: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    assert_eq!(answers.len(), 1, "the OK only, at first: {answers:?}");
     assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0x80][..]));
+    assert_eq!(pair.server.poll_timeout(), Some(pair.now + delay));
+    pair.server.handle_timeout(pair.now + delay);
+    answers.extend(std::iter::from_fn(|| pair.server.poll_transmit()));
     let Ok(Reply::WriteStreamOk { streams: Some((0x42, did)), .. }) = Reply::parse(&answers[1].payload) else {
         panic!("{answers:?}")
     };
@@ -651,6 +706,34 @@ fn write_stream_reply_names_the_did_the_server_then_assigns() {
     let reply: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
     assert_eq!(reply[0].mti, Mti::STREAM_INITIATE_REPLY);
     assert_eq!(&reply[0].payload[..], [0x02, 0x00, 0x80, 0x00, 0x42, did]);
+}
+
+#[test]
+fn write_stream_reply_to_a_client_that_initiates_at_once_comes_after_the_complete() {
+    // OlcbChecker's mc80 and OpenLcbCLib: the Initiate Request right after the OK, data,
+    // Complete, and only then the Write Stream Reply (in the long form it was asked in).
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 4096));
+    let _ = std::iter::from_fn(|| pair.server.poll_transmit()).count();
+    let command = Message::addressed(Mti::DATAGRAM, CLIENT, SERVER, vec![0x20, 0x20, 0, 0, 0, 0x10, 0xFD, 0xA0]);
+    pair.server.handle_message(pair.now, command.as_ref());
+    let initiate = Message::addressed(Mti::STREAM_INITIATE_REQUEST, CLIENT, SERVER, vec![0x01, 0x00, 0, 0, 0xA0, 0xFF]);
+    pair.server.handle_message(pair.now, initiate.as_ref());
+    while pair.server.poll_event().is_some() {}
+    let answers: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    assert!(answers.iter().all(|m| m.mti != Mti::DATAGRAM), "no reply before the stream ends: {answers:?}");
+    let reply = answers.iter().find(|m| m.mti == Mti::STREAM_INITIATE_REPLY).unwrap();
+    let did = reply.payload[5];
+    pair.server.handle_timeout(pair.now + Duration::from_secs(1));
+    assert!(std::iter::from_fn(|| pair.server.poll_transmit()).all(|m| m.mti != Mti::DATAGRAM), "not at the delay");
+    let data = Message::addressed(Mti::STREAM_DATA_SEND, CLIENT, SERVER, vec![did, 0x5A]);
+    let complete = Message::addressed(Mti::STREAM_DATA_COMPLETE, CLIENT, SERVER, vec![0xA0, did]);
+    pair.server.handle_message(pair.now, data.as_ref());
+    pair.server.handle_message(pair.now, complete.as_ref());
+    while pair.server.poll_event().is_some() {}
+    let after: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+    let datagram = after.iter().find(|m| m.mti == Mti::DATAGRAM).expect("the Write Stream Reply");
+    assert_eq!(&datagram.payload[..], [0x20, 0x30, 0, 0, 0, 0x10, 0xFD, 0xA0, did]);
+    assert_eq!(read_back(&mut pair.server, 0xFD)[0x10], 0x5A);
 }
 
 #[test]
@@ -719,8 +802,8 @@ fn is_unfreeze(m: &Message) -> bool {
 
 #[test]
 fn firmware_unfreeze_never_overtakes_the_stream_complete() {
-    // The server replies to Write Stream at once, so the client may end the upgrade as soon
-    // as its last data is out: its Unfreeze must still follow its Data Complete.
+    // The client opens its Write Stream at once and ends the upgrade once the reply has
+    // come: its Unfreeze must follow its Data Complete.
     let mut order = Vec::new();
     let (_, unfrozen) = upgrade_through(&pattern(100_000, 5), |m, server| {
         if m.mti == Mti::STREAM_DATA_COMPLETE {
@@ -736,8 +819,9 @@ fn firmware_unfreeze_never_overtakes_the_stream_complete() {
 
 #[test]
 fn an_unfreeze_that_overtakes_the_stream_waits_for_its_end() {
-    // A client whose Unfreeze arrives before the last data and the Complete of its Write
-    // Stream (CAN arbitration puts datagram frames first): the image is still whole.
+    // An Unfreeze from the upgrading client that arrives before the last data and the
+    // Complete of its Write Stream (CAN arbitration puts datagram frames first; a client that
+    // does not wait for the Write Stream Reply): the image is still whole.
     let image = pattern(100_000, 9);
     let mut held = Vec::new();
     let mut data = 0;
@@ -745,17 +829,19 @@ fn an_unfreeze_that_overtakes_the_stream_waits_for_its_end() {
         if m.mti == Mti::STREAM_DATA_SEND {
             data += m.payload.len() - 1;
         }
-        // Hold back the last window's data and the Complete until the Unfreeze is through.
-        if (data > 98_304 || !held.is_empty()) && !is_unfreeze(&m) {
+        // Hold back the last window's data and the Complete, send the Unfreeze, then them.
+        if data > 98_304 && held.is_empty() {
+            let unfreeze = Message::addressed(Mti::DATAGRAM, CLIENT, SERVER, vec![0x20, 0xA0, 0xEF]);
             held.push(m);
+            server.handle_message(Instant::ZERO, unfreeze.as_ref());
             return;
         }
-        server.handle_message(Instant::ZERO, m.as_ref());
-        if is_unfreeze(&m) {
+        if !held.is_empty() && m.mti != Mti::DATAGRAM_RECEIVED_OK {
             for m in held.drain(..) {
                 server.handle_message(Instant::ZERO, m.as_ref());
             }
         }
+        server.handle_message(Instant::ZERO, m.as_ref());
     });
     assert_eq!(unfrozen, Some(100_000));
     assert_eq!(&read_back(&mut server, 0xEF)[..image.len()], &image[..]);

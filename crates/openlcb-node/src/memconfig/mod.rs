@@ -38,7 +38,7 @@ pub use space::{
     ACDI_MANUFACTURER_LEN, ACDI_USER_LEN, MemorySpace, RamSpace, ReadOnlySpace, SpaceError, acdi_manufacturer_bytes,
     acdi_user_bytes, acdi_user_strings,
 };
-pub use wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceInfoReply};
+pub use wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceForm, SpaceInfoReply};
 
 /// Bounds and timers of Memory Configuration, server and client.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -63,6 +63,11 @@ pub struct MemoryConfigOptions {
     /// The most the server grants a Write Stream: what a space can take in flight. A space
     /// may lower it with [`MemorySpace::write_window`].
     pub write_stream_window: u16,
+    /// How long the server holds the Write Stream Reply for a client that initiates the
+    /// stream at once (OlcbChecker, OpenLcbCLib: they expect the reply after the stream's
+    /// Complete). A client that waits for the reply before it initiates (OpenMRN's
+    /// `bootloader_client`) gets it after this long. Default 250 ms.
+    pub write_stream_reply_delay: Duration,
     /// Stream transfers the server runs at once; one more is refused with 0x2020.
     pub max_server_streams: usize,
     /// Operations the client runs at once (one per peer).
@@ -80,6 +85,7 @@ impl Default for MemoryConfigOptions {
             stream_timeout: Duration::from_secs(30),
             stream_window: 0xFFFF,
             write_stream_window: 2048,
+            write_stream_reply_delay: Duration::from_millis(250),
             max_server_streams: 8,
             max_operations: 8,
             max_read_len: 16 * 1024 * 1024,

@@ -9,11 +9,11 @@ use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{AcceptOptions, Event, Instant, NodeId, OpenOptions, StreamHandle, StreamId};
 
 use super::space::{MemorySpace, SpaceError, acdi_manufacturer_bytes, acdi_user_bytes, read_slice};
-use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceInfoReply, codes};
-use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_FIRMWARE};
+use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceForm, SpaceInfoReply, codes};
+use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FIRMWARE};
 use super::{MemoryEvent, MemoryEvent as E};
 use crate::node::Cx;
-use crate::{OkFlags, SnipInfo};
+use crate::{OkFlags, Protocols, SnipInfo};
 
 /// Bytes read from or written to a space at once on the stream paths.
 const CHUNK: usize = 256;
@@ -37,12 +37,39 @@ enum Job {
     /// Read Stream: this node is the source.
     Read { handle: StreamHandle, space: u8, address: u32, next: u32, end: u32, count: u32, opened: bool },
     /// Write Stream: this node is the destination, once the request arrives.
-    Write { sid: u8, handle: Option<StreamHandle>, space: u8, next: u32, deadline: Instant },
+    Write {
+        sid: u8,
+        /// The DID this node assigns (predicted until the stream is accepted).
+        did: u8,
+        handle: Option<StreamHandle>,
+        space: u8,
+        /// The command's address (the reply names it) and the next address to write.
+        address: u32,
+        next: u32,
+        /// When the stream must have come (while `handle` is `None`).
+        deadline: Instant,
+        reply: WriteReply,
+    },
+}
+
+/// When the Write Stream Reply goes out (node-protocols.md §10 C-2: OpenMRN's
+/// `bootloader_client` waits for it before it initiates the stream; OlcbChecker's `mc80` and
+/// OpenLcbCLib initiate at once and expect it after the stream's Complete).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum WriteReply {
+    /// At this time, if the stream has not been asked for by then: the client waits for it.
+    Due(Instant),
+    /// After the stream's Complete: the client initiated at once.
+    AfterComplete,
+    /// Sent.
+    Sent,
 }
 
 #[derive(Debug)]
 struct Transfer {
     peer: NodeId,
+    /// How the command named its space; its replies name it the same way.
+    form: SpaceForm,
     job: Job,
 }
 
@@ -143,6 +170,25 @@ impl MemoryServer {
     /// In the Firmware Upgrade state (after Freeze of space 0xEF).
     pub fn is_frozen(&self) -> bool {
         self.frozen
+    }
+
+    /// What this server adds to the node's Protocol Support Reply: Memory Configuration; CDI
+    /// with space 0xFF; ACDI with its spaces ([`with_acdi`](Self::with_acdi)); Firmware
+    /// Upgrade with space 0xEF, Firmware Upgrade Active instead while frozen (FWU §5.3).
+    pub fn protocols(&self) -> Protocols {
+        let mut protocols = Protocols::MEMORY_CONFIGURATION;
+        if self.space(SPACE_CDI).is_some() {
+            protocols = protocols | Protocols::CDI;
+        }
+        if self.acdi {
+            protocols = protocols | Protocols::ACDI;
+        }
+        if self.frozen {
+            protocols = protocols | Protocols::FIRMWARE_UPGRADE_ACTIVE;
+        } else if self.has_firmware() {
+            protocols = protocols | Protocols::FIRMWARE_UPGRADE;
+        }
+        protocols
     }
 
     /// Serves a firmware target (space 0xEF).
@@ -294,6 +340,7 @@ impl MemoryServer {
             Err(_) => return self.reject(cx, peer, codes::INVALID_ARGUMENTS),
         };
         let pending = OkFlags { reply_pending: true, timeout_exponent: 0 };
+        let form = SpaceForm::of(bytes);
         match command {
             Command::Read { space, address, count } => {
                 if self.space_len(space).is_none() {
@@ -307,17 +354,17 @@ impl MemoryServer {
                     Err(e) => failed(FailedKind::Read, space, address, e.code()),
                 };
                 cx.ok(peer, pending);
-                cx.send_reply(peer, &reply.to_bytes());
+                cx.send_reply(peer, &reply.to_bytes_in(form));
             }
-            Command::Write { space, address, data } => self.write(cx, peer, space, address, &data, None),
+            Command::Write { space, address, data } => self.write(cx, peer, (space, form), address, &data, None),
             Command::WriteUnderMask { space, address, mask, data } => {
-                self.write(cx, peer, space, address, &data, Some(&mask));
+                self.write(cx, peer, (space, form), address, &data, Some(&mask));
             }
             Command::ReadStream { space, address, destination_stream, count } => {
-                self.read_stream(cx, peer, space, address, destination_stream, count);
+                self.read_stream(cx, peer, (space, form), address, destination_stream, count);
             }
             Command::WriteStream { space, address, source_stream } => {
-                self.write_stream(cx, peer, space, address, source_stream);
+                self.write_stream(cx, peer, (space, form), address, source_stream);
             }
             Command::GetOptions => {
                 cx.ok(peer, pending);
@@ -393,7 +440,15 @@ impl MemoryServer {
     /// Write and Write Under Mask: an unknown space or a read-only one is refused; a write
     /// done at once gets the OK without Reply Pending (C-9); a write that fails gets the OK
     /// with Reply Pending and a Failed reply.
-    fn write(&mut self, cx: &mut Cx<'_>, peer: NodeId, space: u8, address: u32, data: &[u8], mask: Option<&[u8]>) {
+    fn write(
+        &mut self,
+        cx: &mut Cx<'_>,
+        peer: NodeId,
+        (space, form): (u8, SpaceForm),
+        address: u32,
+        data: &[u8],
+        mask: Option<&[u8]>,
+    ) {
         if self.space_len(space).is_none() {
             return self.reject(cx, peer, codes::UNKNOWN_SPACE);
         }
@@ -424,11 +479,11 @@ impl MemoryServer {
             Ok(()) if space == SPACE_FIRMWARE => cx.ok(peer, OkFlags::default()),
             Ok(()) => {
                 cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
-                cx.send_reply(peer, &Reply::WriteOk { space, address }.to_bytes());
+                cx.send_reply(peer, &Reply::WriteOk { space, address }.to_bytes_in(form));
             }
             Err(e) => {
                 cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
-                cx.send_reply(peer, &failed(FailedKind::Write, space, address, e.code()).to_bytes());
+                cx.send_reply(peer, &failed(FailedKind::Write, space, address, e.code()).to_bytes_in(form));
             }
         }
     }
@@ -453,21 +508,33 @@ impl MemoryServer {
     }
 
     /// Read Stream in the order of C-4: Datagram OK (Reply Pending) at once, the Initiate
-    /// Request proposing the command's DID, the Reply once the stream is open, then data.
-    fn read_stream(&mut self, cx: &mut Cx<'_>, peer: NodeId, space: u8, address: u32, did: u8, count: u32) {
+    /// Request proposing the command's DID (none for 0xFF, wire-spec §4.1), the Reply once
+    /// the stream is open, then data.
+    fn read_stream(
+        &mut self,
+        cx: &mut Cx<'_>,
+        peer: NodeId,
+        (space, form): (u8, SpaceForm),
+        address: u32,
+        did: u8,
+        count: u32,
+    ) {
         if let Err(code) = self.check_stream(cx, space, address, false) {
             return self.reject(cx, peer, code);
         }
-        let Some(did_id) = StreamId::new(did) else { return self.reject(cx, peer, codes::INVALID_ARGUMENTS) };
         cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
         let len = self.space_len(space).unwrap_or(0);
         // C-6: 0 and 0xFFFFFFFF both read to the end of the space.
         let available = len.saturating_sub(address);
         let want = if count == 0 || count == u32::MAX { available } else { count.min(available) };
-        let options = OpenOptions::new(peer, cx.options.stream_window.max(1)).proposed_destination(did_id);
+        let mut options = OpenOptions::new(peer, cx.options.stream_window.max(1));
+        if let Some(did) = StreamId::new(did) {
+            options = options.proposed_destination(did);
+        }
         match cx.streams.open(cx.now, options) {
             Ok(handle) => self.transfers.push(Transfer {
                 peer,
+                form,
                 job: Job::Read {
                     handle,
                     space,
@@ -480,15 +547,17 @@ impl MemoryServer {
             }),
             Err(_) => {
                 self.stats.streams_failed += 1;
-                cx.send_reply(peer, &failed(FailedKind::ReadStream, space, address, codes::BUSY).to_bytes());
+                cx.send_reply(peer, &failed(FailedKind::ReadStream, space, address, codes::BUSY).to_bytes_in(form));
             }
         }
     }
 
-    /// Write Stream (C-2, as target): Datagram OK (Reply Pending), then at once the Write
-    /// Stream Reply naming the SID and the DID this node will assign, before the stream;
-    /// later errors end the stream with TDE.
-    fn write_stream(&mut self, cx: &mut Cx<'_>, peer: NodeId, space: u8, address: u32, sid: u8) {
+    /// Write Stream (C-2, as target): Datagram OK (Reply Pending); the Write Stream Reply,
+    /// naming the SID and the DID this node assigns, goes out when the client shows what it
+    /// waits for ([`WriteReply`]): after the stream's Complete if the stream is asked for
+    /// within [`MemoryConfigOptions::write_stream_reply_delay`], else at that time, before
+    /// the stream. Later errors end the stream with TDE.
+    fn write_stream(&mut self, cx: &mut Cx<'_>, peer: NodeId, (space, form): (u8, SpaceForm), address: u32, sid: u8) {
         if let Err(code) = self.check_stream(cx, space, address, true) {
             return self.reject(cx, peer, code);
         }
@@ -497,13 +566,30 @@ impl MemoryServer {
         }
         cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
         let did = cx.streams.next_destination_id(peer).map_or(0xFF, StreamId::as_raw);
-        let reply = Reply::WriteStreamOk { space: Some(space), address, streams: Some((sid, did)) };
-        cx.send_reply(peer, &reply.to_bytes());
         // A repeated command (its OK lost) replaces the transfer waiting for the same SID.
         self.transfers
             .retain(|t| !(t.peer == peer && matches!(t.job, Job::Write { sid: s, handle: None, .. } if s == sid)));
         let deadline = cx.now + cx.options.stream_timeout;
-        self.transfers.push(Transfer { peer, job: Job::Write { sid, handle: None, space, next: address, deadline } });
+        let reply = WriteReply::Due(cx.now + cx.options.write_stream_reply_delay);
+        let job = Job::Write { sid, did, handle: None, space, address, next: address, deadline, reply };
+        self.transfers.push(Transfer { peer, form, job });
+    }
+
+    /// Sends the Write Stream Reply of the transfer at `index` (a failure with `error`).
+    fn send_write_reply(&mut self, cx: &mut Cx<'_>, index: usize, error: Option<ErrorCode>) {
+        let Some(Transfer { peer, form, job: Job::Write { sid, did, space, address, reply, .. } }) =
+            self.transfers.get_mut(index)
+        else {
+            return;
+        };
+        *reply = WriteReply::Sent;
+        let bytes = match error {
+            None => Reply::WriteStreamOk { space: Some(*space), address: *address, streams: Some((*sid, *did)) },
+            Some(code) => failed(FailedKind::WriteStream, *space, *address, code),
+        }
+        .to_bytes_in(*form);
+        let peer = *peer;
+        cx.send_reply(peer, &bytes);
     }
 
     // ----- streams -----
@@ -549,11 +635,18 @@ impl MemoryServer {
                     && matches!(t.job, Job::Write { sid, handle: None, .. } if sid == info.source_stream.as_raw())
             });
             let Some(transfer) = waiting else { return false };
-            let Job::Write { handle: slot, space, .. } = &mut transfer.job else { return false };
+            let Job::Write { handle: slot, space, reply, did, .. } = &mut transfer.job else { return false };
+            if matches!(reply, WriteReply::Due(_)) {
+                // The client initiated without waiting for the reply: it comes after Complete.
+                *reply = WriteReply::AfterComplete;
+            }
             let space_window = self.spaces.iter().find(|(n, _)| n == space).and_then(|(_, s)| s.write_window());
             let window = space_window.unwrap_or(cx.options.write_stream_window).max(1);
             if cx.streams.accept_with(cx.now, *handle, AcceptOptions::new(Some(window), false)).is_ok() {
                 *slot = Some(*handle);
+                if let Some(assigned) = cx.streams.stream_info(*handle).and_then(|i| i.destination_stream) {
+                    *did = assigned.as_raw();
+                }
             }
             return true;
         }
@@ -564,7 +657,7 @@ impl MemoryServer {
         let Some(index) = self.position(handle) else { return false };
         match event {
             Event::Opened { info, .. } => {
-                if let Some(Transfer { peer, job: Job::Read { space, address, count, opened, .. } }) =
+                if let Some(Transfer { peer, form, job: Job::Read { space, address, count, opened, .. } }) =
                     self.transfers.get_mut(index)
                 {
                     *opened = true;
@@ -575,8 +668,8 @@ impl MemoryServer {
                         destination_stream: info.destination_stream.map_or(0xFF, StreamId::as_raw),
                         count: Some(*count),
                     };
-                    let peer = *peer;
-                    cx.send_reply(peer, &reply.to_bytes());
+                    let (peer, bytes) = (*peer, reply.to_bytes_in(*form));
+                    cx.send_reply(peer, &bytes);
                 }
                 self.pump_read(cx, index);
             }
@@ -584,10 +677,11 @@ impl MemoryServer {
             Event::Readable { .. } => self.drain_write(cx, index, false),
             Event::Finished { .. } => self.drain_write(cx, index, true),
             Event::Rejected { code, .. } => {
-                if let Some(Transfer { peer, job: Job::Read { space, address, .. } }) = self.transfers.get(index) {
+                if let Some(Transfer { peer, form, job: Job::Read { space, address, .. } }) = self.transfers.get(index)
+                {
                     let reply = failed(FailedKind::ReadStream, *space, *address, ErrorCode(code.0));
-                    let peer = *peer;
-                    cx.send_reply(peer, &reply.to_bytes());
+                    let (peer, bytes) = (*peer, reply.to_bytes_in(*form));
+                    cx.send_reply(peer, &bytes);
                 }
                 self.end(index, false);
             }
@@ -660,6 +754,9 @@ impl MemoryServer {
             }
             if let Err(e) = self.write_space(space, at, buf.get(..n).unwrap_or_default()) {
                 let _ = cx.streams.abort(cx.now, handle, e.code());
+                if self.write_reply(index) == Some(WriteReply::AfterComplete) {
+                    self.send_write_reply(cx, index, Some(e.code()));
+                }
                 return self.end(index, false);
             }
             let deadline = cx.now + cx.options.stream_timeout;
@@ -669,7 +766,18 @@ impl MemoryServer {
             }
         }
         if finished {
+            if self.write_reply(index) == Some(WriteReply::AfterComplete) {
+                self.send_write_reply(cx, index, None);
+            }
             self.end(index, true);
+        }
+    }
+
+    /// Where the Write Stream Reply of the transfer at `index` stands.
+    fn write_reply(&self, index: usize) -> Option<WriteReply> {
+        match self.transfers.get(index) {
+            Some(Transfer { job: Job::Write { reply, .. }, .. }) => Some(*reply),
+            _ => None,
         }
     }
 
@@ -677,15 +785,25 @@ impl MemoryServer {
         self.transfers
             .iter()
             .filter_map(|t| match t.job {
+                Job::Write { reply: WriteReply::Due(at), .. } => Some(at),
                 Job::Write { handle: None, deadline, .. } => Some(deadline),
                 _ => None,
             })
             .min()
     }
 
-    /// A Write Stream whose stream never came is forgotten (the streams themselves have the
-    /// endpoint's timers).
-    pub(crate) fn handle_timeout(&mut self, now: Instant) {
+    /// Sends the Write Stream Replies that are due (their clients wait for them before the
+    /// stream), and forgets a Write Stream whose stream never came (the streams themselves
+    /// have the endpoint's timers).
+    pub(crate) fn handle_timeout(&mut self, cx: &mut Cx<'_>) {
+        let now = cx.now;
+        while let Some(index) = self
+            .transfers
+            .iter()
+            .position(|t| matches!(t.job, Job::Write { reply: WriteReply::Due(at), .. } if at <= now))
+        {
+            self.send_write_reply(cx, index, None);
+        }
         while let Some(index) = self
             .transfers
             .iter()

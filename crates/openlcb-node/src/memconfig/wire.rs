@@ -91,12 +91,36 @@ fn address_and_space(bytes: &[u8]) -> Result<(u32, u8, &[u8]), DecodeError> {
     }
 }
 
-/// Writes `20 cmd addr [space]` with the short space code when there is one.
-fn put_header(out: &mut Vec<u8>, base: u8, space: u8, address: u32) {
+/// How a command names its address space: in bits 1-0 of byte 1 (the short code of 0xFD,
+/// 0xFE, 0xFF) or in byte 6. A reply names it the same way (OpenMRN answers in the form
+/// asked; OlcbChecker's `mc30_read` checks it).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum SpaceForm {
+    /// The short code where the space has one, else byte 6: what this crate sends.
+    #[default]
+    Short,
+    /// Always byte 6.
+    Long,
+}
+
+impl SpaceForm {
+    /// The form of the command datagram `bytes` (`Short` for commands that name no space
+    /// in byte 1).
+    pub fn of(bytes: &[u8]) -> Self {
+        match bytes {
+            [CONTENT_ID, command, ..] if command & 0x80 == 0 && command & 0x03 == 0 => SpaceForm::Long,
+            _ => SpaceForm::Short,
+        }
+    }
+}
+
+/// Writes `20 cmd addr [space]`: the short space code when there is one and `form` allows.
+fn put_header(out: &mut Vec<u8>, base: u8, space: u8, address: u32, form: SpaceForm) {
+    let bits = if form == SpaceForm::Long { 0 } else { space_bits(space) };
     out.push(CONTENT_ID);
-    out.push(base | space_bits(space));
+    out.push(base | bits);
     out.extend_from_slice(&address.to_be_bytes());
-    if space_bits(space) == 0 {
+    if bits == 0 {
         out.push(space);
     }
 }
@@ -282,26 +306,26 @@ impl Command {
         let mut out = Vec::with_capacity(16);
         match self {
             Command::Read { space, address, count } => {
-                put_header(&mut out, 0x40, *space, *address);
+                put_header(&mut out, 0x40, *space, *address, SpaceForm::Short);
                 out.push(*count & 0x7F);
             }
             Command::Write { space, address, data } => {
-                put_header(&mut out, 0x00, *space, *address);
+                put_header(&mut out, 0x00, *space, *address, SpaceForm::Short);
                 out.extend_from_slice(data);
             }
             Command::WriteUnderMask { space, address, mask, data } => {
-                put_header(&mut out, 0x08, *space, *address);
+                put_header(&mut out, 0x08, *space, *address, SpaceForm::Short);
                 for (m, d) in mask.iter().zip(data) {
                     out.extend_from_slice(&[*m, *d]);
                 }
             }
             Command::ReadStream { space, address, destination_stream, count } => {
-                put_header(&mut out, 0x60, *space, *address);
+                put_header(&mut out, 0x60, *space, *address, SpaceForm::Short);
                 out.extend_from_slice(&[0xFF, *destination_stream]);
                 out.extend_from_slice(&count.to_be_bytes());
             }
             Command::WriteStream { space, address, source_stream } => {
-                put_header(&mut out, 0x20, *space, *address);
+                put_header(&mut out, 0x20, *space, *address, SpaceForm::Short);
                 out.push(*source_stream);
             }
             Command::GetOptions => out.extend_from_slice(&[CONTENT_ID, 0x80]),
@@ -614,9 +638,15 @@ impl Reply {
     /// The datagram for this reply, strictly: the MC layouts, the short space code where
     /// there is one, a 3-byte "not present" space reply (C-10), no failure text.
     pub fn to_bytes(&self) -> Vec<u8> {
+        self.to_bytes_in(SpaceForm::Short)
+    }
+
+    /// [`to_bytes`](Self::to_bytes), naming the space in `form`: a server answers in the form
+    /// it was asked.
+    pub fn to_bytes_in(&self, form: SpaceForm) -> Vec<u8> {
         let mut out = Vec::with_capacity(16);
         let put_stream_header = |out: &mut Vec<u8>, base: u8, space: Option<u8>, address: u32| match space {
-            Some(space) => put_header(out, base, space, address),
+            Some(space) => put_header(out, base, space, address, form),
             None => {
                 out.extend_from_slice(&[CONTENT_ID, base]);
                 out.extend_from_slice(&address.to_be_bytes());
@@ -624,10 +654,10 @@ impl Reply {
         };
         match self {
             Reply::ReadOk { space, address, data } => {
-                put_header(&mut out, 0x50, *space, *address);
+                put_header(&mut out, 0x50, *space, *address, form);
                 out.extend_from_slice(data);
             }
-            Reply::WriteOk { space, address } => put_header(&mut out, 0x10, *space, *address),
+            Reply::WriteOk { space, address } => put_header(&mut out, 0x10, *space, *address, form),
             Reply::ReadStreamOk { space, address, source_stream, destination_stream, count } => {
                 put_stream_header(&mut out, 0x70, *space, *address);
                 out.extend_from_slice(&[*source_stream, *destination_stream]);
@@ -644,7 +674,7 @@ impl Reply {
             Reply::Failed { kind, space, address, code } => {
                 match kind {
                     FailedKind::Read | FailedKind::Write => {
-                        put_header(&mut out, kind.base(), space.unwrap_or(0), *address)
+                        put_header(&mut out, kind.base(), space.unwrap_or(0), *address, form)
                     }
                     FailedKind::ReadStream | FailedKind::WriteStream => {
                         put_stream_header(&mut out, kind.base(), *space, *address);
