@@ -85,7 +85,7 @@ fn twenty_bytes_from_a_to_b_frame_for_frame() {
         (A, ":X1F456123N0700010203040506;"), // M3 Data Send, 16 bytes in 3 frames
         (A, ":X1F456123N070708090A0B0C0D;"),
         (A, ":X1F456123N070E0F;"),
-        (B, ":X19888456N01230407;"),         // M4 Proceed
+        (B, ":X19888456N012304070000;"),     // M4 Proceed
         (A, ":X1F456123N0710111213;"),       // M5 Data Send, 4 bytes
         (A, ":X198A8123N0456040700000014;"), // M6a: the core's Complete is form B, count 20
     ];

@@ -514,7 +514,7 @@ fn open_data_then_proceed_after_a_full_window() {
     b.peer(Mti::STREAM_DATA_SEND, &data(did, &[2; 6]));
     assert!(b.sent().is_empty(), "the window is in, but 6 unread bytes leave no room for another");
     assert_eq!(read_all(&mut b, h), [2; 6]);
-    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did])]);
+    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did, 0, 0])]);
 }
 
 #[test]
@@ -525,12 +525,12 @@ fn open_data_with_early_proceed() {
     let (h, did) = b.open_destination();
     assert_eq!(b.ep.buffer_capacity(h), Some(32));
     b.peer(Mti::STREAM_DATA_SEND, &data(did, &[1; 3]));
-    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did])], "one Proceed ahead");
+    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did, 0, 0])], "one Proceed ahead");
     b.peer(Mti::STREAM_DATA_SEND, &data(did, &[1; 13]));
     assert!(b.sent().is_empty(), "never two ahead");
     read_all(&mut b, h);
     b.peer(Mti::STREAM_DATA_SEND, &data(did, &[1; 1]));
-    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did])]);
+    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did, 0, 0])]);
 }
 
 #[test]
@@ -543,7 +543,7 @@ fn open_slow_reader_holds_the_proceed() {
     assert_eq!(b.ep.read(b.now, h, &mut buf), Ok(8));
     assert!(b.sent().is_empty(), "half a window of room is not enough");
     assert_eq!(b.ep.read(b.now, h, &mut buf), Ok(8));
-    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did])]);
+    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did, 0, 0])]);
 }
 
 #[test]
@@ -617,7 +617,7 @@ fn open_last_full_window_still_gets_its_proceed() {
     let (h, did) = b.open_destination();
     b.peer(Mti::STREAM_DATA_SEND, &data(did, &[1; 16]));
     read_all(&mut b, h);
-    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did])], "OpenMRN's sender waits for it");
+    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did, 0, 0])], "OpenMRN's sender waits for it");
 }
 
 #[test]
@@ -859,7 +859,7 @@ fn awaiting_decision_accept_with_chooses_window_and_early_proceed_per_stream() {
     b.events();
     // With early Proceed, the first byte of the window already draws a Proceed.
     b.peer(Mti::STREAM_DATA_SEND, &data(did, b"a"));
-    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did])]);
+    assert_eq!(b.sent(), [(Mti::STREAM_DATA_PROCEED, vec![4, did, 0, 0])]);
     b.events();
     // Second stream: a window of 4, no early Proceed.
     b.peer(Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 5]);

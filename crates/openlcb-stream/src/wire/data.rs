@@ -43,8 +43,10 @@ impl Emit for DataSend<'_> {
 
 /// Stream Data Proceed, destination to source (draft §5.4, wire-spec §4.4): `SID DID [flags]`.
 ///
-/// Emitted as 2 bytes; the optional flags have no defined values and are ignored on receipt
-/// (wire-spec C-11: termination is by TDE, not by Proceed flags).
+/// Emitted as 4 bytes, `SID DID 00 00`: the form OpenMRN sends and the only one JMRI's
+/// OpenLCB_Java parses (it reads bytes 2-3 unconditionally); valid per wire-spec §4.4. The
+/// optional flags have no defined values and are ignored on receipt, so 2 bytes and more are
+/// accepted (wire-spec C-11: termination is by TDE, not by Proceed flags).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DataProceed {
     /// The source's stream ID.
@@ -67,13 +69,13 @@ impl DataProceed {
 }
 
 impl Emit for DataProceed {
-    /// Always 2.
+    /// Always 4.
     fn buffer_len(&self) -> usize {
-        2
+        4
     }
 
-    /// Writes `SID DID`.
+    /// Writes `SID DID 00 00`.
     fn emit(&self, buf: &mut [u8]) -> Result<usize, BufferTooSmall> {
-        put(buf, &[self.source_stream.as_raw(), self.destination_stream.as_raw()])
+        put(buf, &[self.source_stream.as_raw(), self.destination_stream.as_raw(), 0, 0])
     }
 }

@@ -192,9 +192,9 @@ fn proceed_parse_two_and_four_bytes() {
 }
 
 #[test]
-fn proceed_emit_two_bytes() {
+fn proceed_emit_four_bytes_as_openmrn_and_openlcb_java_expect() {
     let p = DataProceed { source_stream: sid(0xAA), destination_stream: sid(0x55) };
-    assert_eq!(emitted(&p), [0xAA, 0x55]);
+    assert_eq!(emitted(&p), [0xAA, 0x55, 0x00, 0x00]);
 }
 
 #[test]
