@@ -212,7 +212,9 @@ async fn on_event(event: MemoryEvent, args: &ServeArgs, out: &Path, image: &Imag
             say("user name and description changed (space 0xFB)".to_string());
         }
         MemoryEvent::UpdateComplete { by } => say(format!("update complete, said {by}")),
-        MemoryEvent::ResetRequested { by } => say(format!("reset asked for by {by} (nothing to reset)")),
+        MemoryEvent::ResetRequested { by } => say(format!(
+            "reset asked for by {by}: the node started again (streams ended, Initialization Complete sent)"
+        )),
         MemoryEvent::FactoryResetRequested { by } => say(format!("factory reset asked for by {by} (ignored)")),
         _ => {}
     }

@@ -125,6 +125,16 @@ pub(crate) struct Outputs {
 }
 
 impl Outputs {
+    /// What a node sends when it starts: Initialization Complete, then a global Verify Node
+    /// ID naming itself. A node already holding this Node ID answers it; on CAN the link sees
+    /// that Verified Node ID from another alias and reports a duplicate (CFT §6.2.5, MN
+    /// §3.3.2).
+    fn announce_start(&mut self) {
+        let node = self.node;
+        self.transmit(Message::initialization_complete(node));
+        self.transmit(Message::global(Mti::VERIFY_NODE_ID_GLOBAL, node, node.to_bytes()));
+    }
+
     /// Queues a message the node must send (a datagram, a request).
     pub(crate) fn transmit(&mut self, message: Message) {
         self.transmits.push_back(message);
@@ -163,6 +173,8 @@ pub(crate) struct Cx<'a> {
     pub(crate) options: &'a MemoryConfigOptions,
     /// The node must send Initialization Complete (it changed Firmware Upgrade state).
     pub(crate) announce: bool,
+    /// Reset/Reboot was asked for: the node reinitializes once the command is answered.
+    pub(crate) reboot: bool,
 }
 
 impl Cx<'_> {
@@ -209,6 +221,13 @@ impl Cx<'_> {
 /// what the space can take. With `RejectAll` no stream is taken, Memory Configuration's
 /// included. While Memory Configuration has something running, take stream events from
 /// [`poll_event`](Node::poll_event), not from the endpoint: it keeps its own.
+///
+/// A Memory Configuration Reset/Reboot command makes the node start again as after a
+/// power-up, as far as its protocols go: every stream, datagram, SNIP request and Memory
+/// Configuration operation ends, the Firmware Upgrade state and the lock end, and
+/// Initialization Complete goes out after the command's Datagram OK. The spaces keep their
+/// contents (they are the application's memory); the application is told with
+/// `MemoryEvent::ResetRequested` and may do more (a firmware resets its processor).
 #[derive(Debug)]
 pub struct Node {
     config: NodeConfig,
@@ -243,10 +262,7 @@ impl Node {
             memory_finished: Vec::new(),
         };
         if config.send_initialization_complete {
-            out.transmit(Message::initialization_complete(id));
-            // A node already holding this Node ID answers; the link sees its Verified Node ID
-            // from another alias and reports a duplicate (CFT §6.2.5; MN §3.3.2).
-            out.transmit(Message::global(Mti::VERIFY_NODE_ID_GLOBAL, id, id.to_bytes()));
+            out.announce_start();
         }
         let mut protocols = Protocols::DATAGRAM | Protocols::SIMPLE_NODE_INFORMATION | config.extra_protocols;
         if config.streams_enabled {
@@ -713,6 +729,7 @@ impl Node {
             streams_enabled: config.streams_enabled,
             options: &config.memory,
             announce: false,
+            reboot: false,
         };
         let result = f(&mut cx, memory_server.as_mut(), memory_client);
         if cx.announce {
@@ -738,7 +755,7 @@ impl Node {
 
     fn on_memory_datagram(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let is_reply = payload.get(1).is_some_and(|c| mc::is_reply(*c));
-        self.with_memory(now, |cx, server, client| {
+        let reboot = self.with_memory(now, |cx, server, client| {
             if is_reply {
                 // Acknowledge a reply before anything else is sent (MC-TN §3.1.3.3).
                 cx.ok(peer, OkFlags::default());
@@ -748,8 +765,26 @@ impl Node {
             } else if let Some(server) = server {
                 server.on_command(cx, peer, payload);
             }
+            cx.reboot
         });
         self.update_user_info();
+        if reboot {
+            self.reinitialize();
+        }
+    }
+
+    /// Reset/Reboot (MC §4.24) of a library node: it starts again as after a power-up, as far
+    /// as the protocols go. Every stream, datagram, SNIP request and Memory Configuration
+    /// operation ends (their owners hear why), the Firmware Upgrade state and the lock end,
+    /// and Initialization Complete goes out (after the reset command's Datagram OK). The
+    /// spaces keep their contents: they are the application's memory, and the application,
+    /// told by `MemoryEvent::ResetRequested`, may do more (a firmware resets its processor).
+    fn reinitialize(&mut self) {
+        self.link_lost();
+        if let Some(server) = &mut self.memory_server {
+            server.reinitialize();
+        }
+        self.out.announce_start();
     }
 
     /// A write to space 0xFB changed the user strings: SNIP follows them.

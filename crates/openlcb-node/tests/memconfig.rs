@@ -6,7 +6,7 @@ use openlcb_node::{
     MemoryError, MemoryEvent, MemoryServer, Node, NodeConfig, NodeEvent, Protocols, RamSpace, ReadOnlySpace,
     TransferPath,
 };
-use openlcb_stream::{Duration, Instant, Message, Mti, NodeId};
+use openlcb_stream::{Duration, Instant, Message, Mti, NodeId, OpenOptions};
 
 const CLIENT: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 1]);
 const SERVER: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 2]);
@@ -338,6 +338,32 @@ fn read_stream_with_did_0xff_proposes_none_and_is_served() {
     assert_eq!((answers[0].mti, &answers[0].payload[..]), (Mti::DATAGRAM_RECEIVED_OK, &[0x80][..]), "{answers:?}");
     let request = answers.iter().find(|m| m.mti == Mti::STREAM_INITIATE_REQUEST).expect("the stream is offered");
     assert_eq!(request.payload.len(), 5, "no DID proposed: {:?}", request.payload);
+}
+
+#[test]
+fn reset_reinitializes_the_node_and_announces_it_after_the_ok() {
+    // OlcbChecker's mc50_restart sends `20 A9` and waits for Initialization Complete.
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+    let freeze = exchange(&mut pair, &Command::Freeze { space: 0xEF }.to_bytes());
+    assert_eq!(freeze[0].mti, Mti::DATAGRAM_RECEIVED_OK);
+    assert!(pair.server.memory_server().unwrap().is_frozen());
+    let open = pair.server.streams_mut().open(pair.now, OpenOptions::new(CLIENT, 64)).unwrap();
+    let answers = exchange(&mut pair, &Command::Reset.to_bytes());
+    let mtis: Vec<Mti> = answers.iter().map(|m| m.mti).collect();
+    assert_eq!(
+        mtis[..3],
+        [Mti::DATAGRAM_RECEIVED_OK, Mti::INITIALIZATION_COMPLETE, Mti::VERIFY_NODE_ID_GLOBAL],
+        "{answers:?}"
+    );
+    assert!(!pair.server.memory_server().unwrap().is_frozen(), "the Firmware Upgrade state ended");
+    assert!(pair.server.streams().stream_info(open).is_none(), "its streams ended");
+    assert!(
+        pair.server_events
+            .iter()
+            .any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::ResetRequested { by }) if *by == CLIENT)),
+        "the application is told"
+    );
+    assert_eq!(read_back(&mut pair.server, 0xFD), pattern(64, 7), "the configuration survives");
 }
 
 #[test]

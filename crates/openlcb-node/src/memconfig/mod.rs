@@ -179,7 +179,9 @@ pub enum MemoryEvent {
         /// Who said so.
         by: NodeId,
     },
-    /// Server: Reset/Reboot (MC §4.24). The configuration must survive.
+    /// Server: Reset/Reboot (MC §4.24). The node has already reinitialized its protocols and
+    /// announced itself again (see `Node`'s documentation of Reset/Reboot); the configuration
+    /// must survive.
     ResetRequested {
         /// Who asked.
         by: NodeId,

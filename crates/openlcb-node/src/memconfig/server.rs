@@ -417,7 +417,10 @@ impl MemoryServer {
                 }
             }
             Command::UpdateComplete => self.acknowledge(cx, peer, E::UpdateComplete { by: peer }),
-            Command::Reset => self.acknowledge(cx, peer, E::ResetRequested { by: peer }),
+            Command::Reset => {
+                cx.reboot = true;
+                self.acknowledge(cx, peer, E::ResetRequested { by: peer });
+            }
             Command::FactoryReset { node } => {
                 if node != cx.out.node.as_raw() {
                     return self.reject(cx, peer, codes::INVALID_ARGUMENTS);
@@ -811,6 +814,14 @@ impl MemoryServer {
         {
             self.end(index, false);
         }
+    }
+
+    /// The node reinitializes (Reset/Reboot): no transfer, no lock, not frozen.
+    pub(crate) fn reinitialize(&mut self) {
+        self.transfers.clear();
+        self.lock = 0;
+        self.frozen = false;
+        self.unfreeze_pending = None;
     }
 
     /// `peer` restarted or is gone: its transfers waiting for a stream are dropped (open
