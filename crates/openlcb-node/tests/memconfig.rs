@@ -693,6 +693,55 @@ impl Scripted for ReplyAfterComplete {
     }
 }
 
+/// OpenMRN's io_board as seen here: space 0xFD reported with highest address 0x157, but a
+/// read of 0x157 refused with 0x1082 (its last readable byte is 0x156); no streams.
+struct EdgeRefusingNode {
+    space: Vec<u8>,
+}
+
+impl Scripted for EdgeRefusingNode {
+    fn handle(&mut self, _now: Instant, msg: &Message, out: &mut Vec<Message>) {
+        let send = |out: &mut Vec<Message>, mti, p: Vec<u8>| out.push(Message::addressed(mti, SERVER, CLIENT, p));
+        if msg.mti != Mti::DATAGRAM {
+            return;
+        }
+        send(out, Mti::DATAGRAM_RECEIVED_OK, vec![0x80]);
+        match Command::parse(&msg.payload).unwrap() {
+            Command::GetOptions => send(out, Mti::DATAGRAM, vec![0x20, 0x82, 0x60, 0x00, 0xE2, 0xFF, 0xFB]),
+            Command::GetSpaceInfo { space: 0xFD } => {
+                send(out, Mti::DATAGRAM, vec![0x20, 0x87, 0xFD, 0, 0, 0x01, 0x57, 0])
+            }
+            Command::Read { address, count, .. } => {
+                let start = address as usize;
+                if start >= self.space.len() {
+                    send(out, Mti::DATAGRAM, vec![0x20, 0x59, 0, 0, (address >> 8) as u8, address as u8, 0x10, 0x82]);
+                } else {
+                    let end = (start + usize::from(count)).min(self.space.len());
+                    let mut reply = vec![0x20, 0x51, 0, 0, (address >> 8) as u8, address as u8];
+                    reply.extend_from_slice(&self.space[start..end]);
+                    send(out, Mti::DATAGRAM, reply);
+                }
+            }
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn whole_space_read_ends_where_the_node_refuses_the_last_address_it_reported() {
+    let mut client = Node::new(CLIENT, NodeConfig::default());
+    let space = pattern(0x157, 3);
+    let mut target = EdgeRefusingNode { space: space.clone() };
+    client.read_memory(Instant::ZERO, SERVER, 0xFD, 0, None, TransferPath::Auto).unwrap();
+    let done = run_scripted(&mut client, &mut target);
+    let Some(MemoryEvent::ReadDone { data, .. }) = done else { panic!("{done:?}") };
+    assert_eq!(data, space, "the data is kept, 0x000-0x156");
+    // Asked for a length, the same refusal is an error: the caller wanted those bytes.
+    client.read_memory(Instant::ZERO, SERVER, 0xFD, 0, Some(0x158), TransferPath::Auto).unwrap();
+    let done = run_scripted(&mut client, &mut target);
+    assert!(matches!(done, Some(MemoryEvent::Failed { .. })), "{done:?}");
+}
+
 #[test]
 fn write_stream_reply_after_complete_without_the_space_byte() {
     let mut client = Node::new(CLIENT, NodeConfig::default());

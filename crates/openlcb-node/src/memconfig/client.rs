@@ -59,10 +59,12 @@ pub enum MemoryRequestError {
 
 #[derive(Debug)]
 enum Kind {
-    /// `len: None` reads to the end of the space.
+    /// `len: None` reads to the end of the space; `reported`: `len` is the end the node
+    /// itself reported (Get Address Space Info), not one the caller asked for.
     Read {
         data: Vec<u8>,
         len: Option<u32>,
+        reported: bool,
     },
     Write {
         data: Vec<u8>,
@@ -111,6 +113,13 @@ struct Operation {
     /// A Read Reply shorter than asked for, at (offset, length): trusted only once a second
     /// read says the same, since a CAN datagram that lost a middle frame looks just like one.
     short_reply: Option<(u32, usize)>,
+}
+
+impl Kind {
+    /// A whole-space read whose reported end is `end` (offset from the start).
+    fn ends_at_reported(&self, end: u32) -> bool {
+        matches!(self, Kind::Read { len: Some(len), reported: true, .. } if *len == end)
+    }
 }
 
 impl Operation {
@@ -182,7 +191,7 @@ impl MemoryClient {
         if len.is_some_and(|n| n == 0 || n > cx.options.max_read_len) {
             return Err(MemoryRequestError::BadLength);
         }
-        self.start(cx, peer, space, address, Kind::Read { data: Vec::new(), len }, path)
+        self.start(cx, peer, space, address, Kind::Read { data: Vec::new(), len, reported: false }, path)
     }
 
     pub(crate) fn write(
@@ -504,8 +513,9 @@ impl MemoryClient {
                 };
                 let len = highest.checked_sub(op.address).and_then(|n| n.checked_add(1));
                 match (len, &mut op.kind) {
-                    (Some(len), Kind::Read { len: want, .. }) if len <= max_read => {
+                    (Some(len), Kind::Read { len: want, reported, .. }) if len <= max_read => {
                         *want = Some(len);
+                        *reported = true;
                         self.next_chunk(cx, index, 0)
                     }
                     (None, _) => Some(Outcome::Fail(MemoryError::Failed(codes::OUT_OF_BOUNDS))),
@@ -534,6 +544,16 @@ impl MemoryClient {
                 op.progress = u64::from(at.saturating_add(len));
                 op.retries = 0;
                 self.next_chunk(cx, index, at.saturating_add(len))
+            }
+            (Step::Chunk { at, len }, Reply::Failed { kind: FailedKind::Read, code, .. })
+                if code == codes::OUT_OF_BOUNDS && op.kind.ends_at_reported(at.saturating_add(len)) && at > 0 =>
+            {
+                // Liberal at the edge: a node that refuses the last address it reported itself
+                // (OpenMRN's io_board: highest 0x157, 0x157 out of bounds) ends its space there.
+                if let Kind::Read { len: want, .. } = &mut op.kind {
+                    *want = Some(at);
+                }
+                Some(Outcome::Done)
             }
             (Step::Chunk { .. }, Reply::Failed { kind: FailedKind::Read | FailedKind::Write, code, .. })
             | (Step::ReadStream { .. }, Reply::Failed { kind: FailedKind::ReadStream, code, .. })
@@ -690,7 +710,7 @@ impl MemoryClient {
         let max_read = cx.options.max_read_len as usize;
         let op = self.operations.get_mut(index)?;
         let handle = op.stream_handle()?;
-        let Kind::Read { data, len } = &mut op.kind else { return None };
+        let Kind::Read { data, len, .. } = &mut op.kind else { return None };
         let limit = len.map_or(max_read, |n| n as usize);
         let mut buf = [0u8; 512];
         loop {
@@ -709,7 +729,7 @@ impl MemoryClient {
 
     fn read_finished(&mut self, index: usize, total: u64) -> Option<Outcome> {
         let op = self.operations.get(index)?;
-        let Kind::Read { data, len } = &op.kind else { return None };
+        let Kind::Read { data, len, .. } = &op.kind else { return None };
         let received = data.len() as u64;
         match len {
             Some(want) if u64::from(*want) != received || received != total => {
