@@ -650,16 +650,28 @@ async fn a_flood_of_requests_from_a_thousand_aliases_is_answered_and_memory_stay
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_duplicate_announced_later_stops_recv_with_exit_10() {
-    use tokio::io::AsyncWriteExt as _;
+async fn a_duplicate_announced_later_is_reported_and_recv_keeps_running() {
+    use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
     let (_hub, gridconnect, _) = start_hub_binary().await;
     let mut recv = spawn(&["recv", "--connect", &gridconnect]);
     wait_for_line(&mut recv, "listening").await;
-    // A node that does not ask first (as OpenMRN's nodes do) announces the same Node ID.
+    // A newcomer announces the same Node ID: recv, which was there first, sends the
+    // well-known event Duplicate Node ID Detected and goes on.
     let mut other = bounded("connect", tokio::net::TcpStream::connect(&gridconnect)).await.unwrap();
     other.write_all(b":X10701ABCN0501010122F1;\n").await.unwrap();
-    let (status, _, _) = finish(recv).await;
-    assert_eq!(status.code(), Some(10), "wire-spec 7.5: the node stops and says why");
+    let mut seen = String::new();
+    let mut buf = [0u8; 512];
+    bounded("the report", async {
+        while !seen.contains("N0101000000000201;") {
+            let n = other.read(&mut buf).await.unwrap();
+            assert!(n > 0, "the hub closed: {seen}");
+            seen.push_str(&String::from_utf8_lossy(&buf[..n]));
+        }
+    })
+    .await;
+    assert!(seen.contains(":X195B4"), "a Producer/Consumer Event Report: {seen}");
+    tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    assert!(recv.try_wait().unwrap().is_none(), "recv keeps running");
 }
 
 /// A pseudo-terminal pair: the master end, the terminal end (held open so that the master
