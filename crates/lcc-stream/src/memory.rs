@@ -109,7 +109,7 @@ pub(crate) enum Stop {
 }
 
 impl Stop {
-    fn status(&self) -> u8 {
+    pub(crate) fn status(&self) -> u8 {
         match self {
             Stop::Net(error) => status(error),
             Stop::File(_) => net::EXIT_FILE,
@@ -117,7 +117,7 @@ impl Stop {
         }
     }
 
-    fn word(&self) -> &'static str {
+    pub(crate) fn word(&self) -> &'static str {
         match self {
             Stop::Net(Error::Unreachable(_)) => "not_found",
             Stop::Net(error @ Error::Memory { .. }) => match status(error) {
@@ -272,7 +272,7 @@ const SPACE_FIRMWARE: u8 = 0xEF;
 pub(crate) fn finish(report: Report, outcome: Result<String, Stop>, json: bool, command: &str) -> ExitCode {
     let (status, report) = match outcome {
         Ok(text) => {
-            if !json {
+            if !json && !text.is_empty() {
                 println!("{text}");
             }
             (0, report)

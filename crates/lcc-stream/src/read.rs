@@ -10,6 +10,7 @@ use std::time::Instant;
 use clap::Args;
 use openlcb_stream::NodeId;
 
+use crate::cdi;
 use crate::memory::{self, ClientArgs, Report, Stop};
 use crate::net;
 use crate::recv::{part_path, publish};
@@ -91,7 +92,8 @@ async fn transfer(args: &ReadArgs, interrupt: &mut net::Interrupt, started: &mut
         .map_err(Stop::Net)?;
     let data = memory::follow(transfer, args.length.map(u64::from), args.client.json, interrupt).await;
     node.close().await;
-    data
+    // The CDI's terminating NUL is no part of the document.
+    if args.space == cdi::SPACE_CDI { data.map(cdi::trim_cdi) } else { data }
 }
 
 async fn save(mut file: tokio::fs::File, data: &[u8]) -> std::io::Result<()> {
