@@ -183,19 +183,17 @@ pub fn plan(layout: &Layout, snapshot: &Snapshot, lines: &[Line]) -> Result<Plan
             plan.unknown_keys.push(line.key.clone());
             continue;
         };
-        let checked = entry.parse(&line.value).and_then(|v| entry.encode(&v).map(|b| (v, b)));
-        let (new, bytes) = match checked {
-            Ok(checked) => checked,
-            Err(error) => {
-                plan.invalid.push((line.key.clone(), error));
-                continue;
-            }
-        };
+        // What the node holds already is no change, even where it could not be written as
+        // it is (a string of erased 0xFF bytes, say).
         let old = snapshot.value(entry)?;
-        if old == new {
-            plan.unchanged += 1;
-        } else {
-            plan.writes.push(Change { entry: entry.clone(), old, new, bytes });
+        let checked = entry.parse(&line.value).and_then(|new| match new == old {
+            true => Ok(None),
+            false => entry.encode(&new).map(|bytes| Some((new, bytes))),
+        });
+        match checked {
+            Ok(None) => plan.unchanged += 1,
+            Ok(Some((new, bytes))) => plan.writes.push(Change { entry: entry.clone(), old, new, bytes }),
+            Err(error) => plan.invalid.push((line.key.clone(), error)),
         }
     }
     Ok(plan)

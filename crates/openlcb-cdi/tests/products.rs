@@ -241,3 +241,19 @@ fn layouts_and_backups_are_jmris() {
         assert!(plan.writes.iter().all(|c| c.old == c.new), "nothing to change but strings JMRI cut");
     }
 }
+
+/// An erased string (all 0xFF, no NUL: OpenMRN's io_board has such) decodes to replacement
+/// characters longer than the entry; its own backup line is no change, not an error.
+#[test]
+fn a_backup_of_erased_strings_restores_as_unchanged() {
+    let layout = Layout::parse(IO16).unwrap();
+    let mut snap = Snapshot::new();
+    snap.insert(layout.spans()[0], vec![0xFF; 127]);
+    let mut settings = vec![0xFF; layout.spans()[1].len as usize];
+    settings[..2].copy_from_slice(&[0, 20]);
+    snap.insert(layout.spans()[1], settings);
+    let text = backup::write(&layout, &snap).unwrap();
+    assert!(text.starts_with(&format!("Node ID.Node Name={}\n", "\u{FFFD}".repeat(63))));
+    let plan = backup::plan(&layout, &snap, &backup::parse(&text).unwrap()).unwrap();
+    assert_eq!((plan.writes.len(), plan.invalid.len()), (0, 0), "{:?}", plan.invalid);
+}
