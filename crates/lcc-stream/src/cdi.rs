@@ -11,7 +11,6 @@ use openlcb_tokio::Node;
 
 use crate::memory::{self, ClientArgs, Report, Stop};
 use crate::net;
-use crate::recv::{part_path, publish};
 
 /// The CDI's space.
 pub(crate) const SPACE_CDI: u8 = 0xFF;
@@ -58,10 +57,7 @@ async fn cdi(args: &CdiArgs) -> Result<ExitCode, String> {
     let mut started = Instant::now();
     let outcome = async {
         if let Some(out) = &args.out {
-            if tokio::fs::try_exists(out).await.map_err(Stop::File)? {
-                let taken = std::io::Error::new(std::io::ErrorKind::AlreadyExists, "the output file exists");
-                return Err(Stop::File(taken));
-            }
+            memory::refuse_existing(out).await?;
         }
         let node = memory::join(&args.client, "cdi", args.from).await?;
         started = Instant::now();
@@ -69,11 +65,7 @@ async fn cdi(args: &CdiArgs) -> Result<ExitCode, String> {
         node.close().await;
         let xml = xml?;
         match &args.out {
-            Some(out) => {
-                let part = part_path(out);
-                tokio::fs::write(&part, &xml).await.map_err(Stop::File)?;
-                publish(&part, out).await.map_err(Stop::File)?;
-            }
+            Some(out) => memory::save_new(out, &xml).await?,
             None if !args.client.json => {
                 use std::io::Write as _;
                 std::io::stdout().write_all(&xml).map_err(Stop::File)?;

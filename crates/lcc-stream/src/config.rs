@@ -20,7 +20,6 @@ use serde_json::{Value as Json, json};
 use crate::cdi::read_cdi;
 use crate::memory::{self, ClientArgs, Stop};
 use crate::net;
-use crate::recv::{part_path, publish};
 
 /// The fields of `config --json`.
 macro_rules! config_json_help {
@@ -177,13 +176,13 @@ pub(crate) fn run(args: &ConfigArgs) -> Result<ExitCode, String> {
     let outcome = net::runtime()?.block_on(async {
         let mut interrupt = net::Interrupt::new().map_err(|e| Failure::Invalid(e.to_string()))?;
         if let Action::Backup { out: Some(out), .. } = &args.action {
-            refuse_existing(out).await?;
+            memory::refuse_existing(out).await?;
         }
         let session = Session::open(client, node, &mut interrupt).await?;
         let done = session.act(&args.action, &mut interrupt).await;
         if let Ok(done) = &done {
             if let Action::Backup { out: Some(out), .. } = &args.action {
-                save(out, done.text.as_bytes()).await?;
+                memory::save_new(out, done.text.as_bytes()).await?;
             }
         }
         session.node.close().await;
@@ -226,21 +225,6 @@ fn merge(object: &mut Json, fields: Json) {
     if let (Some(object), Json::Object(fields)) = (object.as_object_mut(), fields) {
         object.extend(fields);
     }
-}
-
-async fn refuse_existing(out: &std::path::Path) -> Result<(), Failure> {
-    if tokio::fs::try_exists(out).await.map_err(|e| Failure::Stop(Stop::File(e)))? {
-        let taken = std::io::Error::new(std::io::ErrorKind::AlreadyExists, "the output file exists");
-        return Err(Failure::Stop(Stop::File(taken)));
-    }
-    Ok(())
-}
-
-async fn save(out: &std::path::Path, bytes: &[u8]) -> Result<(), Failure> {
-    let part = part_path(out);
-    let file = |e| Failure::Stop(Stop::File(e));
-    tokio::fs::write(&part, bytes).await.map_err(file)?;
-    publish(&part, out).await.map_err(file)
 }
 
 /// A joined client node, the target and its laid-out CDI.

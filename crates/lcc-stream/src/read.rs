@@ -47,10 +47,7 @@ async fn read(args: &ReadArgs) -> Result<ExitCode, String> {
     let mut started = Instant::now();
     let part = part_path(&args.out);
     let outcome = async {
-        if tokio::fs::try_exists(&args.out).await.map_err(Stop::File)? {
-            let taken = std::io::Error::new(std::io::ErrorKind::AlreadyExists, "the output file exists");
-            return Err(Stop::File(taken));
-        }
+        memory::refuse_existing(&args.out).await?;
         let claimed = tokio::fs::OpenOptions::new().write(true).create_new(true).open(&part).await;
         let file = claimed.map_err(Stop::File)?;
         let result = transfer(args, &mut interrupt, &mut started).await;
