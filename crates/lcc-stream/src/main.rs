@@ -1,6 +1,8 @@
 //! `lcc-stream`: OpenLCB streams from the command line.
 
 mod args;
+mod cdi;
+mod config;
 mod demo;
 mod firmware;
 mod hub;
@@ -67,6 +69,11 @@ enum Command {
     Write(write::WriteArgs),
     /// Upgrade a node's firmware (Freeze, the image into space 0xEF, Unfreeze).
     Firmware(firmware::FirmwareArgs),
+    /// Save a node's CDI (space 0xFF) as clean XML.
+    Cdi(cdi::CdiArgs),
+    /// Show, get and set a node's settings by their CDI names; back them up and restore them
+    /// in JMRI's format.
+    Config(config::ConfigArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
 }
@@ -84,6 +91,8 @@ fn main() -> ExitCode {
         Command::Read(args) => read::run(&args),
         Command::Write(args) => write::run(&args),
         Command::Firmware(args) => firmware::run(&args),
+        Command::Cdi(args) => cdi::run(&args),
+        Command::Config(args) => config::run(&args),
         Command::Demo(args) => demo::run(&args),
     };
     match result {

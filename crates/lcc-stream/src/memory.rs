@@ -109,7 +109,7 @@ pub(crate) enum Stop {
 }
 
 impl Stop {
-    fn status(&self) -> u8 {
+    pub(crate) fn status(&self) -> u8 {
         match self {
             Stop::Net(error) => status(error),
             Stop::File(_) => net::EXIT_FILE,
@@ -117,7 +117,7 @@ impl Stop {
         }
     }
 
-    fn word(&self) -> &'static str {
+    pub(crate) fn word(&self) -> &'static str {
         match self {
             Stop::Net(Error::Unreachable(_)) => "not_found",
             Stop::Net(error @ Error::Memory { .. }) => match status(error) {
@@ -265,6 +265,22 @@ pub(crate) async fn upload(
     Ok(finish(report, text, client.json, command))
 }
 
+/// Refuses to go on when `out` exists: no command writes over a file.
+pub(crate) async fn refuse_existing(out: &std::path::Path) -> Result<(), Stop> {
+    if tokio::fs::try_exists(out).await.map_err(Stop::File)? {
+        let taken = std::io::Error::new(std::io::ErrorKind::AlreadyExists, "the output file exists");
+        return Err(Stop::File(taken));
+    }
+    Ok(())
+}
+
+/// Writes `bytes` to `out` through `out.part`, never over an existing file.
+pub(crate) async fn save_new(out: &std::path::Path, bytes: &[u8]) -> Result<(), Stop> {
+    let part = crate::recv::part_path(out);
+    tokio::fs::write(&part, bytes).await.map_err(Stop::File)?;
+    crate::recv::publish(&part, out).await.map_err(Stop::File)
+}
+
 /// The firmware space.
 const SPACE_FIRMWARE: u8 = 0xEF;
 
@@ -272,7 +288,7 @@ const SPACE_FIRMWARE: u8 = 0xEF;
 pub(crate) fn finish(report: Report, outcome: Result<String, Stop>, json: bool, command: &str) -> ExitCode {
     let (status, report) = match outcome {
         Ok(text) => {
-            if !json {
+            if !json && !text.is_empty() {
                 println!("{text}");
             }
             (0, report)

@@ -10,6 +10,7 @@ use std::time::Instant;
 use clap::Args;
 use openlcb_stream::NodeId;
 
+use crate::cdi;
 use crate::memory::{self, ClientArgs, Report, Stop};
 use crate::net;
 use crate::recv::{part_path, publish};
@@ -46,10 +47,7 @@ async fn read(args: &ReadArgs) -> Result<ExitCode, String> {
     let mut started = Instant::now();
     let part = part_path(&args.out);
     let outcome = async {
-        if tokio::fs::try_exists(&args.out).await.map_err(Stop::File)? {
-            let taken = std::io::Error::new(std::io::ErrorKind::AlreadyExists, "the output file exists");
-            return Err(Stop::File(taken));
-        }
+        memory::refuse_existing(&args.out).await?;
         let claimed = tokio::fs::OpenOptions::new().write(true).create_new(true).open(&part).await;
         let file = claimed.map_err(Stop::File)?;
         let result = transfer(args, &mut interrupt, &mut started).await;
@@ -91,7 +89,8 @@ async fn transfer(args: &ReadArgs, interrupt: &mut net::Interrupt, started: &mut
         .map_err(Stop::Net)?;
     let data = memory::follow(transfer, args.length.map(u64::from), args.client.json, interrupt).await;
     node.close().await;
-    data
+    // The CDI's terminating NUL is no part of the document.
+    if args.space == cdi::SPACE_CDI { data.map(cdi::trim_cdi) } else { data }
 }
 
 async fn save(mut file: tokio::fs::File, data: &[u8]) -> std::io::Result<()> {

@@ -281,13 +281,32 @@ impl Spaces {
     }
 }
 
+/// The bytes of space 0xFD the built-in settings take (the rest are described as spare
+/// bytes): a 32-byte string, a mode (1 byte, mapped), a delay (2 bytes, 0..1000), a float,
+/// and 4 ports of 33 bytes (a name, two events, a pulse length).
+const SETTINGS_LEN: u32 = 32 + 1 + 2 + 4 + 4 * PORT_LEN;
+/// One port of the built-in CDI.
+const PORT_LEN: u32 = 16 + 8 + 8 + 1;
+
 /// A CDI describing this node: its identification, the ACDI user space and `config_len`
-/// bytes of space 0xFD.
+/// bytes of space 0xFD (settings of every type the CDI has, then spare bytes; a space too
+/// small for the settings is all spare bytes).
 fn builtin_cdi(config_len: u32) -> String {
     let snip = net::snip("serve");
+    let (settings, spare) = match config_len.checked_sub(SETTINGS_LEN) {
+        Some(spare) => (BUILTIN_SETTINGS, spare),
+        None => ("", config_len),
+    };
+    let spare = if spare > 0 {
+        format!(
+            r#"<group replication="{spare}"><name>Spare</name><repname>Byte</repname><int size="1"><name>Value</name></int></group>"#
+        )
+    } else {
+        String::new()
+    };
     format!(
         r#"<?xml version="1.0" encoding="utf-8"?>
-<cdi xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:noNamespaceSchemaLocation="http://openlcb.org/schema/cdi/1/1/cdi.xsd">
+<cdi xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:noNamespaceSchemaLocation="http://openlcb.org/schema/cdi/1/4/cdi.xsd">
 <identification><manufacturer>{}</manufacturer><model>{}</model><hardwareVersion>{}</hardwareVersion><softwareVersion>{}</softwareVersion></identification>
 <acdi/>
 <segment space="251" origin="1"><name>User identification</name>
@@ -295,13 +314,26 @@ fn builtin_cdi(config_len: u32) -> String {
 <string size="64"><name>User description</name></string>
 </segment>
 <segment space="253" origin="0"><name>Configuration</name><description>{config_len} bytes of storage</description>
-<group replication="{config_len}"><name>Bytes</name><repname>Byte</repname><int size="1"><name>Value</name></int></group>
+{settings}{spare}
 </segment>
 </cdi>
 "#,
         snip.manufacturer, snip.model, snip.hardware_version, snip.software_version
     )
 }
+
+/// The settings of the built-in CDI ([`SETTINGS_LEN`] bytes).
+const BUILTIN_SETTINGS: &str = r#"<string size="32"><name>Label</name><description>A name for this node's purpose</description></string>
+<int size="1"><name>Mode</name><default>0</default><map><relation><property>0</property><value>Idle</value></relation><relation><property>1</property><value>Active</value></relation><relation><property>2</property><value>Test</value></relation></map></int>
+<int size="2"><name>Delay (ms)</name><min>0</min><max>1000</max><default>100</default></int>
+<float size="4"><name>Scale</name><min>0</min><max>100</max><default>1</default></float>
+<group replication="4"><name>Port</name><repname>Port 1</repname>
+<string size="16"><name>Name</name></string>
+<eventid><name>Event On</name></eventid>
+<eventid><name>Event Off</name></eventid>
+<int size="1"><name>Pulse (x10 ms)</name><min>0</min><max>100</max></int>
+</group>
+"#;
 
 /// Space 0xFD: a file (written through) or bytes in memory.
 enum ConfigSpace {
@@ -417,10 +449,22 @@ mod tests {
         assert_eq!(image.take(2), [0, 0], "a taken image leaves an empty buffer");
     }
 
+    /// Every byte of space 0xFD is described, once, whatever its size.
     #[test]
     fn builtin_cdi_describes_the_configuration_space() {
-        let xml = builtin_cdi(256);
-        assert!(xml.contains(r#"<segment space="253" origin="0">"#));
-        assert!(xml.contains(r#"replication="256""#));
+        for config_len in [1, 100, SETTINGS_LEN, SETTINGS_LEN + 1, DEFAULT_CONFIG_LEN, 4096] {
+            let layout = openlcb_cdi::Layout::parse(&builtin_cdi(config_len)).unwrap();
+            let config = layout.spans().into_iter().find(|s| s.space == 0xFD).unwrap();
+            assert_eq!((config.address, config.len), (0, config_len), "{config_len}");
+            let bytes: u32 = layout.entries().filter(|e| e.space == 0xFD).map(|e| e.size).sum();
+            assert_eq!(bytes, config_len, "no gaps ({config_len})");
+        }
+        let layout = openlcb_cdi::Layout::parse(&builtin_cdi(DEFAULT_CONFIG_LEN)).unwrap();
+        let kinds: Vec<&str> = layout.entries().map(|e| e.kind.word()).collect();
+        for kind in ["int", "float", "string", "eventid"] {
+            assert!(kinds.contains(&kind), "{kind}");
+        }
+        assert!(layout.find("Configuration.Port(3).Event Off").next().is_some());
+        assert!(!layout.find("Configuration.Mode").next().unwrap().map.is_empty());
     }
 }

@@ -236,3 +236,140 @@ async fn sigterm_stops_serve_with_exit_130_and_its_report() {
     assert_eq!(status.code(), Some(130));
     assert_eq!(std::fs::read(&out).unwrap(), data(3000, 8));
 }
+
+// ----- the CDI and `config` -----
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_cdi_is_saved_as_clean_xml_by_cdi_and_by_read() {
+    let dir = scratch("cdi-clean");
+    let (_hub, addr) = hub().await;
+    let _server = Server::start(&dir, &addr, SERVER, &[]).await;
+    let by_cdi = dir.join("by-cdi.xml");
+    let (status, json) = run(&addr, &["cdi", "--from", SERVER, "--out", path_arg(&by_cdi)]).await;
+    assert_eq!(status, 0, "{json}");
+    let by_read = dir.join("by-read.xml");
+    let (status, _) = run(&addr, &["read", "--from", SERVER, "--space", "0xFF", "--out", path_arg(&by_read)]).await;
+    assert_eq!(status, 0);
+    for file in [&by_cdi, &by_read] {
+        let xml = std::fs::read(file).unwrap();
+        assert!(!xml.contains(&0), "no NUL in {}", file.display());
+        assert!(xml.ends_with(b"</cdi>\n"));
+        openlcb_cdi::Layout::parse(std::str::from_utf8(&xml).unwrap()).unwrap();
+    }
+    assert_eq!(json["bytes"], std::fs::read(&by_cdi).unwrap().len());
+}
+
+/// `config backup`, `set` then `restore` of the old backup: the node holds what it held,
+/// and only the changed entries were written.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn config_backup_set_restore_round_trip() {
+    let dir = scratch("config-roundtrip");
+    let (_hub, addr) = hub().await;
+    let config = dir.join("config.bin");
+    std::fs::write(&config, vec![0; 256]).unwrap();
+    let mut server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config), "--name", "Yard"]).await;
+    let before = dir.join("before.txt");
+    let (status, json) = run(&addr, &["config", "backup", SERVER, "--out", path_arg(&before)]).await;
+    assert_eq!(status, 0, "{json}");
+    let saved = std::fs::read_to_string(&before).unwrap();
+    assert!(saved.starts_with("User identification.User name=Yard\nUser identification.User description=\nConfiguration.Label=\nConfiguration.Mode=0\n"), "{saved}");
+    assert_eq!(json["entries"], saved.lines().count());
+
+    let (status, json) = run(&addr, &["config", "set", SERVER, "Configuration.Mode", "Test"]).await;
+    assert_eq!(status, 0, "{json}");
+    assert_eq!(
+        (json["value"].as_i64(), json["label"].as_str(), json["old"].as_i64()),
+        (Some(2), Some("Test"), Some(0))
+    );
+    server.wait_for("update complete").await;
+    let event = "Configuration.Port(2).Event Off";
+    let (status, _) = run(&addr, &["config", "set", SERVER, event, "05.01.01.01.22.E2.00.2A"]).await;
+    assert_eq!(status, 0);
+    let (status, _) = run(&addr, &["config", "set", SERVER, "Configuration.Label", "Branch"]).await;
+    assert_eq!(status, 0);
+    let (_, json) = run(&addr, &["config", "get", SERVER, event]).await;
+    assert_eq!(json["value"], "05.01.01.01.22.E2.00.2A");
+    let held = std::fs::read(&config).unwrap();
+    assert_eq!(&held[..7], b"Branch\0", "strings are NUL-padded to their size");
+    assert!(held[7..32].iter().all(|b| *b == 0));
+
+    let (status, json) = run(&addr, &["config", "restore", SERVER, path_arg(&before), "--dry-run"]).await;
+    assert_eq!(status, 0, "{json}");
+    assert_eq!(json["written"].as_array().unwrap().len(), 3);
+    assert_ne!(std::fs::read(&config).unwrap(), vec![0; 256], "a dry run writes nothing");
+    let (status, json) = run(&addr, &["config", "restore", SERVER, path_arg(&before)]).await;
+    assert_eq!(status, 0, "{json}");
+    let written: Vec<&str> = json["written"].as_array().unwrap().iter().filter_map(|k| k.as_str()).collect();
+    assert_eq!(written, ["Configuration.Label", "Configuration.Mode", event]);
+    assert_eq!(json["unchanged"], saved.lines().count() - 3);
+    assert_eq!(std::fs::read(&config).unwrap(), vec![0; 256]);
+    let after = dir.join("after.txt");
+    let (status, _) = run(&addr, &["config", "backup", SERVER, "--out", path_arg(&after)]).await;
+    assert_eq!(status, 0);
+    assert_eq!(std::fs::read_to_string(&after).unwrap(), saved);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn config_refuses_what_the_cdi_does_not_allow_and_writes_nothing() {
+    let dir = scratch("config-refuse");
+    let (_hub, addr) = hub().await;
+    let config = dir.join("config.bin");
+    std::fs::write(&config, vec![0; 256]).unwrap();
+    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    for (key, value) in [
+        ("Configuration.Delay (ms)", "1001"),
+        ("Configuration.Mode", "Sleeping"),
+        ("Configuration.Mode", "7"),
+        ("Configuration.Label", &"x".repeat(32)),
+        ("Configuration.Port(0).Event On", "05.01.01"),
+        ("Configuration.Scale", "101"),
+        ("Configuration.No such thing", "1"),
+    ] {
+        let (status, json) = run(&addr, &["config", "set", SERVER, key, value]).await;
+        assert_eq!((status, json["result"].as_str()), (2, Some("invalid")), "{key}={value}: {json}");
+    }
+    let backup = dir.join("edited.txt");
+    std::fs::write(&backup, "Configuration.Mode=1\nConfiguration.Delay (ms)=5000\n").unwrap();
+    let (status, json) = run(&addr, &["config", "restore", SERVER, path_arg(&backup)]).await;
+    assert_eq!((status, json["result"].as_str()), (2, Some("invalid")), "{json}");
+    assert!(json["error"].as_str().unwrap().contains("Delay"));
+    assert_eq!(std::fs::read(&config).unwrap(), vec![0; 256], "nothing written, not even the valid line");
+    let renamed = dir.join("renamed.txt");
+    std::fs::write(&renamed, "# made by hand\nConfiguration.Old Mode=1\nConfiguration.Delay (ms)=250\n").unwrap();
+    let (status, json) = run(&addr, &["config", "restore", SERVER, path_arg(&renamed)]).await;
+    assert_eq!(status, 0, "{json}");
+    assert_eq!(json["unknown_keys"], serde_json::json!(["Configuration.Old Mode"]));
+    assert_eq!(&std::fs::read(&config).unwrap()[33..35], [0, 250], "big-endian");
+}
+
+/// A CDI of our own shaped like a 16-line I/O board, served by `serve --cdi`: `show` gives
+/// the tree with values and labels, and `backup` one line per int, string and event.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn config_show_and_backup_of_an_io_board_cdi() {
+    let dir = scratch("config-io16");
+    let (_hub, addr) = hub().await;
+    let cdi = concat!(env!("CARGO_MANIFEST_DIR"), "/../openlcb-cdi/tests/cdi/io16.xml");
+    let config = dir.join("config.bin");
+    let mut bytes = vec![0; 2 + 16 * 39 + 1];
+    bytes[1] = 20;
+    bytes[2 + 5 * 39 + 16] = 2; // Line 6 is an output
+    std::fs::write(&config, &bytes).unwrap();
+    let _server = Server::start(&dir, &addr, SERVER, &["--cdi", cdi, "--config", path_arg(&config)]).await;
+    let (status, json) = run(&addr, &["config", "show", SERVER]).await;
+    assert_eq!(status, 0, "{json}");
+    let settings = &json["segments"][1];
+    assert_eq!(settings["key"], "Settings");
+    assert_eq!(settings["children"][0]["value"], 20);
+    assert_eq!(settings["children"][0]["min"], 1);
+    let line6 = &settings["children"][1]["children"][5];
+    assert_eq!(line6["name"], "Line 6");
+    assert_eq!(line6["children"][1]["label"], "Output");
+    assert_eq!(line6["children"][1]["map"][2], serde_json::json!({ "value": "2", "label": "Output" }));
+    assert_eq!(line6["children"][4]["children"][1]["name"], "Off");
+    let out = dir.join("io16.txt");
+    let (status, _) = run(&addr, &["config", "backup", SERVER, "--out", path_arg(&out)]).await;
+    assert_eq!(status, 0);
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(text.lines().count(), 100);
+    assert!(text.contains("\nSettings.Line(5).Function=2\nSettings.Line(5).Event On=00.00.00.00.00.00.00.00\n"));
+}

@@ -696,6 +696,14 @@ impl Node {
         self.with_memory(now, |cx, _, client| client.upgrade(cx, peer, image, path))
     }
 
+    /// Tells `peer` that a configuration tool has finished writing (Update Complete, MC
+    /// §4.23), so that it applies what changed; `WriteDone` (of 0 bytes) or `Failed` follows.
+    #[cfg(feature = "memory-client")]
+    pub fn update_complete(&mut self, now: Instant, peer: NodeId) -> Result<MemoryOperation, MemoryRequestError> {
+        self.last_now = now;
+        self.with_memory(now, |cx, _, client| client.update_complete(cx, peer))
+    }
+
     /// The Memory Configuration client, when the `memory-client` feature builds it in
     /// (without it the client is never called, so none of its code is linked).
     fn client(&self) -> Option<&MemoryClient> {

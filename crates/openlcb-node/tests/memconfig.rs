@@ -234,6 +234,22 @@ fn firmware_upgrade_by_stream_and_by_datagrams() {
 }
 
 #[test]
+fn update_complete_ends_at_the_ok_and_reaches_the_server() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
+    pair.pump();
+    pair.client.update_complete(pair.now, SERVER).unwrap();
+    match pair.finish() {
+        MemoryEvent::WriteDone { len, .. } => assert_eq!(len, 0),
+        other => panic!("{other:?}"),
+    }
+    let told = pair
+        .server_events
+        .iter()
+        .any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::UpdateComplete { by }) if *by == CLIENT));
+    assert!(told);
+}
+
+#[test]
 fn a_lost_read_reply_is_asked_for_again() {
     let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 640));
     pair.pump();

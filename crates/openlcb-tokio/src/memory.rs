@@ -45,6 +45,7 @@ pub(crate) enum Operation {
     Read { space: u8, address: u32, len: Option<u32> },
     Write { space: u8, address: u32, data: Bytes },
     Firmware { image: Bytes },
+    UpdateComplete,
 }
 
 /// How a client operation ended well: the bytes read, or the count written.
@@ -132,6 +133,7 @@ impl MemoryDriver {
                         stack.write_memory(now, peer, space, address, data, path)
                     }
                     Operation::Firmware { image } => stack.upgrade_firmware(now, peer, image, path),
+                    Operation::UpdateComplete => stack.update_complete(now, peer),
                 };
                 match started {
                     Ok(operation) => self.running.push(Running { operation, progress, reply }),

@@ -403,6 +403,13 @@ impl Node {
         self.start_memory(peer, path, Operation::Firmware { image: image.into() }, written).await
     }
 
+    /// Sends `peer` Update Complete (`20 A8`), as a configuration tool does when it has
+    /// finished writing, so that the node applies the changes; ends with 0 at its Datagram OK
+    /// (or its restart).
+    pub async fn update_complete(&self, peer: NodeId) -> Result<MemoryTransfer<u64>, Error> {
+        self.start_memory(peer, TransferPath::Datagrams, Operation::UpdateComplete, written).await
+    }
+
     async fn start_memory<T>(
         &self,
         peer: NodeId,

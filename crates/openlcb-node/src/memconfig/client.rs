@@ -72,6 +72,8 @@ enum Kind {
     Firmware {
         image: Vec<u8>,
     },
+    /// Update Complete (MC §4.23): one command, done at its Datagram OK.
+    UpdateComplete,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -92,6 +94,8 @@ enum Step {
     Protocols,
     /// Firmware: Unfreeze sent; OK or a reboot ends the upgrade.
     Unfreeze,
+    /// Update Complete sent; its Datagram OK ends the operation.
+    UpdateComplete,
 }
 
 #[derive(Debug)]
@@ -128,6 +132,7 @@ impl Operation {
             Kind::Read { len, .. } => len.map_or(0, u64::from),
             Kind::Write { data } => data.len() as u64,
             Kind::Firmware { image } => image.len() as u64,
+            Kind::UpdateComplete => 0,
         }
     }
 
@@ -135,7 +140,7 @@ impl Operation {
         match &self.kind {
             Kind::Write { data } => data,
             Kind::Firmware { image } => image,
-            Kind::Read { .. } => &[],
+            Kind::Read { .. } | Kind::UpdateComplete => &[],
         }
     }
 
@@ -222,6 +227,14 @@ impl MemoryClient {
         self.start(cx, peer, SPACE_FIRMWARE, 0, Kind::Firmware { image }, path)
     }
 
+    pub(crate) fn update_complete(
+        &mut self,
+        cx: &mut Cx<'_>,
+        peer: NodeId,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        self.start(cx, peer, 0, 0, Kind::UpdateComplete, TransferPath::Datagrams)
+    }
+
     fn start(
         &mut self,
         cx: &mut Cx<'_>,
@@ -246,6 +259,7 @@ impl MemoryClient {
         let id = MemoryOperation(self.next_id);
         self.next_id = self.next_id.wrapping_add(1);
         let firmware = matches!(kind, Kind::Firmware { .. });
+        let update_complete = matches!(kind, Kind::UpdateComplete);
         self.operations.push(Operation {
             id,
             peer,
@@ -265,6 +279,7 @@ impl MemoryClient {
         let outcome = match path {
             // FWU §5.5: Freeze first; the PIP asked after it decides the path.
             _ if firmware => self.send(cx, index, Step::Freeze, &Command::Freeze { space: SPACE_FIRMWARE }),
+            _ if update_complete => self.send(cx, index, Step::UpdateComplete, &Command::UpdateComplete),
             TransferPath::Auto if cx.streams_enabled => self.send(cx, index, Step::Options, &Command::GetOptions),
             TransferPath::Stream => self.begin_transfer(cx, index, true),
             _ => self.begin_transfer(cx, index, false),
@@ -416,6 +431,8 @@ impl MemoryClient {
             // C-11: Freeze and Unfreeze succeed by OK or by the target restarting.
             (Step::Freeze, Ok(_) | Err(DatagramFailure::PeerRestarted)) => self.ask_protocols(cx, index),
             (Step::Unfreeze, Ok(_) | Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Done),
+            // MC §4.23: no reply datagram follows; the node may reset instead of an OK.
+            (Step::UpdateComplete, Ok(_) | Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Done),
             (Step::Freeze | Step::Unfreeze, Err(DatagramFailure::TimedOut)) => {
                 // The OpenMRN Bootloader sends no OK: wait on for its Initialization Complete.
                 op.deadline = Some(cx.now + reboot_timeout);
@@ -486,6 +503,7 @@ impl MemoryClient {
             }
             Step::Chunk { at, .. } => self.next_chunk(cx, index, at),
             Step::Protocols => self.ask_protocols(cx, index),
+            Step::UpdateComplete => self.send(cx, index, Step::UpdateComplete, &Command::UpdateComplete),
             _ => Some(Outcome::Fail(MemoryError::TimedOut)),
         }
     }
@@ -581,7 +599,7 @@ impl MemoryClient {
             Some(Step::Freeze) => self.ask_protocols(cx, index),
             // The Initialization Complete that follows our Freeze's OK: the inquiry sent after
             // the OK reaches the restarted target (a lost one is asked again at the deadline).
-            Some(Step::Unfreeze) => Some(Outcome::Done),
+            Some(Step::Unfreeze | Step::UpdateComplete) => Some(Outcome::Done),
             // Streams and datagrams in flight end through their own events.
             _ => None,
         };
@@ -752,7 +770,7 @@ impl MemoryClient {
         let payload: &[u8] = match &op.kind {
             Kind::Write { data } => data,
             Kind::Firmware { image } => image,
-            Kind::Read { .. } => return None,
+            Kind::Read { .. } | Kind::UpdateComplete => return None,
         };
         let mut sent = sent;
         while let Some(rest) = payload.get(sent as usize..).filter(|r| !r.is_empty()) {
