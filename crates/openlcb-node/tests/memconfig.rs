@@ -357,6 +357,16 @@ fn read_stream_with_did_0xff_proposes_none_and_is_served() {
 }
 
 #[test]
+fn the_acdi_user_version_byte_is_not_writable() {
+    // OlcbChecker's cd40: a write to 0xFB address 0 fails; the user name at 1 is writable.
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+    let version = reply_bytes(&exchange(&mut pair, &[0x20, 0x00, 0, 0, 0, 0, 0xFB, 0x02]));
+    assert_eq!(version, [0x20, 0x18, 0, 0, 0, 0, 0xFB, 0x10, 0x83], "Write Failed, read-only");
+    let name = reply_bytes(&exchange(&mut pair, &[0x20, 0x00, 0, 0, 0, 1, 0xFB, b'A', 0]));
+    assert_eq!(name, [0x20, 0x10, 0, 0, 0, 1, 0xFB]);
+}
+
+#[test]
 fn reset_reinitializes_the_node_and_announces_it_after_the_ok() {
     // OlcbChecker's mc50_restart sends `20 A9` and waits for Initialization Complete.
     let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));

@@ -273,6 +273,10 @@ impl MemoryServer {
             return Err(SpaceError::OutOfBounds);
         }
         if self.is_acdi(space) {
+            // ACDI §5.1: byte 0 of space 0xFB is the layout's version, not the user's to write.
+            if address == 0 {
+                return Err(SpaceError::ReadOnly);
+            }
             let slot = self.acdi_user.get_mut(address as usize..end as usize).ok_or(SpaceError::OutOfBounds)?;
             slot.copy_from_slice(data);
             self.user_info_changed = true;
