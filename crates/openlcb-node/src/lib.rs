@@ -136,6 +136,7 @@ extern crate std;
 
 mod config;
 mod datagram;
+mod events;
 pub mod memconfig;
 mod node;
 mod snip;
@@ -148,6 +149,9 @@ pub use config::{NodeConfig, Protocols};
 pub use datagram::{
     Datagram, DatagramAnswer, DatagramConfig, DatagramError, DatagramFailure, DatagramId, DatagramStats,
     MAX_DATAGRAM_LEN, OkFlags, rejection_code,
+};
+pub use events::{
+    DeclaredEvents, EventConfig, EventError, EventNotice, EventRange, EventRole, EventState, EventStats, Listen,
 };
 pub use memconfig::{
     MemoryConfigOptions, MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, MemorySpace,

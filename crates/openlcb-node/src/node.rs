@@ -11,6 +11,7 @@ use openlcb_stream::{
 use crate::datagram::{
     Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramService, OkFlags, rejected,
 };
+use crate::events::{EventNotice, EventService};
 use crate::memconfig::{MemoryClient, MemoryConfigOptions, MemoryEvent, MemoryServer, acdi_user_strings, wire as mc};
 #[cfg(feature = "memory-client")]
 use crate::memconfig::{MemoryOperation, MemoryRequestError, TransferPath};
@@ -78,6 +79,9 @@ pub enum NodeEvent {
     /// Memory Configuration: a client operation ended, or the server was asked to do
     /// something the application carries out (reboot, install firmware, ...).
     Memory(MemoryEvent),
+    /// Event Transport: a report, a Learn Event, or (when listening to everything) another
+    /// node's Identified message.
+    Events(EventNotice),
 }
 
 /// Counters of the node's own routing; each protocol has its own too.
@@ -135,6 +139,21 @@ impl Outputs {
         } else {
             self.transmits.push_back(message);
         }
+    }
+
+    /// Queues an event that another node caused, or drops it (`false`) when
+    /// [`NodeConfig::transmit_queue_limit`] events wait: a flood must not grow the queue.
+    pub(crate) fn notify(&mut self, event: NodeEvent) -> bool {
+        let room = self.events.len() < self.limit;
+        if room {
+            self.events.push_back(event);
+        }
+        room
+    }
+
+    /// A message of the application's fits in the transmit queue.
+    pub(crate) fn has_room(&self) -> bool {
+        self.transmits.len() < self.limit
     }
 
     pub(crate) fn event(&mut self, event: NodeEvent) {
@@ -221,7 +240,8 @@ pub struct Node {
     datagrams: DatagramService,
     snip_reply: Vec<u8>,
     snip_requests: Vec<PendingSnip>,
-    out: Outputs,
+    pub(crate) events: EventService,
+    pub(crate) out: Outputs,
     stats: NodeStats,
 }
 
@@ -246,6 +266,9 @@ impl Node {
         if config.streams_enabled {
             protocols = protocols | Protocols::STREAM;
         }
+        if config.events.is_active() {
+            protocols = protocols | Protocols::EVENT_EXCHANGE;
+        }
         Node {
             protocols,
             memory_server: None,
@@ -256,6 +279,7 @@ impl Node {
             datagrams: DatagramService::new(config.datagrams.clone()),
             snip_reply: config.snip.to_payload(),
             snip_requests: Vec::with_capacity(config.max_snip_requests),
+            events: EventService::new(config.events.clone(), config.send_initialization_complete),
             out,
             stats: NodeStats::default(),
             config,
@@ -323,9 +347,14 @@ impl Node {
     // ----- outputs -----
 
     /// The next message to send: the node's own (answers, datagrams, requests) first, then
-    /// the streams'.
+    /// its event announcements, then the streams'.
     pub fn poll_transmit(&mut self) -> Option<Message> {
-        self.out.transmits.pop_front().or_else(|| self.streams.poll_transmit())
+        let node = self.out.node;
+        self.out
+            .transmits
+            .pop_front()
+            .or_else(|| self.events.poll_transmit(node))
+            .or_else(|| self.streams.poll_transmit())
     }
 
     /// The next event.
@@ -420,6 +449,7 @@ impl Node {
                 let flags = protocols.to_bytes().to_vec();
                 out.reply(Message::addressed(Mti::PROTOCOL_SUPPORT_REPLY, out.node, peer, flags));
             }
+            mti if crate::events::is_event_mti(mti) && self.events.is_active() => self.events.handle_message(out, msg),
             mti if mti.is_addressed() && !is_answer(mti) => {
                 // MN §3.5.2: an addressed message of a protocol this node lacks.
                 self.stats.unknown_mti_rejected += 1;
@@ -525,6 +555,8 @@ impl Node {
 
     /// The transport lost its link (e.g. this node's CAN alias): everything open ends.
     pub fn link_lost(&mut self) {
+        // The transport announces the node again once it is back; its events follow.
+        self.events.announce();
         self.streams.link_lost();
         self.datagrams.peer_lost(&mut self.out, None);
         self.fail_snip(None);
