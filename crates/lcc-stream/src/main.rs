@@ -2,9 +2,11 @@
 
 mod args;
 mod demo;
+mod events;
 mod firmware;
 mod hub;
 mod memory;
+mod monitor;
 mod net;
 mod nodes;
 mod progress;
@@ -67,6 +69,10 @@ enum Command {
     Write(write::WriteArgs),
     /// Upgrade a node's firmware (Freeze, the image into space 0xEF, Unfreeze).
     Firmware(firmware::FirmwareArgs),
+    /// Show the bus decoded, live or from a saved trace: one line per message, by name.
+    Monitor(monitor::MonitorArgs),
+    /// Watch event reports, send one, or ask who produces and consumes what.
+    Events(events::EventsArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
 }
@@ -84,6 +90,8 @@ fn main() -> ExitCode {
         Command::Read(args) => read::run(&args),
         Command::Write(args) => write::run(&args),
         Command::Firmware(args) => firmware::run(&args),
+        Command::Events(args) => events::run(&args),
+        Command::Monitor(args) => monitor::run(&args),
         Command::Demo(args) => demo::run(&args),
     };
     match result {
