@@ -131,7 +131,7 @@ enum EventsCommand {
         event: EventId,
         /// Bytes after the Event ID (a report with payload), in hex, e.g. 01020304.
         #[arg(long, value_name = "HEX", value_parser = parse_hex)]
-        payload: Option<Vec<u8>>,
+        payload: Option<Payload>,
         #[command(flatten)]
         joining: Joining,
     },
@@ -154,8 +154,12 @@ enum EventsCommand {
     },
 }
 
+/// The bytes of `--payload` (one argument, not a list of them).
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct Payload(Vec<u8>);
+
 /// Bytes written as hex digits (spaces, dots and colons between bytes are allowed).
-fn parse_hex(text: &str) -> Result<Vec<u8>, String> {
+fn parse_hex(text: &str) -> Result<Payload, String> {
     let digits: String = text.chars().filter(|c| !matches!(c, ' ' | '.' | ':')).collect();
     let digits = digits.strip_prefix("0x").unwrap_or(&digits);
     if digits.len() % 2 != 0 || !digits.bytes().all(|c| c.is_ascii_hexdigit()) {
@@ -163,7 +167,8 @@ fn parse_hex(text: &str) -> Result<Vec<u8>, String> {
     }
     (0..digits.len() / 2)
         .map(|i| u8::from_str_radix(digits.get(2 * i..2 * i + 2).unwrap_or_default(), 16).map_err(|e| e.to_string()))
-        .collect()
+        .collect::<Result<_, _>>()
+        .map(Payload)
 }
 
 pub(crate) fn run(args: &EventsArgs) -> Result<ExitCode, String> {
@@ -189,7 +194,7 @@ async fn events(args: &EventsArgs) -> Result<ExitCode, String> {
             () = interrupt.wait() => Ok(ExitCode::from(net::EXIT_INTERRUPTED)),
         },
         EventsCommand::Send { event, payload, .. } => {
-            match node.send_event(*event, payload.clone().unwrap_or_default()).await {
+            match node.send_event(*event, payload.clone().map(|p| p.0).unwrap_or_default()).await {
                 Ok(()) => {
                     eprintln!("lcc-stream events: sent {}", event_text(*event));
                     Ok(ExitCode::SUCCESS)
@@ -365,8 +370,8 @@ mod tests {
 
     #[test]
     fn payloads_are_hex() {
-        assert_eq!(parse_hex("01020304"), Ok(vec![1, 2, 3, 4]));
-        assert_eq!(parse_hex("01 02:0A"), Ok(vec![1, 2, 10]));
+        assert_eq!(parse_hex("01020304"), Ok(Payload(vec![1, 2, 3, 4])));
+        assert_eq!(parse_hex("01 02:0A"), Ok(Payload(vec![1, 2, 10])));
         assert!(parse_hex("123").is_err());
         assert!(parse_hex("zz").is_err());
     }

@@ -178,7 +178,12 @@ pub struct EventConfig {
 impl EventConfig {
     /// The node takes part in Event Transport: it declares events, or listens to them all.
     pub fn is_active(&self) -> bool {
-        !self.produced.is_empty() || !self.consumed.is_empty() || self.listen == Listen::Everything
+        self.declared() > 0 || self.listen == Listen::Everything
+    }
+
+    /// Declarations, produced and consumed.
+    fn declared(&self) -> usize {
+        self.produced.len() + self.consumed.len()
     }
 }
 
@@ -253,10 +258,10 @@ pub struct EventStats {
     pub notices_dropped: u64,
 }
 
-/// The Event Transport service of a node.
+/// The Event Transport service of a node. Its declarations are the node's
+/// [`NodeConfig::events`](crate::NodeConfig::events), lent to each call.
 #[derive(Debug)]
 pub(crate) struct EventService {
-    config: EventConfig,
     /// The announcement pass: the index of the next declaration to identify, and how many
     /// are left (0: no pass running).
     next: usize,
@@ -267,51 +272,42 @@ pub(crate) struct EventService {
 impl EventService {
     /// The service of `config`; `announce`: identify everything at once (right after the
     /// node's Initialization Complete).
-    pub(crate) fn new(config: EventConfig, announce: bool) -> Self {
-        let mut service = EventService { config, next: 0, left: 0, stats: EventStats::default() };
+    pub(crate) fn new(config: &EventConfig, announce: bool) -> Self {
+        let mut service = EventService { next: 0, left: 0, stats: EventStats::default() };
         if announce {
-            service.announce();
+            service.announce(config);
         }
         service
-    }
-
-    pub(crate) fn is_active(&self) -> bool {
-        self.config.is_active()
-    }
-
-    fn declared(&self) -> usize {
-        self.config.produced.len() + self.config.consumed.len()
     }
 
     /// Identifies everything declared once more (after Initialization Complete, and for
     /// each Identify Events): a pass that goes on from where a running one stands, so that
     /// it ends with every declaration sent since the request.
-    pub(crate) fn announce(&mut self) {
-        self.left = self.declared();
+    pub(crate) fn announce(&mut self, config: &EventConfig) {
+        self.left = config.declared();
     }
 
     /// The next message of the announcement pass, if one is running.
-    pub(crate) fn poll_transmit(&mut self, node: NodeId) -> Option<Message> {
-        let total = self.declared();
+    pub(crate) fn poll_transmit(&mut self, config: &EventConfig, node: NodeId) -> Option<Message> {
+        let total = config.declared();
         if self.left == 0 || total == 0 {
             return None;
         }
         self.left -= 1;
         let index = self.next % total;
         self.next = (index + 1) % total;
-        let produced = self.config.produced.len();
-        let (role, declared) = match self.config.produced.get(index) {
+        let (role, declared) = match config.produced.get(index) {
             Some(declared) => (EventRole::Producer, declared),
-            None => (EventRole::Consumer, self.config.consumed.get(index - produced)?),
+            None => (EventRole::Consumer, config.consumed.get(index - config.produced.len())?),
         };
         Some(identified(node, role, *declared, declared.range.first()))
     }
 
     /// A received message with an event MTI (the node routes only those here).
-    pub(crate) fn handle_message(&mut self, out: &mut Outputs, msg: MessageRef<'_>) {
+    pub(crate) fn handle_message(&mut self, config: &EventConfig, out: &mut Outputs, msg: MessageRef<'_>) {
         if matches!(msg.mti, Mti::IDENTIFY_EVENTS_GLOBAL | Mti::IDENTIFY_EVENTS_ADDRESSED) {
             self.stats.identify_events += 1;
-            self.announce();
+            self.announce(config);
             return;
         }
         let Some(event) = EventId::from_slice(msg.payload) else {
@@ -319,12 +315,12 @@ impl EventService {
             return;
         };
         let from = msg.source;
-        let everything = self.config.listen == Listen::Everything;
+        let everything = config.listen == Listen::Everything;
         match msg.mti {
-            Mti::IDENTIFY_PRODUCER => self.answer(out, EventRole::Producer, event),
-            Mti::IDENTIFY_CONSUMER => self.answer(out, EventRole::Consumer, event),
+            Mti::IDENTIFY_PRODUCER => answer(out, &config.produced, EventRole::Producer, event),
+            Mti::IDENTIFY_CONSUMER => answer(out, &config.consumed, EventRole::Consumer, event),
             Mti::PRODUCER_CONSUMER_EVENT_REPORT => {
-                if everything || find(&self.config.consumed, event).is_some() {
+                if everything || find(&config.consumed, event).is_some() {
                     self.stats.reports_delivered += 1;
                     let payload = msg.payload.get(8..).unwrap_or_default().to_vec();
                     self.notify(out, EventNotice::Report { from, event, payload });
@@ -349,18 +345,14 @@ impl EventService {
             self.stats.notices_dropped += 1;
         }
     }
+}
 
-    /// Identify Producer or Consumer: the Identified message for `event` if it is declared
-    /// (for an event inside a declared range, Identified for that event with the range's
-    /// state, as OpenMRN's range handlers answer).
-    fn answer(&self, out: &mut Outputs, role: EventRole, event: EventId) {
-        let list = match role {
-            EventRole::Producer => &self.config.produced,
-            EventRole::Consumer => &self.config.consumed,
-        };
-        if let Some(declared) = find(list, event) {
-            out.reply(identified(out.node, role, DeclaredEvents::single(event, declared.state), event));
-        }
+/// Identify Producer or Consumer: the Identified message for `event` if `list` declares it
+/// (for an event inside a declared range, Identified for that event with the range's state,
+/// as OpenMRN's range handlers answer).
+fn answer(out: &mut Outputs, list: &[DeclaredEvents], role: EventRole, event: EventId) {
+    if let Some(declared) = find(list, event) {
+        out.reply(identified(out.node, role, DeclaredEvents::single(event, declared.state), event));
     }
 }
 
@@ -401,7 +393,8 @@ impl Node {
     /// [`link_lost`](Node::link_lost); call this after announcing the node by other means
     /// (with [`NodeConfig::send_initialization_complete`](crate::NodeConfig::send_initialization_complete) off).
     pub fn announce_events(&mut self) {
-        self.events.announce();
+        let declared = self.config().events.declared();
+        self.events.left = declared;
     }
 
     /// The event service's counters.

@@ -279,7 +279,7 @@ impl Node {
             datagrams: DatagramService::new(config.datagrams.clone()),
             snip_reply: config.snip.to_payload(),
             snip_requests: Vec::with_capacity(config.max_snip_requests),
-            events: EventService::new(config.events.clone(), config.send_initialization_complete),
+            events: EventService::new(&config.events, config.send_initialization_complete),
             out,
             stats: NodeStats::default(),
             config,
@@ -353,7 +353,7 @@ impl Node {
         self.out
             .transmits
             .pop_front()
-            .or_else(|| self.events.poll_transmit(node))
+            .or_else(|| self.events.poll_transmit(&self.config.events, node))
             .or_else(|| self.streams.poll_transmit())
     }
 
@@ -449,7 +449,9 @@ impl Node {
                 let flags = protocols.to_bytes().to_vec();
                 out.reply(Message::addressed(Mti::PROTOCOL_SUPPORT_REPLY, out.node, peer, flags));
             }
-            mti if crate::events::is_event_mti(mti) && self.events.is_active() => self.events.handle_message(out, msg),
+            mti if crate::events::is_event_mti(mti) && self.config.events.is_active() => {
+                self.events.handle_message(&self.config.events, out, msg);
+            }
             mti if mti.is_addressed() && !is_answer(mti) => {
                 // MN §3.5.2: an addressed message of a protocol this node lacks.
                 self.stats.unknown_mti_rejected += 1;
@@ -556,7 +558,7 @@ impl Node {
     /// The transport lost its link (e.g. this node's CAN alias): everything open ends.
     pub fn link_lost(&mut self) {
         // The transport announces the node again once it is back; its events follow.
-        self.events.announce();
+        self.events.announce(&self.config.events);
         self.streams.link_lost();
         self.datagrams.peer_lost(&mut self.out, None);
         self.fail_snip(None);
