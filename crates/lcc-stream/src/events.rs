@@ -228,9 +228,9 @@ async fn watch(node: &Node, json: bool) -> Result<ExitCode, String> {
     eprintln!("lcc-stream events: watching event reports (Ctrl-C stops)");
     while let Some(notice) = notices.next().await {
         let EventNotice::Report { from, event, payload } = notice else { continue };
-        if !names.contains_key(&from) {
+        if let std::collections::hash_map::Entry::Vacant(slot) = names.entry(from) {
             let info = tokio::time::timeout(SNIP_WAIT, node.snip(from)).await.ok().and_then(Result::ok);
-            names.insert(from, info.as_ref().map(snip_name));
+            slot.insert(info.as_ref().map(snip_name));
         }
         let from_name = names.get(&from).cloned().flatten();
         let line = ReportLine {

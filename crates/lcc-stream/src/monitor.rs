@@ -7,7 +7,6 @@
 //! `openlcb-node`. A frame that does not decode is printed raw, and the monitor goes on.
 
 use std::collections::HashMap;
-use std::io::BufRead as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -756,15 +755,9 @@ pub(crate) fn run(args: &MonitorArgs) -> Result<ExitCode, String> {
         }
     };
     if let Some(path) = &args.from {
-        let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        let mut text = String::new();
-        for line in std::io::BufReader::new(file).lines() {
-            // A line that is not text (a binary log) is skipped, not fatal.
-            if let Ok(line) = line {
-                text.push_str(&line);
-                text.push('\n');
-            }
-        }
+        let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        // Bytes that are not text (a binary log) become replacement characters, not an error.
+        let text = String::from_utf8_lossy(&bytes);
         print(&mut decode_trace(&text));
         return Ok(ExitCode::SUCCESS);
     }

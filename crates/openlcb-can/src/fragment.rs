@@ -132,10 +132,16 @@ pub enum EncodeError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Layout {
     Global,
-    EventReport { source: NodeAlias },
-    Addressed { destination: NodeAlias },
+    /// The identifier held is the first frame's; the others differ only in the CAN-MTI.
+    EventReport,
+    Addressed {
+        destination: NodeAlias,
+    },
     StreamData,
-    Datagram { source: NodeAlias, destination: NodeAlias },
+    Datagram {
+        source: NodeAlias,
+        destination: NodeAlias,
+    },
 }
 
 /// An iterator over the frames of one message. Holds the payload (any `AsRef<[u8]>`, e.g. the
@@ -212,7 +218,7 @@ impl Cursor {
             (FrameKind::Datagram { frame: DatagramFrame::Only, destination }, Layout::Datagram { source, destination })
         } else if mti == Mti::PRODUCER_CONSUMER_EVENT_REPORT && len > CanFrame::MAX_DATA {
             // The identifier changes frame by frame: see `next_frame`.
-            (FrameKind::Message { can_mti: event_report::FIRST }, Layout::EventReport { source })
+            (FrameKind::Message { can_mti: event_report::FIRST }, Layout::EventReport)
         } else if mti.as_raw() & 0xF000 != 0 {
             return Err(EncodeError::Unsupported(mti));
         } else if mti.is_addressed() {
@@ -235,13 +241,14 @@ impl Cursor {
         }
         match self.layout {
             Layout::Global => 1,
-            Layout::EventReport { .. } => len.saturating_sub(self.offset).div_ceil(CanFrame::MAX_DATA).max(1),
             Layout::Addressed { .. } => len.saturating_sub(self.offset).div_ceil(ADDRESSED_PAYLOAD_PER_FRAME).max(1),
             Layout::StreamData => {
                 let body_left = len.saturating_sub(1).saturating_sub(self.offset);
                 body_left.div_ceil(STREAM_PAYLOAD_PER_FRAME).max(1)
             }
-            Layout::Datagram { .. } => len.saturating_sub(self.offset).div_ceil(DATAGRAM_PAYLOAD_PER_FRAME).max(1),
+            Layout::Datagram { .. } | Layout::EventReport => {
+                len.saturating_sub(self.offset).div_ceil(DATAGRAM_PAYLOAD_PER_FRAME).max(1)
+            }
         }
     }
 
@@ -253,7 +260,7 @@ impl Cursor {
             return None;
         }
         let (per_frame, body) = match self.layout {
-            Layout::Global | Layout::EventReport { .. } => (CanFrame::MAX_DATA, payload),
+            Layout::Global | Layout::EventReport => (CanFrame::MAX_DATA, payload),
             Layout::Addressed { .. } => (ADDRESSED_PAYLOAD_PER_FRAME, payload),
             // The DID goes in every frame; the offset counts the bytes after it.
             Layout::StreamData => (STREAM_PAYLOAD_PER_FRAME, payload.get(1..).unwrap_or(&[])),
@@ -265,9 +272,9 @@ impl Cursor {
         let mut head = [0u8; 2];
         let (id, head_len) = match self.layout {
             Layout::Global => (self.id, 0),
-            Layout::EventReport { source } => {
-                let kind = FrameKind::Message { can_mti: event_report::can_mti(position) };
-                (CanHeader { kind, source }.to_id(), 0)
+            Layout::EventReport => {
+                let below_first = u32::from(event_report::FIRST - event_report::can_mti(position));
+                (self.id.wrapping_sub(below_first << 12), 0)
             }
             Layout::Addressed { destination } => {
                 let [high, low] = destination.as_raw().to_be_bytes();

@@ -3,7 +3,8 @@
 //! A real device speaks several protocols at once, and streams are mostly reached through
 //! them. [`Node`] routes each received message to the protocol it belongs to: the stream
 //! endpoint of [`openlcb_stream`], the datagram service, Memory Configuration (server and
-//! client, [`memconfig`]), Simple Node Information (SNIP), and
+//! client, [`memconfig`]), Simple Node Information (SNIP), Event Transport (events
+//! produced and consumed, see below), and
 //! the message-network basics it answers itself (Verify Node ID, Protocol Support Inquiry, and
 //! Optional Interaction Rejected for addressed messages of protocols it lacks). Each
 //! Optional Interaction Rejected or Terminate Due To Error goes to the protocol its MTI names,
@@ -106,6 +107,41 @@
 //! let [MemoryEvent::ReadDone { data, .. }] = &pump(now, &mut a, &mut b)[..] else { panic!() };
 //! assert_eq!(data.len(), 256);
 //! assert_eq!(data[8..12], [1, 2, 3, 4]);
+//! ```
+//!
+//! # Events
+//!
+//! [`NodeConfig::events`] declares what a node produces and consumes; the node answers the
+//! Identify messages for them and announces them after its Initialization Complete. Here A
+//! consumes a block of 16 events and B produces one of them and sends its report.
+//!
+//! ```
+//! use openlcb_node::{DeclaredEvents, EventNotice, EventRange, EventState, Node, NodeConfig, NodeEvent};
+//! use openlcb_stream::{EventId, Instant, Mti, NodeId};
+//!
+//! let button = EventId(0x0501_0101_2201_0003);
+//! let mut a_config = NodeConfig::default();
+//! let block = EventRange::covering(EventId(0x0501_0101_2201_0000), 16).unwrap();
+//! a_config.events.consumed = vec![DeclaredEvents { range: block, state: EventState::Unknown }];
+//! let mut b_config = NodeConfig::default();
+//! b_config.events.produced = vec![DeclaredEvents::single(button, EventState::Valid)];
+//! let mut a = Node::new(NodeId::new(0x05_01_01_01_22_00).unwrap(), a_config);
+//! let mut b = Node::new(NodeId::new(0x05_01_01_01_22_01).unwrap(), b_config);
+//!
+//! // B's first messages: Initialization Complete, then what it produces.
+//! let first: Vec<Mti> = std::iter::from_fn(|| b.poll_transmit()).map(|m| m.mti).collect();
+//! assert_eq!(first, [Mti::INITIALIZATION_COMPLETE, Mti::PRODUCER_IDENTIFIED_VALID]);
+//! while a.poll_transmit().is_some() {}
+//!
+//! b.send_event(button, &[]).unwrap();
+//! while let Some(msg) = b.poll_transmit() {
+//!     a.handle_message(Instant::ZERO, msg.as_ref());
+//! }
+//! let report = std::iter::from_fn(|| a.poll_event()).find_map(|e| match e {
+//!     NodeEvent::Events(EventNotice::Report { event, .. }) => Some(event),
+//!     _ => None,
+//! });
+//! assert_eq!(report, Some(button));
 //! ```
 //!
 //! # Peers known by their CAN alias
