@@ -402,65 +402,52 @@ impl Monitor {
             Mti::DATAGRAM_REJECTED => (Kind::Datagram, error_report(payload)),
             Mti::STREAM_INITIATE_REQUEST => (
                 Kind::Stream,
-                match InitiateRequest::parse(payload) {
-                    Ok(r) => {
-                        let did =
-                            r.proposed_destination.map_or("none".to_string(), |d| format!("0x{:02X}", d.as_raw()));
-                        let uid = r.content_uid.map(|u| format!(", content UID {u:?}")).unwrap_or_default();
-                        format!(
-                            "SID 0x{:02X}, proposed DID {did}, buffer {}{uid}",
-                            r.source_stream.as_raw(),
-                            r.max_buffer_size
-                        )
-                    }
-                    Err(error) => format!("undecodable ({error}): {}", hex(payload)),
-                },
+                decoded(InitiateRequest::parse(payload), payload, |r| {
+                    let did = r.proposed_destination.map_or("none".to_string(), |d| format!("0x{:02X}", d.as_raw()));
+                    let uid = r.content_uid.map(|u| format!(", content UID {u:?}")).unwrap_or_default();
+                    format!(
+                        "SID 0x{:02X}, proposed DID {did}, buffer {}{uid}",
+                        r.source_stream.as_raw(),
+                        r.max_buffer_size
+                    )
+                }),
             ),
             Mti::STREAM_INITIATE_REPLY => (
                 Kind::Stream,
-                match InitiateReply::parse(payload) {
-                    Ok(r) => {
-                        let did = r.destination_stream.map_or(0xFF, |d| d.as_raw());
-                        if r.is_accepted() {
-                            if let Some(destination) = destination {
-                                // The stream starts: its byte count too (data flows from the requester).
-                                self.streamed.insert((destination, source, did), 0);
-                            }
+                decoded(InitiateReply::parse(payload), payload, |r| {
+                    let did = r.destination_stream.map_or(0xFF, |d| d.as_raw());
+                    if r.is_accepted() {
+                        if let Some(destination) = destination {
+                            // The stream starts: its byte count too (data flows from the requester).
+                            self.streamed.insert((destination, source, did), 0);
                         }
-                        let verdict = if r.is_accepted() {
-                            "accepted".to_string()
-                        } else {
-                            format!("rejected {}: {}", r.code, r.code.meaning())
-                        };
-                        format!(
-                            "SID 0x{:02X}, DID 0x{did:02X}, window {}, {verdict}",
-                            r.source_stream.as_raw(),
-                            r.max_buffer_size
-                        )
                     }
-                    Err(error) => format!("undecodable ({error}): {}", hex(payload)),
-                },
+                    let verdict = if r.is_accepted() {
+                        "accepted".to_string()
+                    } else {
+                        format!("rejected {}: {}", r.code, r.code.meaning())
+                    };
+                    format!(
+                        "SID 0x{:02X}, DID 0x{did:02X}, window {}, {verdict}",
+                        r.source_stream.as_raw(),
+                        r.max_buffer_size
+                    )
+                }),
             ),
             Mti::STREAM_DATA_PROCEED => (
                 Kind::Stream,
-                match DataProceed::parse(payload) {
-                    Ok(p) => {
-                        format!("SID 0x{:02X}, DID 0x{:02X}", p.source_stream.as_raw(), p.destination_stream.as_raw())
-                    }
-                    Err(error) => format!("undecodable ({error}): {}", hex(payload)),
-                },
+                decoded(DataProceed::parse(payload), payload, |p| {
+                    format!("SID 0x{:02X}, DID 0x{:02X}", p.source_stream.as_raw(), p.destination_stream.as_raw())
+                }),
             ),
             Mti::STREAM_DATA_COMPLETE => (
                 Kind::Stream,
-                match DataComplete::parse(payload) {
-                    Ok(c) => {
-                        let did = c.destination_stream.as_raw();
-                        let seen = self.streamed.remove(&(source, destination.unwrap_or(source), did)).unwrap_or(0);
-                        let stated = c.count.stated().map_or("no count".to_string(), |n| format!("count {n}"));
-                        format!("SID 0x{:02X}, DID 0x{did:02X}, {stated}, {seen} bytes seen", c.source_stream.as_raw())
-                    }
-                    Err(error) => format!("undecodable ({error}): {}", hex(payload)),
-                },
+                decoded(DataComplete::parse(payload), payload, |c| {
+                    let did = c.destination_stream.as_raw();
+                    let seen = self.streamed.remove(&(source, destination.unwrap_or(source), did)).unwrap_or(0);
+                    let stated = c.count.stated().map_or("no count".to_string(), |n| format!("count {n}"));
+                    format!("SID 0x{:02X}, DID 0x{did:02X}, {stated}, {seen} bytes seen", c.source_stream.as_raw())
+                }),
             ),
             Mti::PRODUCER_CONSUMER_EVENT_REPORT
             | Mti::LEARN_EVENT
@@ -532,6 +519,11 @@ fn undecodable(time: f64, text: String, why: &str) -> Line {
 
 fn time_of(run: &DataRun) -> f64 {
     run.time
+}
+
+/// What `parsed` says, or why it did not parse and the bytes.
+fn decoded<T, E: std::fmt::Display>(parsed: Result<T, E>, payload: &[u8], text: impl FnOnce(T) -> String) -> String {
+    parsed.map_or_else(|error| format!("undecodable ({error}): {}", hex(payload)), text)
 }
 
 /// The frame as GridConnect text.
