@@ -1,7 +1,8 @@
 //! `lcc-stream monitor --from` on saved traces: every decoded line checked against the
 //! golden file beside the trace (a real firmware upgrade of OpenMRN's Bootloader by
-//! `lcc-stream firmware`, recorded with `lcc-stream hub --trace`; and frames from the
-//! references, with some that do not decode), the JSON form and the filters.
+//! `lcc-stream firmware`, and `lcc-stream events` with OpenMRN's io_board, both recorded
+//! with `lcc-stream hub --trace`; and frames from the references, with some that do not
+//! decode), the JSON form and the filters.
 
 mod common;
 
@@ -34,6 +35,18 @@ fn golden(trace: &str, expected: &str) {
 #[test]
 fn a_firmware_upgrade_of_openmrns_bootloader_decodes_line_by_line() {
     golden("firmware-into-openmrn-bootloader.trace", "firmware-into-openmrn-bootloader.expected");
+}
+
+#[test]
+fn events_with_openmrns_io_board_decode_line_by_line() {
+    golden("events-with-openmrn-io-board.trace", "events-with-openmrn-io-board.expected");
+    // Its reports, the one with payload reassembled from its first and last frames.
+    let reports: Vec<String> = monitor("events-with-openmrn-io-board.trace", &["--kind", "event"])
+        .into_iter()
+        .filter(|l| l.contains("Event Report"))
+        .collect();
+    assert_eq!(reports.len(), 2, "{reports:?}");
+    assert!(reports[1].ends_with("05.01.01.01.22.F6.00.01, payload 01 02 03 04"), "{}", reports[1]);
 }
 
 #[test]
