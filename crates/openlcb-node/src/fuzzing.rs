@@ -404,15 +404,18 @@ pub fn event_ops(data: &[u8]) {
             })
             .collect()
     };
-    let mut events = EventConfig::default();
-    events.produced = declare(produced);
-    events.consumed = declare(consumed);
-    events.listen = if everything { Listen::Everything } else { Listen::Consumed };
+    let events = EventConfig {
+        produced: declare(produced),
+        consumed: declare(consumed),
+        listen: if everything { Listen::Everything } else { Listen::Consumed },
+    };
     let local = NodeId::from_bytes([5, 1, 1, 1, 0x40, 2]);
-    let mut config = NodeConfig::default();
-    config.events = events.clone();
-    config.send_initialization_complete = false;
-    config.transmit_queue_limit = 16;
+    let config = NodeConfig {
+        events: events.clone(),
+        send_initialization_complete: false,
+        transmit_queue_limit: 16,
+        ..NodeConfig::default()
+    };
     let mut node = Node::new(local, config);
     let active = events.is_active();
     let peer = PEERS[0];
