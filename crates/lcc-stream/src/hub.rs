@@ -52,7 +52,9 @@ pub(crate) struct HubArgs {
     /// The gateway's Node ID (it is the originating node of what it forwards to OpenLCB-TCP).
     #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = "05.01.01.01.22.FE")]
     gateway_node_id: NodeId,
-    /// Print every frame as it passes.
+    /// Print every frame as it passes, raw (GridConnect text). For a decoded view (messages
+    /// by name, datagrams, streams, events) run `lcc-stream monitor` beside the hub, or on
+    /// this output saved to a file (`monitor --from FILE`).
     #[arg(long)]
     trace: bool,
     /// Bytes queued for one client before it is disconnected as too slow.

@@ -4,9 +4,11 @@ mod args;
 mod cdi;
 mod config;
 mod demo;
+mod events;
 mod firmware;
 mod hub;
 mod memory;
+mod monitor;
 mod net;
 mod nodes;
 mod progress;
@@ -74,6 +76,10 @@ enum Command {
     /// Show, get and set a node's settings by their CDI names; back them up and restore them
     /// in JMRI's format.
     Config(config::ConfigArgs),
+    /// Show the bus decoded, live or from a saved trace: one line per message, by name.
+    Monitor(monitor::MonitorArgs),
+    /// Watch event reports, send one, or ask who produces and consumes what.
+    Events(events::EventsArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
 }
@@ -93,6 +99,8 @@ fn main() -> ExitCode {
         Command::Firmware(args) => firmware::run(&args),
         Command::Cdi(args) => cdi::run(&args),
         Command::Config(args) => config::run(&args),
+        Command::Events(args) => events::run(&args),
+        Command::Monitor(args) => monitor::run(&args),
         Command::Demo(args) => demo::run(&args),
     };
     match result {

@@ -137,6 +137,27 @@ impl ConnectArgs {
             None => Node::connect(self.addr(), self.protocol.into(), options).await,
         }
     }
+    /// The GridConnect text of the hub, serial adapter or CAN interface, for a tool that only
+    /// listens (nothing joins the network).
+    pub(crate) async fn byte_stream(&self) -> Result<Box<dyn openlcb_tokio::ByteStream>, String> {
+        if self.protocol != ProtocolArg::Gridconnect {
+            return Err("only GridConnect (CAN frames) can be listened to".into());
+        }
+        #[cfg(feature = "socketcan")]
+        if let Some(interface) = &self.can {
+            let bus = openlcb_tokio::can::open_socketcan(interface).map_err(|e| e.to_string())?;
+            return Ok(Box::new(openlcb_tokio::can::FrameStream::new(bus)));
+        }
+        match &self.serial {
+            Some(device) => Ok(Box::new(openlcb_tokio::serial::open(device, self.baud).map_err(|e| e.to_string())?)),
+            None => {
+                let addr = self.addr();
+                let socket =
+                    tokio::net::TcpStream::connect(addr).await.map_err(|e| format!("cannot reach {addr}: {e}"))?;
+                Ok(Box::new(socket))
+            }
+        }
+    }
 }
 
 /// SIGINT (Ctrl-C) and SIGTERM, listened for from the moment this is made (so that neither

@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex};
 use clap::Args;
 use openlcb_stream::NodeId;
 use openlcb_tokio::openlcb_node::{MemorySpace, SpaceError};
-use openlcb_tokio::{MemoryEvent, MemoryServer, NodeOptions, RamSpace, ReadOnlySpace};
+use openlcb_tokio::{DeclaredEvents, EventNotice, MemoryEvent, MemoryServer, NodeOptions, RamSpace, ReadOnlySpace};
 use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
@@ -64,6 +64,15 @@ pub(crate) struct ServeArgs {
     /// The SNIP user description (also space 0xFB).
     #[arg(long, value_name = "TEXT", default_value = "")]
     description: String,
+    /// An event this node produces: EVENT_ID, or EVENT_ID/COUNT for a block (rounded up to
+    /// the aligned block that holds them); repeatable. Identify messages are answered for
+    /// them, and the PIP announces Event Exchange.
+    #[arg(long, value_name = "EVENT_ID[/COUNT]", value_parser = crate::events::declared)]
+    produces: Vec<DeclaredEvents>,
+    /// An event this node consumes (forms as --produces); repeatable. Each report of one is
+    /// printed as it comes.
+    #[arg(long, value_name = "EVENT_ID[/COUNT]", value_parser = crate::events::declared)]
+    consumes: Vec<DeclaredEvents>,
     /// Take no part in streams: every transfer goes by datagrams.
     #[arg(long)]
     no_streams: bool,
@@ -125,6 +134,8 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         return Ok(ExitCode::from(net::EXIT_USAGE));
     }
     options.node.streams_enabled = !args.no_streams;
+    options.node.events.produced.clone_from(&args.produces);
+    options.node.events.consumed.clone_from(&args.consumes);
     let mut report = ServeReport {
         node: args.node_id.to_string(),
         config_bytes: spaces.config.len(),
@@ -144,12 +155,21 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         Ok(events) => events,
         Err(error) => return Ok(net::fail("serve", &error)),
     };
+    let mut notices = match node.event_notices().await {
+        Ok(notices) => notices,
+        Err(error) => return Ok(net::fail("serve", &error)),
+    };
     // On stderr even with --json: scripts can wait for this line before starting a tool.
     eprintln!(
         "lcc-stream serve: node {} serving spaces 0xFF 0xFD 0xFC 0xFB 0xEF on {}",
         args.node_id,
         args.connect.addr()
     );
+    for (verb, list) in [("produces", &args.produces), ("consumes", &args.consumes)] {
+        for declared in list {
+            eprintln!("lcc-stream serve: {verb} {}", crate::events::range_text(declared.range));
+        }
+    }
     let status = loop {
         tokio::select! {
             event = events.next() => match event {
@@ -160,6 +180,7 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
                     break net::exit_status(&error);
                 }
             },
+            Some(notice) = notices.next() => on_notice(&notice, args.json),
             error = node.closed() => {
                 (report.result, report.error) = (net::result_word(&error), Some(error.to_string()));
                 break net::exit_status(&error);
@@ -182,6 +203,26 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         eprintln!("lcc-stream serve: interrupted");
     }
     Ok(ExitCode::from(status))
+}
+
+/// Prints a consumed event's report (or a Learn Event) as it comes, on stderr.
+fn on_notice(notice: &EventNotice, json: bool) {
+    let text = match notice {
+        EventNotice::Report { from, event, payload } if payload.is_empty() => {
+            format!("event {} from {from}", crate::events::event_text(*event))
+        }
+        EventNotice::Report { from, event, payload } => {
+            let hex: String = payload.iter().map(|b| format!("{b:02X}")).collect();
+            format!("event {} from {from}, payload {hex}", crate::events::event_text(*event))
+        }
+        EventNotice::Learn { from, event } => {
+            format!("learn event {} from {from} (ignored)", crate::events::event_text(*event))
+        }
+        _ => return,
+    };
+    if !json {
+        eprintln!("lcc-stream serve: {text}");
+    }
 }
 
 /// Carries out what the server was asked to do, and says so on stderr.

@@ -1,6 +1,8 @@
 //! Outgoing messages split into frames: [`Fragments`] (wire-spec §7.2, §7.3).
 //!
 //! - global messages: format 1, the payload in the data bytes (at most 8);
+//! - a Producer/Consumer Event Report with payload (more than 8 bytes): format 1 frames of
+//!   8 bytes with the CAN-MTIs 0xF16 (first: the Event ID), 0xF15 (middle) and 0xF14 (last);
 //! - addressed messages: format 1, data bytes 0-1 = framing flags + destination alias, then at
 //!   most 6 payload bytes a frame; an empty payload is one 2-byte frame;
 //! - Stream Data Send: format 7 with the destination alias in the header, data byte 0 = DID,
@@ -22,6 +24,38 @@ pub const ADDRESSED_PAYLOAD_PER_FRAME: usize = 6;
 pub const STREAM_PAYLOAD_PER_FRAME: usize = 7;
 /// Payload bytes of a datagram frame.
 pub const DATAGRAM_PAYLOAD_PER_FRAME: usize = CanFrame::MAX_DATA;
+
+/// The CAN-MTIs of the frames of a Producer/Consumer Event Report with payload (CAN Frame
+/// Transfer; events.md): first, middle and last.
+pub mod event_report {
+    use super::FramePosition;
+
+    /// The first frame: the Event ID.
+    pub const FIRST: u16 = 0xF16;
+    /// A middle frame: 8 payload bytes.
+    pub const MIDDLE: u16 = 0xF15;
+    /// The last frame: 1 to 8 payload bytes.
+    pub const LAST: u16 = 0xF14;
+
+    /// The CAN-MTI of the frame at `position`.
+    pub const fn can_mti(position: FramePosition) -> u16 {
+        match position {
+            FramePosition::Only | FramePosition::First => FIRST,
+            FramePosition::Middle => MIDDLE,
+            FramePosition::Last => LAST,
+        }
+    }
+
+    /// Where a frame with `can_mti` sits in its report, if it is one of these frames.
+    pub const fn position(can_mti: u16) -> Option<FramePosition> {
+        match can_mti {
+            FIRST => Some(FramePosition::First),
+            MIDDLE => Some(FramePosition::Middle),
+            LAST => Some(FramePosition::Last),
+            _ => None,
+        }
+    }
+}
 
 /// Framing flags in data byte 0 of an addressed frame (wire-spec §7.2, active low).
 mod framing {
@@ -98,9 +132,16 @@ pub enum EncodeError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Layout {
     Global,
-    Addressed { destination: NodeAlias },
+    /// The identifier held is the first frame's; the others differ only in the CAN-MTI.
+    EventReport,
+    Addressed {
+        destination: NodeAlias,
+    },
     StreamData,
-    Datagram { source: NodeAlias, destination: NodeAlias },
+    Datagram {
+        source: NodeAlias,
+        destination: NodeAlias,
+    },
 }
 
 /// An iterator over the frames of one message. Holds the payload (any `AsRef<[u8]>`, e.g. the
@@ -175,6 +216,9 @@ impl Cursor {
             }
             // The identifier changes frame by frame (formats 2-5): see `next_frame`.
             (FrameKind::Datagram { frame: DatagramFrame::Only, destination }, Layout::Datagram { source, destination })
+        } else if mti == Mti::PRODUCER_CONSUMER_EVENT_REPORT && len > CanFrame::MAX_DATA {
+            // The identifier changes frame by frame: see `next_frame`.
+            (FrameKind::Message { can_mti: event_report::FIRST }, Layout::EventReport)
         } else if mti.as_raw() & 0xF000 != 0 {
             return Err(EncodeError::Unsupported(mti));
         } else if mti.is_addressed() {
@@ -202,7 +246,9 @@ impl Cursor {
                 let body_left = len.saturating_sub(1).saturating_sub(self.offset);
                 body_left.div_ceil(STREAM_PAYLOAD_PER_FRAME).max(1)
             }
-            Layout::Datagram { .. } => len.saturating_sub(self.offset).div_ceil(DATAGRAM_PAYLOAD_PER_FRAME).max(1),
+            Layout::Datagram { .. } | Layout::EventReport => {
+                len.saturating_sub(self.offset).div_ceil(DATAGRAM_PAYLOAD_PER_FRAME).max(1)
+            }
         }
     }
 
@@ -214,7 +260,7 @@ impl Cursor {
             return None;
         }
         let (per_frame, body) = match self.layout {
-            Layout::Global => (CanFrame::MAX_DATA, payload),
+            Layout::Global | Layout::EventReport => (CanFrame::MAX_DATA, payload),
             Layout::Addressed { .. } => (ADDRESSED_PAYLOAD_PER_FRAME, payload),
             // The DID goes in every frame; the offset counts the bytes after it.
             Layout::StreamData => (STREAM_PAYLOAD_PER_FRAME, payload.get(1..).unwrap_or(&[])),
@@ -226,6 +272,10 @@ impl Cursor {
         let mut head = [0u8; 2];
         let (id, head_len) = match self.layout {
             Layout::Global => (self.id, 0),
+            Layout::EventReport => {
+                let below_first = u32::from(event_report::FIRST - event_report::can_mti(position));
+                (self.id.wrapping_sub(below_first << 12), 0)
+            }
             Layout::Addressed { destination } => {
                 let [high, low] = destination.as_raw().to_be_bytes();
                 head = [position.flags() | (high & 0x0F), low];
@@ -380,6 +430,25 @@ mod tests {
     fn global_message_carries_the_payload_in_the_data() {
         let node = [5, 1, 1, 1, 0x22, 0];
         assert_eq!(frames(Mti::INITIALIZATION_COMPLETE, 0x123, None, &node), [(0x1910_0123, node.to_vec())]);
+    }
+
+    #[test]
+    fn event_report_with_payload_is_first_middle_last() {
+        let mut payload = vec![5, 1, 1, 1, 0x22, 0, 0, 1];
+        payload.extend(1..=12);
+        assert_eq!(
+            frames(Mti::PRODUCER_CONSUMER_EVENT_REPORT, 0x123, None, &payload),
+            [
+                (0x19F1_6123, vec![5, 1, 1, 1, 0x22, 0, 0, 1]),
+                (0x19F1_5123, (1..=8).collect()),
+                (0x19F1_4123, vec![9, 10, 11, 12]),
+            ]
+        );
+        // Four bytes of payload: first and last.
+        let short = frames(Mti::PRODUCER_CONSUMER_EVENT_REPORT, 0x123, None, &payload[..12]);
+        assert_eq!(short.iter().map(|f| f.0).collect::<Vec<_>>(), [0x19F1_6123, 0x19F1_4123]);
+        // A plain report stays one frame.
+        assert_eq!(frames(Mti::PRODUCER_CONSUMER_EVENT_REPORT, 0x123, None, &payload[..8])[0].0, 0x195B_4123);
     }
 
     #[test]

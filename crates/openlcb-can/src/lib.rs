@@ -146,7 +146,7 @@ pub use alias::{AliasGenerator, NodeAlias};
 pub use cache::AliasCache;
 pub use fragment::{
     ADDRESSED_PAYLOAD_PER_FRAME, DATAGRAM_PAYLOAD_PER_FRAME, EncodeError, Fragments, FramePosition,
-    STREAM_PAYLOAD_PER_FRAME,
+    STREAM_PAYLOAD_PER_FRAME, event_report,
 };
 pub use frame::{CanFrame, FrameError};
 pub use gridconnect::{GridConnectDecoder, GridConnectError};

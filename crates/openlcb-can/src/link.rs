@@ -58,7 +58,7 @@ use alloc::vec::Vec;
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::cache::AliasCache;
-use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition};
+use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition, event_report};
 use crate::frame::{CanFrame, FrameError};
 use crate::header::{self, CanHeader, DatagramFrame, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
@@ -690,6 +690,11 @@ impl CanLink {
 
     /// A format 1 frame: a global or addressed message whole, or once its last frame came.
     fn on_message<'a>(&mut self, now: Instant, source: NodeAlias, mti: Mti, data: &'a [u8]) -> Option<Received<'a>> {
+        if let Some(position) = event_report::position(mti.0) {
+            // A report with payload: global, so keyed by its source alone.
+            let key = ReassemblyKey { source, destination: source, mti: Mti::PRODUCER_CONSUMER_EVENT_REPORT };
+            return self.reassemble(now, key, position, data);
+        }
         if !mti.is_addressed() {
             if mti.announces_sender() {
                 match NodeId::from_slice(data) {
@@ -864,7 +869,9 @@ impl CanLink {
                 _ => &mut self.stats.reassembly_overflows,
             };
             bump(counter);
-            if !self.config.reject_reassembly_errors || error == ReassemblyError::FirstBeforeLastEnded {
+            // A global message (a report with payload) is never answered.
+            let global = !mti.is_addressed();
+            if !self.config.reject_reassembly_errors || error == ReassemblyError::FirstBeforeLastEnded || global {
                 return;
             }
             (Mti::OPTIONAL_INTERACTION_REJECTED, error.code(), 4)

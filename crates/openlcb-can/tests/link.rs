@@ -178,6 +178,40 @@ fn reassembly_errors_are_counted_and_rejected_with_oir() {
 }
 
 #[test]
+fn event_reports_with_payload_are_reassembled_and_never_answered() {
+    let mut solo = Solo::permitted();
+    // OlcbChecker ev60_ewp: first + last, first + middle + last.
+    let sent = solo.inject(&[
+        ":X19F16789N0501010122020000;",
+        ":X19F14789N01020304;",
+        ":X19F16789N0501010122020000;",
+        ":X19F15789N0102030405060708;",
+        ":X19F14789N090A0B0C;",
+    ]);
+    assert_eq!(sent, Vec::<String>::new());
+    let reports: Vec<(Mti, Vec<u8>)> = solo.node.delivered.iter().map(|m| (m.mti, m.payload.clone())).collect();
+    let event = [5, 1, 1, 1, 0x22, 2, 0, 0];
+    let mut long = event.to_vec();
+    long.extend(1..=12);
+    assert_eq!(
+        reports,
+        [
+            (Mti::PRODUCER_CONSUMER_EVENT_REPORT, [&event[..], &[1, 2, 3, 4]].concat()),
+            (Mti::PRODUCER_CONSUMER_EVENT_REPORT, long)
+        ]
+    );
+    // First + 255 middles + last: longer than the reassembly buffer, dropped and counted, and
+    // (a global message) not answered.
+    let mut flood = vec![":X19F16789N0501010122020000;"];
+    flood.extend(std::iter::repeat_n(":X19F15789N0102030405060708;", 255));
+    flood.push(":X19F14789N090A0B0C0D0E0F;");
+    assert_eq!(solo.inject(&flood), Vec::<String>::new());
+    assert_eq!(solo.node.delivered.len(), 2);
+    assert_eq!(solo.node.link.stats().reassembly_overflows, 1);
+    assert_eq!(solo.node.link.reassembly_in_use(), 0);
+}
+
+#[test]
 fn frames_for_other_nodes_and_odd_frames_are_counted() {
     let mut solo = Solo::permitted();
     solo.inject(&[":X10701789N050101012202;"]);

@@ -6,6 +6,7 @@ use core::ops::BitOr;
 use openlcb_stream::{Config, Duration};
 
 use crate::datagram::DatagramConfig;
+use crate::events::EventConfig;
 use crate::memconfig::MemoryConfigOptions;
 use crate::snip::SnipInfo;
 
@@ -26,6 +27,9 @@ pub struct NodeConfig {
     /// Memory Configuration's bounds and timers, server and client. (The spaces themselves
     /// are given with [`Node::set_memory_server`](crate::Node::set_memory_server).)
     pub memory: MemoryConfigOptions,
+    /// The events this node produces and consumes, and which event messages the application
+    /// gets (Event Transport; the PIP announces Event Exchange when any are declared).
+    pub events: EventConfig,
     /// How long a SNIP request of this node waits for the reply.
     pub snip_timeout: Duration,
     /// SNIP requests of this node waiting at once.
@@ -50,6 +54,7 @@ impl Default for NodeConfig {
             datagrams: DatagramConfig::default(),
             snip: SnipInfo::default(),
             memory: MemoryConfigOptions::default(),
+            events: EventConfig::default(),
             snip_timeout: Duration::from_secs(3),
             max_snip_requests: 8,
             extra_protocols: Protocols::NONE,

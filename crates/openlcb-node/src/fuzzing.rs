@@ -355,3 +355,162 @@ pub fn memconfig_server_ops(data: &[u8]) {
     }
     assert_eq!(node.memory_server().map(|s| s.active_streams()), Some(0), "a transfer never ended");
 }
+
+/// One declaration of [`event_ops`]: a block of 2^`bits` from `first`.
+#[derive(Debug, Arbitrary)]
+struct Declaration {
+    first: u64,
+    bits: u8,
+    state: u8,
+}
+
+#[derive(Debug, Arbitrary)]
+enum EventOp {
+    IdentifyProducer { event: u64, declared: Option<u8> },
+    IdentifyConsumer { event: u64, declared: Option<u8> },
+    IdentifyEvents { addressed: bool, to_us: bool },
+    Report { event: u64, payload: Vec<u8> },
+    Other { mti: u16, payload: Vec<u8> },
+    Send { event: u64, payload: Vec<u8> },
+    LinkLost,
+}
+
+/// Event Transport with random declarations and messages. The oracle: Identify Producer or
+/// Consumer is answered by exactly one Identified message, with the declaration's state,
+/// when the event is declared in that role, by none otherwise; Identify Events (global, or
+/// addressed to this node) by exactly one message per declaration, in order, each naming
+/// the declared event or range; reports reach the application exactly when consumed.
+pub fn event_ops(data: &[u8]) {
+    use crate::{DeclaredEvents, EventConfig, EventNotice, EventRange, EventState, Listen};
+    use openlcb_stream::EventId;
+
+    let mut u = Unstructured::new(data);
+    let Ok((produced, consumed, everything, ops)) =
+        <(Vec<Declaration>, Vec<Declaration>, bool, Vec<EventOp>)>::arbitrary(&mut u)
+    else {
+        return;
+    };
+    let declare = |list: Vec<Declaration>| -> Vec<DeclaredEvents> {
+        list.into_iter()
+            .take(8)
+            .filter_map(|d| {
+                let state = match d.state % 3 {
+                    0 => EventState::Valid,
+                    1 => EventState::Invalid,
+                    _ => EventState::Unknown,
+                };
+                let count = 1u64.checked_shl(u32::from(d.bits % 64))?;
+                Some(DeclaredEvents { range: EventRange::covering(EventId(d.first), count)?, state })
+            })
+            .collect()
+    };
+    let events = EventConfig {
+        produced: declare(produced),
+        consumed: declare(consumed),
+        listen: if everything { Listen::Everything } else { Listen::Consumed },
+    };
+    let local = NodeId::from_bytes([5, 1, 1, 1, 0x40, 2]);
+    let config = NodeConfig {
+        events: events.clone(),
+        send_initialization_complete: false,
+        transmit_queue_limit: 16,
+        ..NodeConfig::default()
+    };
+    let mut node = Node::new(local, config);
+    let active = events.is_active();
+    let peer = PEERS[0];
+    let state_bits = |s: EventState| match s {
+        EventState::Valid => 0,
+        EventState::Invalid => 1,
+        EventState::Unknown => 3,
+    };
+    // What Identify Events must bring: one message per declaration, in order.
+    let mut pass = Vec::new();
+    for (list, single, range) in [
+        (&events.produced, Mti::PRODUCER_IDENTIFIED_VALID, Mti::PRODUCER_RANGE_IDENTIFIED),
+        (&events.consumed, Mti::CONSUMER_IDENTIFIED_VALID, Mti::CONSUMER_RANGE_IDENTIFIED),
+    ] {
+        for d in list {
+            let (mti, id) = if d.range.is_single() {
+                (Mti(single.0 | state_bits(d.state)), d.range.first())
+            } else {
+                assert_eq!(EventRange::from_encoded(d.range.encoded()), d.range, "the range survives its encoding");
+                (range, d.range.encoded())
+            };
+            pass.push((mti, id.to_bytes().to_vec()));
+        }
+    }
+    let now = Instant::ZERO;
+    for op in ops {
+        let mut expected: Option<Vec<(Mti, Vec<u8>)>> = None;
+        let mut consumed_report = None;
+        match op {
+            EventOp::IdentifyProducer { event, declared } | EventOp::IdentifyConsumer { event, declared } => {
+                let producer = matches!(op, EventOp::IdentifyProducer { .. });
+                let (list, mti, single) = if producer {
+                    (&events.produced, Mti::IDENTIFY_PRODUCER, Mti::PRODUCER_IDENTIFIED_VALID)
+                } else {
+                    (&events.consumed, Mti::IDENTIFY_CONSUMER, Mti::CONSUMER_IDENTIFIED_VALID)
+                };
+                // Aim inside a declaration now and then.
+                let event = match declared.and_then(|i| list.get(usize::from(i) % list.len().max(1))) {
+                    Some(d) => EventId(d.range.first().0 | (event & !d.range.first().0 & d.range.last().0)),
+                    None => EventId(event),
+                };
+                node.handle_message(
+                    now,
+                    MessageRef { mti, source: peer, destination: None, payload: &event.to_bytes() },
+                );
+                let answer = list.iter().find(|d| d.range.contains(event));
+                expected = Some(match answer {
+                    Some(d) if active => alloc::vec![(Mti(single.0 | state_bits(d.state)), event.to_bytes().to_vec())],
+                    _ => Vec::new(),
+                });
+            }
+            EventOp::IdentifyEvents { addressed, to_us } => {
+                let (mti, destination) = match (addressed, to_us) {
+                    (false, _) => (Mti::IDENTIFY_EVENTS_GLOBAL, None),
+                    (true, true) => (Mti::IDENTIFY_EVENTS_ADDRESSED, Some(local)),
+                    (true, false) => (Mti::IDENTIFY_EVENTS_ADDRESSED, Some(PEERS[1])),
+                };
+                node.handle_message(now, MessageRef { mti, source: peer, destination, payload: &[] });
+                if active {
+                    expected = Some(if addressed && !to_us { Vec::new() } else { pass.clone() });
+                }
+            }
+            EventOp::Report { event, payload } => {
+                let mut bytes = EventId(event).to_bytes().to_vec();
+                bytes.extend_from_slice(&payload);
+                let mti = Mti::PRODUCER_CONSUMER_EVENT_REPORT;
+                node.handle_message(now, MessageRef { mti, source: peer, destination: None, payload: &bytes });
+                let wanted = everything || events.consumed.iter().any(|d| d.range.contains(EventId(event)));
+                consumed_report = Some((active && wanted, EventId(event), payload));
+            }
+            EventOp::Other { mti, payload } => {
+                let mti = Mti(mti);
+                let destination = mti.is_addressed().then_some(local);
+                node.handle_message(now, MessageRef { mti, source: peer, destination, payload: &payload });
+            }
+            EventOp::Send { event, payload } => {
+                let _ = node.send_event(EventId(event), &payload);
+            }
+            EventOp::LinkLost => node.link_lost(),
+        }
+        let sent: Vec<(Mti, Vec<u8>)> =
+            core::iter::from_fn(|| node.poll_transmit()).map(|m| (m.mti, m.payload)).collect();
+        assert!(sent.len() <= 16 + pass.len(), "{} messages after one op", sent.len());
+        if let Some(expected) = expected {
+            assert_eq!(sent, expected);
+        }
+        let notices: Vec<EventNotice> = core::iter::from_fn(|| node.poll_event())
+            .filter_map(|e| match e {
+                NodeEvent::Events(notice) => Some(notice),
+                _ => None,
+            })
+            .collect();
+        if let Some((wanted, event, payload)) = consumed_report {
+            let got = notices.iter().any(|n| *n == EventNotice::Report { from: peer, event, payload: payload.clone() });
+            assert_eq!(got, wanted, "report of {event:?} delivered");
+        }
+    }
+}

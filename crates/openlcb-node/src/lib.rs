@@ -3,7 +3,8 @@
 //! A real device speaks several protocols at once, and streams are mostly reached through
 //! them. [`Node`] routes each received message to the protocol it belongs to: the stream
 //! endpoint of [`openlcb_stream`], the datagram service, Memory Configuration (server and
-//! client, [`memconfig`]), Simple Node Information (SNIP), and
+//! client, [`memconfig`]), Simple Node Information (SNIP), Event Transport (events
+//! produced and consumed, see below), and
 //! the message-network basics it answers itself (Verify Node ID, Protocol Support Inquiry, and
 //! Optional Interaction Rejected for addressed messages of protocols it lacks). Each
 //! Optional Interaction Rejected or Terminate Due To Error goes to the protocol its MTI names,
@@ -108,6 +109,41 @@
 //! assert_eq!(data[8..12], [1, 2, 3, 4]);
 //! ```
 //!
+//! # Events
+//!
+//! [`NodeConfig::events`] declares what a node produces and consumes; the node answers the
+//! Identify messages for them and announces them after its Initialization Complete. Here A
+//! consumes a block of 16 events and B produces one of them and sends its report.
+//!
+//! ```
+//! use openlcb_node::{DeclaredEvents, EventNotice, EventRange, EventState, Node, NodeConfig, NodeEvent};
+//! use openlcb_stream::{EventId, Instant, Mti, NodeId};
+//!
+//! let button = EventId(0x0501_0101_2201_0003);
+//! let mut a_config = NodeConfig::default();
+//! let block = EventRange::covering(EventId(0x0501_0101_2201_0000), 16).unwrap();
+//! a_config.events.consumed = vec![DeclaredEvents { range: block, state: EventState::Unknown }];
+//! let mut b_config = NodeConfig::default();
+//! b_config.events.produced = vec![DeclaredEvents::single(button, EventState::Valid)];
+//! let mut a = Node::new(NodeId::new(0x05_01_01_01_22_00).unwrap(), a_config);
+//! let mut b = Node::new(NodeId::new(0x05_01_01_01_22_01).unwrap(), b_config);
+//!
+//! // B's first messages: Initialization Complete, then what it produces.
+//! let first: Vec<Mti> = std::iter::from_fn(|| b.poll_transmit()).map(|m| m.mti).collect();
+//! assert_eq!(first, [Mti::INITIALIZATION_COMPLETE, Mti::PRODUCER_IDENTIFIED_VALID]);
+//! while a.poll_transmit().is_some() {}
+//!
+//! b.send_event(button, &[]).unwrap();
+//! while let Some(msg) = b.poll_transmit() {
+//!     a.handle_message(Instant::ZERO, msg.as_ref());
+//! }
+//! let report = std::iter::from_fn(|| a.poll_event()).find_map(|e| match e {
+//!     NodeEvent::Events(EventNotice::Report { event, .. }) => Some(event),
+//!     _ => None,
+//! });
+//! assert_eq!(report, Some(button));
+//! ```
+//!
 //! # Peers known by their CAN alias
 //!
 //! On CAN a peer may be known only by its alias; the CAN link then names it with a
@@ -136,6 +172,7 @@ extern crate std;
 
 mod config;
 mod datagram;
+mod events;
 pub mod memconfig;
 mod node;
 mod snip;
@@ -148,6 +185,9 @@ pub use config::{NodeConfig, Protocols};
 pub use datagram::{
     Datagram, DatagramAnswer, DatagramConfig, DatagramError, DatagramFailure, DatagramId, DatagramStats,
     MAX_DATAGRAM_LEN, OkFlags, rejection_code,
+};
+pub use events::{
+    DeclaredEvents, EventConfig, EventError, EventNotice, EventRange, EventRole, EventState, EventStats, Listen,
 };
 pub use memconfig::{
     MemoryConfigOptions, MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, MemorySpace,

@@ -5,12 +5,13 @@ use alloc::vec::Vec;
 
 use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport};
 use openlcb_stream::{
-    AcceptPolicy, Event, Instant, Message, MessageRef, Mti, NodeId, Queue, StreamEndpoint, StreamHandle,
+    AcceptPolicy, Event, EventId, Instant, Message, MessageRef, Mti, NodeId, Queue, StreamEndpoint, StreamHandle,
 };
 
 use crate::datagram::{
     Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramService, OkFlags, rejected,
 };
+use crate::events::{EventNotice, EventService};
 use crate::memconfig::{MemoryClient, MemoryConfigOptions, MemoryEvent, MemoryServer, acdi_user_strings, wire as mc};
 #[cfg(feature = "memory-client")]
 use crate::memconfig::{MemoryOperation, MemoryRequestError, TransferPath};
@@ -18,7 +19,7 @@ use crate::snip::{PendingSnip, SnipFailure, SnipInfo, SnipRequestError};
 use crate::{DatagramStats, NodeConfig, Protocols};
 
 /// The well-known Event ID Duplicate Node ID Detected.
-pub const DUPLICATE_NODE_ID_DETECTED: u64 = 0x0101_0000_0000_0201;
+pub const DUPLICATE_NODE_ID_DETECTED: EventId = EventId(0x0101_0000_0000_0201);
 
 /// Something the application must know. Drain with [`Node::poll_event`] after every call.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -81,6 +82,9 @@ pub enum NodeEvent {
     /// Memory Configuration: a client operation ended, or the server was asked to do
     /// something the application carries out (reboot, install firmware, ...).
     Memory(MemoryEvent),
+    /// Event Transport: a report, a Learn Event, or (when listening to everything) another
+    /// node's Identified message.
+    Events(EventNotice),
 }
 
 /// Counters of the node's own routing; each protocol has its own too.
@@ -148,6 +152,21 @@ impl Outputs {
         } else {
             self.transmits.push_back(message);
         }
+    }
+
+    /// Queues an event that another node caused, or drops it (`false`) when
+    /// [`NodeConfig::transmit_queue_limit`] events wait: a flood must not grow the queue.
+    pub(crate) fn notify(&mut self, event: NodeEvent) -> bool {
+        let room = self.events.len() < self.limit;
+        if room {
+            self.events.push_back(event);
+        }
+        room
+    }
+
+    /// A message of the application's fits in the transmit queue.
+    pub(crate) fn has_room(&self) -> bool {
+        self.transmits.len() < self.limit
     }
 
     pub(crate) fn event(&mut self, event: NodeEvent) {
@@ -243,7 +262,8 @@ pub struct Node {
     datagrams: DatagramService,
     snip_reply: Vec<u8>,
     snip_requests: Vec<PendingSnip>,
-    out: Outputs,
+    pub(crate) events: EventService,
+    pub(crate) out: Outputs,
     stats: NodeStats,
 }
 
@@ -268,6 +288,9 @@ impl Node {
         if config.streams_enabled {
             protocols = protocols | Protocols::STREAM;
         }
+        if config.events.is_active() {
+            protocols = protocols | Protocols::EVENT_EXCHANGE;
+        }
         Node {
             protocols,
             memory_server: None,
@@ -278,6 +301,7 @@ impl Node {
             datagrams: DatagramService::new(config.datagrams.clone()),
             snip_reply: config.snip.to_payload(),
             snip_requests: Vec::with_capacity(config.max_snip_requests),
+            events: EventService::new(&config.events, config.send_initialization_complete),
             out,
             stats: NodeStats::default(),
             config,
@@ -340,9 +364,14 @@ impl Node {
     // ----- outputs -----
 
     /// The next message to send: the node's own (answers, datagrams, requests) first, then
-    /// the streams'.
+    /// its event announcements, then the streams'.
     pub fn poll_transmit(&mut self) -> Option<Message> {
-        self.out.transmits.pop_front().or_else(|| self.streams.poll_transmit())
+        let node = self.out.node;
+        self.out
+            .transmits
+            .pop_front()
+            .or_else(|| self.events.poll_transmit(&self.config.events, node))
+            .or_else(|| self.streams.poll_transmit())
     }
 
     /// The next event.
@@ -436,6 +465,9 @@ impl Node {
             Mti::PROTOCOL_SUPPORT_INQUIRY => {
                 let flags = protocols.to_bytes().to_vec();
                 out.reply(Message::addressed(Mti::PROTOCOL_SUPPORT_REPLY, out.node, peer, flags));
+            }
+            mti if crate::events::is_event_mti(mti) && self.config.events.is_active() => {
+                self.events.handle_message(&self.config.events, out, msg);
             }
             mti if mti.is_addressed() && !is_answer(mti) => {
                 // MN §3.5.2: an addressed message of a protocol this node lacks.
@@ -544,6 +576,8 @@ impl Node {
 
     /// The transport lost its link (e.g. this node's CAN alias): everything open ends.
     pub fn link_lost(&mut self) {
+        // The transport announces the node again once it is back; its events follow.
+        self.events.announce(&self.config.events);
         self.streams.link_lost();
         self.datagrams.peer_lost(&mut self.out, None);
         self.fail_snip(None);
@@ -613,7 +647,7 @@ impl Node {
     /// The message [`report_duplicate_node_id`](Self::report_duplicate_node_id) sends, for a
     /// transport that sends it itself as it leaves the network (`CanLink::leave`).
     pub fn duplicate_node_id_report(&self) -> Message {
-        let event = DUPLICATE_NODE_ID_DETECTED.to_be_bytes();
+        let event = DUPLICATE_NODE_ID_DETECTED.to_bytes();
         Message::global(Mti::PRODUCER_CONSUMER_EVENT_REPORT, self.out.node, event.to_vec())
     }
 

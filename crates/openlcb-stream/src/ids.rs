@@ -1,4 +1,4 @@
-//! Validated identifiers: [`NodeId`], [`StreamId`] and [`ContentUid`].
+//! Validated identifiers: [`NodeId`], [`EventId`], [`StreamId`] and [`ContentUid`].
 
 use core::fmt;
 use core::num::{NonZeroU8, NonZeroU64};
@@ -78,28 +78,94 @@ impl FromStr for NodeId {
     /// Accepts `05.01.01.01.22.00` (also with `:` or `-` separators) and bare hex such as
     /// `050101012200` or `0x050101012200`.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let s = s.trim();
-        if s.contains(['.', ':', '-']) {
-            let mut bytes = [0u8; 6];
-            let mut groups = s.split(['.', ':', '-']);
-            for byte in &mut bytes {
-                let group = groups.next().ok_or(ParseNodeIdError::Format)?;
-                if group.is_empty() || group.len() > 2 {
-                    return Err(ParseNodeIdError::Format);
-                }
-                *byte = u8::from_str_radix(group, 16).map_err(|_| ParseNodeIdError::Format)?;
+        parse_hex_bytes::<6>(s).map(NodeId::from_bytes).ok_or(ParseNodeIdError::Format)
+    }
+}
+
+/// `N` bytes written as `N` groups of one or two hex digits separated by `.`, `:` or `-`, or
+/// as at most `2 * N` bare hex digits (with or without `0x`), most significant first.
+fn parse_hex_bytes<const N: usize>(s: &str) -> Option<[u8; N]> {
+    let s = s.trim();
+    let mut bytes = [0u8; N];
+    if s.contains(['.', ':', '-']) {
+        let mut groups = s.split(['.', ':', '-']);
+        for byte in &mut bytes {
+            let group = groups.next()?;
+            if group.is_empty() || group.len() > 2 {
+                return None;
             }
-            if groups.next().is_some() {
-                return Err(ParseNodeIdError::Format);
-            }
-            return Ok(NodeId::from_bytes(bytes));
+            *byte = u8::from_str_radix(group, 16).ok()?;
         }
-        let hex = s.strip_prefix("0x").or_else(|| s.strip_prefix("0X")).unwrap_or(s);
-        if hex.is_empty() || hex.len() > 12 || !hex.bytes().all(|c| c.is_ascii_hexdigit()) {
-            return Err(ParseNodeIdError::Format);
-        }
-        let raw = u64::from_str_radix(hex, 16).map_err(|_| ParseNodeIdError::Format)?;
-        NodeId::new(raw).ok_or(ParseNodeIdError::Format)
+        return groups.next().is_none().then_some(bytes);
+    }
+    let hex = s.strip_prefix("0x").or_else(|| s.strip_prefix("0X")).unwrap_or(s);
+    if hex.is_empty() || hex.len() > 2 * N || !hex.bytes().all(|c| c.is_ascii_hexdigit()) {
+        return None;
+    }
+    let raw = u64::from_str_radix(hex, 16).ok()?.to_be_bytes();
+    for (byte, raw) in bytes.iter_mut().zip(raw.get(8 - N..)?) {
+        *byte = *raw;
+    }
+    Some(bytes)
+}
+
+/// A 64-bit Event ID (Event Transport), printed and parsed as `05.01.01.01.22.00.00.01`.
+/// Its first six bytes are usually the Node ID of the node that assigned it.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+pub struct EventId(pub u64);
+
+impl EventId {
+    /// An Event ID from its eight wire bytes, most significant first.
+    pub const fn from_bytes(bytes: [u8; 8]) -> Self {
+        EventId(u64::from_be_bytes(bytes))
+    }
+
+    /// An Event ID from the first eight bytes of `bytes` (a message's payload), or `None` if
+    /// there are fewer.
+    pub fn from_slice(bytes: &[u8]) -> Option<Self> {
+        Some(Self::from_bytes(bytes.get(..8)?.try_into().ok()?))
+    }
+
+    /// The eight wire bytes, most significant first.
+    pub const fn to_bytes(self) -> [u8; 8] {
+        self.0.to_be_bytes()
+    }
+
+    /// The raw value.
+    pub const fn as_raw(self) -> u64 {
+        self.0
+    }
+}
+
+impl fmt::Display for EventId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let [a, b, c, d, e, g, h, i] = self.to_bytes();
+        write!(f, "{a:02X}.{b:02X}.{c:02X}.{d:02X}.{e:02X}.{g:02X}.{h:02X}.{i:02X}")
+    }
+}
+
+impl fmt::Debug for EventId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "EventId({self})")
+    }
+}
+
+/// Why a text could not be read as an [`EventId`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ParseEventIdError {
+    /// Not eight groups of one or two hex digits separated by dots, nor 1..=16 bare hex digits.
+    #[error("an Event ID is eight hex bytes separated by dots, e.g. 05.01.01.01.22.00.00.01")]
+    Format,
+}
+
+impl FromStr for EventId {
+    type Err = ParseEventIdError;
+
+    /// Accepts `05.01.01.01.22.00.00.01` (also with `:` or `-` separators) and bare hex such
+    /// as `0501010122000001` or `0x0501010122000001`.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        parse_hex_bytes::<8>(s).map(EventId::from_bytes).ok_or(ParseEventIdError::Format)
     }
 }
 
@@ -210,6 +276,21 @@ impl FromStr for ContentUid {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn event_ids_in_every_pasted_form_parse_alike() {
+        let dotted: EventId = "05.01.01.01.22.00.00.01".parse().unwrap();
+        assert_eq!(dotted, EventId(0x0501_0101_2200_0001));
+        for form in ["05:01:01:01:22:00:00:01", "0501010122000001", "0x0501010122000001", "5.1.1.1.22.0.0.1"] {
+            assert_eq!(form.parse::<EventId>().unwrap(), dotted, "{form}");
+        }
+        assert_eq!(dotted.to_string(), "05.01.01.01.22.00.00.01");
+        assert_eq!(EventId::from_slice(&dotted.to_bytes()), Some(dotted));
+        for bad in ["05.01.01.01.22.00.00", "05.01.01.01.22.00.00.01.02", "0x05010101220000011", "", "05..01"] {
+            assert_eq!(bad.parse::<EventId>(), Err(ParseEventIdError::Format), "{bad}");
+        }
+        assert_eq!(EventId::from_slice(&[1, 2, 3]), None);
+    }
 
     #[test]
     fn node_id_bytes_round_trip() {

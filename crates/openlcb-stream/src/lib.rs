@@ -114,7 +114,7 @@ pub mod fuzzing;
 pub use config::{AcceptPolicy, Config};
 pub use endpoint::{AcceptOptions, OpenOptions, Stats, StreamEndpoint, StreamError, StreamHandle};
 pub use event::{Event, Role, StreamInfo, Termination, TimeoutKind};
-pub use ids::{ContentUid, NodeId, ParseNodeIdError, StreamId};
+pub use ids::{ContentUid, EventId, NodeId, ParseEventIdError, ParseNodeIdError, StreamId};
 pub use message::{Message, MessageRef};
 pub use mti::Mti;
 pub use queue::Queue;

@@ -48,7 +48,39 @@ impl Mti {
     pub const STREAM_DATA_PROCEED: Mti = Mti(0x0888);
     /// Stream Data Complete.
     pub const STREAM_DATA_COMPLETE: Mti = Mti(0x08A8);
-    /// Producer/Consumer Event Report (Event Transport): an event happened.
+
+    /// Identify Consumer (Event ID).
+    pub const IDENTIFY_CONSUMER: Mti = Mti(0x08F4);
+    /// Consumer Range Identified (an Event ID whose low bits give the range).
+    pub const CONSUMER_RANGE_IDENTIFIED: Mti = Mti(0x04A4);
+    /// Consumer Identified, valid (the consumer's state matches this event).
+    pub const CONSUMER_IDENTIFIED_VALID: Mti = Mti(0x04C4);
+    /// Consumer Identified, invalid.
+    pub const CONSUMER_IDENTIFIED_INVALID: Mti = Mti(0x04C5);
+    /// Consumer Identified, reserved state.
+    pub const CONSUMER_IDENTIFIED_RESERVED: Mti = Mti(0x04C6);
+    /// Consumer Identified, state unknown.
+    pub const CONSUMER_IDENTIFIED_UNKNOWN: Mti = Mti(0x04C7);
+    /// Identify Producer (Event ID).
+    pub const IDENTIFY_PRODUCER: Mti = Mti(0x0914);
+    /// Producer Range Identified (an Event ID whose low bits give the range).
+    pub const PRODUCER_RANGE_IDENTIFIED: Mti = Mti(0x0524);
+    /// Producer Identified, valid (the producer's state matches this event).
+    pub const PRODUCER_IDENTIFIED_VALID: Mti = Mti(0x0544);
+    /// Producer Identified, invalid.
+    pub const PRODUCER_IDENTIFIED_INVALID: Mti = Mti(0x0545);
+    /// Producer Identified, reserved state.
+    pub const PRODUCER_IDENTIFIED_RESERVED: Mti = Mti(0x0546);
+    /// Producer Identified, state unknown.
+    pub const PRODUCER_IDENTIFIED_UNKNOWN: Mti = Mti(0x0547);
+    /// Identify Events, addressed.
+    pub const IDENTIFY_EVENTS_ADDRESSED: Mti = Mti(0x0968);
+    /// Identify Events, global.
+    pub const IDENTIFY_EVENTS_GLOBAL: Mti = Mti(0x0970);
+    /// Learn Event (Event ID).
+    pub const LEARN_EVENT: Mti = Mti(0x0594);
+    /// Producer/Consumer Event Report: an Event ID, and with more than 8 bytes a payload
+    /// after it (on CAN the frames of CAN-MTIs 0xF16, 0xF15, 0xF14).
     pub const PRODUCER_CONSUMER_EVENT_REPORT: Mti = Mti(0x05B4);
 
     /// The raw value.
@@ -112,6 +144,21 @@ impl Mti {
             0x1F88 => "Stream Data Send",
             0x0888 => "Stream Data Proceed",
             0x08A8 => "Stream Data Complete",
+            0x08F4 => "Identify Consumer",
+            0x04A4 => "Consumer Range Identified",
+            0x04C4 => "Consumer Identified Valid",
+            0x04C5 => "Consumer Identified Invalid",
+            0x04C6 => "Consumer Identified Reserved",
+            0x04C7 => "Consumer Identified Unknown",
+            0x0914 => "Identify Producer",
+            0x0524 => "Producer Range Identified",
+            0x0544 => "Producer Identified Valid",
+            0x0545 => "Producer Identified Invalid",
+            0x0546 => "Producer Identified Reserved",
+            0x0547 => "Producer Identified Unknown",
+            0x0968 | 0x0970 => "Identify Events",
+            0x0594 => "Learn Event",
+            0x05B4 => "Producer/Consumer Event Report",
             _ => return None,
         })
     }

@@ -11,6 +11,7 @@ use openlcb_stream::{Event, Instant, NodeId, Role, StreamError, StreamHandle, St
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
+use crate::events::EventDriver;
 use crate::io::{ByteReader, ByteWriter, try_write};
 use crate::memory::MemoryDriver;
 use crate::node::{Command, Control, NodeStats, Shared};
@@ -64,6 +65,8 @@ pub(crate) struct Driver {
     requests: Requests,
     /// Memory Configuration operations waiting for their end, and the server's events.
     memory: MemoryDriver,
+    /// Listeners of event notices.
+    events: EventDriver,
     wire: Wire,
     stats: WireStats,
     commands: mpsc::Receiver<Command>,
@@ -104,6 +107,7 @@ impl Driver {
             stack: openlcb_node::Node::new(node_id, node),
             requests: Requests::default(),
             memory: MemoryDriver::default(),
+            events: EventDriver::default(),
             wire: Wire::new(protocol, Instant::ZERO, node_id, can),
             stats: WireStats::default(),
             commands,
@@ -391,9 +395,11 @@ impl Driver {
                     endpoint: self.stack.streams().stats(),
                     node: self.stack.stats(),
                     memory_events_dropped: self.memory.dropped(),
+                    event_notices_dropped: self.events.dropped(),
                 });
             }
             Command::Memory(command) => self.memory.command(now, &mut self.stack, command),
+            Command::Events(command) => self.events.command(&mut self.stack, command),
         }
     }
 
@@ -405,6 +411,10 @@ impl Driver {
                 NodeEvent::Stream(event) => event,
                 NodeEvent::Memory(event) => {
                     self.memory.event(event);
+                    continue;
+                }
+                NodeEvent::Events(notice) => {
+                    self.events.notice(notice);
                     continue;
                 }
                 event => {

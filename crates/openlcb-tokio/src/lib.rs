@@ -83,6 +83,7 @@ mod bridge;
 pub mod can;
 mod driver;
 mod error;
+pub mod events;
 pub mod hub;
 mod io;
 pub mod memory;
@@ -94,6 +95,7 @@ mod socket;
 mod wire;
 
 pub use error::Error;
+pub use events::EventNotices;
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};
 pub use io::ByteStream;
 pub use memory::{MemoryTransfer, ServerEvents};
@@ -103,8 +105,9 @@ pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStr
 // this crate alone.
 pub use openlcb_can::CanConfig;
 pub use openlcb_node::{
-    MemoryEvent, MemoryServer, NodeConfig, Protocols, RamSpace, ReadOnlySpace, SnipInfo, TransferPath,
+    DeclaredEvents, EventConfig, EventNotice, EventRange, EventRole, EventState, Listen, MemoryEvent, MemoryServer,
+    NodeConfig, Protocols, RamSpace, ReadOnlySpace, SnipInfo, TransferPath,
 };
-pub use openlcb_stream::{Config as StreamConfig, NodeId, OpenOptions};
+pub use openlcb_stream::{Config as StreamConfig, EventId, NodeId, OpenOptions};
 pub use wire::{Protocol, WireStats};
 pub use {openlcb_can, openlcb_node, openlcb_stream};

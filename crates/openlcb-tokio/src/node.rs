@@ -14,8 +14,11 @@ use tokio::task::JoinHandle;
 use tracing::Instrument as _;
 
 use crate::driver::Driver;
+use crate::events::{EVENT_NOTICE_QUEUE, EventCommand, EventNotices};
 use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents};
 use crate::{Error, Protocol, WireStats};
+use openlcb_node::EventRole;
+use openlcb_stream::EventId;
 
 /// How a [`Node`] joins the network.
 #[derive(Debug, Clone)]
@@ -66,6 +69,8 @@ pub struct NodeStats {
     pub node: StackStats,
     /// Memory server events dropped because the application did not take them in time.
     pub memory_events_dropped: u64,
+    /// Event notices dropped because a listener did not take them in time.
+    pub event_notices_dropped: u64,
 }
 
 /// The longest [`Node::discover`] listens, however often nodes answer.
@@ -113,6 +118,7 @@ pub(crate) enum Command {
         node: NodeId,
         reply: oneshot::Sender<Option<u16>>,
     },
+    Events(EventCommand),
     /// Memory Configuration: serve spaces, or start a client operation.
     Memory(MemoryCommand),
 }
@@ -343,6 +349,33 @@ impl Node {
     /// The CAN alias the node's link knows for `node` (always `None` over OpenLCB-TCP).
     pub async fn alias_of(&self, node: NodeId) -> Result<Option<u16>, Error> {
         self.control.call(|reply| Command::AliasOf { node, reply }).await
+    }
+
+    /// From now on, the event messages the node's
+    /// [`EventConfig`](openlcb_node::EventConfig) lets through. Notices a listener leaves
+    /// waiting past [`EVENT_NOTICE_QUEUE`] are dropped and counted.
+    pub async fn event_notices(&self) -> Result<EventNotices, Error> {
+        let (sink, notices) = mpsc::channel(EVENT_NOTICE_QUEUE);
+        let command = Command::Events(EventCommand::Listen { sink });
+        self.control.commands.send(command).await.map_err(|_| self.control.shared.error())?;
+        Ok(EventNotices::new(notices))
+    }
+
+    /// Sends a Producer/Consumer Event Report for `event`, with `payload` after it if not
+    /// empty. [`Error::Busy`] while the node's transmit queue is full.
+    pub async fn send_event(&self, event: EventId, payload: Vec<u8>) -> Result<(), Error> {
+        self.control.call(|reply| Command::Events(EventCommand::Report { event, payload, reply })).await?
+    }
+
+    /// Sends Identify Events to every node (`None`) or one; the answers come out of
+    /// [`event_notices`](Self::event_notices) when the node listens to everything.
+    pub async fn identify_events(&self, peer: Option<NodeId>) -> Result<(), Error> {
+        self.control.call(|reply| Command::Events(EventCommand::IdentifyEvents { peer, reply })).await?
+    }
+
+    /// Asks who produces or consumes `event` (Identify Producer or Identify Consumer).
+    pub async fn identify(&self, role: EventRole, event: EventId) -> Result<(), Error> {
+        self.control.call(|reply| Command::Events(EventCommand::Identify { role, event, reply })).await?
     }
 
     /// Serves `server`'s address spaces from now on (Memory Configuration and, with space
