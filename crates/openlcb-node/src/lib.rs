@@ -128,9 +128,10 @@
 //! let mut a = Node::new(NodeId::new(0x05_01_01_01_22_00).unwrap(), a_config);
 //! let mut b = Node::new(NodeId::new(0x05_01_01_01_22_01).unwrap(), b_config);
 //!
-//! // B's first messages: Initialization Complete, then what it produces.
+//! // B's first messages: Initialization Complete, the Verify Node ID naming itself that a
+//! // node with the same Node ID would answer, then what it produces.
 //! let first: Vec<Mti> = std::iter::from_fn(|| b.poll_transmit()).map(|m| m.mti).collect();
-//! assert_eq!(first, [Mti::INITIALIZATION_COMPLETE, Mti::PRODUCER_IDENTIFIED_VALID]);
+//! assert_eq!(first, [Mti::INITIALIZATION_COMPLETE, Mti::VERIFY_NODE_ID_GLOBAL, Mti::PRODUCER_IDENTIFIED_VALID]);
 //! while a.poll_transmit().is_some() {}
 //!
 //! b.send_event(button, &[]).unwrap();

@@ -79,7 +79,10 @@ fn everything() -> Vec<(Mti, Vec<u8>)> {
 #[test]
 fn initialization_complete_is_followed_by_every_declaration() {
     let mut node = node_with(events(), true);
-    let mut expected = vec![(Mti::INITIALIZATION_COMPLETE, LOCAL.to_bytes().to_vec())];
+    let mut expected = vec![
+        (Mti::INITIALIZATION_COMPLETE, LOCAL.to_bytes().to_vec()),
+        (Mti::VERIFY_NODE_ID_GLOBAL, LOCAL.to_bytes().to_vec()),
+    ];
     expected.extend(everything());
     assert_eq!(sent(&mut node), expected);
 }
