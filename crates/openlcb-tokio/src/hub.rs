@@ -664,7 +664,7 @@ async fn read_client(
         let n = match n {
             Ok(0) => break None,
             Ok(n) => n,
-            Err(error) => break Some(error.to_string()),
+            Err(error) => break Some(departure(&error)),
         };
         heard = true;
         let input = buf.get(..n).unwrap_or_default();
@@ -771,6 +771,22 @@ fn relay_tcp(
     (frames, errors)
 }
 
+/// The reason of [`HubEvent::Disconnected`] for a client that closed its connection (seen as
+/// the end of its input, a broken pipe or a reset): it simply left.
+pub const CLOSED_BY_CLIENT: &str = "closed the connection";
+
+/// Why a client's socket failed, in words: a normal departure is [`CLOSED_BY_CLIENT`].
+fn departure(error: &std::io::Error) -> String {
+    use std::io::ErrorKind;
+    match error.kind() {
+        ErrorKind::BrokenPipe
+        | ErrorKind::ConnectionReset
+        | ErrorKind::ConnectionAborted
+        | ErrorKind::UnexpectedEof => CLOSED_BY_CLIENT.to_string(),
+        _ => error.to_string(),
+    }
+}
+
 /// Writes a client's queue, many chunks per `write` call.
 async fn write_client(
     id: ClientId,
@@ -791,7 +807,7 @@ async fn write_client(
         // count is already 0).
         let _ = queued.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |q| Some(q.saturating_sub(batch.len())));
         if let Err(error) = writer.write_all(&batch).await {
-            break Some(error.to_string());
+            break Some(departure(&error));
         }
         batch.clear();
         // Memory goes back when a burst is over.

@@ -91,6 +91,7 @@ mod requests;
 #[cfg(feature = "serial")]
 pub mod serial;
 mod socket;
+mod trace;
 mod wire;
 
 pub use error::Error;
