@@ -195,7 +195,13 @@ impl ConnectArgs {
     async fn checked(&self, options: NodeOptions) -> Result<Node, Failure> {
         let node = match self.node(options).await {
             Ok(node) => node,
+            // The hub closed the connection as soon as it heard us (as `lcc-stream hub` does on
+            // bytes of the other protocol), or sent what cannot be decoded.
             Err(error @ (Error::Protocol(_) | Error::ConnectionLost(_))) => {
+                return Err(self.wrong_protocol(&error).unwrap_or(Failure::Net(error)));
+            }
+            Err(Error::Connect { source, .. }) if source.kind() == std::io::ErrorKind::UnexpectedEof => {
+                let error = Error::ConnectionLost(source);
                 return Err(self.wrong_protocol(&error).unwrap_or(Failure::Net(error)));
             }
             Err(error) => return Err(Failure::Net(error)),
@@ -212,7 +218,11 @@ impl ConnectArgs {
     /// A failure if the hub has sent only bytes that never made a message (it speaks the
     /// other protocol), for commands to ask when nobody answered.
     pub(crate) async fn heard_the_other_protocol(&self, node: &Node) -> Option<Failure> {
-        let stats = node.stats().await.ok()?.wire;
+        let stats = match node.stats().await {
+            Ok(stats) => stats.wire,
+            // The hub closed the connection (as one does on bytes of the other protocol).
+            Err(error) => return self.wrong_protocol(&error),
+        };
         if stats.decode_errors == 0 || stats.frames_in > 0 {
             return None;
         }
@@ -229,7 +239,7 @@ impl ConnectArgs {
             ProtocolArg::Tcp => ("OpenLCB-TCP", "GridConnect", "--protocol gridconnect"),
         };
         Some(Failure::WrongProtocol(format!(
-            "the hub at {} does not speak {spoken} ({error}); it is probably an {other} port: \
+            "the hub at {} does not speak {spoken} ({error}); it is probably a port for {other}: \
              try {flag}, or the other port of the hub (lcc-stream hub: GridConnect {GRIDCONNECT_ADDR}, \
              OpenLCB-TCP {TCP_ADDR})",
             self.addr()

@@ -636,6 +636,17 @@ impl GarbageReport {
     }
 }
 
+/// The protocol a client's first bytes are in, if it is not the one of its port: GridConnect
+/// text starts with `:X` or `:S`; an OpenLCB-TCP message with the flags byte 0x80 (a
+/// message, not a link control one) and never with `:`.
+fn other_protocol(port: Protocol, first: &[u8]) -> Option<&'static str> {
+    match (port, first) {
+        (Protocol::Tcp, [b':', b'X' | b'x' | b'S' | b's', ..]) => Some("GridConnect"),
+        (Protocol::GridConnect, [0x80, ..]) => Some("OpenLCB-TCP"),
+        _ => None,
+    }
+}
+
 /// Reads a client's frames, encodes each again and relays them in one chunk per read. At
 /// the end of its input (a half-close) the client stays: it still receives.
 async fn read_client(
@@ -666,8 +677,13 @@ async fn read_client(
             Ok(n) => n,
             Err(error) => break Some(departure(&error)),
         };
-        heard = true;
         let input = buf.get(..n).unwrap_or_default();
+        if !heard {
+            if let Some(other) = other_protocol(protocol, input) {
+                break Some(format!("speaks {other} on this port (closed, so that it learns at once)"));
+            }
+        }
+        heard = true;
         let (frames, errors) = match protocol {
             Protocol::GridConnect => {
                 relay_gridconnect(id, input, &mut gridconnect_decoder, &mut chunk, &state, &mut garbage)
