@@ -13,6 +13,10 @@ pub(crate) fn is_std(path: &Path) -> bool {
 
 /// What went wrong with a file, in words (the operating system's, without its error number).
 pub(crate) fn reason(error: &io::Error) -> String {
+    if error.get_ref().is_some() {
+        // Worded here already.
+        return error.to_string();
+    }
     match error.kind() {
         io::ErrorKind::NotFound => "no such file or directory".into(),
         io::ErrorKind::PermissionDenied => "permission denied".into(),

@@ -58,6 +58,9 @@ pub(crate) const TRANSIENT_LAST: u64 = 0x0501_0101_22BF;
 /// Transient Node IDs tried before giving up (each taken one costs a login, 200 ms).
 const TRANSIENT_TRIES: u64 = 8;
 
+/// How long an OpenLCB-TCP connection is watched after joining for a hub that closes it.
+const TCP_SETTLE: std::time::Duration = std::time::Duration::from_millis(200);
+
 /// `--node-id` of a command that comes and goes.
 #[derive(Debug, Args)]
 pub(crate) struct TransientId {
@@ -193,7 +196,7 @@ impl ConnectArgs {
     /// Joins as `options` says, then looks at what the hub sent: bytes that never made a
     /// message mean that it speaks the other protocol.
     async fn checked(&self, options: NodeOptions) -> Result<Node, Failure> {
-        let node = match self.node(options).await {
+        let mut node = match self.node(options).await {
             Ok(node) => node,
             // The hub closed the connection as soon as it heard us (as `lcc-stream hub` does on
             // bytes of the other protocol), or sent what cannot be decoded.
@@ -206,6 +209,13 @@ impl ConnectArgs {
             }
             Err(error) => return Err(Failure::Net(error)),
         };
+        if self.protocol == ProtocolArg::Tcp && self.serial.is_none() {
+            // OpenLCB-TCP has no login to wait for: a hub of the other protocol shows itself
+            // by closing the connection once it has read our first message.
+            if let Ok(error) = tokio::time::timeout(TCP_SETTLE, node.closed()).await {
+                return Err(self.wrong_protocol(&error).unwrap_or(Failure::Net(error)));
+            }
+        }
         match self.heard_the_other_protocol(&node).await {
             Some(failure) => {
                 node.close().await;

@@ -178,6 +178,10 @@ fn device_reason(kind: &str, error: &io::Error) -> String {
         (Some(19), _) => "no such device".into(),
         (Some(25), "serial port") => "not a serial port".into(),
         (Some(97), _) => "this kernel has no CAN sockets (the can and can-raw modules)".into(),
+        // The serial crate hands ENOTTY on as text only (glibc's and musl's wording).
+        _ if kind == "serial port" && ["typewriter", "ioctl"].iter().any(|t| error.to_string().contains(t)) => {
+            "not a serial port".into()
+        }
         _ => match error.kind() {
             io::ErrorKind::NotFound => "no such device".into(),
             io::ErrorKind::PermissionDenied => "permission denied".into(),
