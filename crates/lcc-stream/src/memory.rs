@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use crate::files;
 use crate::net::{self, ConnectArgs};
-use crate::outcome::{Failure, Outcome, exit_help};
+use crate::outcome::{Failure, Outcome};
 use crate::progress::Progress;
 
 /// How long the target has to answer the Protocol Support Inquiry that finds it.
@@ -28,24 +28,14 @@ moved), file, elapsed_s (from the first command, once on the network), bytes_per
 
 ";
 
-/// The outcomes `read`, `write` and `firmware` can end with.
-pub(crate) const OUTCOMES: &[Outcome] = &[
-    Outcome::Ok,
-    Outcome::Error,
-    Outcome::UnreachableHub,
-    Outcome::Rejected,
-    Outcome::TimedOut,
-    Outcome::NotFound,
-    Outcome::ConnectionLost,
-    Outcome::Terminated,
-    Outcome::FileError,
-    Outcome::DuplicateNodeId,
-    Outcome::Interrupted,
-];
+/// The outcomes `read`, `write` and `firmware` can end with beside those of every command
+/// that joins the network.
+const OUTCOMES: &[Outcome] =
+    &[Outcome::Rejected, Outcome::TimedOut, Outcome::NotFound, Outcome::Terminated, Outcome::FileError];
 
 /// The after-help of `read`, `write` and `firmware`, with `extra` before the exit statuses.
 pub(crate) fn after_help(extra: &str) -> String {
-    format!("{JSON_HELP}{extra}{}", exit_help(OUTCOMES))
+    format!("{JSON_HELP}{extra}{}", net::network_help(OUTCOMES))
 }
 
 /// Options every client command takes.

@@ -40,6 +40,13 @@ fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
 
+/// The stderr of a command that ended with exit status `code`.
+fn exits(output: &Output, code: i32) -> String {
+    let stderr = text(&output.stderr);
+    assert_eq!(output.status.code(), Some(code), "{stderr}");
+    stderr
+}
+
 /// Exactly one JSON object on stdout.
 fn one_object(output: &Output) -> Value {
     let stdout = text(&output.stdout);
@@ -119,8 +126,7 @@ async fn memory_configuration_codes_are_worded_and_steps_are_logged_with_v() {
     let out = out.to_str().unwrap();
     let unknown =
         run(&["read", "--from", "05.01.01.01.22.F2", "--space", "0x10", "--out", out, "--connect", &addr]).await;
-    let stderr = text(&unknown.stderr);
-    assert_eq!(unknown.status.code(), Some(4), "{stderr}");
+    let stderr = exits(&unknown, 4);
     assert!(stderr.contains("0x1081 (address space unknown)") && stderr.contains("no such address space"), "{stderr}");
     // -v: the steps; -vv: every command and reply, by datagrams here.
     let logged = run(&[
@@ -169,8 +175,7 @@ async fn files_are_named_and_checked_before_the_network_is_touched() {
     std::fs::write(&taken, b"keep").unwrap();
     let read =
         run(&["read", "--from", "05.01.01.01.22.F2", "--out", taken.to_str().unwrap(), "--connect", &addr]).await;
-    let stderr = text(&read.stderr);
-    assert_eq!(read.status.code(), Some(8), "{stderr}");
+    let stderr = exits(&read, 8);
     assert!(stderr.contains("taken.bin") && stderr.contains("--force"), "{stderr}");
     // --json: one object, with the shared word.
     let json = run(&["send", missing, "--to", "05.01.01.01.22.F1", "--json", "--connect", &addr]).await;
@@ -182,8 +187,7 @@ async fn files_are_named_and_checked_before_the_network_is_touched() {
 async fn a_wrong_port_is_told_apart_from_an_empty_network() {
     let (_hub, gridconnect, tcp, _) = hub().await;
     let nodes = run(&["nodes", "--connect", &tcp]).await;
-    let stderr = text(&nodes.stderr);
-    assert_eq!(nodes.status.code(), Some(3), "{stderr}");
+    let stderr = exits(&nodes, 3);
     assert!(stderr.contains("does not speak GridConnect") && stderr.contains("--protocol tcp"), "{stderr}");
     let send = run(&[
         "send",
@@ -303,11 +307,9 @@ async fn devices_are_named_with_what_went_wrong() {
     let help = text(&run(&["send", "--help"]).await.stdout);
     assert!(help.contains("--can <IFACE>"), "--can is missing from the default build");
     let serial = run(&["nodes", "--serial", "/dev/null"]).await;
-    let stderr = text(&serial.stderr);
-    assert_eq!(serial.status.code(), Some(3), "{stderr}");
+    let stderr = exits(&serial, 3);
     assert!(stderr.contains("serial port /dev/null") && stderr.contains("not a serial port"), "{stderr}");
     let can = run(&["nodes", "--can", "nosuchcan0"]).await;
-    let stderr = text(&can.stderr);
-    assert_eq!(can.status.code(), Some(3), "{stderr}");
+    let stderr = exits(&can, 3);
     assert!(stderr.contains("CAN interface nosuchcan0") && !stderr.contains("hub"), "{stderr}");
 }

@@ -57,21 +57,28 @@ fn command_name(command: u8, rest: &[u8]) -> String {
     }
 }
 
+/// The commands below 0x80, by their byte with the space bits (0x03) cleared (MC §4).
+const ADDRESSED: [(u8, &str); 13] = [
+    (0x00, "Write"),
+    (0x08, "Write Under Mask"),
+    (0x10, "Write Reply"),
+    (0x18, "Write Reply (failed)"),
+    (0x20, "Write Stream"),
+    (0x30, "Write Stream Reply"),
+    (0x38, "Write Stream Reply (failed)"),
+    (0x40, "Read"),
+    (0x50, "Read Reply"),
+    (0x58, "Read Reply (failed)"),
+    (0x60, "Read Stream"),
+    (0x70, "Read Stream Reply"),
+    (0x78, "Read Stream Reply (failed)"),
+];
+
 fn family(command: u8) -> &'static str {
+    if let Some((_, name)) = ADDRESSED.iter().find(|(base, _)| command & !0x03 == *base) {
+        return name;
+    }
     match command {
-        0x00..=0x03 => "Write",
-        0x08..=0x0B => "Write Under Mask",
-        0x10..=0x13 => "Write Reply",
-        0x18..=0x1B => "Write Reply (failed)",
-        0x20..=0x23 => "Write Stream",
-        0x30..=0x33 => "Write Stream Reply",
-        0x38..=0x3B => "Write Stream Reply (failed)",
-        0x40..=0x43 => "Read",
-        0x50..=0x53 => "Read Reply",
-        0x58..=0x5B => "Read Reply (failed)",
-        0x60..=0x63 => "Read Stream",
-        0x70..=0x73 => "Read Stream Reply",
-        0x78..=0x7B => "Read Stream Reply (failed)",
         0x80 => "Get Configuration Options",
         0x82 => "Get Configuration Options Reply",
         0x84 => "Get Address Space Information",

@@ -116,6 +116,21 @@ async fn a_hub_attached_to_the_bus_relays_between_a_bus_node_and_a_tcp_node() {
     moves(&on_tcp, &mut on_bus, &payload, 2048).await;
 }
 
+/// The next `lines` lines of GridConnect text `stream` reads.
+async fn read_lines(stream: &mut FrameStream<Controller>, lines: usize) -> String {
+    let mut text = Vec::new();
+    bounded("reading", async {
+        let mut buf = [0u8; 64];
+        while text.iter().filter(|&&b| b == b'\n').count() < lines {
+            let n = stream.read(&mut buf).await.unwrap();
+            assert!(n > 0, "the bus ended");
+            text.extend_from_slice(&buf[..n]);
+        }
+    })
+    .await;
+    String::from_utf8(text).unwrap()
+}
+
 #[tokio::test]
 async fn an_echo_is_dropped_once_and_other_frames_are_read() {
     let bus = MemoryBus::default();
@@ -130,17 +145,7 @@ async fn an_echo_is_dropped_once_and_other_frames_are_read() {
         theirs.flush().await.unwrap();
     })
     .await;
-    let mut text = Vec::new();
-    bounded("reading", async {
-        let mut buf = [0u8; 64];
-        while text.iter().filter(|&&b| b == b'\n').count() < 2 {
-            let n = mine.read(&mut buf).await.unwrap();
-            assert!(n > 0, "the bus ended");
-            text.extend_from_slice(&buf[..n]);
-        }
-    })
-    .await;
-    assert_eq!(String::from_utf8(text).unwrap(), ":X19170456N0501010122F0;\n:X19490123N;\n");
+    assert_eq!(read_lines(&mut mine, 2).await, ":X19170456N0501010122F0;\n:X19490123N;\n");
     assert_eq!(echoes.load(Ordering::Relaxed), 1);
 }
 
@@ -160,16 +165,6 @@ async fn a_controller_that_never_echoes_hears_frames_equal_to_its_own() {
         theirs.flush().await.unwrap();
     })
     .await;
-    let mut text = Vec::new();
-    bounded("reading", async {
-        let mut buf = [0u8; 64];
-        while text.iter().filter(|&&b| b == b'\n').count() < 2 {
-            let n = mine.read(&mut buf).await.unwrap();
-            assert!(n > 0, "the bus ended");
-            text.extend_from_slice(&buf[..n]);
-        }
-    })
-    .await;
-    assert_eq!(String::from_utf8(text).unwrap(), frames);
+    assert_eq!(read_lines(&mut mine, 2).await, frames);
     assert_eq!(mine.echoes().load(Ordering::Relaxed), 0);
 }
