@@ -241,19 +241,32 @@ impl ConnectArgs {
 
     /// The failure of a hub that answered in the other protocol, if `error` looks like one.
     fn wrong_protocol(&self, error: &Error) -> Option<Failure> {
-        if self.serial.is_some() || self.can_interface().is_some() {
-            return None;
-        }
-        let (spoken, other, flag) = match self.protocol {
-            ProtocolArg::Gridconnect => ("GridConnect", "OpenLCB-TCP", "--protocol tcp"),
-            ProtocolArg::Tcp => ("OpenLCB-TCP", "GridConnect", "--protocol gridconnect"),
-        };
+        let (spoken, other, flag) = self.protocols()?;
         Some(Failure::WrongProtocol(format!(
             "the hub at {} does not speak {spoken} ({error}); it is probably a port for {other}: \
              try {flag}, or the other port of the hub (lcc-stream hub: GridConnect {GRIDCONNECT_ADDR}, \
              OpenLCB-TCP {TCP_ADDR})",
             self.addr()
         )))
+    }
+
+    /// What to say when no node answered over a hub: a hub that speaks the other protocol
+    /// and drops what it cannot read (OpenMRN's does) looks like an empty network.
+    pub(crate) fn empty_network_hint(&self) -> Option<String> {
+        let (_, other, flag) = self.protocols()?;
+        Some(format!("if nodes are there, the hub at {} may speak {other}: try {flag}", self.addr()))
+    }
+
+    /// The protocol spoken to a hub, the other one, and the option that chooses it; `None`
+    /// on a serial port or CAN interface.
+    fn protocols(&self) -> Option<(&'static str, &'static str, &'static str)> {
+        if self.serial.is_some() || self.can_interface().is_some() {
+            return None;
+        }
+        Some(match self.protocol {
+            ProtocolArg::Gridconnect => ("GridConnect", "OpenLCB-TCP", "--protocol tcp"),
+            ProtocolArg::Tcp => ("OpenLCB-TCP", "GridConnect", "--protocol gridconnect"),
+        })
     }
 
     /// The SocketCAN interface, if one was given.

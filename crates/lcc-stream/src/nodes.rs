@@ -102,6 +102,9 @@ async fn list(args: &NodesArgs) -> Result<ExitCode, String> {
             }
             if !args.json && !net::quiet() {
                 eprintln!("{} node(s) answered", reports.len());
+                if let Some(hint) = reports.is_empty().then(|| args.connect.empty_network_hint()).flatten() {
+                    eprintln!("lcc-stream nodes: {hint}");
+                }
             }
             Ok(ExitCode::SUCCESS)
         }

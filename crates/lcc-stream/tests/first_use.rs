@@ -189,6 +189,10 @@ async fn a_wrong_port_is_told_apart_from_an_empty_network() {
     let nodes = run(&["nodes", "--connect", &tcp]).await;
     let stderr = exits(&nodes, 3);
     assert!(stderr.contains("does not speak GridConnect") && stderr.contains("--protocol tcp"), "{stderr}");
+    // A hub that drops what it cannot read (OpenMRN's) looks like an empty network: a hint.
+    let empty = run(&["nodes", "--protocol", "tcp", "--connect", &tcp]).await;
+    let stderr = exits(&empty, 0);
+    assert!(stderr.contains("0 node(s) answered") && stderr.contains("may speak GridConnect"), "{stderr}");
     let send = run(&[
         "send",
         "Cargo.toml",
