@@ -3,9 +3,10 @@
 //! with ([`exit_help`]) and turns what stopped it ([`Failure`]) into one of them, with a
 //! message for a person that says what went wrong and, where it helps, what to do.
 //!
-//! A new command: keep its `--json` report's `result` and `error` fields from
+//! A new command: take its `--json` report's `result` and `error` fields from
 //! [`Failure::outcome`] and [`Failure`]'s `Display`, and give its `after_help`
-//! `exit_help(&[...])` with the outcomes it can return.
+//! `net::network_help(&[...])` (a command that joins the network: the outcomes every such
+//! command has, and its own) or `exit_help(&[...])`.
 
 use std::fmt;
 use std::path::{Path, PathBuf};
