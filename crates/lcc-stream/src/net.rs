@@ -243,9 +243,9 @@ impl ConnectArgs {
     fn wrong_protocol(&self, error: &Error) -> Option<Failure> {
         let (spoken, other, flag) = self.protocols()?;
         Some(Failure::WrongProtocol(format!(
-            "the hub at {} does not speak {spoken} ({error}); it is probably a port for {other}: \
-             try {flag}, or the other port of the hub (lcc-stream hub: GridConnect {GRIDCONNECT_ADDR}, \
-             OpenLCB-TCP {TCP_ADDR})",
+            "cannot reach the hub at {}: {error}; it probably does not speak {spoken} (a port for \
+             {other}?): try {flag}, or the other port of the hub (lcc-stream hub: GridConnect \
+             {GRIDCONNECT_ADDR}, OpenLCB-TCP {TCP_ADDR})",
             self.addr()
         )))
     }
