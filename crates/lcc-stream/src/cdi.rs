@@ -9,15 +9,16 @@ use clap::Args;
 use openlcb_stream::NodeId;
 use openlcb_tokio::Node;
 
-use crate::memory::{self, ClientArgs, Report, Stop};
+use crate::memory::{self, ClientArgs, Moved, Report};
 use crate::net;
+use crate::outcome::Failure;
 
 /// The CDI's space.
 pub(crate) const SPACE_CDI: u8 = 0xFF;
 
 /// Options of `lcc-stream cdi`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!(memory::json_help!(), net::exit_help!()))]
+#[command(after_help = memory::after_help(""))]
 pub(crate) struct CdiArgs {
     /// The node whose CDI is read.
     #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id)]
@@ -43,9 +44,10 @@ pub(crate) async fn read_cdi(
     peer: NodeId,
     client: &ClientArgs,
     interrupt: &mut net::Interrupt,
-) -> Result<Vec<u8>, Stop> {
-    let transfer = node.read_memory(peer, SPACE_CDI, 0, None, client.path()).await.map_err(Stop::Net)?;
-    memory::follow(transfer, None, client.json, interrupt).await.map(trim_cdi)
+    moved: &mut Moved,
+) -> Result<Vec<u8>, Failure> {
+    let transfer = node.read_memory(peer, SPACE_CDI, 0, None, client.path()).await?;
+    memory::follow(node, transfer, None, client.json, interrupt, moved).await.map(trim_cdi)
 }
 
 pub(crate) fn run(args: &CdiArgs) -> Result<ExitCode, String> {
@@ -54,30 +56,30 @@ pub(crate) fn run(args: &CdiArgs) -> Result<ExitCode, String> {
 
 async fn cdi(args: &CdiArgs) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
-    let mut started = Instant::now();
+    let mut moved = Moved::default();
     let outcome = async {
         if let Some(out) = &args.out {
             memory::refuse_existing(out).await?;
         }
         let node = memory::join(&args.client, "cdi", args.from).await?;
-        started = Instant::now();
-        let xml = read_cdi(&node, args.from, &args.client, &mut interrupt).await;
+        moved.started = Some(Instant::now());
+        let xml = read_cdi(&node, args.from, &args.client, &mut interrupt, &mut moved).await;
         node.close().await;
         let xml = xml?;
         match &args.out {
             Some(out) => memory::save_new(out, &xml).await?,
             None if !args.client.json => {
                 use std::io::Write as _;
-                std::io::stdout().write_all(&xml).map_err(Stop::File)?;
+                let stdout = std::path::Path::new("-");
+                std::io::stdout().write_all(&xml).map_err(|e| Failure::file(stdout, e))?;
             }
             None => {}
         }
         Ok(xml.len() as u64)
     }
     .await;
-    let bytes = *outcome.as_ref().unwrap_or(&0);
     let file = args.out.clone().unwrap_or_else(|| PathBuf::from("-"));
-    let report = Report::new(args.from, SPACE_CDI, 0, &file, args.client.path(), bytes, started);
+    let report = Report::new(args.from, SPACE_CDI, 0, &file, &moved);
     let text = outcome.map(|bytes| match &args.out {
         Some(out) => format!("read the CDI of {} ({bytes} bytes) into {}", args.from, out.display()),
         None => String::new(),

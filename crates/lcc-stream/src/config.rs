@@ -18,16 +18,17 @@ use openlcb_tokio::{Node, TransferPath};
 use serde_json::{Value as Json, json};
 
 use crate::cdi::read_cdi;
-use crate::memory::{self, ClientArgs, Stop};
+use crate::memory::{self, ClientArgs, Moved};
 use crate::net;
+use crate::outcome::{Failure as Stop, Outcome};
 
 /// The fields of `config --json`.
 macro_rules! config_json_help {
     () => {
         "\
---json prints one object: node, command, result (\"ok\", \"invalid\" for a value or backup
-that does not fit the CDI, \"bad_cdi\", \"verify_failed\", or those of `read`) and, on failure,
-error. show adds segments (a tree of groups and entries: key, name, description, type,
+--json prints one object: node, command, result (the word of the exit status below: \"usage\"
+for a value or backup that does not fit the CDI, \"error\" for a CDI that cannot be used,
+\"verify_failed\" for a value that reads back differently) and, on failure, error. show adds segments (a tree of groups and entries: key, name, description, type,
 space, address, size, value, label, min, max, default, map); get and set add key, value and
 label (set also old); backup adds file and entries; restore adds written, unchanged,
 unknown_keys, invalid and dry_run.
@@ -47,7 +48,7 @@ pub(crate) struct ConfigArgs {
 enum Action {
     /// Print every setting: the CDI's tree with current values, names, descriptions, map
     /// labels and ranges.
-    #[command(after_help = concat!(config_json_help!(), net::exit_help!()))]
+    #[command(after_help = after_help())]
     Show {
         /// The node.
         #[arg(value_name = "NODE_ID", value_parser = crate::args::node_id)]
@@ -56,7 +57,7 @@ enum Action {
         client: ClientArgs,
     },
     /// Print one setting's value, by its key (as `show` and backups name it).
-    #[command(after_help = concat!(config_json_help!(), net::exit_help!()))]
+    #[command(after_help = after_help())]
     Get {
         /// The node.
         #[arg(value_name = "NODE_ID", value_parser = crate::args::node_id)]
@@ -68,7 +69,7 @@ enum Action {
     },
     /// Set one setting, checked against its type, size, range and map first (a map's label
     /// or its value are both taken).
-    #[command(after_help = concat!(config_json_help!(), net::exit_help!()))]
+    #[command(after_help = after_help())]
     Set {
         /// The node.
         #[arg(value_name = "NODE_ID", value_parser = crate::args::node_id)]
@@ -83,7 +84,7 @@ enum Action {
     },
     /// Write every int, string and Event ID setting into a file of key=value lines, as JMRI's
     /// Backup does.
-    #[command(after_help = concat!(config_json_help!(), net::exit_help!()))]
+    #[command(after_help = after_help())]
     Backup {
         /// The node.
         #[arg(value_name = "NODE_ID", value_parser = crate::args::node_id)]
@@ -96,7 +97,7 @@ enum Action {
     },
     /// Write a backup (ours or JMRI's) back into a node: only the settings that differ, read
     /// back and compared; keys the CDI does not have are reported, never guessed.
-    #[command(after_help = concat!(config_json_help!(), net::exit_help!()))]
+    #[command(after_help = after_help())]
     Restore {
         /// The node.
         #[arg(value_name = "NODE_ID", value_parser = crate::args::node_id)]
@@ -109,6 +110,20 @@ enum Action {
         #[command(flatten)]
         client: ClientArgs,
     },
+}
+
+/// The after-help of every `config` command: its JSON fields and its exit statuses.
+fn after_help() -> String {
+    let outcomes = [
+        Outcome::Usage,
+        Outcome::Rejected,
+        Outcome::TimedOut,
+        Outcome::NotFound,
+        Outcome::Terminated,
+        Outcome::FileError,
+        Outcome::VerifyFailed,
+    ];
+    format!("{}{}", config_json_help!(), net::network_help(&outcomes))
 }
 
 /// Why a config command stopped.
@@ -130,21 +145,12 @@ impl From<Stop> for Failure {
 }
 
 impl Failure {
-    fn status(&self) -> u8 {
+    fn outcome(&self) -> Outcome {
         match self {
-            Failure::Stop(stop) => stop.status(),
-            Failure::Cdi(_) => 1,
-            Failure::Invalid(_) => net::EXIT_USAGE,
-            Failure::Verify(_) => net::EXIT_VERIFY,
-        }
-    }
-
-    fn word(&self) -> &'static str {
-        match self {
-            Failure::Stop(stop) => stop.word(),
-            Failure::Cdi(_) => "bad_cdi",
-            Failure::Invalid(_) => "invalid",
-            Failure::Verify(_) => "verify_failed",
+            Failure::Stop(stop) => stop.outcome(),
+            Failure::Cdi(_) => Outcome::Error,
+            Failure::Invalid(_) => Outcome::Usage,
+            Failure::Verify(_) => Outcome::VerifyFailed,
         }
     }
 }
@@ -210,9 +216,9 @@ fn finish(node: NodeId, command: &str, json: bool, outcome: Result<Done, Failure
             if !json {
                 eprintln!("lcc-stream config {command}: {failure}");
             }
-            object["result"] = json!(failure.word());
+            object["result"] = json!(failure.outcome().word());
             object["error"] = json!(failure.to_string());
-            failure.status()
+            failure.outcome().status()
         }
     };
     if json {
@@ -242,7 +248,7 @@ impl<'a> Session<'a> {
         interrupt: &mut net::Interrupt,
     ) -> Result<Session<'a>, Failure> {
         let node = memory::join(client, "config", peer).await?;
-        let xml = match read_cdi(&node, peer, client, interrupt).await {
+        let xml = match read_cdi(&node, peer, client, interrupt, &mut Moved::default()).await {
             Ok(xml) => xml,
             Err(stop) => {
                 node.close().await;
@@ -309,7 +315,8 @@ impl<'a> Session<'a> {
     ) -> Result<Vec<u8>, Failure> {
         let transfer =
             self.node.read_memory(self.peer, space, address, Some(len), self.path(len)).await.map_err(Stop::Net)?;
-        Ok(memory::follow(transfer, Some(u64::from(len)), self.client.json, interrupt).await?)
+        let moved = &mut Moved::default();
+        Ok(memory::follow(&self.node, transfer, Some(u64::from(len)), self.client.json, interrupt, moved).await?)
     }
 
     /// Small transfers by datagrams (no Options round trip), the rest as the user asked.
@@ -346,7 +353,8 @@ impl<'a> Session<'a> {
             .write_memory(self.peer, space, address, bytes.clone(), self.path(len))
             .await
             .map_err(Stop::Net)?;
-        memory::follow(transfer, Some(u64::from(len)), self.client.json, interrupt).await?;
+        let moved = &mut Moved::default();
+        memory::follow(&self.node, transfer, Some(u64::from(len)), self.client.json, interrupt, moved).await?;
         let back = self.read(space, address, len, interrupt).await?;
         if back != bytes {
             return Err(Failure::Verify(format!(
@@ -358,7 +366,7 @@ impl<'a> Session<'a> {
 
     async fn update_complete(&self, interrupt: &mut net::Interrupt) -> Result<(), Failure> {
         let transfer = self.node.update_complete(self.peer).await.map_err(Stop::Net)?;
-        memory::follow(transfer, None, true, interrupt).await?;
+        memory::follow(&self.node, transfer, None, true, interrupt, &mut Moved::default()).await?;
         Ok(())
     }
 
@@ -382,7 +390,7 @@ impl<'a> Session<'a> {
         dry_run: bool,
         interrupt: &mut net::Interrupt,
     ) -> Result<Done, Failure> {
-        let text = tokio::fs::read_to_string(file).await.map_err(|e| Failure::Stop(Stop::File(e)))?;
+        let text = tokio::fs::read_to_string(file).await.map_err(|e| Failure::Stop(Stop::file(file, e)))?;
         let lines = backup::parse(&text).map_err(|e| Failure::Invalid(format!("{}: {e}", file.display())))?;
         let snapshot = self.read_spans(interrupt).await?;
         let plan = backup::plan(&self.layout, &snapshot, &lines).map_err(Failure::Cdi)?;

@@ -9,12 +9,14 @@ use openlcb_stream::{NodeId, OpenOptions};
 use openlcb_tokio::{Error, Hub, HubOptions, Node, NodeOptions, Protocol};
 
 use crate::net::{self, ProtocolArg};
+use crate::outcome::{Failure, Outcome, exit_help};
 use crate::recv::DEFAULT_RECEIVER;
-use crate::send::DEFAULT_SENDER;
+/// The sending node of the demo (on its own hub, so it meets no other node).
+const DEMO_SENDER: &str = "05.01.01.01.22.F0";
 
 /// Options of `lcc-stream demo`.
 #[derive(Debug, Args)]
-#[command(after_help = net::EXIT_HELP)]
+#[command(after_help = exit_help(&[Outcome::Ok, Outcome::Error, Outcome::Usage, Outcome::ConnectionLost, Outcome::Terminated, Outcome::VerifyFailed]))]
 pub(crate) struct DemoArgs {
     /// Bytes to move.
     #[arg(long, default_value_t = 4 * 1024 * 1024)]
@@ -53,7 +55,7 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
     let tcp = (protocol == Protocol::Tcp).then_some("127.0.0.1:0");
     let hub = match Hub::bind("127.0.0.1:0", tcp, HubOptions::default()).await {
         Ok(hub) => hub,
-        Err(error) => return Ok(net::fail("demo", &error)),
+        Err(error) => return Ok(net::fail("demo", &Failure::Net(error))),
     };
     let addr = match protocol {
         Protocol::Tcp => hub.tcp_local_addr().unwrap_or(hub.local_addr()),
@@ -63,7 +65,7 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
     println!("hub listening on {addr} ({protocol:?})");
 
     let receiver_id: NodeId = DEFAULT_RECEIVER.parse().map_err(|e| format!("{e}"))?;
-    let sender_id: NodeId = DEFAULT_SENDER.parse().map_err(|e| format!("{e}"))?;
+    let sender_id: NodeId = DEMO_SENDER.parse().map_err(|e| format!("{e}"))?;
     let data = generate(args.bytes, 0x0501_0101_22F0);
 
     let mut receiver_options = NodeOptions::new(receiver_id);
@@ -71,7 +73,7 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
     receiver_options.node.stream.early_proceed = args.early_proceed;
     let mut receiver = match Node::connect(&addr, protocol, receiver_options).await {
         Ok(node) => node,
-        Err(error) => return Ok(net::fail("demo receiver", &error)),
+        Err(error) => return Ok(net::fail("demo receiver", &Failure::Net(error))),
     };
     println!("receiver {receiver_id} joined");
     let receiving = tokio::spawn(async move {
@@ -86,7 +88,7 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
 
     let sender = match Node::connect(&addr, protocol, NodeOptions::new(sender_id)).await {
         Ok(node) => node,
-        Err(error) => return Ok(net::fail("demo sender", &error)),
+        Err(error) => return Ok(net::fail("demo sender", &Failure::Net(error))),
     };
     println!("sender {sender_id} joined; sending {} bytes, window {}", args.bytes, args.window);
     let started = Instant::now();
@@ -101,11 +103,11 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
     };
     let (sent, window) = match sending.await {
         Ok(sent) => sent,
-        Err(error) => return Ok(net::fail("demo sender", &error)),
+        Err(error) => return Ok(net::fail("demo sender", &Failure::Net(error))),
     };
     let (received, receiver_stats) = match receiving.await {
         Ok(Ok(received)) => received,
-        Ok(Err(error)) => return Ok(net::fail("demo receiver", &error)),
+        Ok(Err(error)) => return Ok(net::fail("demo receiver", &Failure::Net(error))),
         Err(error) => return Err(format!("the receiving task failed: {error}")),
     };
     let elapsed = started.elapsed().as_secs_f64();
@@ -132,6 +134,6 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
         Ok(ExitCode::SUCCESS)
     } else {
         eprintln!("lcc-stream demo: data did NOT verify ({} bytes sent, {} received)", sent, received.len());
-        Ok(ExitCode::from(net::EXIT_VERIFY))
+        Ok(ExitCode::from(Outcome::VerifyFailed.status()))
     }
 }

@@ -15,8 +15,6 @@ use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
 
-/// The Node ID the `events` commands join with unless told otherwise.
-const DEFAULT_NODE: &str = "05.01.01.01.22.F3";
 /// How long a node may take to answer the SNIP request `watch` sends to name it.
 const SNIP_WAIT: Duration = Duration::from_secs(2);
 
@@ -91,11 +89,11 @@ pub(crate) fn event_text(event: EventId) -> String {
 
 /// Options of `lcc-stream events`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!("\
+#[command(after_help = format!("{}{}", "\
 Event IDs are eight hex bytes: 05.01.01.01.22.00.00.01, 05:01:01:01:22:00:00:01,
 0501010122000001 or 0x0501010122000001. Well-known events are printed by name.
 
-", net::exit_help!()))]
+", net::network_help(&[])))]
 pub(crate) struct EventsArgs {
     #[command(subcommand)]
     command: EventsCommand,
@@ -104,9 +102,8 @@ pub(crate) struct EventsArgs {
 /// How every `events` command joins the network.
 #[derive(Debug, Args)]
 struct Joining {
-    /// This node's Node ID while it works.
-    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = DEFAULT_NODE)]
-    node_id: NodeId,
+    #[command(flatten)]
+    node_id: net::TransientId,
     #[command(flatten)]
     connect: ConnectArgs,
 }
@@ -180,18 +177,21 @@ async fn events(args: &EventsArgs) -> Result<ExitCode, String> {
     let (EventsCommand::Watch { joining, .. }
     | EventsCommand::Send { joining, .. }
     | EventsCommand::Identify { joining, .. }) = &args.command;
-    let mut options = NodeOptions::new(joining.node_id);
-    options.node.snip = net::snip("events");
-    options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
-    options.node.events.listen = Listen::Everything;
-    let node = match joining.connect.node(options).await {
+    let node = joining.connect.join(&joining.node_id, |id| {
+        let mut options = NodeOptions::new(id);
+        options.node.snip = net::snip("events");
+        options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
+        options.node.events.listen = Listen::Everything;
+        options
+    });
+    let node = match node.await {
         Ok(node) => node,
-        Err(error) => return Ok(net::fail("events", &error)),
+        Err(failure) => return Ok(net::fail("events", &failure)),
     };
     let result = match &args.command {
         EventsCommand::Watch { json, .. } => tokio::select! {
             result = watch(&node, *json) => result,
-            () = interrupt.wait() => Ok(ExitCode::from(net::EXIT_INTERRUPTED)),
+            () = interrupt.wait() => Ok(ExitCode::from(crate::outcome::Outcome::Interrupted.status())),
         },
         EventsCommand::Send { event, payload, .. } => {
             match node.send_event(*event, payload.clone().map(|p| p.0).unwrap_or_default()).await {
@@ -199,7 +199,7 @@ async fn events(args: &EventsArgs) -> Result<ExitCode, String> {
                     eprintln!("lcc-stream events: sent {}", event_text(*event));
                     Ok(ExitCode::SUCCESS)
                 }
-                Err(error) => Ok(net::fail("events send", &error)),
+                Err(error) => Ok(net::fail("events send", &crate::outcome::Failure::Net(error))),
             }
         }
         EventsCommand::Identify { event, wait, json, .. } => identify(&node, *event, *wait, *json).await,
@@ -314,7 +314,7 @@ async fn identify(node: &Node, event: Option<EventId>, wait: f64, json: bool) ->
         None => node.identify_events(None).await,
     };
     if let Err(error) = asked {
-        return Ok(net::fail("events identify", &error));
+        return Ok(net::fail("events identify", &crate::outcome::Failure::Net(error)));
     }
     let quiet = Duration::from_secs_f64(wait.clamp(0.05, 30.0));
     let mut lines = Vec::new();

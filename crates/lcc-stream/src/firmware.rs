@@ -10,14 +10,21 @@ use openlcb_stream::NodeId;
 use crate::memory::{self, ClientArgs, Upload};
 use crate::net;
 
+/// What an interrupted upgrade means, for the help.
+const FIRMWARE_HELP: &str = "\
+Interrupted (Ctrl-C, SIGTERM, SIGHUP) or failed after the Freeze, the node stays in firmware
+upgrade mode: run the same command again to finish.
+
+";
+
 /// Options of `lcc-stream firmware`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!(memory::json_help!(), net::exit_help!()))]
+#[command(after_help = memory::after_help(FIRMWARE_HELP))]
 pub(crate) struct FirmwareArgs {
-    /// The image.
+    /// The image (`-`: stdin), read whole before the network is touched.
     file: PathBuf,
     /// The node to upgrade.
-    #[arg(long, value_name = "NODE_ID")]
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id)]
     to: NodeId,
     #[command(flatten)]
     client: ClientArgs,

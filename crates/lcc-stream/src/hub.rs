@@ -7,14 +7,15 @@ use clap::Args;
 use openlcb_stream::NodeId;
 use std::collections::HashMap;
 
-use openlcb_tokio::hub::{BRIDGE_GRIDCONNECT, BRIDGE_TCP, ClientId};
+use openlcb_tokio::hub::{BRIDGE_GRIDCONNECT, BRIDGE_TCP, CLOSED_BY_CLIENT, ClientId};
 use openlcb_tokio::{Error, Hub, HubEvent, HubOptions};
 
 use crate::net::{self, GRIDCONNECT_ADDR, TCP_ADDR};
+use crate::outcome::{Failure, Outcome, exit_help};
 
 /// Options of `lcc-stream hub`.
 #[derive(Debug, Args)]
-#[command(after_help = net::EXIT_HELP)]
+#[command(after_help = exit_help(&[Outcome::Ok, Outcome::Error, Outcome::Usage, Outcome::UnreachableHub, Outcome::Interrupted]))]
 pub(crate) struct HubArgs {
     /// Where GridConnect clients connect. The default is reachable from this machine only;
     /// for JMRI or nodes on other machines listen on all interfaces (0.0.0.0:12021) or on
@@ -25,9 +26,8 @@ pub(crate) struct HubArgs {
     /// /dev/ttyACM0 or COM3): the clients reach the real bus through the hub.
     #[arg(long, value_name = "DEVICE")]
     serial: Option<String>,
-    /// Relay between the clients and a SocketCAN interface, e.g. can0 (Linux; built with the
-    /// `socketcan` feature).
-    #[cfg(feature = "socketcan")]
+    /// Relay between the clients and a SocketCAN interface, e.g. can0 (Linux).
+    #[cfg(target_os = "linux")]
     #[arg(long, value_name = "IFACE")]
     can: Option<String>,
     /// The serial port's line rate in bits per second (USB adapters ignore it).
@@ -74,6 +74,7 @@ pub(crate) fn run(args: &HubArgs) -> Result<ExitCode, String> {
 }
 
 async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
+    let mut interrupt = net::Interrupt::new()?;
     let mut options = HubOptions::default();
     options.trace = args.trace;
     options.max_queued_bytes = args.max_queue;
@@ -85,7 +86,7 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
     let mut hub = match Hub::bind(&args.listen, tcp, options).await {
         Ok(hub) => hub,
         Err(Error::Bind { addr, source }) => return Ok(bind_failed(args, &addr, &source)),
-        Err(error) => return Ok(net::fail("hub", &error)),
+        Err(error) => return Ok(net::fail("hub", &Failure::Net(error))),
     };
     match hub.tcp_local_addr() {
         Some(tcp) => eprintln!(
@@ -104,16 +105,16 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
             Ok(port) => {
                 hub.attach(port, device);
             }
-            Err(error) => return Ok(net::fail("hub", &error)),
+            Err(error) => return Ok(net::fail("hub", &Failure::Net(error))),
         }
     }
-    #[cfg(feature = "socketcan")]
+    #[cfg(target_os = "linux")]
     if let Some(interface) = &args.can {
         match openlcb_tokio::can::open_socketcan(interface) {
             Ok(socket) => {
                 hub.attach(openlcb_tokio::can::FrameStream::new(socket), interface);
             }
-            Err(error) => return Ok(net::fail("hub", &error)),
+            Err(error) => return Ok(net::fail("hub", &Failure::Net(error))),
         }
     }
     if let Some(upstream) = &args.upstream {
@@ -125,13 +126,13 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
                 Some(event) => names.print(&event),
                 None => return Ok(ExitCode::SUCCESS),
             },
-            _ = tokio::signal::ctrl_c() => {
+            () = interrupt.wait() => {
                 let stats = hub.stats();
                 eprintln!(
-                    "lcc-stream hub: stopping; {} clients served, {} frames relayed, {} decode errors, {} slow clients dropped",
+                    "lcc-stream hub: interrupted; {} clients served, {} frames relayed, {} decode errors, {} slow clients dropped",
                     stats.clients_accepted, stats.frames, stats.decode_errors, stats.slow_clients
                 );
-                return Ok(ExitCode::SUCCESS);
+                return Ok(ExitCode::from(Outcome::Interrupted.status()));
             }
         }
     }
@@ -152,7 +153,7 @@ fn bind_failed(args: &HubArgs, addr: &str, source: &std::io::Error) -> ExitCode 
              (choose another with --listen HOST:PORT, e.g. --listen 127.0.0.1:12031)"
         );
     }
-    ExitCode::from(net::EXIT_USAGE)
+    ExitCode::from(Outcome::Usage.status())
 }
 
 /// What the hub prints about its clients: their names, and the time since the hub started.
@@ -189,8 +190,12 @@ impl ClientNames {
             HubEvent::UpstreamDown { addr, reason, retry_in } => {
                 eprintln!("upstream {addr} down: {reason}; trying again in {:.2} s", retry_in.as_secs_f64())
             }
+            HubEvent::Disconnected { client, reason } if reason == CLOSED_BY_CLIENT => {
+                eprintln!("{} left", self.name(*client));
+                self.names.remove(client);
+            }
             HubEvent::Disconnected { client, reason } => {
-                eprintln!("{} left: {reason}", self.name(*client));
+                eprintln!("{} dropped: {reason}", self.name(*client));
                 self.names.remove(client);
             }
             HubEvent::SlowClient { client, queued } => {

@@ -5,12 +5,14 @@ mod cdi;
 mod config;
 mod demo;
 mod events;
+mod files;
 mod firmware;
 mod hub;
 mod memory;
 mod monitor;
 mod net;
 mod nodes;
+mod outcome;
 mod progress;
 mod read;
 mod recv;
@@ -22,21 +24,31 @@ mod write;
 use std::io::IsTerminal as _;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory as _, Parser, Subcommand};
 use tracing_subscriber::EnvFilter;
 
 /// Move data over OpenLCB (LCC) streams, or simulate it.
 #[derive(Debug, Parser)]
-#[command(name = "lcc-stream", version, about, after_help = net::EXIT_HELP)]
+#[command(name = "lcc-stream", version, about, after_help = MAIN_HELP)]
 struct Cli {
     /// Log to stderr what happens to connections and streams: -v info (clients connecting and
     /// leaving, streams opened and finished), -vv debug, -vvv trace (with `hub --trace`, every
     /// frame). RUST_LOG, if set, takes precedence (e.g. RUST_LOG=openlcb_tokio=debug).
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]
     verbose: u8,
+    /// Print nothing on success but what was asked for (data, --json); errors still go to
+    /// stderr. No progress bars.
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    quiet: bool,
     #[command(subcommand)]
     command: Command,
 }
+
+/// The main help's epilogue: where the exit statuses are listed.
+const MAIN_HELP: &str = "\
+Each command's --help lists the exit statuses it can return, with the `result` word of its
+--json output. Shell completions: `lcc-stream completions bash` (zsh, fish, elvish,
+powershell); the manual page: `lcc-stream man > lcc-stream.1`.";
 
 /// Starts the log output that `--verbose` or `RUST_LOG` asks for (none by default).
 fn init_logs(verbose: u8) {
@@ -82,11 +94,23 @@ enum Command {
     Events(events::EventsArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
+    /// Print a shell completion script on stdout (e.g. `lcc-stream completions bash >
+    /// ~/.local/share/bash-completion/completions/lcc-stream`).
+    Completions {
+        /// The shell.
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+    /// Print the manual page (roff) on stdout, e.g. `lcc-stream man > lcc-stream.1`.
+    Man,
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logs(cli.verbose);
+    if cli.quiet {
+        net::set_quiet();
+    }
     let result = match cli.command {
         Command::Sim(args) => sim::run(&args),
         Command::Hub(args) => hub::run(&args),
@@ -102,6 +126,11 @@ fn main() -> ExitCode {
         Command::Events(args) => events::run(&args),
         Command::Monitor(args) => monitor::run(&args),
         Command::Demo(args) => demo::run(&args),
+        Command::Completions { shell } => {
+            clap_complete::generate(shell, &mut Cli::command(), "lcc-stream", &mut std::io::stdout());
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Man => man(),
     };
     match result {
         Ok(code) => code,
@@ -110,4 +139,11 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// Writes the manual page (the tool, its options and its commands) to stdout.
+fn man() -> Result<ExitCode, String> {
+    let page = clap_mangen::Man::new(Cli::command());
+    page.render(&mut std::io::stdout().lock()).map_err(|e| format!("cannot write the manual page: {e}"))?;
+    Ok(ExitCode::SUCCESS)
 }

@@ -1,40 +1,42 @@
 //! What `read`, `write` and `firmware` share: joining as a client node, finding the target,
-//! running one Memory Configuration operation with a progress bar, exit statuses and the
-//! JSON report.
+//! running one Memory Configuration operation with a progress bar (each step logged with
+//! `-v`), its outcome and the JSON report.
 
-use std::io::IsTerminal as _;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use clap::Args;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use openlcb_stream::NodeId;
 use openlcb_tokio::openlcb_node::MemoryError;
 use openlcb_tokio::{Error, MemoryTransfer, Node, NodeOptions, Protocols, TransferPath};
 use serde::Serialize;
 
+use crate::files;
 use crate::net::{self, ConnectArgs};
-
-/// The Node ID `read`, `write` and `firmware` use unless told otherwise.
-pub(crate) const DEFAULT_CLIENT: &str = "05.01.01.01.22.F3";
+use crate::outcome::{Failure, Outcome};
+use crate::progress::Progress;
 
 /// How long the target has to answer the Protocol Support Inquiry that finds it.
 const FIND_TIMEOUT: Duration = Duration::from_secs(3);
 
 /// The fields of `--json` of `read`, `write` and `firmware`, for their `--help`.
-macro_rules! json_help {
-    () => {
-        "\
---json prints one object: node (the target), space, address, bytes (moved), path (\"stream\"
-or \"datagrams\": what was asked; \"auto\" lets the target's answers decide), file,
-elapsed_s (from the first command, once on the network), bytes_per_s, result (\"ok\", \"rejected\", \"timed_out\", \"not_found\",
-\"connection_lost\", \"terminated\", \"file_error\", \"interrupted\", \"error\") and, on failure,
-error (the reason, worded for a person).
+pub(crate) const JSON_HELP: &str = "\
+--json prints one object on every exit path: node (the target), space, address, bytes (moved,
+also before a failure), path (\"stream\" or \"datagrams\": what was used; \"none\" if nothing
+moved), file, elapsed_s (from the first command, once on the network), bytes_per_s, result
+(the word of the exit status below) and, on failure, error (the reason, worded for a person).
 
-"
-    };
+";
+
+/// The outcomes `read`, `write` and `firmware` can end with beside those of every command
+/// that joins the network.
+const OUTCOMES: &[Outcome] =
+    &[Outcome::Rejected, Outcome::TimedOut, Outcome::NotFound, Outcome::Terminated, Outcome::FileError];
+
+/// The after-help of `read`, `write` and `firmware`, with `extra` before the exit statuses.
+pub(crate) fn after_help(extra: &str) -> String {
+    format!("{JSON_HELP}{extra}{}", net::network_help(OUTCOMES))
 }
-pub(crate) use json_help;
 
 /// Options every client command takes.
 #[derive(Debug, Args)]
@@ -42,9 +44,8 @@ pub(crate) struct ClientArgs {
     /// Use datagrams only (64-byte chunks), never a stream.
     #[arg(long)]
     pub(crate) no_stream: bool,
-    /// This node's Node ID.
-    #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_CLIENT)]
-    pub(crate) node_id: NodeId,
+    #[command(flatten)]
+    pub(crate) node_id: net::TransientId,
     /// Print one JSON object (fields below) instead of text; no progress bar.
     #[arg(long)]
     pub(crate) json: bool,
@@ -74,151 +75,98 @@ pub(crate) struct Report {
     pub(crate) error: Option<String>,
 }
 
+/// What a client command came to: the bytes moved (also before a failure), and how.
+#[derive(Debug, Default)]
+pub(crate) struct Moved {
+    pub(crate) bytes: u64,
+    pub(crate) by_stream: bool,
+    /// When the first command went out (None: the network was never joined).
+    pub(crate) started: Option<Instant>,
+}
+
 impl Report {
-    /// The report of a successful operation that moved `bytes` since `started`.
-    pub(crate) fn new(
-        peer: NodeId,
-        space: u8,
-        address: u32,
-        file: &std::path::Path,
-        path: TransferPath,
-        bytes: u64,
-        started: Instant,
-    ) -> Self {
-        let elapsed_s = started.elapsed().as_secs_f64();
+    /// The report of an operation on `peer` that came to `moved`.
+    pub(crate) fn new(peer: NodeId, space: u8, address: u32, file: &std::path::Path, moved: &Moved) -> Self {
+        let elapsed_s = moved.started.map_or(0.0, |started| started.elapsed().as_secs_f64());
+        let path = match (moved.bytes, moved.by_stream) {
+            (0, false) => "none",
+            (_, true) => "stream",
+            (_, false) => "datagrams",
+        };
         Report {
             node: peer.to_string(),
             space,
             address,
-            bytes,
-            path: path_word(path),
+            bytes: moved.bytes,
+            path,
             file: file.display().to_string(),
             elapsed_s,
-            bytes_per_s: net::rate(bytes, elapsed_s),
-            result: "ok",
+            bytes_per_s: net::rate(moved.bytes, elapsed_s),
+            result: Outcome::Ok.word(),
             error: None,
         }
     }
 }
 
-/// Why a client command stopped.
-pub(crate) enum Stop {
-    Net(Error),
-    File(std::io::Error),
-    Interrupted,
-}
-
-impl Stop {
-    pub(crate) fn status(&self) -> u8 {
-        match self {
-            Stop::Net(error) => status(error),
-            Stop::File(_) => net::EXIT_FILE,
-            Stop::Interrupted => net::EXIT_INTERRUPTED,
-        }
-    }
-
-    pub(crate) fn word(&self) -> &'static str {
-        match self {
-            Stop::Net(Error::Unreachable(_)) => "not_found",
-            Stop::Net(error @ Error::Memory { .. }) => match status(error) {
-                4 => "rejected",
-                5 => "timed_out",
-                6 => "connection_lost",
-                7 => "terminated",
-                _ => "error",
-            },
-            Stop::Net(error) => net::result_word(error),
-            Stop::File(_) => "file_error",
-            Stop::Interrupted => "interrupted",
-        }
-    }
-}
-
-impl std::fmt::Display for Stop {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Stop::Net(error) => write!(f, "{error}"),
-            Stop::File(error) => write!(f, "{error}"),
-            Stop::Interrupted => write!(f, "interrupted"),
-        }
-    }
-}
-
-/// The exit status for `error`: net.rs's, with Memory Configuration's failures sorted in.
-fn status(error: &Error) -> u8 {
-    match error {
-        Error::Memory { error, .. } => match error {
-            MemoryError::Rejected(_) | MemoryError::Failed(_) | MemoryError::StreamRejected(_) => 4,
-            MemoryError::NoStreams => 4,
-            MemoryError::TimedOut | MemoryError::StreamTimedOut(_) => 5,
-            MemoryError::PeerLost => 5,
-            MemoryError::StreamEnded(_) | MemoryError::WrongLength { .. } | MemoryError::PeerRestarted => 7,
-            _ => 1,
-        },
-        error => net::exit_status(error),
-    }
-}
-
 /// Joins the network as the client node and makes sure `peer` is there (exit 5 if not).
-pub(crate) async fn join(args: &ClientArgs, command: &str, peer: NodeId) -> Result<Node, Stop> {
-    let mut options = NodeOptions::new(args.node_id);
-    options.node.snip = net::snip(command);
-    let node = args.connect.node(options).await.map_err(Stop::Net)?;
+pub(crate) async fn join(args: &ClientArgs, command: &str, peer: NodeId) -> Result<Node, Failure> {
+    let node = args.connect.join(&args.node_id, |id| {
+        let mut options = NodeOptions::new(id);
+        options.node.snip = net::snip(command);
+        options
+    });
+    let node = node.await?;
+    tracing::info!(%peer, "asking for the node's protocols (PIP)");
     match node.protocols(peer, FIND_TIMEOUT).await {
-        Ok(protocols) if protocols.contains(Protocols::MEMORY_CONFIGURATION) => Ok(node),
-        Ok(_) => Err(Stop::Net(Error::Memory { peer, error: MemoryError::Rejected(NOT_IMPLEMENTED) })),
-        Err(Error::NoAnswer { .. }) => Err(Stop::Net(Error::Unreachable(peer))),
-        Err(error) => Err(Stop::Net(error)),
+        Ok(protocols) if protocols.contains(Protocols::MEMORY_CONFIGURATION) => {
+            tracing::info!(%peer, protocols = %protocols.names().collect::<Vec<_>>().join(" "), "found the node");
+            Ok(node)
+        }
+        Ok(_) => Err(Failure::Net(Error::Memory { peer, error: MemoryError::Rejected(NOT_IMPLEMENTED) })),
+        Err(Error::NoAnswer { .. }) => Err(Failure::Net(Error::Unreachable(peer))),
+        Err(error) => Err(Failure::Net(error)),
     }
 }
 
 /// The code of a node that does not implement Memory Configuration (OIR 0x1042).
 const NOT_IMPLEMENTED: openlcb_stream::wire::ErrorCode = openlcb_stream::wire::ErrorCode(0x1042);
 
-/// A progress bar on stderr, drawn only on a terminal and without `--json`.
-fn progress_bar(total: Option<u64>, json: bool) -> ProgressBar {
-    let target = if json || !std::io::stderr().is_terminal() {
-        ProgressDrawTarget::hidden()
-    } else {
-        ProgressDrawTarget::stderr()
-    };
-    let bar = ProgressBar::with_draw_target(total, target);
-    let template = if total.is_some() {
-        "{bar:30} {bytes}/{total_bytes} {bytes_per_sec} ETA {eta}"
-    } else {
-        "{spinner} {bytes} {bytes_per_sec}"
-    };
-    if let Ok(style) = ProgressStyle::with_template(template) {
-        bar.set_style(style);
-    }
-    bar
-}
-
 /// Waits for `transfer` (of `total` bytes, if known) to end, showing its progress unless
-/// `json`, or until interrupted.
+/// `json`, or until interrupted; `moved` follows the bytes and the path.
 pub(crate) async fn follow<T>(
+    node: &Node,
     transfer: MemoryTransfer<T>,
     total: Option<u64>,
     json: bool,
     interrupt: &mut net::Interrupt,
-) -> Result<T, Stop> {
-    let bar = progress_bar(total, json);
+    moved: &mut Moved,
+) -> Result<T, Failure> {
+    let streams_before = stream_messages(node).await;
+    let bar = Progress::start(total, json);
     let mut progress = transfer.watch_progress();
     let end = transfer.finish();
     tokio::pin!(end);
-    loop {
+    let result = loop {
         tokio::select! {
-            result = &mut end => {
-                bar.finish_and_clear();
-                return result.map_err(Stop::Net);
+            result = &mut end => break result.map_err(Failure::Net),
+            Ok(()) = progress.changed() => {
+                moved.bytes = *progress.borrow_and_update();
+                bar.set(moved.bytes);
             }
-            Ok(()) = progress.changed() => bar.set_position(*progress.borrow_and_update()),
-            () = interrupt.wait() => {
-                bar.abandon();
-                return Err(Stop::Interrupted);
-            }
+            () = interrupt.wait() => break Err(Failure::Interrupted),
         }
-    }
+    };
+    bar.finish();
+    moved.bytes = moved.bytes.max(*progress.borrow());
+    moved.by_stream = stream_messages(node).await > streams_before;
+    tracing::info!(bytes = moved.bytes, by_stream = moved.by_stream, ok = result.is_ok(), "the operation ended");
+    result
+}
+
+/// Stream messages this node has sent and handled: more after an operation than before
+/// means that it went by stream.
+async fn stream_messages(node: &Node) -> u64 {
+    node.stats().await.map_or(0, |s| u64::from(s.endpoint.messages_in) + u64::from(s.endpoint.messages_out))
 }
 
 /// What `write` and `firmware` put into a node.
@@ -229,8 +177,9 @@ pub(crate) enum Upload {
     Firmware,
 }
 
-/// Runs `write` or `firmware`: the file's bytes into `peer`, with a progress bar, then the
-/// report; `done` words the success for a person.
+/// Runs `write` or `firmware`: the file's bytes (read, and so checked, before the network is
+/// touched) into `peer`, with a progress bar, then the report; `done` words the success for
+/// a person.
 pub(crate) async fn upload(
     client: &ClientArgs,
     command: &str,
@@ -240,84 +189,86 @@ pub(crate) async fn upload(
     done: impl FnOnce(&Report) -> String,
 ) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
-    let mut started = Instant::now();
     let (space, address) = match what {
         Upload::Space { space, address } => (space, address),
         Upload::Firmware => (SPACE_FIRMWARE, 0),
     };
+    let mut moved = Moved::default();
     let outcome = async {
-        let data = tokio::fs::read(file).await.map_err(Stop::File)?;
+        let data = files::read_all(file).await?;
         let total = data.len() as u64;
+        tracing::info!(file = %file.display(), bytes = total, "read the file");
         let node = join(client, command, peer).await?;
-        started = Instant::now();
+        moved.started = Some(Instant::now());
+        tracing::info!(%peer, space = format!("0x{space:02X}"), address, bytes = total, "writing");
         let transfer = match what {
             Upload::Space { space, address } => node.write_memory(peer, space, address, data, client.path()).await,
             Upload::Firmware => node.upgrade_firmware(peer, data, client.path()).await,
         };
-        let written = follow(transfer.map_err(Stop::Net)?, Some(total), client.json, &mut interrupt).await;
+        let written = match transfer {
+            Ok(transfer) => follow(&node, transfer, Some(total), client.json, &mut interrupt, &mut moved).await,
+            Err(error) => Err(Failure::Net(error)),
+        };
         node.close().await;
         written
     }
     .await;
-    let bytes = *outcome.as_ref().unwrap_or(&0);
-    let report = Report::new(peer, space, address, file, client.path(), bytes, started);
+    let report = Report::new(peer, space, address, file, &moved);
     let text = outcome.map(|_| done(&report));
     Ok(finish(report, text, client.json, command))
 }
 
 /// Refuses to go on when `out` exists: no command writes over a file.
-pub(crate) async fn refuse_existing(out: &std::path::Path) -> Result<(), Stop> {
-    if tokio::fs::try_exists(out).await.map_err(Stop::File)? {
+pub(crate) async fn refuse_existing(out: &std::path::Path) -> Result<(), Failure> {
+    if tokio::fs::try_exists(out).await.map_err(|e| Failure::file(out, e))? {
         let taken = std::io::Error::new(std::io::ErrorKind::AlreadyExists, "the output file exists");
-        return Err(Stop::File(taken));
+        return Err(Failure::file(out, taken));
     }
     Ok(())
 }
 
 /// Writes `bytes` to `out` through `out.part`, never over an existing file.
-pub(crate) async fn save_new(out: &std::path::Path, bytes: &[u8]) -> Result<(), Stop> {
+pub(crate) async fn save_new(out: &std::path::Path, bytes: &[u8]) -> Result<(), Failure> {
     let part = crate::recv::part_path(out);
-    tokio::fs::write(&part, bytes).await.map_err(Stop::File)?;
-    crate::recv::publish(&part, out).await.map_err(Stop::File)
+    tokio::fs::write(&part, bytes).await.map_err(|e| Failure::file(&part, e))?;
+    crate::recv::publish(&part, out).await.map_err(|e| Failure::file(out, e))
 }
 
 /// The firmware space.
 const SPACE_FIRMWARE: u8 = 0xEF;
 
 /// Prints `report` (text or JSON) and returns the exit status.
-pub(crate) fn finish(report: Report, outcome: Result<String, Stop>, json: bool, command: &str) -> ExitCode {
+pub(crate) fn finish(report: Report, outcome: Result<String, Failure>, json: bool, command: &str) -> ExitCode {
     let (status, report) = match outcome {
         Ok(text) => {
             if !json && !text.is_empty() {
-                println!("{text}");
+                net::say(&text);
             }
             (0, report)
         }
-        Err(stop) => {
-            if !json {
-                eprintln!("lcc-stream {command}: {stop}");
+        Err(failure) => {
+            eprintln!("lcc-stream {command}: {failure}");
+            if let (Failure::Interrupted, SPACE_FIRMWARE) = (&failure, report.space) {
+                eprintln!("lcc-stream {command}: {FIRMWARE_INTERRUPTED}");
             }
-            let error = Some(stop.to_string());
-            (stop.status(), Report { result: stop.word(), error, ..report })
+            let outcome = failure.outcome();
+            let error = match (&failure, report.space) {
+                (Failure::Interrupted, SPACE_FIRMWARE) => format!("interrupted; {FIRMWARE_INTERRUPTED}"),
+                _ => failure.to_string(),
+            };
+            (outcome.status(), Report { result: outcome.word(), error: Some(error), ..report })
         }
     };
     if json {
-        match serde_json::to_string(&report) {
-            Ok(line) => println!("{line}"),
-            Err(error) => eprintln!("lcc-stream {command}: {error}"),
-        }
+        net::print_json(&report);
     }
     ExitCode::from(status)
 }
 
-/// The words of a path for reports.
-fn path_word(path: TransferPath) -> &'static str {
-    match path {
-        TransferPath::Datagrams => "datagrams",
-        TransferPath::Stream => "stream",
-        _ => "auto",
-    }
-}
+/// What an interrupted firmware upgrade leaves behind, and how to finish it.
+const FIRMWARE_INTERRUPTED: &str = "the node was left in firmware upgrade mode (frozen, space 0xEF \
+partly written); run the same `lcc-stream firmware` command again to finish, or power-cycle the \
+node if its bootloader falls back to the old image";
 
 /// A number as `0xFD`, `0XFD` or `253`.
 pub(crate) fn parse_number<T: TryFrom<u64>>(text: &str) -> Result<T, String> {

@@ -57,7 +57,7 @@ pub(crate) enum Kind {
 
 /// Options of `lcc-stream monitor`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!("\
+#[command(after_help = format!("{}{}", "\
 Prints one line per message (CAN frames reassembled): the time in seconds, the source (alias,
 and Node ID once learnt), the destination, the message by name and its content decoded.
 --from reads a saved trace: GridConnect frames one a line, as `lcc-stream hub --trace` or
@@ -67,7 +67,7 @@ OpenMRN's `hub -l` print them (a leading time in seconds is used when there is o
 destination_alias and destination (null for global messages), message (its name), detail
 (the decoded content) and raw (the frame, for what did not decode; else null).
 
-", net::exit_help!()))]
+", net::network_help(&[])))]
 pub(crate) struct MonitorArgs {
     /// Decode a saved trace instead of listening live.
     #[arg(long, value_name = "FILE", conflicts_with_all = ["connect", "serial"])]
@@ -782,7 +782,7 @@ async fn live(args: &MonitorArgs, mut print: impl FnMut(&mut Vec<Line>)) -> Resu
                     print(&mut lines);
                 }
             },
-            () = interrupt.wait() => break net::EXIT_INTERRUPTED,
+            () = interrupt.wait() => break crate::outcome::Outcome::Interrupted.status(),
         }
     };
     monitor.flush(&mut lines);

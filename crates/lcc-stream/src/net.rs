@@ -1,69 +1,91 @@
-//! What `hub`, `send`, `recv` and `demo` share: connection options, exit statuses, number
-//! formatting and JSON output.
+//! What the commands share: connection options, joining with a free Node ID, how results are
+//! said (`-q`), number formatting and JSON output.
 
 use std::process::ExitCode;
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use clap::{Args, ValueEnum};
+use openlcb_stream::NodeId;
 use openlcb_tokio::{Error, Node, NodeOptions, Protocol};
+
+use crate::outcome::{Failure, Outcome, exit_help};
 
 /// The GridConnect port of `lcc-stream hub` (the usual port of GridConnect hubs).
 pub(crate) const GRIDCONNECT_ADDR: &str = "127.0.0.1:12021";
 /// The OpenLCB-TCP port of `lcc-stream hub`.
 pub(crate) const TCP_ADDR: &str = "127.0.0.1:12022";
 
-/// The text of [`EXIT_HELP`], for commands that add to it with `concat!`.
-macro_rules! exit_help {
-    () => {
-        "\
-Exit status: 0 success; 1 other failure; 2 bad arguments (also a listener that cannot
-be opened); 3 hub unreachable; 4 stream rejected; 5 peer timed out or not found;
-6 connection to the hub lost; 7 stream terminated or incomplete; 8 file error; 9 data did
-not verify (demo); 10 another node on the network has this Node ID; 130 interrupted
-(Ctrl-C or SIGTERM: open streams are terminated, partial files kept)."
-    };
+/// `-q`: nothing printed for a person on success.
+static QUIET: AtomicBool = AtomicBool::new(false);
+/// stdout carries data (`read --out -`): what is said for a person goes to stderr.
+static DATA_ON_STDOUT: AtomicBool = AtomicBool::new(false);
+
+/// Silences [`say`] (`-q`).
+pub(crate) fn set_quiet() {
+    QUIET.store(true, Ordering::Relaxed);
 }
-pub(crate) use exit_help;
 
-/// Exit statuses, one per kind of failure a person can act on.
-pub(crate) const EXIT_HELP: &str = exit_help!();
+/// Sends [`say`] to stderr, stdout being taken by data.
+pub(crate) fn data_on_stdout() {
+    DATA_ON_STDOUT.store(true, Ordering::Relaxed);
+}
 
-/// Another node holds this Node ID (found at login or later).
-pub(crate) const EXIT_DUPLICATE_NODE_ID: u8 = 10;
-/// Interrupted by SIGINT or SIGTERM.
-pub(crate) const EXIT_INTERRUPTED: u8 = 130;
-/// Bad arguments, including a listener that cannot be opened (clap's status for usage errors).
-pub(crate) const EXIT_USAGE: u8 = 2;
-
-/// The exit status for `error`.
-pub(crate) fn exit_status(error: &Error) -> u8 {
-    match error {
-        Error::Bind { .. } => EXIT_USAGE,
-        Error::DuplicateNodeId { .. } => EXIT_DUPLICATE_NODE_ID,
-        Error::Connect { .. } | Error::Login(_) => 3,
-        Error::Rejected { .. } => 4,
-        Error::TimedOut { .. } | Error::Unreachable(_) => 5,
-        Error::ConnectionLost(_) | Error::WriteStalled(_) | Error::Protocol(_) | Error::Closed => 6,
-        Error::Terminated { .. } | Error::CountMismatch { .. } => 7,
-        _ => 1,
+/// Prints a command's result for a person: on stdout, on stderr when stdout carries data,
+/// not at all with `-q`. Errors are printed whatever `-q` says.
+pub(crate) fn say(text: &str) {
+    if QUIET.load(Ordering::Relaxed) {
+        return;
+    }
+    if DATA_ON_STDOUT.load(Ordering::Relaxed) {
+        eprintln!("{text}");
+    } else {
+        println!("{text}");
     }
 }
 
-/// A file could not be read or written.
-pub(crate) const EXIT_FILE: u8 = 8;
-/// The demo's data did not arrive intact.
-pub(crate) const EXIT_VERIFY: u8 = 9;
+/// `true` with `-q`, for progress bars and notices on stderr.
+pub(crate) fn quiet() -> bool {
+    QUIET.load(Ordering::Relaxed)
+}
 
-/// A short word for `error` in JSON reports.
-pub(crate) fn result_word(error: &Error) -> &'static str {
-    match exit_status(error) {
-        3 => "unreachable_hub",
-        4 => "rejected",
-        5 => "timed_out",
-        6 => "connection_lost",
-        7 => "terminated",
-        EXIT_DUPLICATE_NODE_ID => "duplicate_node_id",
-        _ => "error",
-    }
+/// The Node IDs that commands which come and go choose from when not given one: the first
+/// free one from a place that depends on the process, so that two started at once rarely try
+/// the same one.
+pub(crate) const TRANSIENT_FIRST: u64 = 0x0501_0101_2280;
+/// The last of the transient Node IDs.
+pub(crate) const TRANSIENT_LAST: u64 = 0x0501_0101_22BF;
+/// Transient Node IDs tried before giving up (each taken one costs a login, 200 ms).
+const TRANSIENT_TRIES: u64 = 8;
+
+/// How long an OpenLCB-TCP connection is watched after joining for a hub that closes it.
+const TCP_SETTLE: std::time::Duration = std::time::Duration::from_millis(200);
+
+/// `--node-id` of a command that comes and goes.
+#[derive(Debug, Args)]
+pub(crate) struct TransientId {
+    /// This node's Node ID [default: a free one of 05.01.01.01.22.80 to 05.01.01.01.22.BF;
+    /// over GridConnect, serial and CAN each is checked on the bus before it is claimed].
+    #[arg(long = "node-id", value_name = "NODE_ID", value_parser = crate::args::node_id)]
+    pub(crate) chosen: Option<NodeId>,
+}
+
+/// The outcomes of every command that joins the network.
+pub(crate) const NETWORK_OUTCOMES: &[Outcome] = &[
+    Outcome::Ok,
+    Outcome::Error,
+    Outcome::UnreachableHub,
+    Outcome::ConnectionLost,
+    Outcome::DuplicateNodeId,
+    Outcome::Interrupted,
+];
+
+/// `NETWORK_OUTCOMES` and `more`, in the order of their statuses, as help.
+pub(crate) fn network_help(more: &[Outcome]) -> String {
+    let mut outcomes: Vec<Outcome> = NETWORK_OUTCOMES.iter().chain(more).copied().collect();
+    outcomes.sort_by_key(|o| Outcome::ALL.iter().position(|a| a == o));
+    outcomes.dedup();
+    exit_help(&outcomes)
 }
 
 /// The framing spoken to the hub.
@@ -95,9 +117,8 @@ pub(crate) struct ConnectArgs {
     /// LCC Buffer-USB, SPROG CANISB), e.g. /dev/ttyACM0 or COM3.
     #[arg(long, value_name = "DEVICE")]
     pub(crate) serial: Option<String>,
-    /// A SocketCAN interface instead of a hub, e.g. can0 (Linux; built with the `socketcan`
-    /// feature).
-    #[cfg(feature = "socketcan")]
+    /// A SocketCAN interface instead of a hub, e.g. can0 (Linux).
+    #[cfg(target_os = "linux")]
     #[arg(long, value_name = "IFACE", conflicts_with_all = ["connect", "serial"])]
     pub(crate) can: Option<String>,
     /// The serial port's line rate in bits per second (USB adapters ignore it).
@@ -111,7 +132,7 @@ pub(crate) struct ConnectArgs {
 impl ConnectArgs {
     /// Where the node connects: the serial device, or the hub's address.
     pub(crate) fn addr(&self) -> &str {
-        #[cfg(feature = "socketcan")]
+        #[cfg(target_os = "linux")]
         if let Some(interface) = &self.can {
             return interface;
         }
@@ -125,7 +146,7 @@ impl ConnectArgs {
 
     /// Joins the network as a node with `options`: through the serial port, or the hub.
     pub(crate) async fn node(&self, options: NodeOptions) -> Result<Node, Error> {
-        #[cfg(feature = "socketcan")]
+        #[cfg(target_os = "linux")]
         if let Some(interface) = &self.can {
             let bus = openlcb_tokio::can::FrameStream::new(openlcb_tokio::can::open_socketcan(interface)?);
             return Node::over(bus, Protocol::GridConnect, options).await;
@@ -143,7 +164,7 @@ impl ConnectArgs {
         if self.protocol != ProtocolArg::Gridconnect {
             return Err("only GridConnect (CAN frames) can be listened to".into());
         }
-        #[cfg(feature = "socketcan")]
+        #[cfg(target_os = "linux")]
         if let Some(interface) = &self.can {
             let bus = openlcb_tokio::can::open_socketcan(interface).map_err(|e| e.to_string())?;
             return Ok(Box::new(openlcb_tokio::can::FrameStream::new(bus)));
@@ -160,11 +181,129 @@ impl ConnectArgs {
     }
 }
 
-/// SIGINT (Ctrl-C) and SIGTERM, listened for from the moment this is made (so that neither
-/// kills the process outright while a stream runs).
+impl ConnectArgs {
+    /// Joins the network as the node `id.chosen`, or as the first free transient Node ID
+    /// (see [`TRANSIENT_FIRST`]); `options` makes the node's options for a Node ID. The
+    /// answer of a hub that speaks the other protocol is told apart from an empty network.
+    pub(crate) async fn join(
+        &self,
+        id: &TransientId,
+        options: impl Fn(NodeId) -> NodeOptions,
+    ) -> Result<Node, Failure> {
+        if let Some(chosen) = id.chosen {
+            return self.checked(options(chosen)).await;
+        }
+        let count = TRANSIENT_LAST - TRANSIENT_FIRST + 1;
+        let start = u64::from(std::process::id()) % count;
+        let mut last_taken = None;
+        for step in 0..TRANSIENT_TRIES {
+            let Some(candidate) = NodeId::new(TRANSIENT_FIRST + (start + step) % count) else { continue };
+            match self.checked(options(candidate)).await {
+                Err(Failure::Net(error @ Error::DuplicateNodeId { .. })) => {
+                    tracing::info!(node_id = %candidate, "this transient Node ID is taken; trying the next");
+                    last_taken = Some(error);
+                }
+                joined => {
+                    if let Ok(node) = &joined {
+                        tracing::info!(node_id = %node.node_id(), "joined the network");
+                    }
+                    return joined;
+                }
+            }
+        }
+        Err(Failure::Net(last_taken.unwrap_or(Error::Closed)))
+    }
+
+    /// Joins as `options` says, then looks at what the hub sent: bytes that never made a
+    /// message mean that it speaks the other protocol.
+    async fn checked(&self, options: NodeOptions) -> Result<Node, Failure> {
+        let mut node = match self.node(options).await {
+            Ok(node) => node,
+            // The hub closed the connection as soon as it heard us (as `lcc-stream hub` does on
+            // bytes of the other protocol), or sent what cannot be decoded.
+            Err(error @ (Error::Protocol(_) | Error::ConnectionLost(_))) => {
+                return Err(self.wrong_protocol(&error).unwrap_or(Failure::Net(error)));
+            }
+            Err(Error::Connect { source, .. }) if source.kind() == std::io::ErrorKind::UnexpectedEof => {
+                let error = Error::ConnectionLost(source);
+                return Err(self.wrong_protocol(&error).unwrap_or(Failure::Net(error)));
+            }
+            Err(error) => return Err(Failure::Net(error)),
+        };
+        if self.protocol == ProtocolArg::Tcp && self.serial.is_none() {
+            // OpenLCB-TCP has no login to wait for: a hub of the other protocol shows itself
+            // by closing the connection once it has read our first message.
+            if let Ok(error) = tokio::time::timeout(TCP_SETTLE, node.closed()).await {
+                return Err(self.wrong_protocol(&error).unwrap_or(Failure::Net(error)));
+            }
+        }
+        match self.heard_the_other_protocol(&node).await {
+            Some(failure) => {
+                node.close().await;
+                Err(failure)
+            }
+            None => Ok(node),
+        }
+    }
+
+    /// A failure if the hub has sent only bytes that never made a message (it speaks the
+    /// other protocol), for commands to ask when nobody answered.
+    pub(crate) async fn heard_the_other_protocol(&self, node: &Node) -> Option<Failure> {
+        let stats = match node.stats().await {
+            Ok(stats) => stats.wire,
+            // The hub closed the connection (as one does on bytes of the other protocol).
+            Err(error) => return self.wrong_protocol(&error),
+        };
+        if stats.decode_errors == 0 || stats.frames_in > 0 {
+            return None;
+        }
+        self.wrong_protocol(&Error::Protocol(format!("{} undecodable pieces and no message", stats.decode_errors)))
+    }
+
+    /// The failure of a hub that answered in the other protocol, if `error` looks like one.
+    fn wrong_protocol(&self, error: &Error) -> Option<Failure> {
+        let (spoken, other, flag) = self.protocols()?;
+        Some(Failure::WrongProtocol(format!(
+            "cannot reach the hub at {}: {error}; it probably does not speak {spoken} (a port for \
+             {other}?): try {flag}, or the other port of the hub (lcc-stream hub: GridConnect \
+             {GRIDCONNECT_ADDR}, OpenLCB-TCP {TCP_ADDR})",
+            self.addr()
+        )))
+    }
+
+    /// What to say when no node answered over a hub: a hub that speaks the other protocol
+    /// and drops what it cannot read (OpenMRN's does) looks like an empty network.
+    pub(crate) fn empty_network_hint(&self) -> Option<String> {
+        let (_, other, flag) = self.protocols()?;
+        Some(format!("if nodes are there, the hub at {} may speak {other}: try {flag}", self.addr()))
+    }
+
+    /// The protocol spoken to a hub, the other one, and the option that chooses it; `None`
+    /// on a serial port or CAN interface.
+    fn protocols(&self) -> Option<(&'static str, &'static str, &'static str)> {
+        if self.serial.is_some() || self.can_interface().is_some() {
+            return None;
+        }
+        Some(match self.protocol {
+            ProtocolArg::Gridconnect => ("GridConnect", "OpenLCB-TCP", "--protocol tcp"),
+            ProtocolArg::Tcp => ("OpenLCB-TCP", "GridConnect", "--protocol gridconnect"),
+        })
+    }
+
+    /// The SocketCAN interface, if one was given.
+    fn can_interface(&self) -> Option<&str> {
+        #[cfg(target_os = "linux")]
+        return self.can.as_deref();
+        #[cfg(not(target_os = "linux"))]
+        None
+    }
+}
+
+/// SIGINT (Ctrl-C), SIGTERM and SIGHUP (a closed terminal, a dropped ssh), listened for from
+/// the moment this is made (so that none kills the process outright while a stream runs).
 pub(crate) struct Interrupt {
     #[cfg(unix)]
-    signals: [tokio::signal::unix::Signal; 2],
+    signals: [tokio::signal::unix::Signal; 3],
 }
 
 impl Interrupt {
@@ -173,20 +312,23 @@ impl Interrupt {
         {
             use tokio::signal::unix::{SignalKind, signal};
             let listen = |kind| signal(kind).map_err(|e| format!("cannot listen for signals: {e}"));
-            Ok(Interrupt { signals: [listen(SignalKind::interrupt())?, listen(SignalKind::terminate())?] })
+            let signals =
+                [listen(SignalKind::interrupt())?, listen(SignalKind::terminate())?, listen(SignalKind::hangup())?];
+            Ok(Interrupt { signals })
         }
         #[cfg(not(unix))]
         Ok(Interrupt {})
     }
 
-    /// Waits for the next SIGINT or SIGTERM.
+    /// Waits for the next SIGINT, SIGTERM or SIGHUP.
     pub(crate) async fn wait(&mut self) {
         #[cfg(unix)]
         {
-            let [int, term] = &mut self.signals;
+            let [int, term, hup] = &mut self.signals;
             tokio::select! {
                 _ = int.recv() => {}
                 _ = term.recv() => {}
+                _ = hup.recv() => {}
             }
         }
         #[cfg(not(unix))]
@@ -211,10 +353,10 @@ pub(crate) fn runtime() -> Result<tokio::runtime::Runtime, String> {
     tokio::runtime::Builder::new_multi_thread().enable_all().build().map_err(|e| format!("cannot start tokio: {e}"))
 }
 
-/// Prints `error` for a person and returns its exit status.
-pub(crate) fn fail(context: &str, error: &Error) -> ExitCode {
-    eprintln!("lcc-stream: {context}: {error}");
-    ExitCode::from(exit_status(error))
+/// Prints `failure` for a person and returns its exit status.
+pub(crate) fn fail(context: &str, failure: &Failure) -> ExitCode {
+    eprintln!("lcc-stream {context}: {failure}");
+    ExitCode::from(failure.outcome().status())
 }
 
 /// `12.3 MB/s`, decimal units as transfer rates usually are.

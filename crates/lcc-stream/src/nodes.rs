@@ -9,27 +9,29 @@ use openlcb_tokio::{Error, Node, NodeOptions, Protocols, SnipInfo};
 use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
+use crate::outcome::Failure;
 
-/// The Node ID `nodes` joins with unless told otherwise.
-const DEFAULT_LISTER: &str = "05.01.01.01.22.F2";
 /// The most nodes listed.
 const MOST_NODES: usize = 1024;
 /// How long each node may take to answer the Protocol Support Inquiry.
 const PIP_TIMEOUT: Duration = Duration::from_secs(3);
 
-/// Options of `lcc-stream nodes`.
-#[derive(Debug, Args)]
-#[command(after_help = concat!("\
+/// The fields of `nodes --json`.
+const NODES_JSON: &str = "\
 --json prints one object per node: node_id, alias (CAN alias in hex, null over OpenLCB-TCP),
 snip (manufacturer, model, hardware_version, software_version, user_name, user_description;
 null if it did not answer), protocols (names; null if it did not answer) and errors (why SNIP
-or PIP gave nothing).
+or PIP gave nothing). A failure prints one object with result (the word of the exit status
+below) and error.
 
-", net::exit_help!()))]
+";
+
+/// Options of `lcc-stream nodes`.
+#[derive(Debug, Args)]
+#[command(after_help = format!("{NODES_JSON}{}", net::network_help(&[])))]
 pub(crate) struct NodesArgs {
-    /// This node's Node ID while it asks.
-    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = DEFAULT_LISTER)]
-    node_id: NodeId,
+    #[command(flatten)]
+    node_id: net::TransientId,
     /// Seconds of quiet after the last answer to Verify Node ID before the list is complete
     /// (0.05 to 30).
     #[arg(long, value_name = "SECS", default_value_t = 1.0, value_parser = parse_wait)]
@@ -89,17 +91,50 @@ pub(crate) fn run(args: &NodesArgs) -> Result<ExitCode, String> {
 }
 
 async fn list(args: &NodesArgs) -> Result<ExitCode, String> {
-    let mut options = NodeOptions::new(args.node_id);
-    options.node.snip = net::snip("nodes");
-    options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
-    let node = match args.connect.node(options).await {
-        Ok(node) => node,
-        Err(error) => return Ok(net::fail("nodes", &error)),
-    };
-    let found = match node.discover(Duration::from_secs_f64(args.wait), MOST_NODES).await {
-        Ok(found) => found,
-        Err(error) => return Ok(net::fail("nodes", &error)),
-    };
+    match discover(args).await {
+        Ok(reports) => {
+            for report in &reports {
+                if args.json {
+                    net::print_json(report);
+                } else {
+                    net::say(&text_line(report));
+                }
+            }
+            if !args.json && !net::quiet() {
+                eprintln!("{} node(s) answered", reports.len());
+                if let Some(hint) = reports.is_empty().then(|| args.connect.empty_network_hint()).flatten() {
+                    eprintln!("lcc-stream nodes: {hint}");
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(failure) => {
+            if args.json {
+                net::print_json(
+                    &serde_json::json!({ "result": failure.outcome().word(), "error": failure.to_string() }),
+                );
+            }
+            Ok(net::fail("nodes", &failure))
+        }
+    }
+}
+
+/// Joins, finds the nodes and asks each for its SNIP and PIP.
+async fn discover(args: &NodesArgs) -> Result<Vec<NodeReport>, Failure> {
+    let node = args.connect.join(&args.node_id, |id| {
+        let mut options = NodeOptions::new(id);
+        options.node.snip = net::snip("nodes");
+        options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
+        options
+    });
+    let node = node.await?;
+    let found = node.discover(Duration::from_secs_f64(args.wait), MOST_NODES).await?;
+    if found.is_empty() {
+        if let Some(failure) = args.connect.heard_the_other_protocol(&node).await {
+            node.close().await;
+            return Err(failure);
+        }
+    }
     // One node at a time, its SNIP and PIP at once: answers take milliseconds, and a node that
     // does not answer costs at most the SNIP and PIP timeouts.
     let mut reports = Vec::with_capacity(found.len());
@@ -107,17 +142,7 @@ async fn list(args: &NodesArgs) -> Result<ExitCode, String> {
         reports.push(describe(&node, *peer).await);
     }
     node.close().await;
-    for report in &reports {
-        if args.json {
-            println!("{}", serde_json::to_string(report).map_err(|e| e.to_string())?);
-        } else {
-            println!("{}", text_line(report));
-        }
-    }
-    if !args.json {
-        eprintln!("{} node(s) answered", found.len());
-    }
-    Ok(ExitCode::SUCCESS)
+    Ok(reports)
 }
 
 /// Asks one node for its SNIP and PIP at once.

@@ -1,7 +1,8 @@
 //! `lcc-stream read`: back up a memory space of a node into a file.
 //!
 //! The bytes go to `FILE.part`, claimed before the transfer starts, and it is renamed to
-//! `FILE` only once every byte has arrived; an existing file is never overwritten.
+//! `FILE` only once every byte has arrived; an existing file is kept unless `--force`. With
+//! `--out -` the bytes go to stdout.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -10,17 +11,21 @@ use std::time::Instant;
 use clap::Args;
 use openlcb_stream::NodeId;
 
+use tokio::io::AsyncWriteExt as _;
+
 use crate::cdi;
-use crate::memory::{self, ClientArgs, Report, Stop};
+use crate::files;
+use crate::memory::{self, ClientArgs, Moved, Report};
 use crate::net;
+use crate::outcome::{Failure, Outcome};
 use crate::recv::{part_path, publish};
 
 /// Options of `lcc-stream read`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!(memory::json_help!(), net::exit_help!()))]
+#[command(after_help = memory::after_help(""))]
 pub(crate) struct ReadArgs {
     /// The node to read.
-    #[arg(long, value_name = "NODE_ID")]
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id)]
     from: NodeId,
     /// The address space (0xFD configuration, 0xFF CDI, 0xFC/0xFB ACDI, 0xEF firmware).
     #[arg(long, default_value = "0xFD", value_parser = memory::parse_number::<u8>)]
@@ -31,41 +36,79 @@ pub(crate) struct ReadArgs {
     /// Bytes to read [default: to the end of the space].
     #[arg(long, value_parser = memory::parse_number::<u32>)]
     length: Option<u32>,
-    /// The file written (never over an existing one).
+    /// The file written, or `-` for stdout (then the report goes to stderr, and --json is
+    /// refused). An existing file is kept unless --force.
     #[arg(long, value_name = "FILE")]
     out: PathBuf,
+    /// Replace an existing --out file (once every byte has arrived).
+    #[arg(long)]
+    force: bool,
     #[command(flatten)]
     client: ClientArgs,
 }
 
 pub(crate) fn run(args: &ReadArgs) -> Result<ExitCode, String> {
+    if files::is_std(&args.out) && args.client.json {
+        eprintln!("lcc-stream read: --out - writes the data to stdout, where --json would write too; choose one");
+        return Ok(ExitCode::from(Outcome::Usage.status()));
+    }
+    if files::is_std(&args.out) {
+        // stdout holds the data: what is said for a person goes to stderr.
+        net::data_on_stdout();
+    }
     net::runtime()?.block_on(read(args))
 }
 
 async fn read(args: &ReadArgs) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
-    let mut started = Instant::now();
-    let part = part_path(&args.out);
+    let mut moved = Moved::default();
     let outcome = async {
-        memory::refuse_existing(&args.out).await?;
+        if files::is_std(&args.out) {
+            let data = transfer(args, &mut interrupt, &mut moved).await?;
+            let mut stdout = tokio::io::stdout();
+            let written = async {
+                stdout.write_all(&data).await?;
+                stdout.flush().await
+            };
+            written.await.map_err(|e| Failure::file(&args.out, e))?;
+            return Ok(data.len() as u64);
+        }
+        // Checked before the network is touched: the name is free (or --force), and a file
+        // can be made beside it.
+        let exists = tokio::fs::try_exists(&args.out).await.map_err(|e| Failure::file(&args.out, e))?;
+        if exists && !args.force {
+            let taken = std::io::Error::new(
+                std::io::ErrorKind::AlreadyExists,
+                "the file exists (it is kept; --force replaces it once every byte has arrived)",
+            );
+            return Err(Failure::file(&args.out, taken));
+        }
+        files::check_writable(&args.out).await?;
+        let part = part_path(&args.out);
         let claimed = tokio::fs::OpenOptions::new().write(true).create_new(true).open(&part).await;
-        let file = claimed.map_err(Stop::File)?;
-        let result = transfer(args, &mut interrupt, &mut started).await;
+        let file = claimed.map_err(|e| Failure::file(&part, e))?;
+        let result = transfer(args, &mut interrupt, &mut moved).await;
         let data = match result {
             Ok(data) => data,
-            Err(stop) => {
+            Err(failure) => {
                 drop(file);
                 let _ = tokio::fs::remove_file(&part).await;
-                return Err(stop);
+                return Err(failure);
             }
         };
-        save(file, &data).await.map_err(Stop::File)?;
-        publish(&part, &args.out).await.map_err(Stop::File)?;
+        save(file, &data).await.map_err(|e| Failure::file(&part, e))?;
+        if args.force {
+            tokio::fs::rename(&part, &args.out).await.map_err(|e| Failure::file(&args.out, e))?;
+        } else {
+            publish(&part, &args.out).await.map_err(|e| Failure::file(&args.out, e))?;
+        }
         Ok(data.len() as u64)
     }
     .await;
-    let bytes = *outcome.as_ref().unwrap_or(&0);
-    let report = Report::new(args.from, args.space, args.address, &args.out, args.client.path(), bytes, started);
+    if let Ok(bytes) = outcome {
+        moved.bytes = bytes;
+    }
+    let report = Report::new(args.from, args.space, args.address, &args.out, &moved);
     let (elapsed_s, bytes_per_s) = (report.elapsed_s, report.bytes_per_s);
     let text = outcome.map(|bytes| {
         format!(
@@ -79,22 +122,24 @@ async fn read(args: &ReadArgs) -> Result<ExitCode, String> {
     Ok(memory::finish(report, text, args.client.json, "read"))
 }
 
-/// Joins, finds the node and reads; `started` is set when the first command goes out.
-async fn transfer(args: &ReadArgs, interrupt: &mut net::Interrupt, started: &mut Instant) -> Result<Vec<u8>, Stop> {
+/// Joins, finds the node and reads.
+async fn transfer(args: &ReadArgs, interrupt: &mut net::Interrupt, moved: &mut Moved) -> Result<Vec<u8>, Failure> {
     let node = memory::join(&args.client, "read", args.from).await?;
-    *started = Instant::now();
-    let transfer = node
-        .read_memory(args.from, args.space, args.address, args.length, args.client.path())
-        .await
-        .map_err(Stop::Net)?;
-    let data = memory::follow(transfer, args.length.map(u64::from), args.client.json, interrupt).await;
+    moved.started = Some(Instant::now());
+    tracing::info!(peer = %args.from, space = format!("0x{:02X}", args.space), address = args.address, length = ?args.length, "reading");
+    let transfer = node.read_memory(args.from, args.space, args.address, args.length, args.client.path()).await;
+    let data = match transfer {
+        Ok(transfer) => {
+            memory::follow(&node, transfer, args.length.map(u64::from), args.client.json, interrupt, moved).await
+        }
+        Err(error) => Err(Failure::Net(error)),
+    };
     node.close().await;
     // The CDI's terminating NUL is no part of the document.
     if args.space == cdi::SPACE_CDI { data.map(cdi::trim_cdi) } else { data }
 }
 
 async fn save(mut file: tokio::fs::File, data: &[u8]) -> std::io::Result<()> {
-    use tokio::io::AsyncWriteExt as _;
     file.write_all(data).await?;
     file.sync_all().await
 }

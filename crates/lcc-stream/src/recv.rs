@@ -14,12 +14,14 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{NodeId, StreamInfo};
-use openlcb_tokio::{Error, NodeOptions, RecvStream};
+use openlcb_tokio::{NodeOptions, RecvStream};
 use serde::Serialize;
 use tokio::io::{AsyncWriteExt as _, BufWriter};
 use tokio::sync::watch;
 
+use crate::files;
 use crate::net::{self, ConnectArgs};
+use crate::outcome::{Failure, Outcome};
 use crate::progress::{Progress, ProgressGroup};
 
 /// Names tried for one stream before giving up (every one of them already taken).
@@ -28,19 +30,31 @@ const NAME_ATTEMPTS: u64 = 100_000;
 /// The Node ID `recv` uses unless told otherwise (`send`'s default destination).
 pub(crate) const DEFAULT_RECEIVER: &str = "05.01.01.01.22.F1";
 
+/// `recv`'s after-help.
+fn after_help() -> String {
+    let outcomes = [Outcome::TimedOut, Outcome::Terminated, Outcome::FileError];
+    format!(
+        "{}{}",
+        "\
+--json prints one object per stream: file (final name, or the .part kept; absent if no data
+came), from (Node ID), bytes (received), elapsed_s, bytes_per_s, window (granted), result (the
+word of the exit status below), content_uid (if the source sent one) and error (a sentence, on
+failure). An exit before any stream ended (a connection or file error, an interrupt) prints
+one object with result and error.
+
+",
+        net::network_help(&outcomes)
+    )
+}
+
 /// Options of `lcc-stream recv`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!("\
---json prints one object per stream: file (final name, or the .part kept; absent if no data
-came), from (Node ID), bytes (received), elapsed_s, bytes_per_s, window (granted), result (ok,
-file_error, interrupted, timed_out, connection_lost, terminated, duplicate_node_id or error),
-content_uid (if the source sent one) and error (a sentence, on failure).
-
-", net::exit_help!()))]
+#[command(after_help = after_help())]
 pub(crate) struct RecvArgs {
     /// Where to write: an existing directory (one file per stream, named after the sender and
     /// the first free counter), or a file name (if taken, or for later streams, `.1`, `.2`,
-    /// ... is appended). An existing file is never overwritten.
+    /// ... is appended). An existing file is never overwritten. Checked before the network is
+    /// touched.
     #[arg(long, value_name = "PATH", default_value = ".")]
     out: PathBuf,
     /// This node's Node ID.
@@ -79,6 +93,31 @@ pub(crate) fn run(args: &RecvArgs) -> Result<ExitCode, String> {
 
 async fn receive(args: &RecvArgs) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
+    let mut reported = 0;
+    let status = match listen(args, &mut interrupt, &mut reported).await {
+        Ok(status) => status,
+        Err(failure) => {
+            if args.json && reported == 0 {
+                net::print_json(&ExitReport { result: failure.outcome().word(), error: failure.to_string() });
+            }
+            eprintln!("lcc-stream recv: {failure}");
+            failure.outcome().status()
+        }
+    };
+    Ok(ExitCode::from(status))
+}
+
+/// `recv --json` when it ends before any stream did.
+#[derive(Debug, Serialize)]
+struct ExitReport {
+    result: &'static str,
+    error: String,
+}
+
+/// Checks `--out`, joins and receives until interrupted (or the first stream with --once);
+/// `reported` counts the streams reported.
+async fn listen(args: &RecvArgs, interrupt: &mut net::Interrupt, reported: &mut u64) -> Result<u8, Failure> {
+    files::check_writable(&args.out).await?;
     let mut options = NodeOptions::new(args.node_id);
     options.node.snip = net::snip("recv");
     options.node.stream.max_window = args.window;
@@ -86,13 +125,10 @@ async fn receive(args: &RecvArgs) -> Result<ExitCode, String> {
     options.node.stream.max_streams = usize::from(args.max_streams);
     options.node.stream.max_streams_per_peer = usize::from(args.max_streams_per_peer.min(args.max_streams));
     options.node.stream.idle_timeout = Some(Duration::from_secs(args.timeout).into());
-    let connect = args.connect.node(options);
+    let chosen = net::TransientId { chosen: Some(args.node_id) };
     let mut node = tokio::select! {
-        connected = connect => match connected {
-            Ok(node) => node,
-            Err(error) => return Ok(net::fail("recv", &error)),
-        },
-        () = interrupt.wait() => return Ok(ExitCode::from(net::EXIT_INTERRUPTED)),
+        node = args.connect.join(&chosen, |_| options.clone()) => node?,
+        () = interrupt.wait() => return Err(Failure::Interrupted),
     };
     // On stderr even with --json: scripts can wait for this line before starting a sender.
     eprintln!("lcc-stream recv: node {} listening on {}", args.node_id, args.connect.addr());
@@ -112,22 +148,27 @@ async fn receive(args: &RecvArgs) -> Result<ExitCode, String> {
                     accepting = !args.once;
                 }
                 Err(error) => {
-                    while transfers.join_next().await.is_some() {}
-                    return Ok(net::fail("recv", &error));
+                    while transfers.join_next().await.is_some() {
+                        *reported += 1;
+                    }
+                    return Err(Failure::Net(error));
                 }
             },
             Some(done) = transfers.join_next() => {
+                *reported += 1;
                 if args.once {
-                    return Ok(ExitCode::from(done.unwrap_or(1)));
+                    node.close().await;
+                    return Ok(done.unwrap_or(1));
                 }
             }
             () = interrupt.wait() => {
                 // Every open stream ends with TDE and reports what it kept.
                 let _ = stop.send(true);
-                while transfers.join_next().await.is_some() {}
+                while transfers.join_next().await.is_some() {
+                    *reported += 1;
+                }
                 node.close().await;
-                eprintln!("lcc-stream recv: interrupted");
-                return Ok(ExitCode::from(net::EXIT_INTERRUPTED));
+                return Err(Failure::Interrupted);
             }
         }
     }
@@ -142,19 +183,20 @@ struct Target {
 impl Target {
     /// Claims the next free name for a stream from `peer`: `NAME.part` is created exclusively
     /// and `NAME` does not exist yet. Names taken by earlier runs are skipped.
-    async fn claim(&self, peer: NodeId) -> io::Result<(PathBuf, tokio::fs::File)> {
+    async fn claim(&self, peer: NodeId) -> Result<(PathBuf, tokio::fs::File), Failure> {
         for _ in 0..NAME_ATTEMPTS {
             let path = target_path(&self.out, peer, self.counter.fetch_add(1, Ordering::Relaxed));
-            if tokio::fs::try_exists(&path).await? {
+            if tokio::fs::try_exists(&path).await.map_err(|e| Failure::file(&path, e))? {
                 continue;
             }
-            match tokio::fs::OpenOptions::new().write(true).create_new(true).open(part_path(&path)).await {
+            let part = part_path(&path);
+            match tokio::fs::OpenOptions::new().write(true).create_new(true).open(&part).await {
                 Ok(file) => return Ok((path, file)),
                 Err(error) if error.kind() == io::ErrorKind::AlreadyExists => continue,
-                Err(error) => return Err(error),
+                Err(error) => return Err(Failure::file(&part, error)),
             }
         }
-        Err(io::Error::new(io::ErrorKind::AlreadyExists, "every file name tried is taken"))
+        Err(Failure::file(&self.out, io::Error::other("every file name tried is taken")))
     }
 }
 
@@ -197,15 +239,16 @@ struct Output {
 
 impl Output {
     async fn create(target: &Target, peer: NodeId) -> Result<Output, Failure> {
-        let (path, file) = target.claim(peer).await.map_err(Failure::File)?;
+        let (path, file) = target.claim(peer).await?;
         Ok(Output { path, file: BufWriter::with_capacity(1 << 20, file) })
     }
 
     /// Flushes, syncs and publishes under the final name.
     async fn complete(mut self) -> Result<PathBuf, Failure> {
-        self.file.flush().await.map_err(Failure::File)?;
-        self.file.into_inner().sync_all().await.map_err(Failure::File)?;
-        publish(&part_path(&self.path), &self.path).await.map_err(Failure::File)?;
+        let part = part_path(&self.path);
+        self.file.flush().await.map_err(|e| Failure::file(&part, e))?;
+        self.file.into_inner().sync_all().await.map_err(|e| Failure::file(&part, e))?;
+        publish(&part, &self.path).await.map_err(|e| Failure::file(&self.path, e))?;
         Ok(self.path)
     }
 }
@@ -224,7 +267,7 @@ async fn save(
     let received = async {
         loop {
             let chunk = tokio::select! {
-                chunk = stream.read() => chunk.map_err(Failure::Stream)?,
+                chunk = stream.read() => chunk.map_err(Failure::Net)?,
                 _ = stop.wait_for(|stop| *stop) => return Err(Failure::Interrupted),
             };
             let Some(chunk) = chunk else { return Ok(()) };
@@ -232,7 +275,8 @@ async fn save(
                 output = Some(Output::create(&target, info.peer).await?);
             }
             if let Some(out) = output.as_mut() {
-                out.file.write_all(&chunk).await.map_err(Failure::File)?;
+                let part = part_path(&out.path);
+                out.file.write_all(&chunk).await.map_err(|e| Failure::file(&part, e))?;
             }
             progress.set(stream.received());
         }
@@ -294,14 +338,13 @@ fn report(
 ) -> u8 {
     let bytes_per_s = net::rate(bytes, elapsed.as_secs_f64());
     let (status, result, error) = match outcome {
-        Ok(_) => (0, "ok", None),
-        Err((Failure::Stream(error), _)) => (net::exit_status(error), net::result_word(error), Some(error.to_string())),
-        Err((Failure::File(error), _)) => (net::EXIT_FILE, "file_error", Some(error.to_string())),
+        Ok(_) => (0, Outcome::Ok.word(), None),
         Err((Failure::Interrupted, _)) => (
-            net::EXIT_INTERRUPTED,
-            "interrupted",
+            Outcome::Interrupted.status(),
+            Outcome::Interrupted.word(),
             Some("interrupted (the source was sent TDE 0x2000, temporary error)".to_string()),
         ),
+        Err((failure, _)) => (failure.outcome().status(), failure.outcome().word(), Some(failure.to_string())),
     };
     let file = match outcome {
         Ok(path) | Err((_, Some(path))) => Some(path.display().to_string()),
@@ -323,20 +366,14 @@ fn report(
         let kept = file.map_or_else(|| "no file written".to_string(), |file| format!("kept in {file}"));
         eprintln!("lcc-stream recv: stream from {} failed after {bytes} bytes ({kept}): {error}", info.peer);
     } else {
-        println!(
+        net::say(&format!(
             "received {bytes} bytes from {} into {} in {:.3} s ({}), window {}",
             info.peer,
             file.unwrap_or_default(),
             elapsed.as_secs_f64(),
             net::rate_text(bytes_per_s),
             info.window
-        );
+        ));
     }
     status
-}
-
-enum Failure {
-    Stream(Error),
-    File(io::Error),
-    Interrupted,
 }

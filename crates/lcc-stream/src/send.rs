@@ -1,23 +1,21 @@
 //! `lcc-stream send`: join the network as a node and send a file as one stream.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU16, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use bytes::BytesMut;
 use clap::Args;
 use openlcb_stream::{AcceptPolicy, ContentUid, NodeId, OpenOptions, wire::ReplyCode};
-use openlcb_tokio::{Error, Node, NodeOptions};
+use openlcb_tokio::{Node, NodeOptions};
 use serde::Serialize;
 use tokio::io::AsyncReadExt as _;
 
+use crate::files;
 use crate::net::{self, ConnectArgs};
+use crate::outcome::{Failure, Outcome};
 use crate::progress::Progress;
-
-/// The Node ID `send` uses unless told otherwise (from the range of the examples of this
-/// project; pick your own from a range you own on a real layout).
-pub(crate) const DEFAULT_SENDER: &str = "05.01.01.01.22.F0";
 
 /// Bytes read from the file and handed to the stream at once.
 const CHUNK: usize = 64 * 1024;
@@ -37,31 +35,34 @@ once every stated byte has arrived.
 }
 
 /// The fields of `send --json`.
-macro_rules! send_json {
-    () => {
-        "\
---json prints one object: file, to (Node ID), bytes (sent), elapsed_s, bytes_per_s, window
-(negotiated on success, else the one proposed), result (ok, unreachable_hub, rejected,
-timed_out, connection_lost, terminated, duplicate_node_id or error), and frames_out and
-writes (on success) or error (a sentence).
+const SEND_JSON: &str = "\
+--json prints one object on every exit path: file, to (Node ID), bytes (sent), elapsed_s,
+bytes_per_s, window (negotiated once the stream opened, else the one proposed), result (the
+word of the exit status below), and frames_out and writes (on success) or error (a sentence).
 
-"
-    };
+";
+
+/// The outcomes `send` can end with.
+const OUTCOMES: &[Outcome] =
+    &[Outcome::Rejected, Outcome::TimedOut, Outcome::NotFound, Outcome::Terminated, Outcome::FileError];
+
+/// `send`'s after-help.
+fn after_help() -> String {
+    format!("{}{SEND_JSON}{}", send_promise!(), net::network_help(OUTCOMES))
 }
 
 /// Options of `lcc-stream send`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!(send_promise!(), send_json!(), net::exit_help!()))]
+#[command(after_help = after_help())]
 pub(crate) struct SendArgs {
-    /// The file to send.
+    /// The file to send (`-`: stdin), checked before the network is touched.
     file: PathBuf,
     /// The receiving node, e.g. 05.01.01.01.22.F1 (the default of `lcc-stream recv`); also
     /// 05:01:01:01:22:F1, 0501010122F1 or 0x0501010122F1.
     #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id)]
     to: NodeId,
-    /// This node's Node ID.
-    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, default_value = DEFAULT_SENDER)]
-    node_id: NodeId,
+    #[command(flatten)]
+    node_id: net::TransientId,
     /// Window (Max Buffer Size) to propose, 1..=65535; the receiver may lower it.
     #[arg(long, default_value_t = 65535, value_parser = clap::value_parser!(u16).range(1..))]
     window: u16,
@@ -99,7 +100,7 @@ struct SendReport {
 
 impl SendReport {
     /// The report of a transfer that came to `summary` and ended with `outcome`.
-    fn new(args: &SendArgs, summary: &Summary, outcome: Result<(), &Error>) -> Self {
+    fn new(args: &SendArgs, summary: &Summary, outcome: Result<(), &Failure>) -> Self {
         let ok = outcome.is_ok();
         SendReport {
             file: args.file.display().to_string(),
@@ -110,13 +111,14 @@ impl SendReport {
             window: summary.window,
             frames_out: ok.then_some(summary.frames_out),
             writes: ok.then_some(summary.writes),
-            result: outcome.map_or_else(net::result_word, |()| "ok"),
+            result: outcome.map_or_else(|failure| failure.outcome().word(), |()| Outcome::Ok.word()),
             error: outcome.err().map(ToString::to_string),
         }
     }
 }
 
 /// What a transfer came to.
+#[derive(Default)]
 struct Summary {
     bytes: u64,
     elapsed: Duration,
@@ -130,69 +132,35 @@ pub(crate) fn run(args: &SendArgs) -> Result<ExitCode, String> {
 }
 
 async fn send(args: &SendArgs) -> Result<ExitCode, String> {
-    let mut file = match tokio::fs::File::open(&args.file).await {
-        Ok(file) => file,
-        Err(error) => {
-            eprintln!("lcc-stream send: cannot read {}: {error}", args.file.display());
-            return Ok(ExitCode::from(net::EXIT_FILE));
-        }
-    };
-    let size = file.metadata().await.map(|m| m.len()).ok();
-    let mut options = NodeOptions::new(args.node_id);
-    options.node.snip = net::snip("send");
-    options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::STREAMS_NOT_SUPPORTED);
-    options.node.stream.reply_timeout = Duration::from_secs(args.timeout).into();
-    options.node.stream.proceed_timeout = Duration::from_secs(args.timeout).into();
-    options.write_timeout = Duration::from_secs(args.timeout);
-    let report_error = |error: &Error, bytes: u64, elapsed: Duration| {
-        if args.json {
-            let summary = Summary { bytes, elapsed, window: args.window, frames_out: 0, writes: 0 };
-            net::print_json(&SendReport::new(args, &summary, Err(error)));
-        }
-        net::fail("send", error)
-    };
-
-    let started = Instant::now();
     let mut interrupt = net::Interrupt::new()?;
-    let connect = args.connect.node(options);
-    let node = tokio::select! {
-        connected = connect => match connected {
-            Ok(node) => node,
-            Err(error) => return Ok(report_error(&error, 0, started.elapsed())),
-        },
-        () = interrupt.wait() => return Ok(ExitCode::from(net::EXIT_INTERRUPTED)),
-    };
+    let started = Instant::now();
+    let summary = Summary { window: args.window, ..Summary::default() };
     let written = AtomicU64::new(0);
-    let outcome = tokio::select! {
-        outcome = transfer(args, &node, &mut file, size, &written) => outcome,
-        () = interrupt.wait() => Err(Stop::Interrupted),
-    };
-    // On an interrupt the stream was dropped inside `transfer`, which queued its TDE: the
-    // orderly close writes it before the connection goes.
-    let stats = node.stats().await.map(|s| s.wire).unwrap_or_default();
-    node.close().await;
+    let window = AtomicU16::new(args.window);
+    let outcome = connect_and_send(args, &mut interrupt, &written, &window).await;
     let summary = match outcome {
         Ok(summary) => summary,
-        Err(Stop::Failed(error)) => {
-            return Ok(report_error(&error, written.load(Ordering::Relaxed), started.elapsed()));
-        }
-        Err(Stop::File(error)) => {
-            eprintln!("lcc-stream send: cannot read {}: {error}", args.file.display());
-            return Ok(ExitCode::from(net::EXIT_FILE));
-        }
-        Err(Stop::Interrupted) => {
-            eprintln!(
-                "lcc-stream send: interrupted after {} bytes; the stream was terminated (TDE 0x2000, temporary error)",
-                written.load(Ordering::Relaxed)
-            );
-            return Ok(ExitCode::from(net::EXIT_INTERRUPTED));
+        Err(failure) => {
+            let bytes = written.load(Ordering::Relaxed);
+            let summary =
+                Summary { bytes, elapsed: started.elapsed(), window: window.load(Ordering::Relaxed), ..summary };
+            if args.json {
+                net::print_json(&SendReport::new(args, &summary, Err(&failure)));
+            }
+            if let Failure::Interrupted = failure {
+                eprintln!(
+                    "lcc-stream send: interrupted after {bytes} bytes; an open stream was terminated (TDE 0x2000, temporary error)"
+                );
+            } else {
+                eprintln!("lcc-stream send: {failure}");
+            }
+            return Ok(ExitCode::from(failure.outcome().status()));
         }
     };
-    let summary = Summary { frames_out: stats.frames_out, writes: stats.writes, ..summary };
     if args.json {
         net::print_json(&SendReport::new(args, &summary, Ok(())));
     } else {
-        println!(
+        net::say(&format!(
             "sent {} bytes to {} in {:.3} s ({}), window {}, {} frames in {} writes",
             summary.bytes,
             args.to,
@@ -201,43 +169,103 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
             summary.window,
             summary.frames_out,
             summary.writes
-        );
+        ));
     }
     Ok(ExitCode::SUCCESS)
 }
 
-/// Why a transfer stopped early.
-enum Stop {
-    Failed(Error),
-    File(std::io::Error),
-    Interrupted,
+/// Checks the file, joins, sends, and closes the node, also when interrupted.
+async fn connect_and_send(
+    args: &SendArgs,
+    interrupt: &mut net::Interrupt,
+    written: &AtomicU64,
+    window: &AtomicU16,
+) -> Result<Summary, Failure> {
+    let (mut input, size) = Input::open(&args.file).await?;
+    let node = args.connect.join(&args.node_id, |id| {
+        let mut options = NodeOptions::new(id);
+        options.node.snip = net::snip("send");
+        options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::STREAMS_NOT_SUPPORTED);
+        options.node.stream.reply_timeout = Duration::from_secs(args.timeout).into();
+        options.node.stream.proceed_timeout = Duration::from_secs(args.timeout).into();
+        options.write_timeout = Duration::from_secs(args.timeout);
+        options
+    });
+    let node = tokio::select! {
+        node = node => node?,
+        () = interrupt.wait() => return Err(Failure::Interrupted),
+    };
+    // On an interrupt the stream is dropped inside `transfer`, which queues its TDE: the
+    // orderly close writes it before the connection goes.
+    let outcome = tokio::select! {
+        outcome = transfer(args, &node, &mut input, size, written, window) => outcome,
+        () = interrupt.wait() => Err(Failure::Interrupted),
+    };
+    let stats = node.stats().await.map(|s| s.wire).unwrap_or_default();
+    node.close().await;
+    let summary = outcome?;
+    Ok(Summary { frames_out: stats.frames_out, writes: stats.writes, ..summary })
 }
 
-/// Opens the stream, sends the file and finishes; `written` follows the progress.
+/// What is sent: a file or stdin.
+enum Input {
+    File(tokio::fs::File),
+    Stdin(tokio::io::Stdin),
+}
+
+impl Input {
+    /// Opens `path` (stdin for `-`), with its size if known.
+    async fn open(path: &Path) -> Result<(Input, Option<u64>), Failure> {
+        if files::is_std(path) {
+            return Ok((Input::Stdin(tokio::io::stdin()), None));
+        }
+        let (file, size) = files::open(path).await?;
+        Ok((Input::File(file), Some(size)))
+    }
+
+    /// The next chunk, empty at the end.
+    async fn chunk(&mut self) -> std::io::Result<BytesMut> {
+        let mut chunk = BytesMut::with_capacity(CHUNK);
+        while chunk.len() < CHUNK {
+            let read = match self {
+                Input::File(file) => file.read_buf(&mut chunk).await?,
+                Input::Stdin(stdin) => stdin.read_buf(&mut chunk).await?,
+            };
+            if read == 0 {
+                break;
+            }
+        }
+        Ok(chunk)
+    }
+}
+
+/// Opens the stream, sends the input and finishes; `written` and `window` follow the
+/// progress.
 async fn transfer(
     args: &SendArgs,
     node: &Node,
-    file: &mut tokio::fs::File,
+    input: &mut Input,
     size: Option<u64>,
     written: &AtomicU64,
-) -> Result<Summary, Stop> {
+    window: &AtomicU16,
+) -> Result<Summary, Failure> {
     let mut open = OpenOptions::new(args.to, args.window);
     open.content_uid = args.content_uid;
-    let mut stream = node.open(open).await.map_err(Stop::Failed)?;
-    let window = stream.info().window;
+    let mut stream = node.open(open).await?;
+    window.store(stream.info().window, Ordering::Relaxed);
     let progress = Progress::start(size, args.json);
     // Read the next chunk while the previous one goes out.
     let started = Instant::now();
-    let mut next = read_chunk(file).await;
+    let mut next = input.chunk().await;
     let outcome = loop {
         let chunk = match next {
             Ok(chunk) if chunk.is_empty() => break Ok(()),
             Ok(chunk) => chunk.freeze(),
-            Err(error) => break Err(Stop::File(error)),
+            Err(error) => break Err(Failure::file(&args.file, error)),
         };
-        let (sent, read) = tokio::join!(stream.write_all(chunk), read_chunk(file));
+        let (sent, read) = tokio::join!(stream.write_all(chunk), input.chunk());
         if let Err(error) = sent {
-            break Err(Stop::Failed(error));
+            break Err(Failure::Net(error));
         }
         written.store(stream.written(), Ordering::Relaxed);
         next = read;
@@ -245,16 +273,8 @@ async fn transfer(
     };
     progress.finish();
     outcome?;
-    let bytes = stream.finish().await.map_err(Stop::Failed)?;
+    let window = stream.info().window;
+    let bytes = stream.finish().await?;
+    written.store(bytes, Ordering::Relaxed);
     Ok(Summary { bytes, elapsed: started.elapsed(), window, frames_out: 0, writes: 0 })
-}
-
-async fn read_chunk(file: &mut tokio::fs::File) -> std::io::Result<BytesMut> {
-    let mut chunk = BytesMut::with_capacity(CHUNK);
-    while chunk.len() < CHUNK {
-        if file.read_buf(&mut chunk).await? == 0 {
-            break;
-        }
-    }
-    Ok(chunk)
 }

@@ -14,6 +14,7 @@ use openlcb_tokio::{DeclaredEvents, EventNotice, MemoryEvent, MemoryServer, Node
 use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
+use crate::outcome::{Failure, Outcome, net_outcome};
 use crate::recv::{part_path, publish};
 
 /// The Node ID `serve` uses unless told otherwise.
@@ -30,7 +31,7 @@ macro_rules! serve_json_help {
 --json prints one object when the node stops: node, config_bytes (the size of space 0xFD),
 cdi_bytes, firmware (one object per image received: from, bytes, file, and error when it
 could not be saved), user_info_changes (writes of space 0xFB), events_dropped, result
-(\"interrupted\", or \"connection_lost\" and the like) and, on failure, error.
+(the word of the exit status below) and, on failure, error.
 
 "
     };
@@ -38,7 +39,7 @@ could not be saved), user_info_changes (writes of space 0xFB), events_dropped, r
 
 /// Options of `lcc-stream serve`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!(serve_json_help!(), net::exit_help!()))]
+#[command(after_help = format!("{}{}", serve_json_help!(), net::network_help(&[Outcome::Usage, Outcome::FileError])))]
 pub(crate) struct ServeArgs {
     /// This node's Node ID.
     #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_SERVER)]
@@ -116,13 +117,13 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
     let firmware_out = args.firmware_out.clone().unwrap_or_else(|| default_firmware_path(args.node_id));
     if !args.force && firmware_out.exists() {
         eprintln!("lcc-stream serve: {} exists (--force replaces it)", firmware_out.display());
-        return Ok(ExitCode::from(net::EXIT_FILE));
+        return Ok(ExitCode::from(Outcome::FileError.status()));
     }
     let spaces = match Spaces::open(args) {
         Ok(spaces) => spaces,
         Err(error) => {
             eprintln!("lcc-stream serve: {error}");
-            return Ok(ExitCode::from(net::EXIT_FILE));
+            return Ok(ExitCode::from(Outcome::FileError.status()));
         }
     };
     let mut options = NodeOptions::new(args.node_id);
@@ -131,7 +132,7 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
     options.node.snip.user_description.clone_from(&args.description);
     if let Err(too_long) = options.node.snip.check() {
         eprintln!("lcc-stream serve: the {} is too long ({} bytes)", too_long.field.name(), too_long.len);
-        return Ok(ExitCode::from(net::EXIT_USAGE));
+        return Ok(ExitCode::from(Outcome::Usage.status()));
     }
     options.node.streams_enabled = !args.no_streams;
     options.node.events.produced.clone_from(&args.produces);
@@ -147,17 +148,17 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
     let mut node = tokio::select! {
         connected = connect => match connected {
             Ok(node) => node,
-            Err(error) => return Ok(net::fail("serve", &error)),
+            Err(error) => return Ok(net::fail("serve", &Failure::Net(error))),
         },
-        () = interrupt.wait() => return Ok(ExitCode::from(net::EXIT_INTERRUPTED)),
+        () = interrupt.wait() => return Ok(ExitCode::from(Outcome::Interrupted.status())),
     };
     let mut events = match node.serve_memory(spaces.into_server()).await {
         Ok(events) => events,
-        Err(error) => return Ok(net::fail("serve", &error)),
+        Err(error) => return Ok(net::fail("serve", &Failure::Net(error))),
     };
     let mut notices = match node.event_notices().await {
         Ok(notices) => notices,
-        Err(error) => return Ok(net::fail("serve", &error)),
+        Err(error) => return Ok(net::fail("serve", &Failure::Net(error))),
     };
     // On stderr even with --json: scripts can wait for this line before starting a tool.
     eprintln!(
@@ -176,18 +177,18 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
                 Some(event) => on_event(event, args, &firmware_out, &image, &mut report).await,
                 None => {
                     let error = node.closed().await;
-                    (report.result, report.error) = (net::result_word(&error), Some(error.to_string()));
-                    break net::exit_status(&error);
+                    (report.result, report.error) = (net_outcome(&error).word(), Some(error.to_string()));
+                    break net_outcome(&error).status();
                 }
             },
             Some(notice) = notices.next() => on_notice(&notice, args.json),
             error = node.closed() => {
-                (report.result, report.error) = (net::result_word(&error), Some(error.to_string()));
-                break net::exit_status(&error);
+                (report.result, report.error) = (net_outcome(&error).word(), Some(error.to_string()));
+                break net_outcome(&error).status();
             }
             () = interrupt.wait() => {
-                report.result = "interrupted";
-                break net::EXIT_INTERRUPTED;
+                report.result = Outcome::Interrupted.word();
+                break Outcome::Interrupted.status();
             }
         }
     };

@@ -33,10 +33,11 @@ tcp_bytes, frames (total and per kind: stream_data, proceed, initiate, complete,
 other_message, control), verified and real_time_s.
 
 Exit status: 0 the transfer completed and verified; 1 it did not (or the simulation failed);
-2 bad arguments.")]
+2 bad arguments, or parameters that cannot be simulated.")]
 pub(crate) struct SimArgs {
-    /// CAN bitrate, bits per second.
-    #[arg(long, default_value_t = 125_000, value_parser = crate::args::positive::<u32>)]
+    /// CAN bitrate, bits per second: 10000 to 1000000, the rates classical CAN runs at
+    /// (LCC uses 125000). Slower or faster cannot be simulated faithfully and is refused.
+    #[arg(long, default_value_t = 125_000, value_parser = clap::value_parser!(u32).range(10_000..=1_000_000))]
     bitrate: u32,
     /// Payload bytes per stream.
     #[arg(long, default_value_t = 262_144)]

@@ -11,12 +11,13 @@ use crate::net;
 
 /// Options of `lcc-stream write`.
 #[derive(Debug, Args)]
-#[command(after_help = concat!(memory::json_help!(), net::exit_help!()))]
+#[command(after_help = memory::after_help(""))]
 pub(crate) struct WriteArgs {
-    /// The file whose bytes are written.
+    /// The file whose bytes are written (`-`: stdin), read whole before the network is
+    /// touched.
     file: PathBuf,
     /// The node to write.
-    #[arg(long, value_name = "NODE_ID")]
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id)]
     to: NodeId,
     /// The address space (0xFD configuration, 0xFB ACDI user data).
     #[arg(long, default_value = "0xFD", value_parser = memory::parse_number::<u8>)]

@@ -432,7 +432,9 @@ async fn recv_never_overwrites_a_file_of_an_earlier_run() {
     std::fs::rename(dir.join("stream-0501010122F0-1.bin.part"), out.join("stream-0501010122F0-1.bin.part")).unwrap();
     let mut recv = spawn(&["recv", "--connect", &gridconnect, "--once", "--out", out.to_str().unwrap()]);
     wait_for_line(&mut recv, "listening").await;
-    let send = spawn(&["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &gridconnect]);
+    let sender = ["--node-id", "05.01.01.01.22.F0"];
+    let send =
+        spawn(&[&["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &gridconnect][..], &sender].concat());
     assert!(finish(send).await.0.success());
     let (status, stdout, stderr) = finish(recv).await;
     assert!(status.success(), "{stdout}{stderr}");

@@ -326,12 +326,12 @@ async fn config_refuses_what_the_cdi_does_not_allow_and_writes_nothing() {
         ("Configuration.No such thing", "1"),
     ] {
         let (status, json) = run(&addr, &["config", "set", SERVER, key, value]).await;
-        assert_eq!((status, json["result"].as_str()), (2, Some("invalid")), "{key}={value}: {json}");
+        assert_eq!((status, json["result"].as_str()), (2, Some("usage")), "{key}={value}: {json}");
     }
     let backup = dir.join("edited.txt");
     std::fs::write(&backup, "Configuration.Mode=1\nConfiguration.Delay (ms)=5000\n").unwrap();
     let (status, json) = run(&addr, &["config", "restore", SERVER, path_arg(&backup)]).await;
-    assert_eq!((status, json["result"].as_str()), (2, Some("invalid")), "{json}");
+    assert_eq!((status, json["result"].as_str()), (2, Some("usage")), "{json}");
     assert!(json["error"].as_str().unwrap().contains("Delay"));
     assert_eq!(std::fs::read(&config).unwrap(), vec![0; 256], "nothing written, not even the valid line");
     let renamed = dir.join("renamed.txt");

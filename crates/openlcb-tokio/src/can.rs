@@ -11,7 +11,8 @@
 //! the link and is defended. Once it has heard one echo it knows the controller echoes and
 //! sends no more than [`ECHO_MEMORY`] frames ahead of their echoes (the bus is the slower
 //! side anyway); a controller that never echoes only has the last [`ECHO_MEMORY`] frames
-//! remembered.
+//! remembered, and one whose [`FrameBus::may_echo`] says it never echoes (SocketCAN) none, so
+//! that a node sending the same frames again from elsewhere on the bus is always heard.
 //!
 //! Each frame is turned into GridConnect text and back on its way: the driver's framing
 //! works on bytes, and the text is at most [`gridconnect::MAX_ENCODED_LEN`] bytes a frame on
@@ -36,6 +37,13 @@ pub trait FrameBus: Send + Unpin + 'static {
     fn poll_receive(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<CanFrame>>;
     /// Puts `frame` on the bus (queued by the controller), or `Pending` while it has no room.
     fn poll_send(&mut self, cx: &mut Context<'_>, frame: &CanFrame) -> Poll<std::io::Result<()>>;
+    /// `false` if the controller is known never to hand back the frames it sent, so that
+    /// [`FrameStream`] remembers none: a later frame equal to one sent here (the same node
+    /// sending the same data again, from elsewhere on the bus) is then always read. `true`
+    /// (the default) when it may echo.
+    fn may_echo(&self) -> bool {
+        true
+    }
 }
 
 /// A [`FrameBus`] as a byte stream of GridConnect text, for
@@ -105,6 +113,9 @@ impl<B: FrameBus> FrameStream<B> {
         }
         std::task::ready!(self.bus.poll_send(cx, &frame))?;
         self.unsent = None;
+        if !self.bus.may_echo() {
+            return Poll::Ready(Ok(()));
+        }
         if self.sent.len() == ECHO_MEMORY {
             self.sent.pop_front();
         }
@@ -175,11 +186,14 @@ impl<B: FrameBus> AsyncWrite for FrameStream<B> {
 
 /// Opens the SocketCAN interface `interface` (`can0`, `vcan0`) for
 /// [`FrameStream::new`]. Not run on hardware by this crate's tests (they use an in-memory
-/// [`FrameBus`]). A failure to open is [`Error::Connect`](crate::Error::Connect).
+/// [`FrameBus`]). A failure to open is [`Error::Device`](crate::Error::Device).
 #[cfg(feature = "socketcan")]
 pub fn open_socketcan(interface: &str) -> Result<socketcan::tokio::CanSocket, crate::Error> {
-    socketcan::tokio::CanSocket::open(interface)
-        .map_err(|source| crate::Error::Connect { addr: interface.to_string(), source: Arc::new(source) })
+    socketcan::tokio::CanSocket::open(interface).map_err(|source| crate::Error::Device {
+        kind: "CAN interface",
+        device: interface.to_string(),
+        source: Arc::new(source),
+    })
 }
 
 /// The same frame in another crate's type (data frames only; a remote frame is `None`).
@@ -195,7 +209,8 @@ const ENOBUFS: i32 = 105;
 
 /// SocketCAN through `socketcan`'s tokio socket. Error frames and remote frames are skipped
 /// (OpenLCB uses neither). A full transmit queue (`ENOBUFS`, which readiness does not
-/// report) is retried at the task's next turn.
+/// report) is retried at the task's next turn. The socket is opened without own-message
+/// reception, so it never echoes.
 #[cfg(feature = "socketcan")]
 impl FrameBus for socketcan::tokio::CanSocket {
     fn poll_receive(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<CanFrame>> {
@@ -231,5 +246,9 @@ impl FrameBus for socketcan::tokio::CanSocket {
             }
             sent => Poll::Ready(sent),
         }
+    }
+
+    fn may_echo(&self) -> bool {
+        false
     }
 }

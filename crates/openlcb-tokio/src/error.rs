@@ -20,6 +20,17 @@ pub enum Error {
         #[source]
         source: Arc<io::Error>,
     },
+    /// A serial port or a CAN interface could not be opened.
+    #[error("cannot open the {kind} {device}: {}", device_reason(.kind, .source))]
+    Device {
+        /// What it is meant to be: "serial port" or "CAN interface".
+        kind: &'static str,
+        /// The device as given (`/dev/ttyACM0`, `can0`).
+        device: String,
+        /// What the operating system said.
+        #[source]
+        source: Arc<io::Error>,
+    },
     /// A listening socket could not be opened.
     #[error("cannot listen on {addr}: {source}")]
     Bind {
@@ -147,6 +158,31 @@ impl Error {
             }
             _ => false,
         }
+    }
+}
+
+/// What went wrong opening a device, in words: the common causes named, the rest as the
+/// operating system says them.
+fn device_reason(kind: &str, error: &io::Error) -> String {
+    // Linux's numbers: ENOENT, EACCES, EBUSY, ENODEV, ENOTTY, EAFNOSUPPORT.
+    match (error.raw_os_error(), kind) {
+        (Some(2), _) => "no such device".into(),
+        (Some(13), "serial port") => "permission denied (on Linux, join the `dialout` group)".into(),
+        (Some(13), _) => "permission denied".into(),
+        (Some(16), _) => "the device is busy (another program has it open)".into(),
+        (Some(19), "CAN interface") => "no such CAN interface (`ip link` lists them)".into(),
+        (Some(19), _) => "no such device".into(),
+        (Some(25), "serial port") => "not a serial port".into(),
+        (Some(97), _) => "this kernel has no CAN sockets (the can and can-raw modules)".into(),
+        // The serial crate hands ENOTTY on as text only (glibc's and musl's wording).
+        _ if kind == "serial port" && ["typewriter", "ioctl"].iter().any(|t| error.to_string().contains(t)) => {
+            "not a serial port".into()
+        }
+        _ => match error.kind() {
+            io::ErrorKind::NotFound => "no such device".into(),
+            io::ErrorKind::PermissionDenied => "permission denied".into(),
+            _ => error.to_string(),
+        },
     }
 }
 

@@ -643,6 +643,17 @@ impl GarbageReport {
     }
 }
 
+/// The protocol a client's first bytes are in, if it is not the one of its port: GridConnect
+/// text starts with `:X` or `:S`; an OpenLCB-TCP message with the flags byte 0x80 (a
+/// message, not a link control one) and never with `:`.
+fn other_protocol(port: Protocol, first: &[u8]) -> Option<&'static str> {
+    match (port, first) {
+        (Protocol::Tcp, [b':', b'X' | b'x' | b'S' | b's', ..]) => Some("GridConnect"),
+        (Protocol::GridConnect, [0x80, ..]) => Some("OpenLCB-TCP"),
+        _ => None,
+    }
+}
+
 /// Reads a client's frames, encodes each again and relays them in one chunk per read. At
 /// the end of its input (a half-close) the client stays: it still receives.
 async fn read_client(
@@ -671,10 +682,15 @@ async fn read_client(
         let n = match n {
             Ok(0) => break None,
             Ok(n) => n,
-            Err(error) => break Some(error.to_string()),
+            Err(error) => break Some(departure(&error)),
         };
-        heard = true;
         let input = buf.get(..n).unwrap_or_default();
+        if !heard {
+            if let Some(other) = other_protocol(protocol, input) {
+                break Some(format!("speaks {other} on this port (closed, so that it learns at once)"));
+            }
+        }
+        heard = true;
         let (frames, errors) = match protocol {
             Protocol::GridConnect => {
                 relay_gridconnect(id, input, &mut gridconnect_decoder, &mut chunk, &state, &mut garbage)
@@ -778,6 +794,22 @@ fn relay_tcp(
     (frames, errors)
 }
 
+/// The reason of [`HubEvent::Disconnected`] for a client that closed its connection (seen as
+/// the end of its input, a broken pipe or a reset): it simply left.
+pub const CLOSED_BY_CLIENT: &str = "closed the connection";
+
+/// Why a client's socket failed, in words: a normal departure is [`CLOSED_BY_CLIENT`].
+fn departure(error: &std::io::Error) -> String {
+    use std::io::ErrorKind;
+    match error.kind() {
+        ErrorKind::BrokenPipe
+        | ErrorKind::ConnectionReset
+        | ErrorKind::ConnectionAborted
+        | ErrorKind::UnexpectedEof => CLOSED_BY_CLIENT.to_string(),
+        _ => error.to_string(),
+    }
+}
+
 /// Writes a client's queue, many chunks per `write` call.
 async fn write_client(
     id: ClientId,
@@ -798,7 +830,7 @@ async fn write_client(
         // count is already 0).
         let _ = queued.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |q| Some(q.saturating_sub(batch.len())));
         if let Err(error) = writer.write_all(&batch).await {
-            break Some(error.to_string());
+            break Some(departure(&error));
         }
         batch.clear();
         // Memory goes back when a burst is over.

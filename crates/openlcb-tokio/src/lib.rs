@@ -92,6 +92,7 @@ mod requests;
 #[cfg(feature = "serial")]
 pub mod serial;
 mod socket;
+mod trace;
 mod wire;
 
 pub use error::Error;

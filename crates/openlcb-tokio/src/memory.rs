@@ -11,6 +11,7 @@
 
 use bytes::Bytes;
 use openlcb_node::{MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, TransferPath};
+use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Instant, NodeId};
 use tokio::sync::{mpsc, oneshot, watch};
 
@@ -189,11 +190,15 @@ fn memory_error(peer: NodeId, error: MemoryError) -> Error {
 /// Words for a person, one per [`MemoryError`].
 pub(crate) fn memory_error_text(peer: NodeId, error: MemoryError) -> String {
     match error {
-        MemoryError::Rejected(code) => format!("node {peer} refused the command: {code} ({})", code.meaning()),
-        MemoryError::Failed(code) => format!("node {peer} failed the command: {code} ({})", code.meaning()),
+        MemoryError::Rejected(code) => {
+            format!("node {peer} refused the command: {code} ({})", memory_code_meaning(code))
+        }
+        MemoryError::Failed(code) => format!("node {peer} failed the command: {code} ({})", memory_code_meaning(code)),
         MemoryError::TimedOut => format!("node {peer} did not answer the Memory Configuration command in time"),
         MemoryError::StreamRejected(code) => format!("node {peer} refused the stream: {code} ({})", code.meaning()),
-        MemoryError::StreamEnded(code) => format!("the stream with node {peer} ended early: {code}"),
+        MemoryError::StreamEnded(code) => {
+            format!("the stream with node {peer} ended early: {code} ({})", memory_code_meaning(code))
+        }
         MemoryError::StreamTimedOut(_) => format!("the stream with node {peer} stalled"),
         MemoryError::WrongLength { expected, received } => {
             format!("node {peer} sent {received} bytes where {expected} were expected")
@@ -204,6 +209,20 @@ pub(crate) fn memory_error_text(peer: NodeId, error: MemoryError) -> String {
         MemoryError::NoStreams => format!("node {peer} does not support streams"),
         MemoryError::TooLong => format!("the space of node {peer} is larger than a read may take, or empty"),
         _ => format!("the Memory Configuration operation with node {peer} failed"),
+    }
+}
+
+/// What an error code means in a Memory Configuration or Firmware Upgrade reply: the
+/// detail codes of MC §4.3 and FWU, then the general codes of the Message Network standard.
+pub fn memory_code_meaning(code: ErrorCode) -> &'static str {
+    match code.0 {
+        0x1081 => "address space unknown",
+        0x1082 => "out of bounds: the space does not reach that address",
+        0x1083 => "write to a read-only space",
+        0x1088 => "firmware incompatible with this hardware",
+        0x1089 => "firmware invalid or corrupted",
+        0x2088 => "firmware failed its checksum; send it again",
+        _ => code.meaning(),
     }
 }
 

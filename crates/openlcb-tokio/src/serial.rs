@@ -20,11 +20,10 @@ pub const DEFAULT_BAUD: u32 = 115_200;
 pub type SerialPort = tokio_serial::SerialStream;
 
 /// Opens `device` (`/dev/ttyACM0`, `COM3`) at `baud` bits per second, 8 data bits, no parity,
-/// one stop bit, no flow control. A device that cannot be opened is [`Error::Connect`].
+/// one stop bit, no flow control. A device that cannot be opened is [`Error::Device`].
 pub fn open(device: &str, baud: u32) -> Result<SerialPort, Error> {
     use tokio_serial::SerialPortBuilderExt;
-    tokio_serial::new(device, baud)
-        .flow_control(tokio_serial::FlowControl::None)
-        .open_native_async()
-        .map_err(|error| Error::Connect { addr: device.to_string(), source: Arc::new(error.into()) })
+    tokio_serial::new(device, baud).flow_control(tokio_serial::FlowControl::None).open_native_async().map_err(|error| {
+        Error::Device { kind: "serial port", device: device.to_string(), source: Arc::new(error.into()) }
+    })
 }

@@ -101,6 +101,11 @@ pub(crate) enum Joining {
     Joined,
 }
 
+/// Logs a message going out if it is a step of Memory Configuration.
+fn log_sent(message: &Message) {
+    crate::trace::memory_step(true, message.mti, message.source, message.destination, &message.payload);
+}
+
 /// Messages handed to the CAN link at once; the rest wait in the driver's own queue (which
 /// the streams' credit bounds), so that nothing is ever refused for a full link queue.
 const CAN_LINK_QUEUE: usize = 16;
@@ -167,7 +172,10 @@ impl Wire {
                 decoder.decode_all(bytes, |decoded| match decoded {
                     Ok(frame) => {
                         stats.frames_in += 1;
-                        link.handle_frame(now, &frame, |msg| node.handle_message(now, msg));
+                        link.handle_frame(now, &frame, |msg| {
+                            crate::trace::memory_step(false, msg.mti, msg.source, msg.destination, msg.payload);
+                            node.handle_message(now, msg)
+                        });
                         // Renames must reach the node before the next frame (the rule of
                         // `CanLink::handle_frame`).
                         let applied = apply_link_events(now, link, joining, waiting, node);
@@ -185,6 +193,7 @@ impl Wire {
                     match decoded {
                         Ok(msg) => {
                             stats.frames_in += 1;
+                            crate::trace::memory_step(false, msg.mti, msg.source, msg.destination, msg.payload);
                             node.handle_message(now, msg);
                         }
                         Err(_) => stats.decode_errors += 1,
@@ -242,7 +251,7 @@ impl Wire {
     pub(crate) fn pump(&mut self, now: Instant, node: &mut Node, stats: &mut WireStats) {
         match self {
             Wire::GridConnect { link, waiting, out, taken, .. } => {
-                waiting.extend(std::iter::from_fn(|| node.poll_transmit()));
+                waiting.extend(std::iter::from_fn(|| node.poll_transmit()).inspect(log_sent));
                 while link.queued_messages() < CAN_LINK_QUEUE {
                     let Some(message) = waiting.pop_front() else { break };
                     // A refusal (no CAN form, link stopped) is counted in the link's stats.
@@ -267,7 +276,7 @@ impl Wire {
             Wire::Tcp { link } => {
                 let before = link.stats().messages_out;
                 // Encoding fails only for messages the core never builds.
-                let _ = link.send_from(now, || node.poll_transmit());
+                let _ = link.send_from(now, || node.poll_transmit().inspect(log_sent));
                 stats.frames_out += link.stats().messages_out - before;
             }
         }

@@ -19,10 +19,13 @@ use common::bounded;
 mod transfer;
 use transfer::moves;
 
-/// One controller on a [`MemoryBus`]: what it sends reaches every controller, itself included.
+/// One controller on a [`MemoryBus`]: what it sends reaches every controller, itself included
+/// unless it is made not to echo ([`MemoryBus::quiet_controller`]).
 struct Controller {
     bus: Arc<Mutex<Vec<mpsc::UnboundedSender<CanFrame>>>>,
     heard: mpsc::UnboundedReceiver<CanFrame>,
+    /// Its own place on the bus, skipped when it sends, if it does not echo.
+    quiet: Option<usize>,
 }
 
 /// A lossless in-memory CAN bus.
@@ -33,7 +36,14 @@ impl MemoryBus {
     fn controller(&self) -> Controller {
         let (tx, heard) = mpsc::unbounded_channel();
         self.0.lock().unwrap().push(tx);
-        Controller { bus: self.0.clone(), heard }
+        Controller { bus: self.0.clone(), heard, quiet: None }
+    }
+
+    /// A controller that never hears its own frames (SocketCAN as `open_socketcan` opens it).
+    fn quiet_controller(&self) -> Controller {
+        let controller = self.controller();
+        let place = self.0.lock().unwrap().len() - 1;
+        Controller { quiet: Some(place), ..controller }
     }
 }
 
@@ -43,10 +53,16 @@ impl FrameBus for Controller {
     }
 
     fn poll_send(&mut self, _cx: &mut Context<'_>, frame: &CanFrame) -> Poll<std::io::Result<()>> {
-        for controller in self.bus.lock().unwrap().iter() {
-            let _ = controller.send(*frame);
+        for (place, controller) in self.bus.lock().unwrap().iter().enumerate() {
+            if self.quiet != Some(place) {
+                let _ = controller.send(*frame);
+            }
         }
         Poll::Ready(Ok(()))
+    }
+
+    fn may_echo(&self) -> bool {
+        self.quiet.is_none()
     }
 }
 
@@ -100,6 +116,21 @@ async fn a_hub_attached_to_the_bus_relays_between_a_bus_node_and_a_tcp_node() {
     moves(&on_tcp, &mut on_bus, &payload, 2048).await;
 }
 
+/// The next `lines` lines of GridConnect text `stream` reads.
+async fn read_lines(stream: &mut FrameStream<Controller>, lines: usize) -> String {
+    let mut text = Vec::new();
+    bounded("reading", async {
+        let mut buf = [0u8; 64];
+        while text.iter().filter(|&&b| b == b'\n').count() < lines {
+            let n = stream.read(&mut buf).await.unwrap();
+            assert!(n > 0, "the bus ended");
+            text.extend_from_slice(&buf[..n]);
+        }
+    })
+    .await;
+    String::from_utf8(text).unwrap()
+}
+
 #[tokio::test]
 async fn an_echo_is_dropped_once_and_other_frames_are_read() {
     let bus = MemoryBus::default();
@@ -114,16 +145,26 @@ async fn an_echo_is_dropped_once_and_other_frames_are_read() {
         theirs.flush().await.unwrap();
     })
     .await;
-    let mut text = Vec::new();
-    bounded("reading", async {
-        let mut buf = [0u8; 64];
-        while text.iter().filter(|&&b| b == b'\n').count() < 2 {
-            let n = mine.read(&mut buf).await.unwrap();
-            assert!(n > 0, "the bus ended");
-            text.extend_from_slice(&buf[..n]);
-        }
+    assert_eq!(read_lines(&mut mine, 2).await, ":X19170456N0501010122F0;\n:X19490123N;\n");
+    assert_eq!(echoes.load(Ordering::Relaxed), 1);
+}
+
+/// A node that left the bus side of a hub and came back on the bus itself sends the very
+/// frames the hub once put on the bus for it (same alias, same data): a controller that never
+/// echoes must hear them all, not take them for echoes of its own.
+#[tokio::test]
+async fn a_controller_that_never_echoes_hears_frames_equal_to_its_own() {
+    let bus = MemoryBus::default();
+    let mut mine = FrameStream::new(bus.quiet_controller());
+    let mut theirs = FrameStream::new(bus.controller());
+    let frames = ":X19490123N;\n:X1A456123N0102030405060708;\n";
+    bounded("writing", async {
+        mine.write_all(frames.as_bytes()).await.unwrap();
+        mine.flush().await.unwrap();
+        theirs.write_all(frames.as_bytes()).await.unwrap();
+        theirs.flush().await.unwrap();
     })
     .await;
-    assert_eq!(String::from_utf8(text).unwrap(), ":X19170456N0501010122F0;\n:X19490123N;\n");
-    assert_eq!(echoes.load(Ordering::Relaxed), 1);
+    assert_eq!(read_lines(&mut mine, 2).await, frames);
+    assert_eq!(mine.echoes().load(Ordering::Relaxed), 0);
 }

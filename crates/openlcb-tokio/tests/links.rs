@@ -75,10 +75,12 @@ async fn a_node_on_a_serial_port_sends_a_mebibyte_to_a_tcp_node_through_the_hub(
 }
 
 #[tokio::test]
-async fn a_serial_port_that_cannot_be_opened_is_a_connect_error() {
+async fn a_serial_port_that_cannot_be_opened_is_a_device_error_naming_it() {
     match serial::open("/nonexistent/tty-of-no-adapter", serial::DEFAULT_BAUD) {
-        Err(Error::Connect { addr, .. }) => assert_eq!(addr, "/nonexistent/tty-of-no-adapter"),
-        other => panic!("expected a connect error, got {:?}", other.map(|_| "a port")),
+        Err(error @ Error::Device { .. }) => {
+            assert_eq!(error.to_string(), "cannot open the serial port /nonexistent/tty-of-no-adapter: no such device")
+        }
+        other => panic!("expected a device error, got {:?}", other.map(|_| "a port")),
     }
 }
 

@@ -122,6 +122,7 @@ impl ReplyCode {
             0x1010 => "streams not supported",
             0x1020 => "source not permitted",
             0x1040 => "unimplemented (unknown content UID)",
+            0x1043 => "this node takes no streams (unknown MTI or transport)",
             0x1080 => "invalid request",
             0x2020 => "buffer unavailable (destination busy)",
             0x2040 => "out of order",

@@ -1,0 +1,247 @@
+//! One vocabulary of results for every command: each [`Outcome`] has an exit status, the word
+//! `--json` prints as `result`, and a line of help. A command lists the outcomes it can end
+//! with ([`exit_help`]) and turns what stopped it ([`Failure`]) into one of them, with a
+//! message for a person that says what went wrong and, where it helps, what to do.
+//!
+//! A new command: take its `--json` report's `result` and `error` fields from
+//! [`Failure::outcome`] and [`Failure`]'s `Display`, and give its `after_help`
+//! `net::network_help(&[...])` (a command that joins the network: the outcomes every such
+//! command has, and its own) or `exit_help(&[...])`.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use openlcb_tokio::Error;
+use openlcb_tokio::openlcb_node::MemoryError;
+
+/// How a command ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Outcome {
+    Ok,
+    Error,
+    Usage,
+    UnreachableHub,
+    Rejected,
+    TimedOut,
+    NotFound,
+    ConnectionLost,
+    Terminated,
+    FileError,
+    VerifyFailed,
+    DuplicateNodeId,
+    Interrupted,
+}
+
+impl Outcome {
+    /// Every outcome, in the order of their exit statuses.
+    pub(crate) const ALL: [Outcome; 13] = [
+        Outcome::Ok,
+        Outcome::Error,
+        Outcome::Usage,
+        Outcome::UnreachableHub,
+        Outcome::Rejected,
+        Outcome::TimedOut,
+        Outcome::NotFound,
+        Outcome::ConnectionLost,
+        Outcome::Terminated,
+        Outcome::FileError,
+        Outcome::VerifyFailed,
+        Outcome::DuplicateNodeId,
+        Outcome::Interrupted,
+    ];
+
+    /// The process's exit status.
+    pub(crate) const fn status(self) -> u8 {
+        match self {
+            Outcome::Ok => 0,
+            Outcome::Error => 1,
+            Outcome::Usage => 2,
+            Outcome::UnreachableHub => 3,
+            Outcome::Rejected => 4,
+            Outcome::TimedOut | Outcome::NotFound => 5,
+            Outcome::ConnectionLost => 6,
+            Outcome::Terminated => 7,
+            Outcome::FileError => 8,
+            Outcome::VerifyFailed => 9,
+            Outcome::DuplicateNodeId => 10,
+            Outcome::Interrupted => 130,
+        }
+    }
+
+    /// The `result` of `--json`.
+    pub(crate) const fn word(self) -> &'static str {
+        match self {
+            Outcome::Ok => "ok",
+            Outcome::Error => "error",
+            Outcome::Usage => "usage",
+            Outcome::UnreachableHub => "unreachable_hub",
+            Outcome::Rejected => "rejected",
+            Outcome::TimedOut => "timed_out",
+            Outcome::NotFound => "not_found",
+            Outcome::ConnectionLost => "connection_lost",
+            Outcome::Terminated => "terminated",
+            Outcome::FileError => "file_error",
+            Outcome::VerifyFailed => "verify_failed",
+            Outcome::DuplicateNodeId => "duplicate_node_id",
+            Outcome::Interrupted => "interrupted",
+        }
+    }
+
+    const fn meaning(self) -> &'static str {
+        match self {
+            Outcome::Ok => "success",
+            Outcome::Error => "another failure",
+            Outcome::Usage => "bad arguments, or a listener that cannot be opened",
+            Outcome::UnreachableHub => {
+                "the hub, serial port or CAN interface cannot be reached, or it speaks another protocol"
+            }
+            Outcome::Rejected => "the other node refused",
+            Outcome::TimedOut => "the other node stopped answering",
+            Outcome::NotFound => "no node with that Node ID answered",
+            Outcome::ConnectionLost => "the connection to the hub was lost",
+            Outcome::Terminated => "the transfer ended early or incomplete",
+            Outcome::FileError => "a file cannot be read or written (named in the message)",
+            Outcome::VerifyFailed => "the data did not verify",
+            Outcome::DuplicateNodeId => "another node on the network has this Node ID (see --node-id)",
+            Outcome::Interrupted => "Ctrl-C, SIGTERM or SIGHUP (open streams are terminated, partial files kept)",
+        }
+    }
+}
+
+/// The help's list of `outcomes`: exit status, `--json` word, meaning.
+pub(crate) fn exit_help(outcomes: &[Outcome]) -> String {
+    let mut text = String::from("Exit status (and the `result` of --json):");
+    for outcome in outcomes {
+        text.push_str(&format!("\n  {:>3}  {:<18} {}", outcome.status(), outcome.word(), outcome.meaning()));
+    }
+    text
+}
+
+/// Why a command stopped.
+#[derive(Debug)]
+pub(crate) enum Failure {
+    /// The network, the hub or the other node.
+    Net(Error),
+    /// A file (named) cannot be read or written.
+    File { path: PathBuf, error: std::io::Error },
+    /// The hub's address answered with bytes of the other protocol.
+    WrongProtocol(String),
+    /// SIGINT, SIGTERM or SIGHUP.
+    Interrupted,
+}
+
+impl Failure {
+    /// A file error about `path`.
+    pub(crate) fn file(path: &Path, error: std::io::Error) -> Self {
+        Failure::File { path: path.to_path_buf(), error }
+    }
+
+    pub(crate) fn outcome(&self) -> Outcome {
+        match self {
+            Failure::Net(error) => net_outcome(error),
+            Failure::File { .. } => Outcome::FileError,
+            Failure::WrongProtocol(_) => Outcome::UnreachableHub,
+            Failure::Interrupted => Outcome::Interrupted,
+        }
+    }
+}
+
+impl From<Error> for Failure {
+    fn from(error: Error) -> Self {
+        Failure::Net(error)
+    }
+}
+
+impl fmt::Display for Failure {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Failure::Net(error) => {
+                write!(f, "{error}")?;
+                match hint(error) {
+                    Some(hint) => write!(f, "; {hint}"),
+                    None => Ok(()),
+                }
+            }
+            Failure::File { path, error } => write!(f, "{}: {}", path.display(), crate::files::reason(error)),
+            Failure::WrongProtocol(text) => write!(f, "{text}"),
+            Failure::Interrupted => write!(f, "interrupted"),
+        }
+    }
+}
+
+/// The outcome of a failure of the network or of the other node.
+pub(crate) fn net_outcome(error: &Error) -> Outcome {
+    match error {
+        Error::Bind { .. } => Outcome::Usage,
+        Error::DuplicateNodeId { .. } => Outcome::DuplicateNodeId,
+        Error::Connect { .. } | Error::Device { .. } | Error::Login(_) => Outcome::UnreachableHub,
+        Error::Rejected { .. } => Outcome::Rejected,
+        Error::Unreachable(_) => Outcome::NotFound,
+        Error::TimedOut { .. } | Error::NoAnswer { .. } => Outcome::TimedOut,
+        Error::ConnectionLost(_) | Error::WriteStalled(_) | Error::Protocol(_) | Error::Closed => {
+            Outcome::ConnectionLost
+        }
+        Error::Terminated { .. } | Error::CountMismatch { .. } => Outcome::Terminated,
+        Error::Memory { error, .. } => match error {
+            MemoryError::Rejected(_) | MemoryError::Failed(_) | MemoryError::StreamRejected(_) => Outcome::Rejected,
+            MemoryError::NoStreams => Outcome::Rejected,
+            MemoryError::TimedOut | MemoryError::StreamTimedOut(_) | MemoryError::PeerLost => Outcome::TimedOut,
+            MemoryError::StreamEnded(_) | MemoryError::WrongLength { .. } | MemoryError::PeerRestarted => {
+                Outcome::Terminated
+            }
+            _ => Outcome::Error,
+        },
+        _ => Outcome::Error,
+    }
+}
+
+/// What to do about `error`, where the tool knows.
+fn hint(error: &Error) -> Option<String> {
+    let code = match error {
+        Error::DuplicateNodeId { .. } => return Some("give this command another with --node-id NODE_ID".into()),
+        Error::Unreachable(peer) => {
+            return Some(format!("`lcc-stream nodes` lists the nodes that answer (is {peer} powered and connected?)"));
+        }
+        Error::Memory { error: MemoryError::Rejected(code) | MemoryError::Failed(code), .. } => code.0,
+        Error::Memory { error: MemoryError::NoStreams, .. } => return Some("try --no-stream (datagrams)".into()),
+        Error::Rejected { code, .. } if code.0 & 0x1000 != 0 => return Some("the node takes no such stream".into()),
+        _ => return None,
+    };
+    match code {
+        0x1081 => {
+            Some("the node has no such address space; its CDI (read --space 0xFF) names the spaces it has".into())
+        }
+        0x1082 => Some("the address or length lies outside the space; try a smaller --length or --address".into()),
+        0x1083 => Some("the space is read-only on this node".into()),
+        0x1041 => Some("the node does not implement this command".into()),
+        0x2000..=0x2FFF => Some("a temporary error: trying again later may succeed".into()),
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_outcome_has_its_own_word() {
+        let mut words: Vec<_> = Outcome::ALL.iter().map(|o| o.word()).collect();
+        words.sort_unstable();
+        words.dedup();
+        assert_eq!(words.len(), Outcome::ALL.len());
+    }
+
+    #[test]
+    fn the_help_lists_only_the_outcomes_asked_for() {
+        let help = exit_help(&[Outcome::Ok, Outcome::FileError]);
+        assert!(help.contains("  0  ok") && help.contains("  8  file_error"), "{help}");
+        assert!(!help.contains("interrupted"), "{help}");
+    }
+
+    #[test]
+    fn a_peer_that_is_not_there_is_not_found_everywhere() {
+        let peer = "05.01.01.01.22.99".parse().unwrap();
+        assert_eq!(net_outcome(&Error::Unreachable(peer)), Outcome::NotFound);
+        assert_eq!(net_outcome(&Error::NoAnswer { peer, what: "PIP" }), Outcome::TimedOut);
+    }
+}
