@@ -66,6 +66,7 @@ async fn cdi(args: &CdiArgs) -> Result<ExitCode, String> {
         let xml = read_cdi(&node, args.from, &args.client, &mut interrupt, &mut moved).await;
         node.close().await;
         let xml = xml?;
+        moved.bytes = xml.len() as u64;
         match &args.out {
             Some(out) => memory::save_new(out, &xml).await?,
             None if !args.client.json => {
