@@ -296,13 +296,24 @@ impl MemoryClient {
             }
             (Some(None), false) => self.send(cx, index, Step::SpaceInfo, &Command::GetSpaceInfo { space }),
             (Some(Some(_)), false) => self.next_chunk(cx, index, 0),
-            (_, true) => {
-                let sid = self.free_stream_id(cx, peer, Role::Source)?;
-                let step = Step::WriteStream { sid, handle: None, sent: 0, finished: false, replied: false };
-                self.send(cx, index, step, &Command::WriteStream { space, address, source_stream: sid.as_raw() })
+            // A stream cannot say that its end fell outside the space (the Write Stream Reply
+            // comes first): the space's size is asked for, and a write that does not fit is
+            // refused before a byte goes out.
+            (_, true) if matches!(op.kind, Kind::Write { .. }) => {
+                self.send(cx, index, Step::SpaceInfo, &Command::GetSpaceInfo { space })
             }
+            (_, true) => self.write_stream(cx, index),
             (_, false) => self.next_chunk(cx, index, 0),
         }
+    }
+
+    /// Sends Write Stream; the stream opens after its Datagram OK.
+    fn write_stream(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
+        let op = self.operations.get(index)?;
+        let (peer, space, address) = (op.peer, op.space, op.address);
+        let sid = self.free_stream_id(cx, peer, Role::Source)?;
+        let step = Step::WriteStream { sid, handle: None, sent: 0, finished: false, replied: false };
+        self.send(cx, index, step, &Command::WriteStream { space, address, source_stream: sid.as_raw() })
     }
 
     /// A stream ID not in use with `peer` in `role` on this node's endpoint, rotating.
@@ -443,6 +454,11 @@ impl MemoryClient {
                 op.deadline = Some(cx.now + reply_timeout);
                 None
             }
+            // A node without Get Address Space Information: the stream write goes ahead, and
+            // a space error ends it with TDE.
+            (Step::SpaceInfo, Err(DatagramFailure::Rejected(_))) if matches!(op.kind, Kind::Write { .. }) => {
+                self.write_stream(cx, index)
+            }
             (_, Err(DatagramFailure::TimedOut)) => self.retry(cx, index),
             (_, Err(DatagramFailure::Rejected(code))) => Some(Outcome::Fail(MemoryError::Rejected(code))),
             (_, Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Fail(MemoryError::PeerRestarted)),
@@ -503,6 +519,14 @@ impl MemoryClient {
                     return Some(Outcome::Fail(MemoryError::Failed(codes::UNKNOWN_SPACE)));
                 };
                 let len = highest.checked_sub(op.address).and_then(|n| n.checked_add(1));
+                if let Kind::Write { data } = &op.kind {
+                    let fits = len.is_some_and(|room| data.len() as u64 <= u64::from(room));
+                    return if fits {
+                        self.write_stream(cx, index)
+                    } else {
+                        Some(Outcome::Fail(MemoryError::Failed(codes::OUT_OF_BOUNDS)))
+                    };
+                }
                 match (len, &mut op.kind) {
                     (Some(len), Kind::Read { len: want, .. }) if len <= max_read => {
                         *want = Some(len);

@@ -658,7 +658,14 @@ impl MemoryServer {
             if n == 0 {
                 break;
             }
-            if let Err(e) = self.write_space(space, at, buf.get(..n).unwrap_or_default()) {
+            // Every byte the space can hold is stored; what lies past its end ends the stream.
+            let room = self.space_len(space).map_or(0, |len| len.saturating_sub(at));
+            let fits = n.min(usize::try_from(room).unwrap_or(usize::MAX));
+            let stored = match buf.get(..fits).filter(|b| !b.is_empty()) {
+                Some(part) => self.write_space(space, at, part),
+                None => Ok(()),
+            };
+            if let Err(e) = stored.and_then(|()| if fits < n { Err(SpaceError::OutOfBounds) } else { Ok(()) }) {
                 let _ = cx.streams.abort(cx.now, handle, e.code());
                 return self.end(index, false);
             }

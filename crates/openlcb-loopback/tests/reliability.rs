@@ -1,0 +1,88 @@
+//! Memory Configuration clients and servers on the harness when a transfer cannot do what
+//! was asked: the client is told, and no space holds what nobody completed.
+
+use openlcb_loopback::{Network, NodeIndex, NodeOptions};
+use openlcb_node::{MemoryError, MemoryEvent, MemoryServer, NodeEvent, RamSpace, TransferPath};
+use openlcb_stream::{Duration, Instant, NodeId};
+
+const KIB64: u32 = 64 * 1024;
+
+fn node(n: u64) -> NodeId {
+    NodeId::new(0x0501_0101_4000 + n).unwrap()
+}
+
+fn pattern(len: u32, key: u32) -> Vec<u8> {
+    (0..len).map(|i| (i.wrapping_mul(2_654_435_761).wrapping_add(key) >> 13) as u8).collect()
+}
+
+/// A 64 KiB configuration space (a pattern) and a 128 KiB firmware target.
+fn server() -> MemoryServer {
+    MemoryServer::new()
+        .with_space(0xFD, RamSpace::from_bytes(pattern(KIB64, 1)))
+        .with_space(0xEF, RamSpace::new(128 * 1024))
+}
+
+/// `clients` client nodes (numbered 1..) and one server (node 100) on a 125 kbit/s bus,
+/// logged in.
+fn bus(clients: u64) -> (Network, Vec<NodeIndex>, NodeIndex) {
+    let mut net = Network::new(7);
+    let bus = net.add_bus(125_000, 16);
+    let clients = (1..=clients).map(|n| net.add_can_node(node(n), bus, NodeOptions::default())).collect();
+    let options = NodeOptions { memory_server: Some(server), ..NodeOptions::default() };
+    let server = net.add_can_node(node(100), bus, options);
+    net.run_until(Instant::from_millis(1_000), 1_000_000).unwrap();
+    (net, clients, server)
+}
+
+/// Runs until every one of `clients` raised the end of its operation (at most ten minutes
+/// of virtual time); the events in the order of `clients`.
+fn finish_all(net: &mut Network, clients: &[NodeIndex]) -> Vec<MemoryEvent> {
+    let mut ends: Vec<Option<MemoryEvent>> = vec![None; clients.len()];
+    let end = net.now() + Duration::from_secs(600);
+    while net.now() < end && ends.iter().any(Option::is_none) {
+        let step = net.now() + Duration::from_millis(250);
+        net.run_until(step, 100_000_000).unwrap();
+        for (slot, client) in ends.iter_mut().zip(clients) {
+            for event in net.take_events(*client) {
+                if let NodeEvent::Memory(
+                    e @ (MemoryEvent::ReadDone { .. } | MemoryEvent::WriteDone { .. } | MemoryEvent::Failed { .. }),
+                ) = event
+                {
+                    slot.get_or_insert(e);
+                }
+            }
+        }
+    }
+    ends.into_iter().map(|e| e.expect("an operation never ended: a hang")).collect()
+}
+
+fn space(net: &mut Network, server: NodeIndex, number: u8) -> Vec<u8> {
+    let s = net.node(server).unwrap().memory_server_mut().unwrap().space_mut(number).unwrap();
+    let mut buf = vec![0; s.len() as usize];
+    let n = s.read(0, &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+#[test]
+fn a_stream_write_that_does_not_fit_is_refused_before_a_byte_is_sent() {
+    for path in [TransferPath::Stream, TransferPath::Auto] {
+        let (mut net, clients, server) = bus(1);
+        let before = space(&mut net, server, 0xFD);
+        let now = net.now();
+        net.node(clients[0]).unwrap().write_memory(now, node(100), 0xFD, 65_000, pattern(1_000, 9), path).unwrap();
+        let end = finish_all(&mut net, &clients);
+        assert!(
+            matches!(end[0], MemoryEvent::Failed { error: MemoryError::Failed(code), .. } if code.0 == 0x1082),
+            "{path:?}: {end:?}"
+        );
+        assert!(space(&mut net, server, 0xFD) == before, "{path:?}: nothing written");
+        // What fits is written, to the last byte of the space.
+        let now = net.now();
+        let tail = pattern(536, 10);
+        net.node(clients[0]).unwrap().write_memory(now, node(100), 0xFD, 65_000, tail.clone(), path).unwrap();
+        let end = finish_all(&mut net, &clients);
+        assert!(matches!(end[0], MemoryEvent::WriteDone { len: 536, .. }), "{path:?}: {end:?}");
+        assert!(space(&mut net, server, 0xFD)[65_000..] == tail[..], "{path:?}: the tail stored");
+    }
+}
