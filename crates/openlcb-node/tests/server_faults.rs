@@ -2,7 +2,7 @@
 //! and what it answers when the peer's transfer goes wrong.
 
 use openlcb_node::memconfig::wire::Command;
-use openlcb_node::{MemoryServer, Node, NodeConfig, RamSpace};
+use openlcb_node::{MemoryEvent, MemoryServer, MemorySpace, Node, NodeConfig, NodeEvent, RamSpace, SpaceError};
 use openlcb_stream::{Instant, Message, Mti, NodeId};
 
 const PEER: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 1]);
@@ -22,10 +22,21 @@ fn server() -> Node {
     node
 }
 
-/// Hands `server` one message from `from`; returns what it sends back (its events drained).
+/// Hands `server` one message from `from`; returns what it sends back (its events dropped).
 fn deliver(server: &mut Node, from: NodeId, mti: Mti, payload: Vec<u8>) -> Vec<Message> {
+    deliver_seeing(server, from, mti, payload, &mut Vec::new())
+}
+
+/// [`deliver`], keeping the events the message raised in `events`.
+fn deliver_seeing(
+    server: &mut Node,
+    from: NodeId,
+    mti: Mti,
+    payload: Vec<u8>,
+    events: &mut Vec<NodeEvent>,
+) -> Vec<Message> {
     server.handle_message(Instant::ZERO, Message::addressed(mti, from, SERVER, payload).as_ref());
-    while server.poll_event().is_some() {}
+    events.extend(std::iter::from_fn(|| server.poll_event()));
     std::iter::from_fn(|| server.poll_transmit()).collect()
 }
 
@@ -64,4 +75,127 @@ fn a_stream_write_past_the_end_stores_every_byte_that_fits_then_ends_with_tde() 
     assert_eq!(stored[65_000..], data[..536], "the 536 bytes that fit are stored");
     let tde = answers.iter().find(|m| m.mti == Mti::TERMINATE_DUE_TO_ERROR).expect("TDE");
     assert_eq!(tde.payload[..2], [0x10, 0x82][..], "out of bounds: {tde:?}");
+}
+
+const OTHER: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 3]);
+
+fn command(server: &mut Node, from: NodeId, command: &Command) -> Vec<Message> {
+    deliver(server, from, Mti::DATAGRAM, command.to_bytes())
+}
+
+/// The first answer: `Ok(flags)` for Datagram Received OK, `Err(code)` for Rejected.
+fn answer(answers: &[Message]) -> Result<Vec<u8>, u16> {
+    let first = answers.iter().find(|m| matches!(m.mti, Mti::DATAGRAM_RECEIVED_OK | Mti::DATAGRAM_REJECTED));
+    match first {
+        Some(m) if m.mti == Mti::DATAGRAM_RECEIVED_OK => Ok(m.payload.clone()),
+        Some(m) => Err(u16::from_be_bytes([m.payload[0], m.payload[1]])),
+        None => panic!("no answer in {answers:?}"),
+    }
+}
+
+/// Unfreeze from `from`: its answer and the events it raised.
+fn unfreeze(server: &mut Node, from: NodeId) -> (Result<Vec<u8>, u16>, Vec<NodeEvent>) {
+    let mut events = Vec::new();
+    let bytes = Command::Unfreeze { space: 0xEF }.to_bytes();
+    let answers = deliver_seeing(server, from, Mti::DATAGRAM, bytes, &mut events);
+    (answer(&answers), events)
+}
+
+/// Streams `data` into the open Write Stream `did` (SID 0x42) and completes it.
+fn stream_image(server: &mut Node, from: NodeId, did: u8, data: &[u8]) {
+    for chunk in data.chunks(200) {
+        let mut payload = vec![did];
+        payload.extend_from_slice(chunk);
+        deliver(server, from, Mti::STREAM_DATA_SEND, payload);
+    }
+    let count = (data.len() as u32).to_be_bytes();
+    let complete = vec![0x42, did, 0, 0, count[0], count[1], count[2], count[3]];
+    deliver(server, from, Mti::STREAM_DATA_COMPLETE, complete);
+}
+
+#[test]
+fn a_firmware_stream_ended_by_tde_is_refused_at_unfreeze_and_a_retry_succeeds() {
+    let mut server = server();
+    assert!(answer(&command(&mut server, PEER, &Command::Freeze { space: 0xEF })).is_ok());
+    let did = open_write_stream(&mut server, PEER, 0xEF, 0);
+    let mut payload = vec![did];
+    payload.extend_from_slice(&pattern(1_000, 1));
+    deliver(&mut server, PEER, Mti::STREAM_DATA_SEND, payload);
+    // The loader gives up: TDE, then Unfreeze.
+    deliver(&mut server, PEER, Mti::TERMINATE_DUE_TO_ERROR, vec![0x10, 0x00]);
+    let (answered, events) = unfreeze(&mut server, PEER);
+    assert_eq!(answered, Err(0x1089), "an aborted image is refused");
+    assert!(events.iter().any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::UpgradeRefused { .. }))));
+    assert!(server.memory_server().unwrap().is_frozen(), "still frozen for a retry");
+    // The retry starts again at offset 0 and completes.
+    let image = pattern(3_000, 2);
+    let did = open_write_stream(&mut server, PEER, 0xEF, 0);
+    stream_image(&mut server, PEER, did, &image);
+    let (answered, events) = unfreeze(&mut server, PEER);
+    assert!(answered.is_ok(), "{answered:?}");
+    assert!(events.iter().any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::Unfrozen { image_len: 3_000, .. }))));
+    assert!(!server.memory_server().unwrap().is_frozen());
+    assert_eq!(space(&mut server, 0xEF)[..3_000], image[..]);
+}
+
+#[test]
+fn only_the_node_that_froze_may_write_the_firmware_space_or_unfreeze() {
+    let mut server = server();
+    assert!(answer(&command(&mut server, PEER, &Command::Freeze { space: 0xEF })).is_ok());
+    let write = |data: Vec<u8>| Command::Write { space: 0xEF, address: 0, data };
+    assert!(answer(&command(&mut server, PEER, &write(vec![1; 64]))).is_ok());
+    // A bystander: its Freeze, its writes by datagram and by stream, its Unfreeze.
+    assert_eq!(answer(&command(&mut server, OTHER, &Command::Freeze { space: 0xEF })), Err(0x1020));
+    assert_eq!(answer(&command(&mut server, OTHER, &write(vec![2; 64]))), Err(0x1020));
+    let stream = Command::WriteStream { space: 0xEF, address: 0, source_stream: 7 };
+    assert_eq!(answer(&command(&mut server, OTHER, &stream)), Err(0x1020));
+    assert_eq!(unfreeze(&mut server, OTHER).0, Err(0x1020));
+    assert!(server.memory_server().unwrap().is_frozen());
+    // The owner's image is what it wrote.
+    let (answered, events) = unfreeze(&mut server, PEER);
+    assert!(answered.is_ok());
+    let unfrozen = events.into_iter().find_map(|e| match e {
+        NodeEvent::Memory(MemoryEvent::Unfrozen { by, image_len }) => Some((by, image_len)),
+        _ => None,
+    });
+    assert_eq!(unfrozen, Some((PEER, 64)));
+    assert_eq!(space(&mut server, 0xEF)[..64], [1; 64]);
+}
+
+/// A firmware space that cannot store an image.
+struct BrokenFlash(RamSpace);
+
+impl MemorySpace for BrokenFlash {
+    fn len(&self) -> u32 {
+        self.0.len()
+    }
+    fn read_only(&self) -> bool {
+        false
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        self.0.read(address, buf)
+    }
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        self.0.write(address, data)
+    }
+    fn complete(&mut self, _len: u32) -> Result<(), SpaceError> {
+        Err(SpaceError::Failed(openlcb_stream::wire::ErrorCode(0x2088)))
+    }
+}
+
+#[test]
+fn an_image_the_space_cannot_store_refuses_the_unfreeze_with_its_code() {
+    let memory = MemoryServer::new().with_space(0xEF, BrokenFlash(RamSpace::new(4096)));
+    let mut server = Node::new(SERVER, NodeConfig::default()).with_memory_server(memory);
+    let _ = std::iter::from_fn(|| server.poll_transmit()).count();
+    assert!(answer(&command(&mut server, PEER, &Command::Freeze { space: 0xEF })).is_ok());
+    let write = Command::Write { space: 0xEF, address: 0, data: vec![9; 64] };
+    assert!(answer(&command(&mut server, PEER, &write)).is_ok());
+    let (answered, events) = unfreeze(&mut server, PEER);
+    assert_eq!(answered, Err(0x2088));
+    assert!(server.memory_server().unwrap().is_frozen());
+    let refused = events.iter().any(
+        |e| matches!(e, NodeEvent::Memory(MemoryEvent::UpgradeRefused { by, code }) if *by == PEER && code.0 == 0x2088),
+    );
+    assert!(refused, "the application is told");
 }

@@ -168,6 +168,15 @@ pub enum MemoryEvent {
         /// One past the highest firmware byte written while frozen.
         image_len: u32,
     },
+    /// Server: the Unfreeze of `by` was refused with `code` and the node stays frozen: the
+    /// transfer into space 0xEF was aborted (0x1089), or the space could not store the image
+    /// (its [`MemorySpace::complete`] failed). A retry starts again at offset 0.
+    UpgradeRefused {
+        /// Who asked.
+        by: NodeId,
+        /// The code of the Datagram Rejected sent.
+        code: ErrorCode,
+    },
     /// Server: Update Complete (the configuration tool is done; the node may apply it).
     UpdateComplete {
         /// Who said so.

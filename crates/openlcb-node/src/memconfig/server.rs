@@ -61,7 +61,13 @@ pub struct MemoryServer {
     unique_ids: Vec<[u8; 8]>,
     lock: u64,
     frozen: bool,
+    /// The node whose Freeze started this upgrade: only it may write space 0xEF or
+    /// unfreeze (`None` once it restarted or left: the next Freeze takes over).
+    firmware_owner: Option<NodeId>,
     firmware_written: u32,
+    /// A transfer into space 0xEF failed since the last write at offset 0: Unfreeze is
+    /// refused and the node stays frozen, so that a retry can start again (FWU §5.4.3).
+    firmware_aborted: bool,
     /// Unfreeze came from this node while its Write Stream into space 0xEF was still open:
     /// the image ends, and the node unfreezes, when that stream ends.
     unfreeze_pending: Option<NodeId>,
@@ -99,7 +105,9 @@ impl MemoryServer {
             unique_ids: Vec::new(),
             lock: 0,
             frozen: false,
+            firmware_owner: None,
             firmware_written: 0,
+            firmware_aborted: false,
             unfreeze_pending: None,
             transfers: Vec::new(),
             user_info_changed: false,
@@ -232,11 +240,32 @@ impl MemoryServer {
             self.user_info_changed = true;
             return Ok(());
         }
-        self.space_mut(space).ok_or(SpaceError::OutOfBounds)?.write(address, data)?;
-        if space == SPACE_FIRMWARE {
-            self.firmware_written = self.firmware_written.max(end);
+        if space == SPACE_FIRMWARE && address == 0 && self.firmware_aborted {
+            self.restart_image();
         }
-        Ok(())
+        let written = self.space_mut(space).ok_or(SpaceError::OutOfBounds)?.write(address, data);
+        if space == SPACE_FIRMWARE {
+            match written {
+                Ok(()) => self.firmware_written = self.firmware_written.max(end),
+                Err(_) => self.firmware_aborted = true,
+            }
+        }
+        written
+    }
+
+    /// A new image begins: nothing written, nothing aborted, the space's bytes discarded.
+    fn restart_image(&mut self) {
+        self.firmware_written = 0;
+        self.firmware_aborted = false;
+        if let Some(space) = self.space_mut(SPACE_FIRMWARE) {
+            space.discard();
+        }
+    }
+
+    /// Space 0xEF while another node's upgrade holds it: refused (0x1020, source not
+    /// permitted), so that two loaders never mix their images.
+    fn firmware_refused(&self, peer: NodeId, space: u8) -> bool {
+        space == SPACE_FIRMWARE && self.frozen && self.firmware_owner.is_some_and(|owner| owner != peer)
     }
 
     /// The Options reply (node-protocols.md §3.7): stream bit 0x01 only with streams (C-5).
@@ -348,10 +377,14 @@ impl MemoryServer {
                 if space != SPACE_FIRMWARE || !self.has_firmware() {
                     return self.reject(cx, peer, codes::UNKNOWN_SPACE);
                 }
+                if self.firmware_refused(peer, space) {
+                    return self.reject(cx, peer, ErrorCode::SOURCE_NOT_PERMITTED);
+                }
                 // C-11: the OK, then Initialization Complete in the new state (FWU §5.2). A
                 // Freeze while frozen gets the same answer (FWU-TN §2.6.2).
                 self.frozen = true;
-                self.firmware_written = 0;
+                self.firmware_owner = Some(peer);
+                self.restart_image();
                 cx.ok(peer, OkFlags::default());
                 cx.announce = true;
                 cx.out.event(crate::NodeEvent::Memory(E::Frozen { by: peer }));
@@ -360,12 +393,18 @@ impl MemoryServer {
                 if space != SPACE_FIRMWARE || !self.has_firmware() {
                     return self.reject(cx, peer, codes::UNKNOWN_SPACE);
                 }
-                cx.ok(peer, OkFlags::default());
-                if self.frozen && self.firmware_stream_open(peer) {
+                if !self.frozen {
+                    return cx.ok(peer, OkFlags::default());
+                }
+                if self.firmware_refused(peer, space) {
+                    return self.reject(cx, peer, ErrorCode::SOURCE_NOT_PERMITTED);
+                }
+                if self.firmware_stream_open(peer) {
                     // On CAN the client's Unfreeze datagram may overtake the end of its own
-                    // stream: the bytes still coming belong to the image.
+                    // stream: the bytes still coming belong to the image, and the answer
+                    // waits for the stream's end.
                     self.unfreeze_pending = Some(peer);
-                } else if self.frozen {
+                } else {
                     self.unfreeze(cx, peer);
                 }
             }
@@ -399,6 +438,9 @@ impl MemoryServer {
         }
         if self.read_only(space) {
             return self.reject(cx, peer, codes::READ_ONLY);
+        }
+        if self.firmware_refused(peer, space) {
+            return self.reject(cx, peer, ErrorCode::SOURCE_NOT_PERMITTED);
         }
         let mut merged = [0u8; MAX_DATA_LEN];
         let result = match mask {
@@ -435,13 +477,16 @@ impl MemoryServer {
 
     /// The checks a stream command passes before its OK: space known, address inside,
     /// writable for a Write Stream, streams on, room for one more transfer.
-    fn check_stream(&self, cx: &Cx<'_>, space: u8, address: u32, write: bool) -> Result<(), ErrorCode> {
+    fn check_stream(&self, cx: &Cx<'_>, peer: NodeId, space: u8, address: u32, write: bool) -> Result<(), ErrorCode> {
         if !cx.streams_enabled {
             return Err(codes::UNKNOWN_COMMAND);
         }
         let len = self.space_len(space).ok_or(codes::UNKNOWN_SPACE)?;
         if write && self.read_only(space) {
             return Err(codes::READ_ONLY);
+        }
+        if write && self.firmware_refused(peer, space) {
+            return Err(ErrorCode::SOURCE_NOT_PERMITTED);
         }
         if address >= len {
             return Err(codes::OUT_OF_BOUNDS);
@@ -455,7 +500,7 @@ impl MemoryServer {
     /// Read Stream in the order of C-4: Datagram OK (Reply Pending) at once, the Initiate
     /// Request proposing the command's DID, the Reply once the stream is open, then data.
     fn read_stream(&mut self, cx: &mut Cx<'_>, peer: NodeId, space: u8, address: u32, did: u8, count: u32) {
-        if let Err(code) = self.check_stream(cx, space, address, false) {
+        if let Err(code) = self.check_stream(cx, peer, space, address, false) {
             return self.reject(cx, peer, code);
         }
         let Some(did_id) = StreamId::new(did) else { return self.reject(cx, peer, codes::INVALID_ARGUMENTS) };
@@ -489,7 +534,7 @@ impl MemoryServer {
     /// Stream Reply naming the SID and the DID this node will assign, before the stream;
     /// later errors end the stream with TDE.
     fn write_stream(&mut self, cx: &mut Cx<'_>, peer: NodeId, space: u8, address: u32, sid: u8) {
-        if let Err(code) = self.check_stream(cx, space, address, true) {
+        if let Err(code) = self.check_stream(cx, peer, space, address, true) {
             return self.reject(cx, peer, code);
         }
         if StreamId::new(sid).is_none() {
@@ -534,11 +579,27 @@ impl MemoryServer {
             .any(|t| t.peer == peer && matches!(t.job, Job::Write { handle: Some(_), space: SPACE_FIRMWARE, .. }))
     }
 
-    /// Leaves the Firmware Upgrade state: the image is what was written while frozen.
+    /// Answers the owner's Unfreeze. The image is what was written while frozen, once the
+    /// space has stored it ([`MemorySpace::complete`]): then the OK, and the node leaves the
+    /// Firmware Upgrade state. An aborted transfer (0x1089) or an image the space could not
+    /// store is refused, and the node stays frozen for a retry, as OpenMRN's bootloader
+    /// refuses an Unfreeze whose flash did not complete.
     fn unfreeze(&mut self, cx: &mut Cx<'_>, by: NodeId) {
-        self.frozen = false;
-        cx.announce = true;
         let image_len = self.firmware_written;
+        let aborted = self.firmware_aborted;
+        let stored = match self.space_mut(SPACE_FIRMWARE) {
+            _ if aborted => Err(codes::FIRMWARE_CORRUPTED),
+            Some(space) => space.complete(image_len).map_err(|e| e.code()),
+            None => Err(codes::UNKNOWN_SPACE),
+        };
+        if let Err(code) = stored {
+            self.reject(cx, by, code);
+            return cx.out.event(crate::NodeEvent::Memory(E::UpgradeRefused { by, code }));
+        }
+        cx.ok(by, OkFlags::default());
+        self.frozen = false;
+        self.firmware_owner = None;
+        cx.announce = true;
         cx.out.event(crate::NodeEvent::Memory(E::Unfrozen { by, image_len }));
     }
 
@@ -598,11 +659,15 @@ impl MemoryServer {
 
     fn end(&mut self, index: usize, done: bool) {
         if index < self.transfers.len() {
-            self.transfers.swap_remove(index);
+            let transfer = self.transfers.swap_remove(index);
             if done {
                 self.stats.streams_done += 1;
             } else {
                 self.stats.streams_failed += 1;
+                // FWU §5.4.3: a stream into the image that ends early aborts the upgrade.
+                if matches!(transfer.job, Job::Write { space: SPACE_FIRMWARE, .. }) {
+                    self.firmware_aborted = true;
+                }
             }
         }
     }
@@ -665,7 +730,7 @@ impl MemoryServer {
                 Some(part) => self.write_space(space, at, part),
                 None => Ok(()),
             };
-            if let Err(e) = stored.and_then(|()| if fits < n { Err(SpaceError::OutOfBounds) } else { Ok(()) }) {
+            if let Err(e) = stored.and(if fits < n { Err(SpaceError::OutOfBounds) } else { Ok(()) }) {
                 let _ = cx.streams.abort(cx.now, handle, e.code());
                 return self.end(index, false);
             }
@@ -707,12 +772,19 @@ impl MemoryServer {
     pub(crate) fn forget_peer(&mut self, peer: Option<NodeId>) {
         self.transfers
             .retain(|t| !(peer.is_none_or(|p| p == t.peer) && matches!(t.job, Job::Write { handle: None, .. })));
+        // An upgrade whose owner is gone may be taken over by the next Freeze.
+        if self.firmware_owner.is_some_and(|owner| peer.is_none_or(|p| p == owner)) {
+            self.firmware_owner = None;
+        }
     }
 
     /// Moves what is open with `from` to `to` (the transport renamed the peer).
     pub(crate) fn rename_peer(&mut self, from: NodeId, to: NodeId) {
         for t in self.transfers.iter_mut().filter(|t| t.peer == from) {
             t.peer = to;
+        }
+        if self.firmware_owner == Some(from) {
+            self.firmware_owner = Some(to);
         }
     }
 }
