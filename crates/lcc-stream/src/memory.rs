@@ -149,7 +149,7 @@ fn status(error: &Error) -> u8 {
     match error {
         Error::Memory { error, .. } => match error {
             MemoryError::Rejected(_) | MemoryError::Failed(_) | MemoryError::StreamRejected(_) => 4,
-            MemoryError::NoStreams => 4,
+            MemoryError::NoStreams | MemoryError::Locked { .. } => 4,
             MemoryError::TimedOut | MemoryError::StreamTimedOut(_) => 5,
             MemoryError::PeerLost => 5,
             MemoryError::StreamEnded(_) | MemoryError::WrongLength { .. } | MemoryError::PeerRestarted => 7,

@@ -86,3 +86,62 @@ fn a_stream_write_that_does_not_fit_is_refused_before_a_byte_is_sent() {
         assert!(space(&mut net, server, 0xFD)[65_000..] == tail[..], "{path:?}: the tail stored");
     }
 }
+
+/// The one of `ends` that succeeded (the other must have failed), and its index.
+fn the_winner(ends: &[MemoryEvent]) -> usize {
+    let done: Vec<usize> = (0..ends.len()).filter(|i| matches!(ends[*i], MemoryEvent::WriteDone { .. })).collect();
+    assert_eq!(done.len(), 1, "exactly one succeeds: {ends:?}");
+    done[0]
+}
+
+#[test]
+fn two_writers_at_once_never_mix_their_data() {
+    for path in [TransferPath::Datagrams, TransferPath::Stream] {
+        let (mut net, clients, server) = bus(2);
+        let images = [pattern(4_096, 21), pattern(4_096, 22)];
+        let now = net.now();
+        for (client, image) in clients.iter().zip(&images) {
+            net.node(*client).unwrap().write_memory(now, node(100), 0xFD, 0, image.clone(), path).unwrap();
+        }
+        let ends = finish_all(&mut net, &clients);
+        let winner = the_winner(&ends);
+        let loser = &ends[1 - winner];
+        assert!(
+            matches!(loser, MemoryEvent::Failed { error: MemoryError::Locked { owner }, .. } if *owner == node(1 + winner as u64).as_raw()),
+            "{path:?}: {loser:?}"
+        );
+        assert!(space(&mut net, server, 0xFD)[..4_096] == images[winner][..], "{path:?}: the winner's data, whole");
+        // The lock was released: the other writes now.
+        let now = net.now();
+        let loser = clients[1 - winner];
+        net.node(loser).unwrap().write_memory(now, node(100), 0xFD, 0, images[1 - winner].clone(), path).unwrap();
+        let end = finish_all(&mut net, &[loser]);
+        assert!(matches!(end[0], MemoryEvent::WriteDone { .. }), "{path:?}: {end:?}");
+        assert!(space(&mut net, server, 0xFD)[..4_096] == images[1 - winner][..]);
+    }
+}
+
+#[test]
+fn two_firmware_loaders_at_once_one_fails_and_the_image_is_the_others() {
+    for path in [TransferPath::Datagrams, TransferPath::Auto] {
+        let (mut net, clients, server) = bus(2);
+        let images = [pattern(20_000, 31), pattern(30_000, 32)];
+        let now = net.now();
+        for (client, image) in clients.iter().zip(&images) {
+            net.node(*client).unwrap().upgrade_firmware(now, node(100), image.clone(), path).unwrap();
+        }
+        let ends = finish_all(&mut net, &clients);
+        let winner = the_winner(&ends);
+        assert!(
+            matches!(ends[1 - winner], MemoryEvent::Failed { error: MemoryError::Rejected(code), .. } if code.0 == 0x1020),
+            "{path:?}: {ends:?}"
+        );
+        let unfrozen = net.take_events(server).into_iter().find_map(|e| match e {
+            NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) => Some(image_len),
+            _ => None,
+        });
+        assert_eq!(unfrozen, Some(images[winner].len() as u32), "{path:?}");
+        let len = images[winner].len();
+        assert!(space(&mut net, server, 0xEF)[..len] == images[winner][..], "{path:?}: the winner's image");
+    }
+}

@@ -35,7 +35,19 @@ fn deliver_seeing(
     payload: Vec<u8>,
     events: &mut Vec<NodeEvent>,
 ) -> Vec<Message> {
-    server.handle_message(Instant::ZERO, Message::addressed(mti, from, SERVER, payload).as_ref());
+    deliver_at(server, Instant::ZERO, from, mti, payload, events)
+}
+
+/// [`deliver_seeing`] at `now`.
+fn deliver_at(
+    server: &mut Node,
+    now: Instant,
+    from: NodeId,
+    mti: Mti,
+    payload: Vec<u8>,
+    events: &mut Vec<NodeEvent>,
+) -> Vec<Message> {
+    server.handle_message(now, Message::addressed(mti, from, SERVER, payload).as_ref());
     events.extend(std::iter::from_fn(|| server.poll_event()));
     std::iter::from_fn(|| server.poll_transmit()).collect()
 }
@@ -198,4 +210,20 @@ fn an_image_the_space_cannot_store_refuses_the_unfreeze_with_its_code() {
         |e| matches!(e, NodeEvent::Memory(MemoryEvent::UpgradeRefused { by, code }) if *by == PEER && code.0 == 0x2088),
     );
     assert!(refused, "the application is told");
+}
+
+#[test]
+fn writes_of_others_are_refused_while_the_lock_is_held_until_it_lapses() {
+    let mut server = server();
+    let lock = Command::Lock { node: PEER.as_raw() };
+    assert!(answer(&command(&mut server, PEER, &lock)).is_ok());
+    let write = Command::Write { space: 0xFD, address: 0, data: vec![5; 8] };
+    assert_eq!(answer(&command(&mut server, OTHER, &write)), Err(0x2000), "locked: temporary");
+    let stream = Command::WriteStream { space: 0xFD, address: 0, source_stream: 7 };
+    assert_eq!(answer(&command(&mut server, OTHER, &stream)), Err(0x2000));
+    assert!(answer(&command(&mut server, PEER, &write)).is_ok(), "the owner writes");
+    // The owner goes silent: the lock lapses after `lock_timeout` (10 s).
+    let later = Instant::ZERO + openlcb_stream::Duration::from_secs(11);
+    let answers = deliver_at(&mut server, later, OTHER, Mti::DATAGRAM, write.to_bytes(), &mut Vec::new());
+    assert!(answer(&answers).is_ok(), "{answers:?}");
 }

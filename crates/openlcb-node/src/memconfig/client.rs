@@ -90,6 +90,9 @@ enum Step {
     Protocols,
     /// Firmware: Unfreeze sent; OK or a reboot ends the upgrade.
     Unfreeze,
+    /// Lock/Reserve sent before a write (MC §4.17), so that no other tool writes between
+    /// its commands; the write goes on by stream or not as `by_stream` says.
+    Lock { by_stream: bool },
 }
 
 #[derive(Debug)]
@@ -111,6 +114,10 @@ struct Operation {
     /// A Read Reply shorter than asked for, at (offset, length): trusted only once a second
     /// read says the same, since a CAN datagram that lost a middle frame looks just like one.
     short_reply: Option<(u32, usize)>,
+    /// Lock/Reserve was asked for (a write asks once).
+    lock_asked: bool,
+    /// This node holds the peer's lock: released when the operation ends.
+    locked: bool,
 }
 
 impl Operation {
@@ -251,6 +258,8 @@ impl MemoryClient {
             retries: 0,
             progress: 0,
             short_reply: None,
+            lock_asked: false,
+            locked: false,
         });
         let index = self.operations.len() - 1;
         let outcome = match path {
@@ -279,9 +288,16 @@ impl MemoryClient {
         }
     }
 
-    /// Starts moving bytes, by stream or by datagrams.
+    /// Starts moving bytes, by stream or by datagrams. A write of more than one command (or
+    /// a stream) takes the node's lock first.
     fn begin_transfer(&mut self, cx: &mut Cx<'_>, index: usize, by_stream: bool) -> Option<Outcome> {
-        let op = self.operations.get(index)?;
+        let node = cx.out.node.as_raw();
+        let op = self.operations.get_mut(index)?;
+        let long_write = matches!(&op.kind, Kind::Write { data } if by_stream || data.len() > MAX_DATA_LEN);
+        if long_write && !op.lock_asked {
+            op.lock_asked = true;
+            return self.send(cx, index, Step::Lock { by_stream }, &Command::Lock { node });
+        }
         let (peer, space, address) = (op.peer, op.space, op.address);
         let read_len = match &op.kind {
             Kind::Read { len, .. } => Some(*len),
@@ -376,6 +392,10 @@ impl MemoryClient {
         if let (Outcome::Fail(_), Some(handle)) = (&outcome, op.stream_handle()) {
             let _ = cx.streams.abort(cx.now, handle, ErrorCode::PERMANENT);
         }
+        if op.locked {
+            // Released once the last command is answered; its outcome needs nothing more.
+            let _ = cx.send_datagram(op.peer, &Command::Lock { node: 0 }.to_bytes());
+        }
         let event = match (outcome, op.kind) {
             (Outcome::Fail(error), _) => MemoryEvent::Failed { operation: op.id, peer: op.peer, error },
             (Outcome::Done, Kind::Read { data, .. }) => MemoryEvent::ReadDone { operation: op.id, peer: op.peer, data },
@@ -459,6 +479,8 @@ impl MemoryClient {
             (Step::SpaceInfo, Err(DatagramFailure::Rejected(_))) if matches!(op.kind, Kind::Write { .. }) => {
                 self.write_stream(cx, index)
             }
+            // A node without Lock/Reserve (OpenMRN answers 0x1041): written without it.
+            (Step::Lock { by_stream }, Err(DatagramFailure::Rejected(_))) => self.begin_transfer(cx, index, by_stream),
             (_, Err(DatagramFailure::TimedOut)) => self.retry(cx, index),
             (_, Err(DatagramFailure::Rejected(code))) => Some(Outcome::Fail(MemoryError::Rejected(code))),
             (_, Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Fail(MemoryError::PeerRestarted)),
@@ -493,6 +515,10 @@ impl MemoryClient {
             }
             Step::Chunk { at, .. } => self.next_chunk(cx, index, at),
             Step::Protocols => self.ask_protocols(cx, index),
+            Step::Lock { by_stream } => {
+                let node = cx.out.node.as_raw();
+                self.send(cx, index, Step::Lock { by_stream }, &Command::Lock { node })
+            }
             _ => Some(Outcome::Fail(MemoryError::TimedOut)),
         }
     }
@@ -507,8 +533,16 @@ impl MemoryClient {
 
     fn reply_outcome(&mut self, cx: &mut Cx<'_>, index: usize, reply: Reply) -> Option<Outcome> {
         let max_read = cx.options.max_read_len;
+        let node = cx.out.node.as_raw();
         let op = self.operations.get_mut(index)?;
         match (op.step, reply) {
+            // An owner of 0 answers no Lock of ours (a late reply to our own release).
+            (Step::Lock { .. }, Reply::Lock { owner: 0 }) => None,
+            (Step::Lock { by_stream }, Reply::Lock { owner }) if owner == node => {
+                op.locked = true;
+                self.begin_transfer(cx, index, by_stream)
+            }
+            (Step::Lock { .. }, Reply::Lock { owner }) => Some(Outcome::Fail(MemoryError::Locked { owner })),
             (Step::Options, Reply::Options(options)) => {
                 let by_stream = options.streams() && cx.streams_enabled;
                 self.begin_transfer(cx, index, by_stream)

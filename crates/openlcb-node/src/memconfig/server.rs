@@ -60,6 +60,9 @@ pub struct MemoryServer {
     acdi_user: Vec<u8>,
     unique_ids: Vec<[u8; 8]>,
     lock: u64,
+    /// The lock lapses at this time unless its owner sends another command (or stream data)
+    /// first: a client that died does not lock the node for good.
+    lock_deadline: Instant,
     frozen: bool,
     /// The node whose Freeze started this upgrade: only it may write space 0xEF or
     /// unfreeze (`None` once it restarted or left: the next Freeze takes over).
@@ -104,6 +107,7 @@ impl MemoryServer {
             acdi_user: Vec::new(),
             unique_ids: Vec::new(),
             lock: 0,
+            lock_deadline: Instant::ZERO,
             frozen: false,
             firmware_owner: None,
             firmware_written: 0,
@@ -161,6 +165,20 @@ impl MemoryServer {
     /// Who holds the lock (0: nobody).
     pub fn lock_owner(&self) -> u64 {
         self.lock
+    }
+
+    /// The lock is held by another node than `peer` (and has not lapsed): `peer`'s writes
+    /// are refused with 0x2000 (temporary: locked, MC-TN §2.4.4). MC §4.17 makes the lock
+    /// voluntary; refusing writes is what keeps two tools from mixing their data.
+    fn locked_out(&self, now: Instant, peer: NodeId) -> bool {
+        self.lock != 0 && self.lock != peer.as_raw() && now < self.lock_deadline
+    }
+
+    /// `peer` did something: a lock it holds lasts on.
+    fn touch_lock(&mut self, now: Instant, timeout: openlcb_stream::Duration, peer: NodeId) {
+        if self.lock == peer.as_raw() {
+            self.lock_deadline = now + timeout;
+        }
     }
 
     /// Stream transfers running (or waiting for their stream).
@@ -315,6 +333,7 @@ impl MemoryServer {
     /// the command has one, a reply datagram.
     pub(crate) fn on_command(&mut self, cx: &mut Cx<'_>, peer: NodeId, bytes: &[u8]) {
         self.stats.commands += 1;
+        self.touch_lock(cx.now, cx.options.lock_timeout, peer);
         let command = match Command::parse(bytes) {
             Ok(command) => command,
             Err(DecodeError::UnknownCommand(_) | DecodeError::NotMemoryConfiguration) => {
@@ -357,10 +376,11 @@ impl MemoryServer {
                 cx.send_reply(peer, &Reply::SpaceInfo(self.space_info(space)).to_bytes());
             }
             Command::Lock { node } => {
-                // MC §4.17: test-and-set; a Node ID of 0 releases.
-                if self.lock == 0 || node == 0 {
+                // MC §4.17: test-and-set; a Node ID of 0 releases. A lapsed lock is free.
+                if self.lock == 0 || node == 0 || cx.now >= self.lock_deadline {
                     self.lock = node;
                 }
+                self.lock_deadline = cx.now + cx.options.lock_timeout;
                 cx.ok(peer, pending);
                 cx.send_reply(peer, &Reply::Lock { owner: self.lock }.to_bytes());
             }
@@ -442,6 +462,9 @@ impl MemoryServer {
         if self.firmware_refused(peer, space) {
             return self.reject(cx, peer, ErrorCode::SOURCE_NOT_PERMITTED);
         }
+        if self.locked_out(cx.now, peer) {
+            return self.reject(cx, peer, ErrorCode::TEMPORARY);
+        }
         let mut merged = [0u8; MAX_DATA_LEN];
         let result = match mask {
             None => self.write_space(space, address, data),
@@ -487,6 +510,9 @@ impl MemoryServer {
         }
         if write && self.firmware_refused(peer, space) {
             return Err(ErrorCode::SOURCE_NOT_PERMITTED);
+        }
+        if write && self.locked_out(cx.now, peer) {
+            return Err(ErrorCode::TEMPORARY);
         }
         if address >= len {
             return Err(codes::OUT_OF_BOUNDS);
@@ -735,9 +761,11 @@ impl MemoryServer {
                 return self.end(index, false);
             }
             let deadline = cx.now + cx.options.stream_timeout;
-            if let Some(Transfer { job: Job::Write { next, deadline: d, .. }, .. }) = self.transfers.get_mut(index) {
+            if let Some(Transfer { peer, job: Job::Write { next, deadline: d, .. } }) = self.transfers.get_mut(index) {
                 *next = next.saturating_add(n as u32);
                 *d = deadline;
+                let peer = *peer;
+                self.touch_lock(cx.now, cx.options.lock_timeout, peer);
             }
         }
         if finished {
