@@ -121,7 +121,7 @@ fn stream_image(server: &mut Node, from: NodeId, did: u8, data: &[u8]) {
         deliver(server, from, Mti::STREAM_DATA_SEND, payload);
     }
     let count = (data.len() as u32).to_be_bytes();
-    let complete = vec![0x42, did, 0, 0, count[0], count[1], count[2], count[3]];
+    let complete = vec![0x42, did, count[0], count[1], count[2], count[3]];
     deliver(server, from, Mti::STREAM_DATA_COMPLETE, complete);
 }
 

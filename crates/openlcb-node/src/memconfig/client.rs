@@ -726,9 +726,11 @@ impl MemoryClient {
         let outcome = match event {
             Event::Opened { .. } | Event::Writable { .. } => self.pump_write(cx, index),
             Event::Readable { .. } => self.drain_read(cx, index),
-            Event::Finished { total, .. } => {
+            Event::Finished { total, stated, matched, .. } => {
                 let drained = self.drain_read(cx, index);
-                drained.or_else(|| self.read_finished(index, *total))
+                // Bytes lost on the way (or a Complete that counts otherwise) fail the read.
+                let stated = stated.filter(|_| !matched);
+                drained.or_else(|| self.read_finished(index, *total, stated))
             }
             Event::Rejected { code, .. } => Some(Outcome::Fail(MemoryError::StreamRejected(ErrorCode(code.0)))),
             Event::Terminated { cause, .. } => Some(Outcome::Fail(match cause {
@@ -765,10 +767,15 @@ impl MemoryClient {
         None
     }
 
-    fn read_finished(&mut self, index: usize, total: u64) -> Option<Outcome> {
+    /// The stream of a read ended with `total` bytes; `mismatch`: the count its Complete
+    /// stated, when that differs.
+    fn read_finished(&mut self, index: usize, total: u64, mismatch: Option<u64>) -> Option<Outcome> {
         let op = self.operations.get(index)?;
         let Kind::Read { data, len } = &op.kind else { return None };
         let received = data.len() as u64;
+        if let Some(expected) = mismatch {
+            return Some(Outcome::Fail(MemoryError::WrongLength { expected, received }));
+        }
         match len {
             Some(want) if u64::from(*want) != received || received != total => {
                 Some(Outcome::Fail(MemoryError::WrongLength { expected: u64::from(*want), received }))
