@@ -227,3 +227,43 @@ fn writes_of_others_are_refused_while_the_lock_is_held_until_it_lapses() {
     let answers = deliver_at(&mut server, later, OTHER, Mti::DATAGRAM, write.to_bytes(), &mut Vec::new());
     assert!(answer(&answers).is_ok(), "{answers:?}");
 }
+
+#[test]
+fn a_peer_that_never_acknowledges_its_replies_does_not_starve_the_others() {
+    let mut server = server();
+    let read = Command::Read { space: 0xFD, address: 0, count: 16 };
+    let mut promised = 0;
+    let mut refused = 0;
+    for _ in 0..40 {
+        // Every Read is answered once: OK with a reply promised, or 0x2020 (none dropped).
+        let answers = command(&mut server, PEER, &read);
+        match answer(&answers) {
+            Ok(flags) => {
+                assert_eq!(flags, [0x80]);
+                promised += 1;
+            }
+            Err(code) => {
+                assert_eq!(code, 0x2020);
+                refused += 1;
+            }
+        }
+    }
+    assert!(promised <= 4 && promised + refused == 40, "{promised} promised, {refused} refused");
+    // Another node's read is answered, and its reply goes out at once.
+    let answers = command(&mut server, OTHER, &read);
+    assert_eq!(answer(&answers), Ok(vec![0x80]), "{answers:?}");
+    assert!(answers.iter().any(|m| m.mti == Mti::DATAGRAM && m.destination == Some(OTHER)), "{answers:?}");
+    // Every reply promised to the silent peer still goes out, one per datagram timeout.
+    let mut replies = 0;
+    let mut now = Instant::ZERO;
+    for _ in 0..100 {
+        let Some(next) = server.poll_timeout() else { break };
+        now = now.max(next);
+        server.handle_timeout(now);
+        while server.poll_event().is_some() {}
+        replies += std::iter::from_fn(|| server.poll_transmit())
+            .filter(|m| m.mti == Mti::DATAGRAM && m.destination == Some(PEER))
+            .count();
+    }
+    assert!(replies >= promised - 1, "{replies} of {promised} replies sent after the first");
+}

@@ -333,6 +333,12 @@ impl MemoryServer {
     /// the command has one, a reply datagram.
     pub(crate) fn on_command(&mut self, cx: &mut Cx<'_>, peer: NodeId, bytes: &[u8]) {
         self.stats.commands += 1;
+        if !cx.has_reply_room(peer) {
+            // No reply could be queued: refused for now (the sender resends) rather than
+            // promised and dropped. The bound is per peer, so one that never acknowledges
+            // its replies does not starve the others.
+            return self.reject(cx, peer, ErrorCode::BUFFER_UNAVAILABLE);
+        }
         self.touch_lock(cx.now, cx.options.lock_timeout, peer);
         let command = match Command::parse(bytes) {
             Ok(command) => command,
