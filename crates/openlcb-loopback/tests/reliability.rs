@@ -145,3 +145,52 @@ fn two_firmware_loaders_at_once_one_fails_and_the_image_is_the_others() {
         assert!(space(&mut net, server, 0xEF)[..len] == images[winner][..], "{path:?}: the winner's image");
     }
 }
+
+/// (frame type nibble, destination alias, source alias) of a datagram frame, or for Datagram
+/// OK/Rejected (type 0) the alias in its data.
+fn datagram_frame(frame: &openlcb_can::CanFrame) -> Option<(u32, u16, u16)> {
+    let id = frame.raw_id();
+    let source = (id & 0xFFF) as u16;
+    match id >> 24 {
+        kind @ 0x1A..=0x1D => Some((kind, ((id >> 12) & 0xFFF) as u16, source)),
+        0x19 if matches!((id >> 12) & 0xFFF, 0xA28 | 0xA48) => {
+            let data = frame.payload();
+            let to = u16::from_be_bytes([*data.first()?, *data.get(1)?]) & 0xFFF;
+            Some((0, to, source))
+        }
+        _ => None,
+    }
+}
+
+#[test]
+fn every_datagram_sent_is_answered_exactly_once_under_a_crowd() {
+    const CROWD: u64 = 60;
+    let (mut net, clients, server) = bus(CROWD);
+    // A crowd takes longer to log in.
+    net.run_until(Instant::from_millis(10_000), 10_000_000).unwrap();
+    let server_alias = net.can_alias(server).unwrap().as_raw();
+    net.record_frames();
+    let now = net.now();
+    for client in &clients {
+        // A 40-byte Write: a datagram of six frames, interleaved on the bus with the others.
+        let write = openlcb_node::memconfig::wire::Command::Write { space: 0xFD, address: 0, data: vec![7; 34] };
+        net.node(*client).unwrap().send_datagram(now, node(100), &write.to_bytes()).unwrap();
+    }
+    net.run_until(now + Duration::from_secs(120), 100_000_000).unwrap();
+    let mut sent = std::collections::HashMap::<u16, i64>::new();
+    for (_, frame) in net.recorded_frames() {
+        match datagram_frame(frame) {
+            // A datagram starts (first or only frame) towards the server.
+            Some((0x1A | 0x1B, to, from)) if to == server_alias => *sent.entry(from).or_default() += 1,
+            // The server answers it.
+            Some((0, to, from)) if from == server_alias => *sent.entry(to).or_default() -= 1,
+            _ => {}
+        }
+    }
+    let unanswered: Vec<_> = sent.iter().filter(|(_, n)| **n != 0).collect();
+    assert!(unanswered.is_empty(), "datagrams minus answers per sender: {unanswered:?}");
+    for client in &clients {
+        let delivered = net.take_events(*client).iter().any(|e| matches!(e, NodeEvent::DatagramDelivered { .. }));
+        assert!(delivered, "each datagram is delivered in the end");
+    }
+}
