@@ -684,7 +684,17 @@ impl MemoryServer {
                 }
                 self.end(index, false);
             }
-            _ => self.end(index, false),
+            _ => {
+                // A Read Stream whose stream never opened still owes its promised reply.
+                if let Some(Transfer { peer, job: Job::Read { space, address, opened: false, .. } }) =
+                    self.transfers.get(index)
+                {
+                    let reply = failed(FailedKind::ReadStream, *space, *address, ErrorCode::TIMEOUT);
+                    let peer = *peer;
+                    cx.send_reply(peer, &reply.to_bytes());
+                }
+                self.end(index, false);
+            }
         }
         true
     }
