@@ -184,7 +184,7 @@ pub(crate) fn net_outcome(error: &Error) -> Outcome {
         Error::Terminated { .. } | Error::CountMismatch { .. } => Outcome::Terminated,
         Error::Memory { error, .. } => match error {
             MemoryError::Rejected(_) | MemoryError::Failed(_) | MemoryError::StreamRejected(_) => Outcome::Rejected,
-            MemoryError::NoStreams => Outcome::Rejected,
+            MemoryError::NoStreams | MemoryError::Locked { .. } => Outcome::Rejected,
             MemoryError::TimedOut | MemoryError::StreamTimedOut(_) | MemoryError::PeerLost => Outcome::TimedOut,
             MemoryError::StreamEnded(_) | MemoryError::WrongLength { .. } | MemoryError::PeerRestarted => {
                 Outcome::Terminated

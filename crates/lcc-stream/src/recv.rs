@@ -222,13 +222,19 @@ pub(crate) fn part_path(path: &Path) -> PathBuf {
 
 /// Moves `part` to `path` without ever replacing a file: a hard link fails if `path` exists.
 /// On a file system without hard links, a rename after checking that `path` is free.
-pub(crate) async fn publish(part: &Path, path: &Path) -> io::Result<()> {
-    match tokio::fs::hard_link(part, path).await {
-        Ok(()) => tokio::fs::remove_file(part).await,
+pub(crate) fn publish_blocking(part: &Path, path: &Path) -> io::Result<()> {
+    match std::fs::hard_link(part, path) {
+        Ok(()) => std::fs::remove_file(part),
         Err(error) if error.kind() == io::ErrorKind::AlreadyExists => Err(error),
-        Err(_) if !tokio::fs::try_exists(path).await? => tokio::fs::rename(part, path).await,
+        Err(_) if !std::fs::exists(path)? => std::fs::rename(part, path),
         Err(error) => Err(error),
     }
+}
+
+/// [`publish_blocking`] off the runtime's threads.
+pub(crate) async fn publish(part: &Path, path: &Path) -> io::Result<()> {
+    let (part, path) = (part.to_path_buf(), path.to_path_buf());
+    tokio::task::spawn_blocking(move || publish_blocking(&part, &path)).await.map_err(io::Error::other)?
 }
 
 /// The file a stream is written to, created when its first data arrives.

@@ -1,6 +1,7 @@
 //! `lcc-stream serve`: a node that serves memory spaces, a test partner for configuration
 //! tools and firmware loaders: 0xFF (CDI), 0xFD (configuration), 0xFC/0xFB (ACDI, mirroring
-//! SNIP) and 0xEF (firmware, saved to a file at each Unfreeze).
+//! SNIP) and 0xEF (firmware, saved to a file at each Unfreeze: the Unfreeze is refused, and
+//! the loader told, when the image cannot be saved).
 
 use std::io::{Seek as _, SeekFrom, Write as _};
 use std::path::{Path, PathBuf};
@@ -15,7 +16,7 @@ use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome, net_outcome};
-use crate::recv::{part_path, publish};
+use crate::recv::{part_path, publish_blocking};
 
 /// The Node ID `serve` uses unless told otherwise.
 const DEFAULT_SERVER: &str = "05.01.01.01.22.F2";
@@ -53,10 +54,11 @@ pub(crate) struct ServeArgs {
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
     /// Where each firmware image (space 0xEF) is written at Unfreeze; by default
-    /// `firmware-<node id>.bin` in the current folder.
+    /// `firmware-<node id>.bin` in the current folder. An image never replaces a file: it
+    /// takes the first free name of FILE, FILE-1, FILE-2 ... (before the extension).
     #[arg(long, value_name = "FILE")]
     firmware_out: Option<PathBuf>,
-    /// Replace the firmware file if it exists.
+    /// Replace the firmware file if it exists (every image is then written to FILE).
     #[arg(long)]
     force: bool,
     /// The SNIP user name (also space 0xFB).
@@ -114,11 +116,6 @@ pub(crate) fn run(args: &ServeArgs) -> Result<ExitCode, String> {
 
 async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
-    let firmware_out = args.firmware_out.clone().unwrap_or_else(|| default_firmware_path(args.node_id));
-    if !args.force && firmware_out.exists() {
-        eprintln!("lcc-stream serve: {} exists (--force replaces it)", firmware_out.display());
-        return Ok(ExitCode::from(Outcome::FileError.status()));
-    }
     let spaces = match Spaces::open(args) {
         Ok(spaces) => spaces,
         Err(error) => {
@@ -144,6 +141,8 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         ..ServeReport::default()
     };
     let image = spaces.image.clone();
+    // On stderr even with --json: the name the first image will take.
+    eprintln!("lcc-stream serve: firmware images go to {}", image.next_path().display());
     let connect = args.connect.node(options);
     let mut node = tokio::select! {
         connected = connect => match connected {
@@ -174,7 +173,7 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
     let status = loop {
         tokio::select! {
             event = events.next() => match event {
-                Some(event) => on_event(event, args, &firmware_out, &image, &mut report).await,
+                Some(event) => on_event(event, args, &image, &mut report),
                 None => {
                     let error = node.closed().await;
                     (report.result, report.error) = (net_outcome(&error).word(), Some(error.to_string()));
@@ -226,8 +225,8 @@ fn on_notice(notice: &EventNotice, json: bool) {
     }
 }
 
-/// Carries out what the server was asked to do, and says so on stderr.
-async fn on_event(event: MemoryEvent, args: &ServeArgs, out: &Path, image: &Image, report: &mut ServeReport) {
+/// Says on stderr what the server was asked to do and did.
+fn on_event(event: MemoryEvent, args: &ServeArgs, image: &Image, report: &mut ServeReport) {
     let say = |text: String| {
         if !args.json {
             eprintln!("lcc-stream serve: {text}");
@@ -236,18 +235,15 @@ async fn on_event(event: MemoryEvent, args: &ServeArgs, out: &Path, image: &Imag
     match event {
         MemoryEvent::Frozen { by } => say(format!("frozen for a firmware upgrade by {by}")),
         MemoryEvent::Unfrozen { by, image_len } => {
-            let bytes = image.take(image_len);
-            let saved = save_image(out, &bytes, args.force).await;
-            match &saved {
-                Ok(()) => say(format!("firmware of {image_len} bytes from {by} written to {}", out.display())),
-                Err(error) => say(format!("firmware of {image_len} bytes from {by} not saved: {error}")),
-            }
-            report.firmware.push(ImageReport {
-                from: by.to_string(),
-                bytes: image_len,
-                file: out.display().to_string(),
-                error: saved.err().map(|e| e.to_string()),
-            });
+            let file = image.last_saved().map(|p| p.display().to_string()).unwrap_or_default();
+            say(format!("firmware of {image_len} bytes from {by} written to {file}"));
+            report.firmware.push(ImageReport { from: by.to_string(), bytes: image_len, file, error: None });
+        }
+        MemoryEvent::UpgradeRefused { by, code } => {
+            let why = image.last_error().unwrap_or_else(|| "the transfer was aborted".to_string());
+            say(format!("Unfreeze of {by} refused with 0x{:04X}, still frozen: {why}", code.0));
+            let file = image.next_path().display().to_string();
+            report.firmware.push(ImageReport { from: by.to_string(), bytes: 0, file, error: Some(why) });
         }
         MemoryEvent::UserInfoChanged => {
             report.user_info_changes += 1;
@@ -267,28 +263,41 @@ fn default_firmware_path(node: NodeId) -> PathBuf {
     PathBuf::from(format!("firmware-{}.bin", node.to_string().replace('.', "")))
 }
 
-/// Writes `bytes` to `out` through `out.part`: never over an existing file unless `force`.
-async fn save_image(out: &Path, bytes: &[u8], force: bool) -> std::io::Result<()> {
-    let part = part_path(out);
-    let mut open = tokio::fs::OpenOptions::new();
-    open.write(true);
-    if force {
-        open.create(true).truncate(true)
-    } else {
-        open.create_new(true)
-    };
-    let mut file = open.open(&part).await?;
-    let written = async {
-        use tokio::io::AsyncWriteExt as _;
-        file.write_all(bytes).await?;
-        file.sync_all().await?;
-        if force { tokio::fs::rename(&part, out).await } else { publish(&part, out).await }
+/// `out`, or with `force` unset the first of `out`, `out-1`, `out-2` ... that is free
+/// (the number before the extension).
+fn free_path(out: &Path, force: bool) -> PathBuf {
+    if force || !out.exists() {
+        return out.to_path_buf();
     }
-    .await;
+    let stem = out.file_stem().unwrap_or_default().to_string_lossy();
+    let extension = out.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
+    (1u32..)
+        .map(|n| out.with_file_name(format!("{stem}-{n}{extension}")))
+        .find(|candidate| !candidate.exists())
+        .unwrap_or_else(|| out.to_path_buf())
+}
+
+/// Writes `bytes` through `<path>.part`, synced, then publishes it under `path`: replacing
+/// a file only with `force`.
+fn save_image(path: &Path, bytes: &[u8], force: bool) -> std::io::Result<()> {
+    let part = part_path(path);
+    let written = std::fs::File::create(&part).and_then(|mut file| {
+        file.write_all(bytes)?;
+        file.sync_all()?;
+        if force { std::fs::rename(&part, path) } else { publish_blocking(&part, path) }
+    });
     if written.is_err() {
-        let _ = tokio::fs::remove_file(&part).await;
+        let _ = std::fs::remove_file(&part);
     }
     written
+}
+
+/// Fails unless a file can be created beside `path` (the `.part` an image is written to).
+fn check_writable(path: &Path) -> Result<(), String> {
+    let part = part_path(path);
+    std::fs::File::create(&part)
+        .and_then(|_| std::fs::remove_file(&part))
+        .map_err(|e| format!("cannot write firmware images to {}: {e}", path.display()))
 }
 
 /// The spaces `serve` hands to its node.
@@ -311,7 +320,9 @@ impl Spaces {
             }
             None => ReadOnlySpace::cdi(&builtin_cdi(config.len())),
         };
-        Ok(Spaces { cdi, config, image: Image::default() })
+        let firmware_out = args.firmware_out.clone().unwrap_or_else(|| default_firmware_path(args.node_id));
+        check_writable(&firmware_out)?;
+        Ok(Spaces { cdi, config, image: Image::new(firmware_out, args.force) })
     }
 
     fn into_server(self) -> MemoryServer {
@@ -428,17 +439,40 @@ impl MemorySpace for ConfigSpace {
     }
 }
 
-/// Space 0xEF: the image being received, shared with the task that saves it at Unfreeze.
-#[derive(Debug, Clone, Default)]
-struct Image(Arc<Mutex<Vec<u8>>>);
+/// Space 0xEF: the image being received, saved when its Unfreeze comes; shared with the
+/// loop that reports where it went.
+#[derive(Debug, Clone)]
+struct Image(Arc<Mutex<ImageState>>);
+
+#[derive(Debug)]
+struct ImageState {
+    bytes: Vec<u8>,
+    out: PathBuf,
+    force: bool,
+    /// Where the last image went, or why it could not be saved.
+    last: Option<Result<PathBuf, String>>,
+}
 
 impl Image {
-    /// Bytes `0..len` of the image, and an empty buffer for the next upgrade.
-    fn take(&self, len: u32) -> Vec<u8> {
-        let Ok(mut bytes) = self.0.lock() else { return Vec::new() };
-        let mut image = std::mem::take(&mut *bytes);
-        image.resize(len as usize, 0);
-        image
+    fn new(out: PathBuf, force: bool) -> Image {
+        Image(Arc::new(Mutex::new(ImageState { bytes: Vec::new(), out, force, last: None })))
+    }
+
+    fn state(&self) -> Result<std::sync::MutexGuard<'_, ImageState>, SpaceError> {
+        self.0.lock().map_err(|_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT))
+    }
+
+    /// The file the next image will be written to.
+    fn next_path(&self) -> PathBuf {
+        self.state().map(|s| free_path(&s.out, s.force)).unwrap_or_default()
+    }
+
+    fn last_saved(&self) -> Option<PathBuf> {
+        self.state().ok()?.last.clone()?.ok()
+    }
+
+    fn last_error(&self) -> Option<String> {
+        self.state().ok()?.last.clone()?.err()
     }
 }
 
@@ -450,7 +484,8 @@ impl MemorySpace for Image {
         false
     }
     fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
-        let bytes = self.0.lock().map_err(|_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT))?;
+        let state = self.state()?;
+        let bytes = &state.bytes;
         let n = buf.len().min(FIRMWARE_MAX.saturating_sub(address) as usize);
         let (buf, at) = (buf.get_mut(..n).unwrap_or_default(), address as usize);
         buf.fill(0);
@@ -463,7 +498,8 @@ impl MemorySpace for Image {
         Ok(n)
     }
     fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
-        let mut bytes = self.0.lock().map_err(|_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT))?;
+        let mut state = self.state()?;
+        let bytes = &mut state.bytes;
         let at = address as usize;
         let end = at.saturating_add(data.len()).min(FIRMWARE_MAX as usize);
         if bytes.len() < end {
@@ -474,6 +510,20 @@ impl MemorySpace for Image {
         }
         Ok(())
     }
+    fn complete(&mut self, len: u32) -> Result<(), SpaceError> {
+        let mut state = self.state()?;
+        state.bytes.resize(len as usize, 0);
+        let path = free_path(&state.out, state.force);
+        let saved = save_image(&path, &state.bytes, state.force);
+        state.last = Some(saved.as_ref().map(|()| path.clone()).map_err(|e| format!("{}: {e}", path.display())));
+        state.bytes = Vec::new();
+        saved.map_err(|_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT))
+    }
+    fn discard(&mut self) {
+        if let Ok(mut state) = self.state() {
+            state.bytes = Vec::new();
+        }
+    }
 }
 
 #[cfg(test)]
@@ -482,13 +532,22 @@ mod tests {
 
     #[test]
     fn image_space_keeps_what_was_written_and_reads_zeros_past_it() {
-        let mut image = Image::default();
+        let dir = std::env::temp_dir().join(format!("lcc-stream-image-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let out = dir.join("image.bin");
+        let _ = std::fs::remove_file(&out);
+        let mut image = Image::new(out.clone(), false);
         image.write(4, &[1, 2, 3]).unwrap();
         let mut buf = [0xAA; 8];
         assert_eq!(image.read(2, &mut buf).unwrap(), 8);
         assert_eq!(buf, [0, 0, 1, 2, 3, 0, 0, 0]);
-        assert_eq!(image.take(7), [0, 0, 0, 0, 1, 2, 3]);
-        assert_eq!(image.take(2), [0, 0], "a taken image leaves an empty buffer");
+        image.complete(7).unwrap();
+        assert_eq!(std::fs::read(&out).unwrap(), [0, 0, 0, 0, 1, 2, 3]);
+        // The next image takes a fresh name; a completed image leaves an empty buffer.
+        image.complete(2).unwrap();
+        assert_eq!(std::fs::read(dir.join("image-1.bin")).unwrap(), [0, 0]);
+        assert_eq!(std::fs::read(&out).unwrap(), [0, 0, 0, 0, 1, 2, 3], "never overwritten");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// Every byte of space 0xFD is described, once, whatever its size.

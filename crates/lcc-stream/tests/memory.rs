@@ -179,19 +179,17 @@ async fn a_server_without_streams_is_read_and_upgraded_by_datagrams() {
 async fn nothing_is_written_over_an_existing_file() {
     let dir = scratch("overwrite");
     let (_hub, addr) = hub().await;
-    // `serve` refuses a firmware output that exists, unless --force.
+    // `serve` with a firmware output that exists starts, and its image takes a fresh name.
     let taken = dir.join("taken.bin");
     std::fs::write(&taken, b"keep me").unwrap();
-    let refused = Command::new(BIN)
-        .args(["serve", "--connect", &addr, "--firmware-out", path_arg(&taken)])
-        .stdin(Stdio::null())
-        .kill_on_drop(true)
-        .output();
-    let refused = bounded("serve with a taken output", refused).await.unwrap();
-    assert_eq!(refused.status.code(), Some(8));
+    let mut server = Server::start(&dir, &addr, SERVER, &["--firmware-out", path_arg(&taken)]).await;
+    let image = dir.join("upgrade.bin");
+    std::fs::write(&image, data(2000, 3)).unwrap();
+    assert_eq!(run(&addr, &["firmware", path_arg(&image), "--to", SERVER]).await.0, 0);
+    server.wait_for("written to").await;
     assert_eq!(std::fs::read(&taken).unwrap(), b"keep me");
+    assert_eq!(std::fs::read(dir.join("taken-1.bin")).unwrap(), data(2000, 3));
     // `read` refuses an output that exists, and leaves no .part behind.
-    let _server = Server::start(&dir, &addr, SERVER, &[]).await;
     let (status, json) = run(&addr, &["read", "--from", SERVER, "--out", path_arg(&taken)]).await;
     assert_eq!(status, 8, "{json}");
     assert_eq!(json["result"], "file_error");
@@ -226,9 +224,12 @@ async fn sigterm_stops_serve_with_exit_130_and_its_report() {
     std::fs::write(&image, data(3000, 8)).unwrap();
     assert_eq!(run(&addr, &["firmware", path_arg(&image), "--to", SERVER]).await.0, 0);
     server.wait_for("written to").await;
-    // A second image would replace the first: without --force it is refused and reported.
-    assert_eq!(run(&addr, &["firmware", path_arg(&image), "--to", SERVER]).await.0, 0);
-    server.wait_for("not saved").await;
+    // A second image never replaces the first without --force: it takes a fresh name.
+    let second = dir.join("second.bin");
+    std::fs::write(&second, data(1000, 9)).unwrap();
+    assert_eq!(run(&addr, &["firmware", path_arg(&second), "--to", SERVER]).await.0, 0);
+    server.wait_for("written to").await;
+    assert_eq!(std::fs::read(dir.join("image-1.bin")).unwrap(), data(1000, 9));
     let pid = server.child.id().unwrap().to_string();
     let killed = Command::new("kill").args(["-TERM", &pid]).status();
     assert!(bounded("kill", killed).await.unwrap().success());
@@ -372,4 +373,41 @@ async fn config_show_and_backup_of_an_io_board_cdi() {
     let text = std::fs::read_to_string(&out).unwrap();
     assert_eq!(text.lines().count(), 100);
     assert!(text.contains("\nSettings.Line(5).Function=2\nSettings.Line(5).Event On=00.00.00.00.00.00.00.00\n"));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_image_that_cannot_be_saved_fails_the_upgrade_and_a_retry_succeeds() {
+    let dir = scratch("unsaved");
+    let (_hub, addr) = hub().await;
+    // An output serve cannot write: refused at start.
+    let nowhere = dir.join("missing").join("image.bin");
+    let refused = Command::new(BIN)
+        .args(["serve", "--connect", &addr, "--firmware-out", path_arg(&nowhere)])
+        .stdin(Stdio::null())
+        .kill_on_drop(true)
+        .output();
+    let refused = bounded("serve with an output it cannot write", refused).await.unwrap();
+    assert_eq!(refused.status.code(), Some(8));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("cannot write firmware images"));
+    // Its folder goes away after the start: the upgrade fails on the wire, by stream and by
+    // datagrams, and serve stays frozen, so that a retry once the folder is back works.
+    let folder = dir.join("out");
+    std::fs::create_dir(&folder).unwrap();
+    let out = folder.join("image.bin");
+    let mut server = Server::start(&dir, &addr, SERVER, &["--firmware-out", path_arg(&out)]).await;
+    std::fs::remove_dir(&folder).unwrap();
+    let image = dir.join("upgrade.bin");
+    std::fs::write(&image, data(10_000, 4)).unwrap();
+    for extra in [None, Some("--no-stream")] {
+        let mut args = vec!["firmware", path_arg(&image), "--to", SERVER];
+        args.extend(extra);
+        let (status, json) = run(&addr, &args).await;
+        assert_ne!(status, 0, "{extra:?}: {json}");
+        server.wait_for("refused").await;
+    }
+    std::fs::create_dir(&folder).unwrap();
+    let (status, json) = run(&addr, &["firmware", path_arg(&image), "--to", SERVER]).await;
+    assert_eq!(status, 0, "{json}");
+    server.wait_for("written to").await;
+    assert_eq!(std::fs::read(&out).unwrap(), data(10_000, 4));
 }

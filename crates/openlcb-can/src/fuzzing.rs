@@ -34,13 +34,13 @@ fn permitted_link() -> CanLink {
 }
 
 /// Drains the link and checks its bounds.
-fn drain_and_check(link: &mut CanLink) {
-    let mut frames = 0;
+fn drain_and_check(link: &mut CanLink) -> Vec<CanFrame> {
+    let mut frames = Vec::new();
     while let Some(frame) = link.poll_transmit() {
         assert!(frame.dlc() <= 8);
         assert!(frame.header().is_ok(), "the link sends valid OpenLCB frames only");
-        frames += 1;
-        assert!(frames < 10_000, "poll_transmit never ends");
+        frames.push(frame);
+        assert!(frames.len() < 10_000, "poll_transmit never ends");
     }
     let mut events = 0;
     while link.poll_event().is_some() {
@@ -48,6 +48,19 @@ fn drain_and_check(link: &mut CanLink) {
         assert!(events < 10_000, "poll_event never ends");
     }
     assert!(link.queued_messages() <= link.config().transmit_queue_limit + 1);
+    frames
+}
+
+/// Datagram Rejected frames among `frames`, per source of `sources` they answer.
+fn rejections_to(frames: &[CanFrame], sources: &[u16], counts: &mut [u32]) {
+    for frame in frames.iter().filter(|f| f.raw_id() >> 12 == 0x19A48) {
+        let to = frame.payload().get(..2).map(|b| u16::from_be_bytes([b[0], b[1]]) & 0xFFF);
+        if let Some(i) = sources.iter().position(|s| Some(*s) == to) {
+            if let Some(count) = counts.get_mut(i) {
+                *count += 1;
+            }
+        }
+    }
 }
 
 fn check_delivery(max_len: usize) -> impl FnMut(openlcb_stream::MessageRef<'_>) {
@@ -160,6 +173,12 @@ pub fn can_datagram(data: &[u8]) {
     drain_and_check(&mut link);
     // Per source: the bytes of the open datagram and the time of its first frame.
     let mut model: [Option<(Vec<u8>, Instant)>; 3] = [None, None, None];
+    // Per source: Datagram Rejected sent since its current datagram began (a first or only
+    // frame begins one, a last frame ends one): never more than one (DG §7.3.2).
+    let mut rejected = [0u32; 3];
+    let check_once = |rejected: &[u32; 3]| {
+        assert!(rejected.iter().all(|n| *n <= 1), "one datagram rejected more than once: {rejected:?}");
+    };
     for op in data.chunks(3) {
         let [selector, a, b] = [0, 1, 2].map(|i| op.get(i).copied().unwrap_or(0));
         let index = usize::from(a % 3);
@@ -179,13 +198,15 @@ pub fn can_datagram(data: &[u8]) {
                         *open = None;
                     }
                 }
-                drain_and_check(&mut link);
+                rejections_to(&drain_and_check(&mut link), &SOURCES, &mut rejected);
+                check_once(&rejected);
                 continue;
             }
             _ => {
                 let amr = CanFrame::extended(0x1070_3000 | u32::from(source), &[5, 1, 1, 1, 0x22, 0x77]).unwrap();
                 link.handle_frame(now, &amr, |_| {});
                 model[index] = None;
+                rejected[index] = 0;
                 drain_and_check(&mut link);
                 continue;
             }
@@ -232,7 +253,14 @@ pub fn can_datagram(data: &[u8]) {
         assert_eq!(link.reassembly_in_use(), held, "the link holds what the model holds");
         assert!(link.reassembly_in_use() <= link.reassembly_bound());
         assert_eq!(link.reassembly_allocated(), allocated, "a reassembly buffer grew");
-        drain_and_check(&mut link);
+        if matches!(format, 2 | 3) {
+            rejected[index] = 0;
+        }
+        rejections_to(&drain_and_check(&mut link), &SOURCES, &mut rejected);
+        check_once(&rejected);
+        if format == 5 {
+            rejected[index] = 0;
+        }
     }
 }
 

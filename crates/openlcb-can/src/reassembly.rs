@@ -128,6 +128,10 @@ struct Slot {
     deadline: Instant,
 }
 
+/// Datagrams answered with an error and still arriving, remembered per reassembly slot: a
+/// crowd of senders refused at once (all slots taken) each hears one answer.
+const ANSWERED_PER_SLOT: usize = 16;
+
 /// Bounded reassembly: `slots` messages at once, each at most `max_len` payload bytes, each
 /// dropped when it is not complete within `timeout`. All memory is taken up front:
 /// [`allocated`](Self::allocated) never changes.
@@ -137,6 +141,10 @@ pub struct Reassembler {
     max_len: usize,
     timeout: Duration,
     rules: Rules,
+    /// Datagrams already answered with an error whose remaining frames are still coming:
+    /// dropped without a word until their last frame, so that each datagram gets one answer
+    /// (DG §7.3.2). At most [`ANSWERED_PER_SLOT`] per slot; the oldest goes first.
+    answered: Vec<ReassemblyKey>,
 }
 
 impl Reassembler {
@@ -168,7 +176,9 @@ impl Reassembler {
         while list.len() < slots && list.len() < list.capacity() {
             list.push(Slot { key: None, buffer: Vec::with_capacity(max_len), deadline: Instant::ZERO });
         }
-        Reassembler { slots: list, max_len, timeout, rules }
+        let answered =
+            Vec::with_capacity(if rules == Rules::Datagrams { slots.saturating_mul(ANSWERED_PER_SLOT) } else { 0 });
+        Reassembler { slots: list, max_len, timeout, rules, answered }
     }
 
     /// Adds one frame's payload (data bytes 2..). Returns the whole payload when `position`
@@ -196,7 +206,53 @@ impl Reassembler {
         position: FramePosition,
         data: &[u8],
     ) -> Result<Option<usize>, ReassemblyError> {
+        let result = self.add_frame(now, key, position, data);
+        if self.rules == Rules::Datagrams {
+            match result {
+                // The rest of a datagram already answered: dropped without a second answer.
+                Err(ReassemblyError::MiddleWithoutFirst) if self.unmute(key, position) => return Ok(None),
+                // A datagram whose first frame never came is answered once, at its last.
+                Err(ReassemblyError::MiddleWithoutFirst) if position == FramePosition::Middle => return Ok(None),
+                Err(_) if position != FramePosition::Last => self.mute(key),
+                _ => {}
+            }
+        }
+        result
+    }
+
+    /// A datagram's error was answered: its later frames are dropped without a word.
+    fn mute(&mut self, key: ReassemblyKey) {
+        if self.answered.contains(&key) || self.answered.capacity() == 0 {
+            return;
+        }
+        if self.answered.len() >= self.answered.capacity() {
+            self.answered.remove(0);
+        }
+        self.answered.push(key);
+    }
+
+    /// A frame of the datagram `key` that was already answered: true if so (its last frame
+    /// ends the silence).
+    fn unmute(&mut self, key: ReassemblyKey, position: FramePosition) -> bool {
+        let Some(index) = self.answered.iter().position(|k| *k == key) else { return false };
+        if position == FramePosition::Last {
+            self.answered.remove(index);
+        }
+        true
+    }
+
+    fn add_frame(
+        &mut self,
+        now: Instant,
+        key: ReassemblyKey,
+        position: FramePosition,
+        data: &[u8],
+    ) -> Result<Option<usize>, ReassemblyError> {
         let first = position == FramePosition::First;
+        if first {
+            // A new datagram: whatever was answered before is over.
+            self.answered.retain(|k| *k != key);
+        }
         let open = self.slots.iter().position(|s| s.key.is_some_and(|k| k == key));
         let index = match open {
             Some(index) => index,
@@ -237,7 +293,12 @@ impl Reassembler {
     /// `None`.
     pub fn take_expired(&mut self, now: Instant) -> Option<ReassemblyKey> {
         let slot = self.slots.iter_mut().find(|s| s.key.is_some() && s.deadline <= now)?;
-        slot.key.take()
+        let key = slot.key.take()?;
+        if self.rules == Rules::Datagrams {
+            // Answered with 0x2011: frames that come late are not answered again.
+            self.mute(key);
+        }
+        Some(key)
     }
 
     /// When the next open message times out.
@@ -406,10 +467,29 @@ mod tests {
             Err(ReassemblyError::FirstBeforeLastEnded)
         );
         assert_eq!(r.open_count(), 0, "the partial datagram and the new first frame are gone");
+        // The rest of the refused datagram is dropped without a second answer.
+        assert_eq!(r.push(T0, datagram_key(0x123), FramePosition::Middle, &[3]), Ok(None));
+        assert_eq!(r.push(T0, datagram_key(0x123), FramePosition::Last, &[3]), Ok(None));
+        // A datagram with no first frame at all is answered once, at its last frame.
+        assert_eq!(r.push(T0, datagram_key(0x124), FramePosition::Middle, &[3]), Ok(None));
         assert_eq!(
-            r.push(T0, datagram_key(0x123), FramePosition::Last, &[3]),
+            r.push(T0, datagram_key(0x124), FramePosition::Last, &[3]),
             Err(ReassemblyError::MiddleWithoutFirst)
         );
+    }
+
+    #[test]
+    fn a_crowd_refused_for_want_of_slots_hears_one_answer_each() {
+        let mut r = Reassembler::for_datagrams(1, Duration::from_secs(3));
+        r.push(T0, datagram_key(0x100), FramePosition::First, &[1; 8]).unwrap();
+        for source in 0x101..0x111 {
+            let first = r.push(T0, datagram_key(source), FramePosition::First, &[1; 8]);
+            assert_eq!(first, Err(ReassemblyError::NoFreeSlot));
+        }
+        for source in 0x101..0x111 {
+            assert_eq!(r.push(T0, datagram_key(source), FramePosition::Middle, &[2; 8]), Ok(None));
+            assert_eq!(r.push(T0, datagram_key(source), FramePosition::Last, &[3]), Ok(None));
+        }
     }
 
     #[test]

@@ -134,8 +134,10 @@ fn framing_errors_are_rejected_from_the_proxy_alias() {
     let (proxy, can) = aliases(&net);
     let before = net.from_gateway.len();
     let frame = |format: u32, data: &[u8]| CanFrame::extended(format << 24 | proxy << 12 | can, data).unwrap();
-    // Middle without first: 0x2041.
+    // A middle frame without a first is dropped; the last frame of that datagram is
+    // answered once: 0x2041.
     net.gateway.handle_can_frame(net.now, &frame(0x1C, &[1, 2]));
+    net.gateway.handle_can_frame(net.now, &frame(0x1D, &[1, 2]));
     // First, then silence: 0x2011 after the reassembly timeout.
     net.gateway.handle_can_frame(net.now, &frame(0x1B, &[1; 8]));
     let timeout = net.now + Duration::from_secs(3);

@@ -31,6 +31,10 @@ pub struct DatagramConfig {
     /// Datagrams accepted by `send_datagram` and not yet delivered or failed, all
     /// destinations together.
     pub max_outgoing: usize,
+    /// Of those, the most for one destination: a peer that never acknowledges holds only
+    /// this many, and the others still get theirs. Memory Configuration refuses a command
+    /// with 0x2020 while its reply could not be queued.
+    pub max_outgoing_per_destination: usize,
     /// Received datagrams waiting for the application's answer, all sources together. More
     /// are rejected with 0x2020 (buffer unavailable: the sender resends).
     pub max_awaiting_answer: usize,
@@ -47,6 +51,7 @@ impl Default for DatagramConfig {
             max_retries: 3,
             retry_delay: Duration::from_millis(200),
             max_outgoing: 16,
+            max_outgoing_per_destination: 4,
             max_awaiting_answer: 8,
             answer_timeout: Duration::from_millis(500),
         }
@@ -268,9 +273,26 @@ impl DatagramService {
         if to == out.node {
             return Err(DatagramError::SelfAddressed);
         }
-        if self.outgoing.len() >= self.config.max_outgoing {
+        if !self.has_room(to) {
             return Err(DatagramError::QueueFull);
         }
+        Ok(self.queue(now, out, to, payload))
+    }
+
+    /// Room for one more datagram to `to`: under both bounds of the config.
+    pub(crate) fn has_room(&self, to: NodeId) -> bool {
+        self.outgoing.len() < self.config.max_outgoing
+            && self.outgoing.iter().filter(|o| o.to == to).count() < self.config.max_outgoing_per_destination
+    }
+
+    /// Sends a reply that was promised (a Datagram OK with Reply Pending went out, after
+    /// [`has_room`](Self::has_room) said yes): queued even above the bounds, which the
+    /// promises themselves bound.
+    pub(crate) fn send_promised(&mut self, now: Instant, out: &mut Outputs, to: NodeId, payload: &[u8]) -> DatagramId {
+        self.queue(now, out, to, payload.get(..MAX_DATAGRAM_LEN).unwrap_or(payload))
+    }
+
+    fn queue(&mut self, now: Instant, out: &mut Outputs, to: NodeId, payload: &[u8]) -> DatagramId {
         let id = DatagramId(self.next_id);
         self.next_id = self.next_id.wrapping_add(1);
         let busy = self.outgoing.iter().any(|o| o.to == to);
@@ -278,7 +300,7 @@ impl DatagramService {
         if !busy {
             self.start_next(now, out, to);
         }
-        Ok(id)
+        id
     }
 
     /// Sends the first queued datagram to `to`, if any (one outstanding per destination).

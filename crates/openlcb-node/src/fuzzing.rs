@@ -97,11 +97,25 @@ pub fn node_ops(data: &[u8]) {
     let mut now = Instant::ZERO;
     let mut open = Vec::new();
     let peer = |i: u8| PEERS.get(usize::from(i) % PEERS.len()).copied().unwrap_or(PEERS[0]);
+    let index = |i: u8| usize::from(i) % PEERS.len();
+    // Per peer: datagrams received minus answers (OK or Rejected) sent to it. Each datagram
+    // gets exactly one answer, to its sender (under its new name after a rename): never
+    // below 0, 0 in the end.
+    let mut unanswered = [0i64; PEERS.len()];
     for op in ops {
         match op {
             Op::Message { peer: p, mti, pick, payload } => {
                 let mti = MTIS.get(usize::from(pick)).copied().unwrap_or(Mti(mti));
                 let destination = mti.is_addressed().then_some(local);
+                if let Some(n) = unanswered.get_mut(index(p)) {
+                    match mti {
+                        Mti::DATAGRAM => *n += 1,
+                        // Initialization Complete (full or simple): the sender restarted, and
+                        // what it sent before needs no answer.
+                        Mti(0x0100 | 0x0101) => *n = 0,
+                        _ => {}
+                    }
+                }
                 node.handle_message(now, MessageRef { mti, source: peer(p), destination, payload: &payload });
             }
             Op::SendDatagram { peer: p, payload } => {
@@ -120,30 +134,75 @@ pub fn node_ops(data: &[u8]) {
             Op::RequestSnip { peer: p } => {
                 let _ = node.request_snip(now, peer(p));
             }
-            Op::Rename { from, to } => node.rename_peer(peer(from), peer(to)),
-            Op::PeerLost { peer: p } => node.peer_lost(peer(p)),
-            Op::LinkLost => node.link_lost(),
+            Op::Rename { from, to } => {
+                if index(from) != index(to) {
+                    let moved = unanswered.get_mut(index(from)).map(core::mem::take).unwrap_or(0);
+                    if let Some(n) = unanswered.get_mut(index(to)) {
+                        *n += moved;
+                    }
+                }
+                node.rename_peer(peer(from), peer(to));
+            }
+            Op::PeerLost { peer: p } => {
+                // Nobody is left to answer.
+                if let Some(n) = unanswered.get_mut(index(p)) {
+                    *n = 0;
+                }
+                node.peer_lost(peer(p));
+            }
+            Op::LinkLost => {
+                unanswered = [0; PEERS.len()];
+                node.link_lost();
+            }
             Op::Advance { millis } => {
                 now += Duration::from_millis(u64::from(millis));
                 node.handle_timeout(now);
             }
         }
         let mut sent = 0;
-        while node.poll_transmit().is_some() {
+        while let Some(message) = node.poll_transmit() {
             sent += 1;
+            count_answer(&message, &mut unanswered);
         }
+        check_answers(&unanswered, false);
         // Each op adds a bounded number of other messages.
         assert!(sent <= limit + 8, "{sent} messages after one op");
         drain(&mut node, &mut open);
     }
-    // Liveness: a long quiet time later, every datagram has ended.
+    // Liveness: a long quiet time later, every datagram has ended, and every datagram
+    // received has had its answer.
     for _ in 0..8 {
         now += Duration::from_secs(10);
         node.handle_timeout(now);
-        while node.poll_transmit().is_some() {}
+        while let Some(message) = node.poll_transmit() {
+            count_answer(&message, &mut unanswered);
+        }
         drain(&mut node, &mut open);
     }
     assert!(open.is_empty(), "datagrams never ended: {open:?}");
+    check_answers(&unanswered, true);
+}
+
+/// `peer` restarted or left: nothing owed to it is counted any more.
+fn forget(owed: &mut [i64; PEERS.len()], peer: NodeId) {
+    if let Some(n) = PEERS.iter().position(|p| *p == peer).and_then(|i| owed.get_mut(i)) {
+        *n = 0;
+    }
+}
+
+/// Counts `message` if it answers a datagram of one of [`PEERS`].
+fn count_answer(message: &openlcb_stream::Message, unanswered: &mut [i64; PEERS.len()]) {
+    let answer = matches!(message.mti, Mti::DATAGRAM_RECEIVED_OK | Mti::DATAGRAM_REJECTED);
+    let index = PEERS.iter().position(|p| Some(*p) == message.destination);
+    if let (true, Some(n)) = (answer, index.and_then(|i| unanswered.get_mut(i))) {
+        *n -= 1;
+    }
+}
+
+/// No datagram answered twice; at the `end`, none left without an answer.
+fn check_answers(unanswered: &[i64; PEERS.len()], end: bool) {
+    assert!(unanswered.iter().all(|n| *n >= 0), "a datagram answered twice: {unanswered:?}");
+    assert!(!end || unanswered.iter().all(|n| *n == 0), "datagrams never answered: {unanswered:?}");
 }
 
 fn drain(node: &mut Node, open: &mut Vec<crate::DatagramId>) {
@@ -247,7 +306,15 @@ pub fn memconfig_server_ops(data: &[u8]) {
     let spaces = [0xFD, 0x10, 0xFF, 0xEF, 0xFC, 0xFB, 0x33];
     // The last stream IDs the server put on the wire (SID, DID), for stream ops.
     let mut ids = (0u8, 0u8);
+    // The model: space 0xFD as the datagram writes the server accepted left it (`None` once a
+    // stream wrote it); per peer, replies promised by an OK with Reply Pending and not yet
+    // sent; the node whose Freeze the server accepted, and whether it has gone since.
+    let mut shadow: Option<Vec<u8>> = Some(alloc::vec![0; 300]);
+    let mut promised = [0i64; PEERS.len()];
+    let mut owner: Option<(NodeId, bool)> = None;
     for op in ops {
+        // The command a peer sent in this step, to judge the server's answer by.
+        let mut sent_command: Option<(NodeId, Command)> = None;
         let message = |mti, p: u8, payload: &[u8], node: &mut Node, now| {
             let destination = Some(local);
             node.handle_message(now, MessageRef { mti, source: peer(p), destination, payload });
@@ -276,11 +343,13 @@ pub fn memconfig_server_ops(data: &[u8]) {
                     _ => Command::FactoryReset { node: local.as_raw() },
                 };
                 message(Mti::DATAGRAM, p, &command.to_bytes(), &mut node, now);
+                sent_command = Some((peer(p), command));
             }
             ServerOp::Raw { peer: p, bytes } => {
                 let mut payload = alloc::vec![0x20];
                 payload.extend(bytes.iter().take(71));
                 message(Mti::DATAGRAM, p, &payload, &mut node, now);
+                sent_command = Command::parse(&payload).ok().map(|c| (peer(p), c));
             }
             ServerOp::Stream { peer: p, kind, stream, mut payload } => {
                 let (mti, head) = match kind % 5 {
@@ -304,26 +373,59 @@ pub fn memconfig_server_ops(data: &[u8]) {
             }
             ServerOp::Restart { peer: p } => {
                 let source = peer(p);
+                owner = owner.map(|(o, gone)| (o, gone || o == source));
+                // What was promised to a node that restarted is moot.
+                forget(&mut promised, source);
                 let payload = source.to_bytes();
                 node.handle_message(
                     now,
                     MessageRef { mti: Mti::INITIALIZATION_COMPLETE, source, destination: None, payload: &payload },
                 );
             }
-            ServerOp::PeerLost { peer: p } => node.peer_lost(peer(p)),
+            ServerOp::PeerLost { peer: p } => {
+                owner = owner.map(|(o, gone)| (o, gone || o == peer(p)));
+                forget(&mut promised, peer(p));
+                node.peer_lost(peer(p));
+            }
             ServerOp::Advance { millis } => {
                 now += Duration::from_millis(u64::from(millis) * 16);
                 node.handle_timeout(now);
             }
         }
+        let frozen_before = node.memory_server().is_some_and(|s| s.is_frozen());
+        // Datagram OK (its flags) or Rejected sent to the commanding peer in this step.
+        let mut answers: Vec<Option<u8>> = Vec::new();
         while let Some(sent) = node.poll_transmit() {
             assert!(sent.payload.len() <= crate::MAX_DATAGRAM_LEN || sent.mti == Mti::STREAM_DATA_SEND);
+            let index = PEERS.iter().position(|p| Some(*p) == sent.destination);
+            let to_commander = sent_command.as_ref().is_some_and(|(p, _)| Some(*p) == sent.destination);
             match sent.mti {
+                Mti::DATAGRAM_RECEIVED_OK if to_commander => {
+                    let flags = sent.payload.first().copied().unwrap_or(0);
+                    answers.push(Some(flags));
+                    if let (true, Some(i)) = (flags & 0x80 != 0, index) {
+                        if let Some(n) = promised.get_mut(i) {
+                            *n += 1;
+                        }
+                    }
+                }
+                Mti::DATAGRAM_REJECTED if to_commander => answers.push(None),
                 Mti::DATAGRAM => {
+                    if let Some(i) = index {
+                        if let Some(n) = promised.get_mut(i) {
+                            *n -= 1;
+                        }
+                    }
                     if let Ok(Reply::ReadOk { space, address, data }) = Reply::parse(&sent.payload) {
                         let size = sizes.iter().find(|(s, _)| *s == space).map_or(u32::MAX, |(_, n)| *n);
                         let end = address as usize + data.len();
                         assert!(space >= 0xFB || end <= size as usize, "read past the end of 0x{space:02X}");
+                        // The reply of this step's own Read (a queued one was read earlier).
+                        let this_read = matches!(sent_command, Some((_, Command::Read { space: 0xFD, address: a, .. })) if a == address);
+                        if let (0xFD, true, Some(shadow)) = (space, to_commander && this_read, &shadow) {
+                            let want = shadow.get(address as usize..end);
+                            assert_eq!(want, Some(&data[..]), "a Read Reply differs from what was written");
+                        }
                     }
                     if let Ok(Reply::WriteStreamOk { streams: Some((sid, did)), .. }) = Reply::parse(&sent.payload) {
                         ids = (sid, did);
@@ -339,6 +441,41 @@ pub fn memconfig_server_ops(data: &[u8]) {
             }
         }
         while node.poll_event().is_some() {}
+        if let Some((from, command)) = &sent_command {
+            // Every command is answered exactly once (an owner's Unfreeze may wait for the end
+            // of its own image stream).
+            let deferred = matches!(command, Command::Unfreeze { .. }) && answers.is_empty();
+            assert!(answers.len() == 1 || deferred, "{command:?} answered {} times", answers.len());
+            let accepted = answers.first().is_some_and(Option::is_some);
+            let frozen_by_other = owner.is_some_and(|(o, gone)| o != *from && !gone) && frozen_before;
+            match command {
+                Command::Write { space: 0xEF, .. } | Command::WriteStream { space: 0xEF, .. } => {
+                    assert!(!(accepted && frozen_by_other), "a bystander wrote the firmware space");
+                }
+                Command::Unfreeze { space: 0xEF } => {
+                    assert!(!(accepted && frozen_by_other), "a bystander unfroze the node");
+                }
+                Command::Freeze { space: 0xEF } if accepted => owner = Some((*from, false)),
+                Command::Write { space: 0xFD, address, data } if accepted => {
+                    let range =
+                        shadow.as_mut().and_then(|s| s.get_mut(*address as usize..*address as usize + data.len()));
+                    if let Some(range) = range {
+                        range.copy_from_slice(data);
+                    }
+                }
+                Command::WriteUnderMask { space: 0xFD, address, mask, data } if accepted => {
+                    let range =
+                        shadow.as_mut().and_then(|s| s.get_mut(*address as usize..*address as usize + data.len()));
+                    if let Some(range) = range {
+                        for ((old, new), m) in range.iter_mut().zip(data).zip(mask) {
+                            *old = (*old & !m) | (new & m);
+                        }
+                    }
+                }
+                Command::WriteStream { space: 0xFD, .. } if accepted => shadow = None,
+                _ => {}
+            }
+        }
         let server = node.memory_server();
         assert!(server.is_some_and(|s| s.active_streams() <= bound), "too many transfers");
         for (space, size) in sizes {
@@ -346,14 +483,28 @@ pub fn memconfig_server_ops(data: &[u8]) {
             assert_eq!(len, Some(size), "space 0x{space:02X} changed size");
         }
     }
-    // Liveness: a long quiet time later, no transfer is left.
-    for _ in 0..20 {
-        now += Duration::from_secs(30);
+    // Liveness: a long quiet time later, no transfer is left, and every reply promised has
+    // gone out (each waits for the one before it to be answered or to time out).
+    for _ in 0..60 {
+        now += Duration::from_secs(5);
         node.handle_timeout(now);
-        while node.poll_transmit().is_some() {}
+        while let Some(sent) = node.poll_transmit() {
+            let index = PEERS.iter().position(|p| Some(*p) == sent.destination);
+            if let (Mti::DATAGRAM, Some(i)) = (sent.mti, index) {
+                if let Some(n) = promised.get_mut(i) {
+                    *n -= 1;
+                }
+            }
+        }
         while node.poll_event().is_some() {}
     }
     assert_eq!(node.memory_server().map(|s| s.active_streams()), Some(0), "a transfer never ended");
+    assert!(promised.iter().all(|n| *n <= 0), "a reply promised by Reply Pending never came: {promised:?}");
+    if let (Some(shadow), Some(space)) = (shadow, node.memory_server_mut().and_then(|s| s.space_mut(0xFD))) {
+        let mut bytes = alloc::vec![0; 300];
+        let _ = space.read(0, &mut bytes);
+        assert!(bytes == shadow, "space 0xFD is not what the accepted writes left");
+    }
 }
 
 /// One declaration of [`event_ops`]: a block of 2^`bits` from `first`.

@@ -224,9 +224,16 @@ impl Cx<'_> {
         finished
     }
 
-    /// Sends a reply datagram (its delivery is the datagram service's business).
+    /// Sends a reply datagram that a Datagram OK promised: never dropped (its delivery is
+    /// the datagram service's business).
     pub(crate) fn send_reply(&mut self, to: NodeId, payload: &[u8]) {
-        let _ = self.send_datagram(to, payload);
+        let id = self.datagrams.send_promised(self.now, self.out, to, payload);
+        self.out.memory_datagrams.push(id);
+    }
+
+    /// A reply to `to` could be queued now.
+    pub(crate) fn has_reply_room(&self, to: NodeId) -> bool {
+        self.datagrams.has_room(to)
     }
 }
 

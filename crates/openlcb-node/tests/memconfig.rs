@@ -704,6 +704,8 @@ impl Scripted for ReplyAfterComplete {
                 self.sid = msg.payload[7];
                 send(out, Mti::DATAGRAM_RECEIVED_OK, vec![0x80]);
             }
+            // No Get Address Space Information: the client writes without knowing the size.
+            Mti::DATAGRAM => send(out, Mti::DATAGRAM_REJECTED, vec![0x10, 0x41]),
             Mti::STREAM_INITIATE_REQUEST => {
                 send(out, Mti::STREAM_INITIATE_REPLY, vec![0x01, 0x00, 0x80, 0x00, self.sid, 0x03]);
             }

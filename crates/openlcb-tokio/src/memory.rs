@@ -208,6 +208,10 @@ pub(crate) fn memory_error_text(peer: NodeId, error: MemoryError) -> String {
         MemoryError::BadReply => format!("node {peer} answered with a reply that does not fit the command"),
         MemoryError::NoStreams => format!("node {peer} does not support streams"),
         MemoryError::TooLong => format!("the space of node {peer} is larger than a read may take, or empty"),
+        MemoryError::Locked { owner } => {
+            let owner = NodeId::new(owner).map_or_else(|| format!("{owner:012X}"), |id| id.to_string());
+            format!("node {peer} is locked by {owner}, which is writing it")
+        }
         _ => format!("the Memory Configuration operation with node {peer} failed"),
     }
 }

@@ -208,7 +208,9 @@ pub struct Node {
     node_id: NodeId,
     control: Control,
     incoming: mpsc::Receiver<RecvStream>,
-    driver: JoinHandle<()>,
+    /// The driver task; `None` once [`closed`](Node::closed) saw it end (a finished task's
+    /// handle must not be awaited again).
+    driver: Option<JoinHandle<()>>,
 }
 
 impl Node {
@@ -278,7 +280,7 @@ impl Node {
         let driver = tokio::spawn(driver.run(up_tx).instrument(span));
         let control = Control { commands, shared };
         match tokio::time::timeout(timeout, up).await {
-            Ok(Ok(())) => Ok(Node { node_id, control, incoming, driver }),
+            Ok(Ok(())) => Ok(Node { node_id, control, incoming, driver: Some(driver) }),
             Ok(Err(_)) => Err(driver_error(driver, &control.shared).await),
             Err(_) => {
                 driver.abort();
@@ -461,7 +463,9 @@ impl Node {
     /// program had crashed. Its streams fail with [`Error::Closed`]; peers find out by their
     /// own timeouts. (A node that is simply dropped stops once its last stream is done.)
     pub fn abort(self) {
-        self.driver.abort();
+        if let Some(driver) = &self.driver {
+            driver.abort();
+        }
     }
 
     /// Stops the node in an orderly way: whatever the driver still has to send (for example
@@ -470,15 +474,20 @@ impl Node {
     /// runs while any of them lives.
     pub async fn close(mut self) {
         self.incoming.close();
-        let driver = std::mem::replace(&mut self.driver, tokio::spawn(async {}));
+        let driver = self.driver.take();
         // Dropping the handle closes the command channel: the driver flushes and stops.
         drop(self);
-        let _ = tokio::time::timeout(Duration::from_secs(2), driver).await;
+        if let Some(driver) = driver {
+            let _ = tokio::time::timeout(Duration::from_secs(2), driver).await;
+        }
     }
 
     /// Waits until the driver stops (the connection was lost) and returns why.
     pub async fn closed(&mut self) -> Error {
-        let _ = (&mut self.driver).await;
+        if let Some(driver) = &mut self.driver {
+            let _ = driver.await;
+            self.driver = None;
+        }
         self.control.shared.error()
     }
 }

@@ -96,6 +96,9 @@ enum Step {
     Unfreeze,
     /// Update Complete sent; its Datagram OK ends the operation.
     UpdateComplete,
+    /// Lock/Reserve sent before a write (MC §4.17), so that no other tool writes between
+    /// its commands; the write goes on by stream or not as `by_stream` says.
+    Lock { by_stream: bool },
 }
 
 #[derive(Debug)]
@@ -117,6 +120,10 @@ struct Operation {
     /// A Read Reply shorter than asked for, at (offset, length): trusted only once a second
     /// read says the same, since a CAN datagram that lost a middle frame looks just like one.
     short_reply: Option<(u32, usize)>,
+    /// Lock/Reserve was asked for (a write asks once).
+    lock_asked: bool,
+    /// This node holds the peer's lock: released when the operation ends.
+    locked: bool,
 }
 
 impl Kind {
@@ -274,6 +281,8 @@ impl MemoryClient {
             retries: 0,
             progress: 0,
             short_reply: None,
+            lock_asked: false,
+            locked: false,
         });
         let index = self.operations.len() - 1;
         let outcome = match path {
@@ -303,9 +312,16 @@ impl MemoryClient {
         }
     }
 
-    /// Starts moving bytes, by stream or by datagrams.
+    /// Starts moving bytes, by stream or by datagrams. A write of more than one command (or
+    /// a stream) takes the node's lock first.
     fn begin_transfer(&mut self, cx: &mut Cx<'_>, index: usize, by_stream: bool) -> Option<Outcome> {
-        let op = self.operations.get(index)?;
+        let node = cx.out.node.as_raw();
+        let op = self.operations.get_mut(index)?;
+        let long_write = matches!(&op.kind, Kind::Write { data } if by_stream || data.len() > MAX_DATA_LEN);
+        if long_write && !op.lock_asked {
+            op.lock_asked = true;
+            return self.send(cx, index, Step::Lock { by_stream }, &Command::Lock { node });
+        }
         let (peer, space, address) = (op.peer, op.space, op.address);
         let read_len = match &op.kind {
             Kind::Read { len, .. } => Some(*len),
@@ -320,13 +336,24 @@ impl MemoryClient {
             }
             (Some(None), false) => self.send(cx, index, Step::SpaceInfo, &Command::GetSpaceInfo { space }),
             (Some(Some(_)), false) => self.next_chunk(cx, index, 0),
-            (_, true) => {
-                let sid = self.free_stream_id(cx, peer, Role::Source)?;
-                let step = Step::WriteStream { sid, handle: None, sent: 0, finished: false, replied: false };
-                self.send(cx, index, step, &Command::WriteStream { space, address, source_stream: sid.as_raw() })
+            // A stream cannot say that its end fell outside the space (the Write Stream Reply
+            // comes first): the space's size is asked for, and a write that does not fit is
+            // refused before a byte goes out.
+            (_, true) if matches!(op.kind, Kind::Write { .. }) => {
+                self.send(cx, index, Step::SpaceInfo, &Command::GetSpaceInfo { space })
             }
+            (_, true) => self.write_stream(cx, index),
             (_, false) => self.next_chunk(cx, index, 0),
         }
+    }
+
+    /// Sends Write Stream; the stream opens after its Datagram OK.
+    fn write_stream(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
+        let op = self.operations.get(index)?;
+        let (peer, space, address) = (op.peer, op.space, op.address);
+        let sid = self.free_stream_id(cx, peer, Role::Source)?;
+        let step = Step::WriteStream { sid, handle: None, sent: 0, finished: false, replied: false };
+        self.send(cx, index, step, &Command::WriteStream { space, address, source_stream: sid.as_raw() })
     }
 
     /// A stream ID not in use with `peer` in `role` on this node's endpoint, rotating.
@@ -388,6 +415,10 @@ impl MemoryClient {
         let op = self.operations.swap_remove(index);
         if let (Outcome::Fail(_), Some(handle)) = (&outcome, op.stream_handle()) {
             let _ = cx.streams.abort(cx.now, handle, ErrorCode::PERMANENT);
+        }
+        if op.locked {
+            // Released once the last command is answered; its outcome needs nothing more.
+            let _ = cx.send_datagram(op.peer, &Command::Lock { node: 0 }.to_bytes());
         }
         let event = match (outcome, op.kind) {
             (Outcome::Fail(error), _) => MemoryEvent::Failed { operation: op.id, peer: op.peer, error },
@@ -469,6 +500,13 @@ impl MemoryClient {
                 op.deadline = Some(cx.now + reply_timeout);
                 None
             }
+            // A node without Get Address Space Information: the stream write goes ahead, and
+            // a space error ends it with TDE.
+            (Step::SpaceInfo, Err(DatagramFailure::Rejected(_))) if matches!(op.kind, Kind::Write { .. }) => {
+                self.write_stream(cx, index)
+            }
+            // A node without Lock/Reserve (OpenMRN answers 0x1041): written without it.
+            (Step::Lock { by_stream }, Err(DatagramFailure::Rejected(_))) => self.begin_transfer(cx, index, by_stream),
             (_, Err(DatagramFailure::TimedOut)) => self.retry(cx, index),
             (_, Err(DatagramFailure::Rejected(code))) => Some(Outcome::Fail(MemoryError::Rejected(code))),
             (_, Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Fail(MemoryError::PeerRestarted)),
@@ -504,6 +542,10 @@ impl MemoryClient {
             Step::Chunk { at, .. } => self.next_chunk(cx, index, at),
             Step::Protocols => self.ask_protocols(cx, index),
             Step::UpdateComplete => self.send(cx, index, Step::UpdateComplete, &Command::UpdateComplete),
+            Step::Lock { by_stream } => {
+                let node = cx.out.node.as_raw();
+                self.send(cx, index, Step::Lock { by_stream }, &Command::Lock { node })
+            }
             _ => Some(Outcome::Fail(MemoryError::TimedOut)),
         }
     }
@@ -518,8 +560,16 @@ impl MemoryClient {
 
     fn reply_outcome(&mut self, cx: &mut Cx<'_>, index: usize, reply: Reply) -> Option<Outcome> {
         let max_read = cx.options.max_read_len;
+        let node = cx.out.node.as_raw();
         let op = self.operations.get_mut(index)?;
         match (op.step, reply) {
+            // An owner of 0 answers no Lock of ours (a late reply to our own release).
+            (Step::Lock { .. }, Reply::Lock { owner: 0 }) => None,
+            (Step::Lock { by_stream }, Reply::Lock { owner }) if owner == node => {
+                op.locked = true;
+                self.begin_transfer(cx, index, by_stream)
+            }
+            (Step::Lock { .. }, Reply::Lock { owner }) => Some(Outcome::Fail(MemoryError::Locked { owner })),
             (Step::Options, Reply::Options(options)) => {
                 let by_stream = options.streams() && cx.streams_enabled;
                 self.begin_transfer(cx, index, by_stream)
@@ -530,6 +580,14 @@ impl MemoryClient {
                     return Some(Outcome::Fail(MemoryError::Failed(codes::UNKNOWN_SPACE)));
                 };
                 let len = highest.checked_sub(op.address).and_then(|n| n.checked_add(1));
+                if let Kind::Write { data } = &op.kind {
+                    let fits = len.is_some_and(|room| data.len() as u64 <= u64::from(room));
+                    return if fits {
+                        self.write_stream(cx, index)
+                    } else {
+                        Some(Outcome::Fail(MemoryError::Failed(codes::OUT_OF_BOUNDS)))
+                    };
+                }
                 match (len, &mut op.kind) {
                     (Some(len), Kind::Read { len: want, reported, .. }) if len <= max_read => {
                         *want = Some(len);
@@ -706,9 +764,11 @@ impl MemoryClient {
         let outcome = match event {
             Event::Opened { .. } | Event::Writable { .. } => self.pump_write(cx, index),
             Event::Readable { .. } => self.drain_read(cx, index),
-            Event::Finished { total, .. } => {
+            Event::Finished { total, stated, matched, .. } => {
                 let drained = self.drain_read(cx, index);
-                drained.or_else(|| self.read_finished(index, *total))
+                // Bytes lost on the way (or a Complete that counts otherwise) fail the read.
+                let stated = stated.filter(|_| !matched);
+                drained.or_else(|| self.read_finished(index, *total, stated))
             }
             Event::Rejected { code, .. } => Some(Outcome::Fail(MemoryError::StreamRejected(ErrorCode(code.0)))),
             Event::Terminated { cause, .. } => Some(Outcome::Fail(match cause {
@@ -745,10 +805,15 @@ impl MemoryClient {
         None
     }
 
-    fn read_finished(&mut self, index: usize, total: u64) -> Option<Outcome> {
+    /// The stream of a read ended with `total` bytes; `mismatch`: the count its Complete
+    /// stated, when that differs.
+    fn read_finished(&mut self, index: usize, total: u64, mismatch: Option<u64>) -> Option<Outcome> {
         let op = self.operations.get(index)?;
         let Kind::Read { data, len, .. } = &op.kind else { return None };
         let received = data.len() as u64;
+        if let Some(expected) = mismatch {
+            return Some(Outcome::Fail(MemoryError::WrongLength { expected, received }));
+        }
         match len {
             Some(want) if u64::from(*want) != received || received != total => {
                 Some(Outcome::Fail(MemoryError::WrongLength { expected: u64::from(*want), received }))

@@ -74,6 +74,9 @@ pub struct MemoryConfigOptions {
     pub max_operations: usize,
     /// The most bytes one client read may ask for (its buffer).
     pub max_read_len: u32,
+    /// Server: how long a Lock/Reserve holds without a command or stream data from its
+    /// owner; then it lapses, so a client that died does not keep others from writing.
+    pub lock_timeout: Duration,
 }
 
 impl Default for MemoryConfigOptions {
@@ -89,6 +92,7 @@ impl Default for MemoryConfigOptions {
             max_server_streams: 8,
             max_operations: 8,
             max_read_len: 16 * 1024 * 1024,
+            lock_timeout: Duration::from_secs(10),
         }
     }
 }
@@ -127,6 +131,12 @@ pub enum MemoryError {
     NoStreams,
     /// The node's space is smaller than what a read asked for (or a space of 0 bytes).
     TooLong,
+    /// Another node holds the node's Lock/Reserve (MC §4.17): it is writing; nothing was
+    /// written.
+    Locked {
+        /// The Node ID the lock holds.
+        owner: u64,
+    },
 }
 
 /// What Memory Configuration tells the application: the end of each client operation,
@@ -173,6 +183,15 @@ pub enum MemoryEvent {
         by: NodeId,
         /// One past the highest firmware byte written while frozen.
         image_len: u32,
+    },
+    /// Server: the Unfreeze of `by` was refused with `code` and the node stays frozen: the
+    /// transfer into space 0xEF was aborted (0x1089), or the space could not store the image
+    /// (its [`MemorySpace::complete`] failed). A retry starts again at offset 0.
+    UpgradeRefused {
+        /// Who asked.
+        by: NodeId,
+        /// The code of the Datagram Rejected sent.
+        code: ErrorCode,
     },
     /// Server: Update Complete (the configuration tool is done; the node may apply it).
     UpdateComplete {

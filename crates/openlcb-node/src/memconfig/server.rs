@@ -87,8 +87,17 @@ pub struct MemoryServer {
     acdi_user: Vec<u8>,
     unique_ids: Vec<[u8; 8]>,
     lock: u64,
+    /// The lock lapses at this time unless its owner sends another command (or stream data)
+    /// first: a client that died does not lock the node for good.
+    lock_deadline: Instant,
     frozen: bool,
+    /// The node whose Freeze started this upgrade: only it may write space 0xEF or
+    /// unfreeze (`None` once it restarted or left: the next Freeze takes over).
+    firmware_owner: Option<NodeId>,
     firmware_written: u32,
+    /// A transfer into space 0xEF failed since the last write at offset 0: Unfreeze is
+    /// refused and the node stays frozen, so that a retry can start again (FWU §5.4.3).
+    firmware_aborted: bool,
     /// Unfreeze came from this node while its Write Stream into space 0xEF was still open:
     /// the image ends, and the node unfreezes, when that stream ends.
     unfreeze_pending: Option<NodeId>,
@@ -125,8 +134,11 @@ impl MemoryServer {
             acdi_user: Vec::new(),
             unique_ids: Vec::new(),
             lock: 0,
+            lock_deadline: Instant::ZERO,
             frozen: false,
+            firmware_owner: None,
             firmware_written: 0,
+            firmware_aborted: false,
             unfreeze_pending: None,
             transfers: Vec::new(),
             user_info_changed: false,
@@ -199,6 +211,20 @@ impl MemoryServer {
     /// Who holds the lock (0: nobody).
     pub fn lock_owner(&self) -> u64 {
         self.lock
+    }
+
+    /// The lock is held by another node than `peer` (and has not lapsed): `peer`'s writes
+    /// are refused with 0x2000 (temporary: locked, MC-TN §2.4.4). MC §4.17 makes the lock
+    /// voluntary; refusing writes is what keeps two tools from mixing their data.
+    fn locked_out(&self, now: Instant, peer: NodeId) -> bool {
+        self.lock != 0 && self.lock != peer.as_raw() && now < self.lock_deadline
+    }
+
+    /// `peer` did something: a lock it holds lasts on.
+    fn touch_lock(&mut self, now: Instant, timeout: openlcb_stream::Duration, peer: NodeId) {
+        if self.lock == peer.as_raw() {
+            self.lock_deadline = now + timeout;
+        }
     }
 
     /// Stream transfers running (or waiting for their stream).
@@ -282,11 +308,32 @@ impl MemoryServer {
             self.user_info_changed = true;
             return Ok(());
         }
-        self.space_mut(space).ok_or(SpaceError::OutOfBounds)?.write(address, data)?;
-        if space == SPACE_FIRMWARE {
-            self.firmware_written = self.firmware_written.max(end);
+        if space == SPACE_FIRMWARE && address == 0 && self.firmware_aborted {
+            self.restart_image();
         }
-        Ok(())
+        let written = self.space_mut(space).ok_or(SpaceError::OutOfBounds)?.write(address, data);
+        if space == SPACE_FIRMWARE {
+            match written {
+                Ok(()) => self.firmware_written = self.firmware_written.max(end),
+                Err(_) => self.firmware_aborted = true,
+            }
+        }
+        written
+    }
+
+    /// A new image begins: nothing written, nothing aborted, the space's bytes discarded.
+    fn restart_image(&mut self) {
+        self.firmware_written = 0;
+        self.firmware_aborted = false;
+        if let Some(space) = self.space_mut(SPACE_FIRMWARE) {
+            space.discard();
+        }
+    }
+
+    /// Space 0xEF while another node's upgrade holds it: refused (0x1020, source not
+    /// permitted), so that two loaders never mix their images.
+    fn firmware_refused(&self, peer: NodeId, space: u8) -> bool {
+        space == SPACE_FIRMWARE && self.frozen && self.firmware_owner.is_some_and(|owner| owner != peer)
     }
 
     /// The Options reply (node-protocols.md §3.7): stream bit 0x01 only with streams (C-5).
@@ -336,6 +383,13 @@ impl MemoryServer {
     /// the command has one, a reply datagram.
     pub(crate) fn on_command(&mut self, cx: &mut Cx<'_>, peer: NodeId, bytes: &[u8]) {
         self.stats.commands += 1;
+        if !cx.has_reply_room(peer) {
+            // No reply could be queued: refused for now (the sender resends) rather than
+            // promised and dropped. The bound is per peer, so one that never acknowledges
+            // its replies does not starve the others.
+            return self.reject(cx, peer, ErrorCode::BUFFER_UNAVAILABLE);
+        }
+        self.touch_lock(cx.now, cx.options.lock_timeout, peer);
         let command = match Command::parse(bytes) {
             Ok(command) => command,
             Err(DecodeError::UnknownCommand(_) | DecodeError::NotMemoryConfiguration) => {
@@ -379,10 +433,11 @@ impl MemoryServer {
                 cx.send_reply(peer, &Reply::SpaceInfo(self.space_info(space)).to_bytes());
             }
             Command::Lock { node } => {
-                // MC §4.17: test-and-set; a Node ID of 0 releases.
-                if self.lock == 0 || node == 0 {
+                // MC §4.17: test-and-set; a Node ID of 0 releases. A lapsed lock is free.
+                if self.lock == 0 || node == 0 || cx.now >= self.lock_deadline {
                     self.lock = node;
                 }
+                self.lock_deadline = cx.now + cx.options.lock_timeout;
                 cx.ok(peer, pending);
                 cx.send_reply(peer, &Reply::Lock { owner: self.lock }.to_bytes());
             }
@@ -399,10 +454,14 @@ impl MemoryServer {
                 if space != SPACE_FIRMWARE || !self.has_firmware() {
                     return self.reject(cx, peer, codes::UNKNOWN_SPACE);
                 }
+                if self.firmware_refused(peer, space) {
+                    return self.reject(cx, peer, ErrorCode::SOURCE_NOT_PERMITTED);
+                }
                 // C-11: the OK, then Initialization Complete in the new state (FWU §5.2). A
                 // Freeze while frozen gets the same answer (FWU-TN §2.6.2).
                 self.frozen = true;
-                self.firmware_written = 0;
+                self.firmware_owner = Some(peer);
+                self.restart_image();
                 cx.ok(peer, OkFlags::default());
                 cx.announce = true;
                 cx.out.event(crate::NodeEvent::Memory(E::Frozen { by: peer }));
@@ -411,12 +470,18 @@ impl MemoryServer {
                 if space != SPACE_FIRMWARE || !self.has_firmware() {
                     return self.reject(cx, peer, codes::UNKNOWN_SPACE);
                 }
-                cx.ok(peer, OkFlags::default());
-                if self.frozen && self.firmware_stream_open(peer) {
+                if !self.frozen {
+                    return cx.ok(peer, OkFlags::default());
+                }
+                if self.firmware_refused(peer, space) {
+                    return self.reject(cx, peer, ErrorCode::SOURCE_NOT_PERMITTED);
+                }
+                if self.firmware_stream_open(peer) {
                     // On CAN the client's Unfreeze datagram may overtake the end of its own
-                    // stream: the bytes still coming belong to the image.
+                    // stream: the bytes still coming belong to the image, and the answer
+                    // waits for the stream's end.
                     self.unfreeze_pending = Some(peer);
-                } else if self.frozen {
+                } else {
                     self.unfreeze(cx, peer);
                 }
             }
@@ -462,6 +527,12 @@ impl MemoryServer {
         if self.read_only(space) {
             return self.reject(cx, peer, codes::READ_ONLY);
         }
+        if self.firmware_refused(peer, space) {
+            return self.reject(cx, peer, ErrorCode::SOURCE_NOT_PERMITTED);
+        }
+        if self.locked_out(cx.now, peer) {
+            return self.reject(cx, peer, ErrorCode::TEMPORARY);
+        }
         let mut merged = [0u8; MAX_DATA_LEN];
         let result = match mask {
             None => self.write_space(space, address, data),
@@ -497,13 +568,19 @@ impl MemoryServer {
 
     /// The checks a stream command passes before its OK: space known, address inside,
     /// writable for a Write Stream, streams on, room for one more transfer.
-    fn check_stream(&self, cx: &Cx<'_>, space: u8, address: u32, write: bool) -> Result<(), ErrorCode> {
+    fn check_stream(&self, cx: &Cx<'_>, peer: NodeId, space: u8, address: u32, write: bool) -> Result<(), ErrorCode> {
         if !cx.streams_enabled {
             return Err(codes::UNKNOWN_COMMAND);
         }
         let len = self.space_len(space).ok_or(codes::UNKNOWN_SPACE)?;
         if write && self.read_only(space) {
             return Err(codes::READ_ONLY);
+        }
+        if write && self.firmware_refused(peer, space) {
+            return Err(ErrorCode::SOURCE_NOT_PERMITTED);
+        }
+        if write && self.locked_out(cx.now, peer) {
+            return Err(ErrorCode::TEMPORARY);
         }
         if address >= len {
             return Err(codes::OUT_OF_BOUNDS);
@@ -526,7 +603,7 @@ impl MemoryServer {
         did: u8,
         count: u32,
     ) {
-        if let Err(code) = self.check_stream(cx, space, address, false) {
+        if let Err(code) = self.check_stream(cx, peer, space, address, false) {
             return self.reject(cx, peer, code);
         }
         cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
@@ -565,7 +642,7 @@ impl MemoryServer {
     /// within [`MemoryConfigOptions::write_stream_reply_delay`], else at that time, before
     /// the stream. Later errors end the stream with TDE.
     fn write_stream(&mut self, cx: &mut Cx<'_>, peer: NodeId, (space, form): (u8, SpaceForm), address: u32, sid: u8) {
-        if let Err(code) = self.check_stream(cx, space, address, true) {
+        if let Err(code) = self.check_stream(cx, peer, space, address, true) {
             return self.reject(cx, peer, code);
         }
         if StreamId::new(sid).is_none() {
@@ -627,11 +704,27 @@ impl MemoryServer {
             .any(|t| t.peer == peer && matches!(t.job, Job::Write { handle: Some(_), space: SPACE_FIRMWARE, .. }))
     }
 
-    /// Leaves the Firmware Upgrade state: the image is what was written while frozen.
+    /// Answers the owner's Unfreeze. The image is what was written while frozen, once the
+    /// space has stored it ([`MemorySpace::complete`]): then the OK, and the node leaves the
+    /// Firmware Upgrade state. An aborted transfer (0x1089) or an image the space could not
+    /// store is refused, and the node stays frozen for a retry, as OpenMRN's bootloader
+    /// refuses an Unfreeze whose flash did not complete.
     fn unfreeze(&mut self, cx: &mut Cx<'_>, by: NodeId) {
-        self.frozen = false;
-        cx.announce = true;
         let image_len = self.firmware_written;
+        let aborted = self.firmware_aborted;
+        let stored = match self.space_mut(SPACE_FIRMWARE) {
+            _ if aborted => Err(codes::FIRMWARE_CORRUPTED),
+            Some(space) => space.complete(image_len).map_err(|e| e.code()),
+            None => Err(codes::UNKNOWN_SPACE),
+        };
+        if let Err(code) = stored {
+            self.reject(cx, by, code);
+            return cx.out.event(crate::NodeEvent::Memory(E::UpgradeRefused { by, code }));
+        }
+        cx.ok(by, OkFlags::default());
+        self.frozen = false;
+        self.firmware_owner = None;
+        cx.announce = true;
         cx.out.event(crate::NodeEvent::Memory(E::Unfrozen { by, image_len }));
     }
 
@@ -692,18 +785,32 @@ impl MemoryServer {
                 }
                 self.end(index, false);
             }
-            _ => self.end(index, false),
+            _ => {
+                // A Read Stream whose stream never opened still owes its promised reply.
+                if let Some(Transfer { peer, form, job: Job::Read { space, address, opened: false, .. } }) =
+                    self.transfers.get(index)
+                {
+                    let reply = failed(FailedKind::ReadStream, *space, *address, ErrorCode::TIMEOUT);
+                    let (peer, bytes) = (*peer, reply.to_bytes_in(*form));
+                    cx.send_reply(peer, &bytes);
+                }
+                self.end(index, false);
+            }
         }
         true
     }
 
     fn end(&mut self, index: usize, done: bool) {
         if index < self.transfers.len() {
-            self.transfers.swap_remove(index);
+            let transfer = self.transfers.swap_remove(index);
             if done {
                 self.stats.streams_done += 1;
             } else {
                 self.stats.streams_failed += 1;
+                // FWU §5.4.3: a stream into the image that ends early aborts the upgrade.
+                if matches!(transfer.job, Job::Write { space: SPACE_FIRMWARE, .. }) {
+                    self.firmware_aborted = true;
+                }
             }
         }
     }
@@ -759,7 +866,14 @@ impl MemoryServer {
             if n == 0 {
                 break;
             }
-            if let Err(e) = self.write_space(space, at, buf.get(..n).unwrap_or_default()) {
+            // Every byte the space can hold is stored; what lies past its end ends the stream.
+            let room = self.space_len(space).map_or(0, |len| len.saturating_sub(at));
+            let fits = n.min(usize::try_from(room).unwrap_or(usize::MAX));
+            let stored = match buf.get(..fits).filter(|b| !b.is_empty()) {
+                Some(part) => self.write_space(space, at, part),
+                None => Ok(()),
+            };
+            if let Err(e) = stored.and(if fits < n { Err(SpaceError::OutOfBounds) } else { Ok(()) }) {
                 let _ = cx.streams.abort(cx.now, handle, e.code());
                 if self.write_reply(index) == Some(WriteReply::AfterComplete) {
                     self.send_write_reply(cx, index, Some(e.code()));
@@ -767,9 +881,13 @@ impl MemoryServer {
                 return self.end(index, false);
             }
             let deadline = cx.now + cx.options.stream_timeout;
-            if let Some(Transfer { job: Job::Write { next, deadline: d, .. }, .. }) = self.transfers.get_mut(index) {
+            if let Some(Transfer { peer, job: Job::Write { next, deadline: d, .. }, .. }) =
+                self.transfers.get_mut(index)
+            {
                 *next = next.saturating_add(n as u32);
                 *d = deadline;
+                let peer = *peer;
+                self.touch_lock(cx.now, cx.options.lock_timeout, peer);
             }
         }
         if finished {
@@ -833,12 +951,19 @@ impl MemoryServer {
     pub(crate) fn forget_peer(&mut self, peer: Option<NodeId>) {
         self.transfers
             .retain(|t| !(peer.is_none_or(|p| p == t.peer) && matches!(t.job, Job::Write { handle: None, .. })));
+        // An upgrade whose owner is gone may be taken over by the next Freeze.
+        if self.firmware_owner.is_some_and(|owner| peer.is_none_or(|p| p == owner)) {
+            self.firmware_owner = None;
+        }
     }
 
     /// Moves what is open with `from` to `to` (the transport renamed the peer).
     pub(crate) fn rename_peer(&mut self, from: NodeId, to: NodeId) {
         for t in self.transfers.iter_mut().filter(|t| t.peer == from) {
             t.peer = to;
+        }
+        if self.firmware_owner == Some(from) {
+            self.firmware_owner = Some(to);
         }
     }
 }

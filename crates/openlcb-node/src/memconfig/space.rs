@@ -66,6 +66,19 @@ pub trait MemorySpace {
     fn write_window(&self) -> Option<u16> {
         None
     }
+
+    /// Firmware space 0xEF only: the owner's Unfreeze came, and bytes `0..len` written while
+    /// frozen are the image. Store it (flash it, save it) before returning; an error refuses
+    /// the Unfreeze with its code and the node stays frozen, so the loader reports the
+    /// failure instead of a success.
+    fn complete(&mut self, len: u32) -> Result<(), SpaceError> {
+        let _ = len;
+        Ok(())
+    }
+
+    /// Firmware space 0xEF only: what was written is no image (a new Freeze, or a retry
+    /// after an aborted transfer starts at offset 0 again); forget it.
+    fn discard(&mut self) {}
 }
 
 /// Copies as much of `from` as fits into `to`; returns how many bytes.
