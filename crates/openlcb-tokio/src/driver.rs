@@ -179,8 +179,14 @@ impl Driver {
                 command = self.commands.recv() => match command {
                     Some(command) => self.command(command),
                     None => {
-                        // Every handle is gone: write what is left, then stop.
-                        let _ = tokio::time::timeout(std::time::Duration::from_secs(1), self.flush()).await;
+                        // Every handle is gone: write what is left, release the alias (a
+                        // node leaving the network says so, CFT §6.2.4), then stop.
+                        let goodbye = async {
+                            self.flush().await?;
+                            self.wire.leave();
+                            self.flush().await
+                        };
+                        let _ = tokio::time::timeout(std::time::Duration::from_secs(1), goodbye).await;
                         return Error::Closed;
                     }
                 },

@@ -207,6 +207,13 @@ impl Wire {
         }
     }
 
+    /// Leaves the network: on CAN the alias is released (AMR) once what is queued is out.
+    pub(crate) fn leave(&mut self) {
+        if let Wire::GridConnect { link, .. } = self {
+            link.leave(None);
+        }
+    }
+
     /// Runs the link's timers.
     pub(crate) fn handle_timeout(&mut self, now: Instant) {
         if let Wire::GridConnect { link, .. } = self {

@@ -283,6 +283,24 @@ async fn a_second_node_with_a_taken_node_id_refuses_to_join_and_the_first_keeps_
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_that_closes_releases_its_alias() {
+    let hub = start_hub(HubOptions::default()).await;
+    let mut observer = TcpStream::connect(hub.local_addr()).await.unwrap();
+    until_clients(&hub, 1).await;
+    let node = bounded(
+        "joining",
+        Node::connect(&hub.local_addr().to_string(), Protocol::GridConnect, NodeOptions::new(id(0x32))),
+    )
+    .await
+    .unwrap();
+    let login = frames_until(&mut observer, ":X10701").await;
+    let alias = &login.last().unwrap()[7..10];
+    node.close().await;
+    let frames = frames_until(&mut observer, ":X10703").await;
+    assert_eq!(frames.last().unwrap(), &format!(":X10703{alias}N050101012232;"), "AMR with its Node ID");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_hub_never_speaks_for_a_client_that_left() {
     let hub = start_hub(HubOptions::default()).await;
     let mut observer = TcpStream::connect(hub.local_addr()).await.unwrap();
