@@ -431,6 +431,10 @@ pub fn memconfig_server_ops(data: &[u8]) {
                         ids = (sid, did);
                     }
                 }
+                // The node itself started again (Reset/Reboot: Initialization Complete, then
+                // this Verify Node ID naming itself): what it promised before is moot, as for
+                // a peer that restarted.
+                Mti::VERIFY_NODE_ID_GLOBAL => promised = [0; PEERS.len()],
                 Mti::STREAM_INITIATE_REQUEST => {
                     ids = (sent.payload.get(4).copied().unwrap_or(0), sent.payload.get(5).copied().unwrap_or(0))
                 }

@@ -650,9 +650,18 @@ impl MemoryServer {
         }
         cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
         let did = cx.streams.next_destination_id(peer).map_or(0xFF, StreamId::as_raw);
-        // A repeated command (its OK lost) replaces the transfer waiting for the same SID.
-        self.transfers
-            .retain(|t| !(t.peer == peer && matches!(t.job, Job::Write { sid: s, handle: None, .. } if s == sid)));
+        // A repeated command (its OK lost) replaces the transfer waiting for the same SID;
+        // the reply promised for the first goes out first.
+        while let Some(index) = self
+            .transfers
+            .iter()
+            .position(|t| t.peer == peer && matches!(t.job, Job::Write { sid: s, handle: None, .. } if s == sid))
+        {
+            if matches!(self.write_reply(index), Some(WriteReply::Due(_))) {
+                self.send_write_reply(cx, index, None);
+            }
+            self.transfers.swap_remove(index);
+        }
         let deadline = cx.now + cx.options.stream_timeout;
         let reply = WriteReply::Due(cx.now + cx.options.write_stream_reply_delay);
         let job = Job::Write { sid, did, handle: None, space, address, next: address, deadline, reply };
@@ -736,16 +745,16 @@ impl MemoryServer {
             });
             let Some(transfer) = waiting else { return false };
             let Job::Write { handle: slot, space, reply, did, .. } = &mut transfer.job else { return false };
-            if matches!(reply, WriteReply::Due(_)) {
-                // The client initiated without waiting for the reply: it comes after Complete.
-                *reply = WriteReply::AfterComplete;
-            }
             let space_window = self.spaces.iter().find(|(n, _)| n == space).and_then(|(_, s)| s.write_window());
             let window = space_window.unwrap_or(cx.options.write_stream_window).max(1);
             if cx.streams.accept_with(cx.now, *handle, AcceptOptions::new(Some(window), false)).is_ok() {
                 *slot = Some(*handle);
                 if let Some(assigned) = cx.streams.stream_info(*handle).and_then(|i| i.destination_stream) {
                     *did = assigned.as_raw();
+                }
+                if matches!(reply, WriteReply::Due(_)) {
+                    // The client initiated without waiting for the reply: it comes after Complete.
+                    *reply = WriteReply::AfterComplete;
                 }
             }
             return true;
@@ -793,6 +802,10 @@ impl MemoryServer {
                     let reply = failed(FailedKind::ReadStream, *space, *address, ErrorCode::TIMEOUT);
                     let (peer, bytes) = (*peer, reply.to_bytes_in(*form));
                     cx.send_reply(peer, &bytes);
+                }
+                // So does a Write Stream whose reply waited for a Complete that never came.
+                if self.write_reply(index) == Some(WriteReply::AfterComplete) {
+                    self.send_write_reply(cx, index, Some(ErrorCode::TIMEOUT));
                 }
                 self.end(index, false);
             }
