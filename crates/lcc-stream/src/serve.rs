@@ -3,7 +3,7 @@
 //! SNIP) and 0xEF (firmware, saved to a file at each Unfreeze: the Unfreeze is refused, and
 //! the loader told, when the image cannot be saved).
 
-use std::io::{Seek as _, SeekFrom, Write as _};
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::{Arc, Mutex};
@@ -277,14 +277,15 @@ fn free_path(out: &Path, force: bool) -> PathBuf {
         .unwrap_or_else(|| out.to_path_buf())
 }
 
-/// Writes `bytes` through `<path>.part`, synced, then publishes it under `path`: replacing
-/// a file only with `force`.
-fn save_image(path: &Path, bytes: &[u8], force: bool) -> std::io::Result<()> {
+/// Writes `bytes` through `<path>.part`, synced, then publishes it under `path` in one step
+/// (a rename or a link), so `path` never holds part of them, even if the process is killed:
+/// replacing a file only with `replace`.
+fn save_whole(path: &Path, bytes: &[u8], replace: bool) -> std::io::Result<()> {
     let part = part_path(path);
     let written = std::fs::File::create(&part).and_then(|mut file| {
         file.write_all(bytes)?;
         file.sync_all()?;
-        if force { std::fs::rename(&part, path) } else { publish_blocking(&part, path) }
+        if replace { std::fs::rename(&part, path) } else { publish_blocking(&part, path) }
     });
     if written.is_err() {
         let _ = std::fs::remove_file(&part);
@@ -388,9 +389,11 @@ const BUILTIN_SETTINGS: &str = r#"<string size="32"><name>Label</name><descripti
 </group>
 "#;
 
-/// Space 0xFD: a file (written through) or bytes in memory.
+/// Space 0xFD: a file or bytes in memory. The file is replaced whole after each write
+/// command (through `<file>.part`, then a rename), so it holds the space as it was before or
+/// after each command, never half of one, even when `serve` is killed.
 enum ConfigSpace {
-    File { file: std::fs::File, bytes: RamSpace },
+    File { path: PathBuf, bytes: RamSpace },
     Memory(RamSpace),
 }
 
@@ -400,11 +403,8 @@ impl ConfigSpace {
         if bytes.is_empty() || u32::try_from(bytes.len()).is_err() {
             return Err(format!("{} must hold 1 byte to 4 GiB", path.display()));
         }
-        let file = std::fs::OpenOptions::new()
-            .write(true)
-            .open(path)
-            .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
-        Ok(ConfigSpace::File { file, bytes: RamSpace::from_bytes(bytes) })
+        save_whole(path, &bytes, true).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+        Ok(ConfigSpace::File { path: path.to_path_buf(), bytes: RamSpace::from_bytes(bytes) })
     }
 
     fn ram(&self) -> &RamSpace {
@@ -429,11 +429,16 @@ impl MemorySpace for ConfigSpace {
     fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
         match self {
             ConfigSpace::Memory(bytes) => bytes.write(address, data),
-            ConfigSpace::File { file, bytes } => {
+            ConfigSpace::File { path, bytes } => {
+                let start = address as usize;
+                let before = bytes.as_bytes()[start..start + data.len()].to_vec();
                 bytes.write(address, data)?;
-                let failed = |_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT);
-                file.seek(SeekFrom::Start(u64::from(address))).map_err(failed)?;
-                file.write_all(data).map_err(failed)
+                if save_whole(path, bytes.as_bytes(), true).is_err() {
+                    // The file was left as it was: so is the space.
+                    bytes.write(address, &before)?;
+                    return Err(SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT));
+                }
+                Ok(())
             }
         }
     }
@@ -514,7 +519,7 @@ impl MemorySpace for Image {
         let mut state = self.state()?;
         state.bytes.resize(len as usize, 0);
         let path = free_path(&state.out, state.force);
-        let saved = save_image(&path, &state.bytes, state.force);
+        let saved = save_whole(&path, &state.bytes, state.force);
         state.last = Some(saved.as_ref().map(|()| path.clone()).map_err(|e| format!("{}: {e}", path.display())));
         state.bytes = Vec::new();
         saved.map_err(|_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT))

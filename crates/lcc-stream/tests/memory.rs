@@ -411,3 +411,31 @@ async fn an_image_that_cannot_be_saved_fails_the_upgrade_and_a_retry_succeeds() 
     server.wait_for("written to").await;
     assert_eq!(std::fs::read(&out).unwrap(), data(10_000, 4));
 }
+
+/// The file behind `--config` is replaced whole after each write command, never written in
+/// place: a reader that opened it before a write still reads the whole earlier version (the
+/// file it opened), the name then holds the whole new one, and no `.part` is left.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_config_file_is_replaced_whole_never_written_in_place() {
+    use std::io::Read as _;
+    let dir = scratch("config-whole");
+    let (_hub, addr) = hub().await;
+    let config = dir.join("config.bin");
+    std::fs::write(&config, data(1000, 4)).unwrap();
+    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+
+    let mut opened_before = std::fs::File::open(&config).unwrap();
+    let restore = dir.join("restore.bin");
+    std::fs::write(&restore, data(1000, 5)).unwrap();
+    for extra in [None, Some("--no-stream")] {
+        let mut args = vec!["write", path_arg(&restore), "--to", SERVER];
+        args.extend(extra);
+        let (status, json) = run(&addr, &args).await;
+        assert_eq!(status, 0, "{json}");
+        assert_eq!(std::fs::read(&config).unwrap(), data(1000, 5));
+        assert!(!dir.join("config.bin.part").exists());
+    }
+    let mut seen = Vec::new();
+    opened_before.read_to_end(&mut seen).unwrap();
+    assert_eq!(seen, data(1000, 4), "the file was written in place");
+}
