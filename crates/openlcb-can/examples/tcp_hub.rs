@@ -100,7 +100,14 @@ fn apply_link_events(link: &mut CanLink, node: &mut Node) {
     while let Some(event) = link.poll_event() {
         match event {
             LinkEvent::AliasLost { .. } => node.link_lost(),
-            LinkEvent::PeerLost { node: peer, .. } => node.peer_lost(peer),
+            LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
+            LinkEvent::PeerRenamed { from, to, .. } => node.rename_peer(from, to),
+            // Another node has our Node ID: say so; the one that came second leaves.
+            LinkEvent::DuplicateNodeId { newcomer: false, .. } => node.report_duplicate_node_id(),
+            LinkEvent::DuplicateNodeId { newcomer: true, .. } => {
+                link.leave(Some(node.duplicate_node_id_report()));
+                node.link_lost();
+            }
             _ => {}
         }
     }

@@ -90,7 +90,8 @@ impl Poll {
 /// [`poll`](Driver::poll), so that the application keeps using it between polls.
 ///
 /// A poll reads the clock once, runs due timers, takes received frames into the link (which
-/// hands messages to the upper layer), passes the link's events up, moves the upper layer's
+/// hands messages to the upper layer), passes the link's events up after every frame (a
+/// peer's rename reaches the upper layer before the messages sent under its new name), moves the upper layer's
 /// messages into the link while it has room, and hands frames to the peripheral until it
 /// refuses one. A refused frame is kept and offered first on the next poll; a frame the
 /// peripheral gives back in exchange for a higher-priority one (`Ok(Some(frame))`) is kept
@@ -219,22 +220,22 @@ impl<C: Can, K: Clock> Driver<C, K> {
             received += 1;
             bump(&mut self.stats.frames_received);
             match convert::<_, CanFrame>(&frame) {
-                Some(frame) => self.link.handle_frame(now, &frame, |message| upper.handle_message(now, message)),
+                Some(frame) => {
+                    self.link.handle_frame(now, &frame, |message| upper.handle_message(now, message));
+                    // Before the next frame: a rename must be applied before the messages
+                    // that arrive under the new name.
+                    self.apply_link_events(now, upper);
+                }
                 None => bump(&mut self.stats.unconvertible),
             }
         }
         (received, None)
     }
 
-    /// Link events up, upper-layer messages down while the link has room.
+    /// Link events up (those of the timers), upper-layer messages down while the link has
+    /// room.
     fn pump<U: Upper + ?Sized>(&mut self, now: Instant, upper: &mut U) {
-        while let Some(event) = self.link.poll_event() {
-            if matches!(event, LinkEvent::DuplicateNodeId { newcomer: true, .. }) {
-                // Another node had this Node ID first: release the alias and go quiet.
-                self.link.leave(None);
-            }
-            upper.handle_link_event(now, event);
-        }
+        self.apply_link_events(now, upper);
         while self.link.can_send() {
             let Some(message) = upper.poll_transmit() else {
                 break;
@@ -242,6 +243,17 @@ impl<C: Can, K: Clock> Driver<C, K> {
             if self.link.send(now, message).is_err() {
                 bump(&mut self.stats.send_refused);
             }
+        }
+    }
+
+    /// The link's events, up to the upper layer.
+    fn apply_link_events<U: Upper + ?Sized>(&mut self, now: Instant, upper: &mut U) {
+        while let Some(event) = self.link.poll_event() {
+            if matches!(event, LinkEvent::DuplicateNodeId { newcomer: true, .. }) {
+                // Another node had this Node ID first: release the alias and go quiet.
+                self.link.leave(None);
+            }
+            upper.handle_link_event(now, event);
         }
     }
 

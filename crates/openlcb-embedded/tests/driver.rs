@@ -477,3 +477,82 @@ fn foreign_frames_are_converted_both_ways_and_oversized_ones_counted() {
     assert!(cid.is_extended() && cid.data.is_empty());
     assert_eq!(cid.id, id(openlcb_embedded::convert::<HalFrame, CanFrame>(&cid).unwrap().raw_id()));
 }
+
+// ----- link events inside a burst -----
+
+/// Frame types (bits 12..27 of the identifier) of the frames that name a sender: AMD,
+/// Initialization Complete, Verified Node ID.
+fn names_its_sender(frame: &CanFrame) -> bool {
+    matches!(frame.raw_id() >> 12, 0x10701 | 0x19100 | 0x19101 | 0x19170 | 0x19171)
+}
+
+#[test]
+fn a_rename_in_a_burst_reaches_the_endpoint_before_the_data_behind_it() {
+    // B runs on the driver; A is a bare link whose frames naming it are held back, so that B
+    // serves A under its provisional name until a Verified Node ID arrives.
+    let time = Cell::new(Instant::ZERO);
+    let b_link = CanLink::new(time.get(), node(B), CanConfig::default());
+    let mut driver = Driver::new(Mailboxes::new(usize::MAX), || time.get(), b_link);
+    let mut destination = StreamEndpoint::new(node(B), Config::default());
+    let mut a_link = CanLink::new(time.get(), node(A), CanConfig::default());
+    let mut source = StreamEndpoint::new(node(A), Config::default());
+    let exchange = |driver: &mut Driver<Mailboxes, _>,
+                    destination: &mut StreamEndpoint,
+                    a_link: &mut CanLink,
+                    source: &mut StreamEndpoint| {
+        let now = time.get();
+        driver.poll(destination).unwrap();
+        driver.can_mut().drain();
+        for frame in std::mem::take(&mut driver.can_mut().wire) {
+            a_link.handle_frame(now, &frame, |message| source.handle_message(now, message));
+        }
+        while a_link.poll_event().is_some() {}
+        a_link.handle_timeout(now);
+        source.handle_timeout(now);
+        while let Some(message) = source.poll_transmit() {
+            a_link.send(now, message).unwrap();
+        }
+        std::iter::from_fn(|| a_link.poll_transmit()).filter(|frame| !names_its_sender(frame)).collect::<Vec<_>>()
+    };
+    for _ in 0..3 {
+        time.set(time.get() + openlcb_stream::Duration::from_millis(150));
+        for frame in exchange(&mut driver, &mut destination, &mut a_link, &mut source) {
+            driver.can_mut().inbox.push_back(Ok(frame));
+        }
+    }
+    let a_alias = a_link.alias().expect("A logged in");
+    assert!(driver.link().alias().is_some(), "B logged in");
+
+    let handle = source.open(time.get(), OpenOptions::new(node(B), 256)).unwrap();
+    let mut opened = false;
+    for _ in 0..4 {
+        for frame in exchange(&mut driver, &mut destination, &mut a_link, &mut source) {
+            driver.can_mut().inbox.push_back(Ok(frame));
+        }
+        while let Some(event) = source.poll_event() {
+            opened |= matches!(event, Event::Opened { .. });
+        }
+    }
+    assert!(opened, "the stream opened under A's provisional name");
+
+    // One burst: A's Verified Node ID, then stream data.
+    let data: Vec<u8> = (0..64).map(pattern).collect();
+    assert_eq!(source.write(time.get(), handle, &data).unwrap(), data.len());
+    let verified = CanFrame::extended(0x1917_0000 | u32::from(a_alias.as_raw()), &A.to_be_bytes()[2..]).unwrap();
+    let data_frames = exchange(&mut driver, &mut destination, &mut a_link, &mut source);
+    assert!(data_frames.len() > 1, "the data takes several frames");
+    driver.can_mut().inbox.push_back(Ok(verified));
+    driver.can_mut().inbox.extend(data_frames.into_iter().map(Ok));
+    driver.poll(&mut destination).unwrap();
+
+    let mut received = Vec::new();
+    let mut buf = [0u8; 64];
+    while let Some(event) = destination.poll_event() {
+        if let Event::Readable { handle } = event {
+            while let Ok(n @ 1..) = destination.read(time.get(), handle, &mut buf) {
+                received.extend_from_slice(&buf[..n]);
+            }
+        }
+    }
+    assert_eq!(received, data, "the data arrived under A's new name, after the rename");
+}
