@@ -168,7 +168,12 @@ fn simulate(args: &SimArgs) -> Result<Report, String> {
         *failures.entry(format!("{:?}", r.outcome)).or_insert(0) += 1;
     }
     let opened = reports.iter().filter_map(|r| r.opened_at).min().unwrap_or(START);
-    let ended = reports.iter().filter_map(|r| r.ended_at).max().unwrap_or(net.now());
+    // A run that failed goes on delivering what was queued after its streams ended: it ends
+    // when the network fell quiet.
+    let ended = match reports.iter().filter_map(|r| r.ended_at).max() {
+        Some(ended) if verified => ended,
+        _ => net.now(),
+    };
     let ceiling = match args.topology {
         Topology::Can | Topology::CanGatewayTcp => can_ceiling(delivered_bytes, args),
         Topology::Tcp => Duration::from_micros(delivered_bytes * 1_000_000 / args.bandwidth),
