@@ -42,3 +42,32 @@ fn send_and_recv_help_list_their_json_fields() {
         assert!(help("recv").contains(field), "recv: {field}");
     }
 }
+
+fn sim_json(args: &[&str]) -> (bool, Value) {
+    let output = Command::new(BIN).arg("sim").args(args).arg("--json").output().unwrap();
+    (output.status.success(), serde_json::from_slice(&output.stdout).unwrap())
+}
+
+#[test]
+fn sim_255_streams_on_one_bus_all_complete_within_the_ceiling() {
+    let (ok, report) = sim_json(&["--streams", "255", "--bytes", "2048", "--window", "256"]);
+    assert!(ok, "{report}");
+    assert_eq!(report["verified"], true);
+    assert_eq!(report["delivered_bytes"], 255 * 2048);
+    assert!(report["efficiency"].as_f64().is_some_and(|e| e > 0.5 && e <= 1.0), "{report}");
+}
+
+#[test]
+fn sim_that_does_not_verify_counts_only_delivered_bytes_and_says_why() {
+    // 120 windows of 2048 bytes queued at once take longer than the Proceed wait to cross.
+    let (ok, report) = sim_json(&["--streams", "120", "--bytes", "4096"]);
+    assert!(!ok);
+    assert_eq!(report["verified"], false);
+    let delivered = report["delivered_bytes"].as_u64().unwrap();
+    assert!(delivered < 120 * 4096, "{report}");
+    let failures: u64 = report["failures"].as_object().unwrap().values().map(|n| n.as_u64().unwrap()).sum();
+    assert!(failures > 0, "{report}");
+    assert!(report["efficiency"].as_f64().is_some_and(|e| e <= 1.0), "{report}");
+    let goodput = report["goodput_bytes_per_s"].as_f64().unwrap();
+    assert!((goodput - delivered as f64 / report["elapsed_s"].as_f64().unwrap()).abs() < 1.0, "{report}");
+}

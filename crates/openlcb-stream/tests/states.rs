@@ -966,3 +966,25 @@ fn complete_count_forms_encode_as_documented() {
     let c = DataComplete { source_stream: sid(1), destination_stream: sid(2), count: CompleteCount::Total(3) };
     assert_eq!(c.to_bytes().len(), 6);
 }
+
+#[test]
+fn open_data_on_a_sibling_keeps_the_first_data_wait_going() {
+    let mut b = Bench::new(config());
+    let (busy, busy_did) = b.open_destination();
+    b.peer(Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 5]);
+    let waiting_did = b.sent()[0].1[5];
+    let Event::Opened { handle: waiting, .. } = b.events()[0] else { panic!("not opened") };
+    b.advance(Duration::from_secs(10));
+    b.peer(Mti::STREAM_DATA_SEND, &data(busy_did, b"a"));
+    assert_eq!(read_all(&mut b, busy), b"a");
+    b.events();
+    b.advance(Duration::from_secs(5));
+    assert!(b.events().is_empty(), "the peer is busy sending on its other stream");
+    assert!(b.sent().is_empty());
+    b.advance(Duration::from_secs(9));
+    b.peer(Mti::STREAM_DATA_SEND, &data(waiting_did, b"b"));
+    assert_eq!(read_all(&mut b, waiting), b"b");
+    b.events();
+    b.advance(Duration::from_secs(60));
+    assert_eq!(b.events().len(), 2, "both idle once the peer falls silent");
+}

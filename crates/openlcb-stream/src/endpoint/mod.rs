@@ -412,7 +412,7 @@ impl StreamEndpoint {
                 && stream.deadline <= now
             {
                 stream.deadline = NEVER;
-                self.on_deadline(slot);
+                self.on_deadline(now, slot);
             }
             // After the deadline: a stream that it ended sends no keep-alive.
             if let Some(stream) = self.slots.get_mut(slot)
@@ -738,6 +738,9 @@ impl StreamEndpoint {
         }
         stream.buffer.push(bytes);
         stream.count += u64::from(len);
+        if len > 0 {
+            stream.heard = now;
+        }
         if stream.state == State::Draining && stream.count >= stream.expected {
             let (total, expected) = (stream.count, stream.expected);
             return self.end(finished(handle, total, Some(expected)));
@@ -823,7 +826,11 @@ impl StreamEndpoint {
     }
 
     /// The wait of the stream in `slot` ran out; what that means follows from its state.
-    fn on_deadline(&mut self, slot: usize) {
+    fn on_deadline(&mut self, now: Instant, slot: usize) {
+        let receiving = self.slots.get(slot).is_some_and(|s| s.state == State::Receiving);
+        if receiving && self.peer_progress(now, slot) {
+            return;
+        }
         let Some(stream) = self.slots.get(slot) else { return };
         let handle = handle_of(slot, stream);
         let (peer, role, sid, received) = (stream.peer, stream.role(), stream.source_stream, stream.count);
@@ -854,17 +861,44 @@ impl StreamEndpoint {
 
     /// Opens the pending destination stream `handle` with at most `local_window`.
     fn accept_stream(&mut self, now: Instant, handle: StreamHandle, local_window: u16, early: bool) {
-        let (idle, first_data) = (self.config.idle_timeout, self.config.first_data_timeout);
+        let first_data_at = later(now, self.receive_wait(0));
         let Ok((stream, out)) = self.parts(handle) else { return };
         stream.open_destination(stream.window.min(local_window).max(1), early);
-        let first_data = match (idle, first_data) {
-            (Some(idle), Some(first)) => Some(if first < idle { first } else { idle }),
-            (idle, first) => idle.or(first),
-        };
-        stream.deadline = later(now, first_data);
+        stream.deadline = first_data_at;
         send_accept(stream, out);
         let info = stream.info();
         out.event(Event::Opened { handle, info });
+    }
+
+    /// The wait of a receiving stream that has `received` bytes so far: until the first data,
+    /// or between data.
+    fn receive_wait(&self, received: u64) -> Option<Duration> {
+        let (idle, first_data) = (self.config.idle_timeout, self.config.first_data_timeout);
+        if received > 0 {
+            return idle;
+        }
+        match (idle, first_data) {
+            (Some(idle), Some(first)) => Some(if first < idle { first } else { idle }),
+            (idle, first) => idle.or(first),
+        }
+    }
+
+    /// The first-data or idle wait of the receiving stream in `slot` ran out: if its peer sent
+    /// data on another stream within that wait, the peer is busy, not silent (a sender serves
+    /// its streams in turn), so the wait starts again from that data and this returns true.
+    fn peer_progress(&mut self, now: Instant, slot: usize) -> bool {
+        let Some(stream) = self.slots.get(slot) else { return false };
+        let peer = stream.peer;
+        let heard =
+            self.slots.iter().filter(|s| s.is_with(peer, Role::Destination) && s.heard != NEVER).map(|s| s.heard).max();
+        let Some(heard) = heard else { return false };
+        let resume_at = later(heard, self.receive_wait(stream.count));
+        let Some(stream) = self.slots.get_mut(slot) else { return false };
+        if resume_at <= now {
+            return false;
+        }
+        stream.deadline = resume_at;
+        true
     }
 
     /// The peer and SID of the pending request `handle`, or why it is not one.

@@ -95,6 +95,9 @@ pub(crate) struct Stream {
     pub(crate) deadline: Instant,
     /// Source: when to send the next keep-alive.
     pub(crate) keepalive: Instant,
+    /// Destination: when data last arrived on this stream (`NEVER`: none yet). The peer's
+    /// data on any of its streams keeps the first-data and idle waits of the others going.
+    pub(crate) heard: Instant,
     /// Payload bytes sent (source) or received (destination) so far. 64 bits cannot
     /// overflow, so it adds without saturating.
     pub(crate) count: u64,
@@ -115,6 +118,7 @@ impl Stream {
             content_uid: None,
             deadline: NEVER,
             keepalive: NEVER,
+            heard: NEVER,
             credit: 0,
             count: 0,
             window_sent: 0,
