@@ -9,7 +9,8 @@ use std::process::ExitCode;
 use std::sync::{Arc, Mutex};
 
 use clap::Args;
-use openlcb_stream::NodeId;
+use openlcb_stream::wire::ReplyCode;
+use openlcb_stream::{AcceptPolicy, NodeId};
 use openlcb_tokio::openlcb_node::{MemorySpace, SpaceError};
 use openlcb_tokio::{DeclaredEvents, EventNotice, MemoryEvent, MemoryServer, NodeOptions, RamSpace, ReadOnlySpace};
 use serde::Serialize;
@@ -132,6 +133,8 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         return Ok(ExitCode::from(Outcome::Usage.status()));
     }
     options.node.streams_enabled = !args.no_streams;
+    // Streams are for Memory Configuration only: any other is refused, not swallowed.
+    options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::STREAMS_NOT_SUPPORTED);
     options.node.events.produced.clone_from(&args.produces);
     options.node.events.consumed.clone_from(&args.consumes);
     let mut report = ServeReport {

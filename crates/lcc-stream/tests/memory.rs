@@ -438,4 +438,21 @@ async fn the_config_file_is_replaced_whole_never_written_in_place() {
     let mut seen = Vec::new();
     opened_before.read_to_end(&mut seen).unwrap();
     assert_eq!(seen, data(1000, 4), "the file was written in place");
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stream_sent_to_serve_is_refused_not_swallowed() {
+    let dir = scratch("send-to-serve");
+    let (_hub, addr) = hub().await;
+    let _server = Server::start(&dir, &addr, SERVER, &[]).await;
+    let input = dir.join("input.bin");
+    std::fs::write(&input, data(300, 2)).unwrap();
+    let output = Command::new(BIN)
+        .args(["send", path_arg(&input), "--to", SERVER, "--connect", &addr])
+        .stdin(Stdio::null())
+        .kill_on_drop(true)
+        .output();
+    let output = bounded("send to serve", output).await.unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(4), "{stderr}");
+    assert!(stderr.contains("0x1010") && stderr.contains("streams not supported"), "{stderr}");
 }

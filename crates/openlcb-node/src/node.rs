@@ -241,11 +241,13 @@ impl Cx<'_> {
 /// Configuration, SNIP and the message-network basics, in the handle / command / poll shape
 /// of the stream core. See the crate documentation for the drive loop.
 ///
-/// Once a memory server is set, an `AcceptAll` policy in [`NodeConfig::stream`] becomes
-/// [`AcceptPolicy::Ask`] in the endpoint and the node accepts each request itself, at once,
-/// unless the server claims it first (a Write Stream it was told of), so that its window is
-/// what the space can take. With `RejectAll` no stream is taken, Memory Configuration's
-/// included. While Memory Configuration has something running, take stream events from
+/// Once a memory server is set, the policy in [`NodeConfig::stream`] becomes
+/// [`AcceptPolicy::Ask`] in the endpoint: the server claims the requests of the Write Streams
+/// it was told of first (so that their window is what the space can take), and the node
+/// applies the application's policy to the rest, at once. `AcceptAll` accepts them;
+/// `RejectAll(code)` refuses them with `code` while Memory Configuration still takes its own:
+/// the policy of a node that takes streams only for Memory Configuration. With
+/// [`NodeConfig::streams_enabled`] off no stream is taken at all. While Memory Configuration has something running, take stream events from
 /// [`poll_event`](Node::poll_event), not from the endpoint: it keeps its own.
 ///
 /// A Memory Configuration Reset/Reboot command makes the node start again as after a
@@ -260,9 +262,10 @@ pub struct Node {
     protocols: Protocols,
     memory_server: Option<MemoryServer>,
     memory_client: MemoryClient,
-    /// The application's policy is AcceptAll: the endpoint asks (so Memory Configuration
-    /// can claim its streams first) and the node accepts the rest.
-    accept_for_application: bool,
+    /// The application's policy for the stream requests Memory Configuration does not
+    /// claim, once a memory server is set (the endpoint then asks, so the server can claim
+    /// its streams first). `Ask` raises them.
+    unclaimed_streams: AcceptPolicy,
     /// The time of the last call that gave one (for events drained by `poll_event`).
     last_now: Instant,
     streams: StreamEndpoint,
@@ -302,7 +305,7 @@ impl Node {
             protocols,
             memory_server: None,
             memory_client: MemoryClient::default(),
-            accept_for_application: false,
+            unclaimed_streams: AcceptPolicy::Ask,
             last_now: Instant::ZERO,
             streams: StreamEndpoint::new(id, config.stream.clone()),
             datagrams: DatagramService::new(config.datagrams.clone()),
@@ -673,12 +676,10 @@ impl Node {
     pub fn set_memory_server(&mut self, mut server: MemoryServer) {
         server.mirror_snip(&self.config.snip);
         self.memory_server = Some(server);
-        if self.config.stream.accept_policy == AcceptPolicy::AcceptAll {
-            // The server claims its Write Streams before anything is accepted, to grant
-            // them the window their space can take; the node accepts the rest itself.
-            self.streams.set_accept_policy(AcceptPolicy::Ask);
-            self.accept_for_application = true;
-        }
+        // The server claims its Write Streams before anything is decided, to grant them the
+        // window their space can take; the node applies the application's policy to the rest.
+        self.unclaimed_streams = self.config.stream.accept_policy;
+        self.streams.set_accept_policy(AcceptPolicy::Ask);
     }
 
     /// [`set_memory_server`](Self::set_memory_server), builder style.
@@ -854,7 +855,7 @@ impl Node {
     /// nobody here claimed. Runs from `poll_event`, at the time of the last input (the
     /// time those events arose).
     fn settle(&mut self, now: Instant) {
-        let accept_for_application = self.accept_for_application;
+        let unclaimed_streams = self.unclaimed_streams;
         loop {
             let mut moved = false;
             while let Some(event) = self.out.memory_inbox.pop_front() {
@@ -886,8 +887,11 @@ impl Node {
                             self.out.memory_finished.swap_remove(index);
                         }
                     }
-                    Event::IncomingRequest { handle, .. } if accept_for_application => {
-                        let _ = self.streams.accept(now, handle, None);
+                    Event::IncomingRequest { handle, .. } if unclaimed_streams != AcceptPolicy::Ask => {
+                        let _ = match unclaimed_streams {
+                            AcceptPolicy::RejectAll(code) => self.streams.reject(now, handle, code),
+                            _ => self.streams.accept(now, handle, None),
+                        };
                     }
                     event => self.out.events.push_back(NodeEvent::Stream(event)),
                 }

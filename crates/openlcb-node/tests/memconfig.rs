@@ -949,3 +949,28 @@ fn an_unfreeze_that_overtakes_the_stream_waits_for_its_end() {
     assert_eq!(unfrozen, Some(100_000));
     assert_eq!(&read_back(&mut server, 0xEF)[..image.len()], &image[..]);
 }
+
+#[test]
+fn a_node_taking_streams_only_for_memory_configuration_refuses_the_others() {
+    use openlcb_stream::wire::ReplyCode;
+    use openlcb_stream::{AcceptPolicy, Event};
+    let mut config = NodeConfig::default();
+    config.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::STREAMS_NOT_SUPPORTED);
+    let mut pair = Pair::new(NodeConfig::default(), server_with(config, 8192));
+    pair.pump();
+    let foreign = pair.client.streams_mut().open(pair.now, OpenOptions::new(SERVER, 64)).unwrap();
+    pair.pump();
+    let refusal = pair.events.iter().find_map(|e| match e {
+        NodeEvent::Stream(Event::Rejected { handle, code, .. }) if *handle == foreign => Some(*code),
+        _ => None,
+    });
+    assert_eq!(refusal, Some(ReplyCode::STREAMS_NOT_SUPPORTED), "{:?}", pair.events);
+    assert!(!pair.server_events.iter().any(|e| matches!(e, NodeEvent::Stream(_))), "{:?}", pair.server_events);
+    let data = pattern(3000, 5);
+    pair.client.write_memory(pair.now, SERVER, 0xFD, 0, data.clone(), TransferPath::Stream).unwrap();
+    match pair.finish() {
+        MemoryEvent::WriteDone { len, .. } => assert_eq!(len, 3000),
+        other => panic!("Memory Configuration's own stream is still taken: {other:?}"),
+    }
+    assert_eq!(&read_back(&mut pair.server, 0xFD)[..3000], &data[..]);
+}
