@@ -438,6 +438,7 @@ async fn the_config_file_is_replaced_whole_never_written_in_place() {
     let mut seen = Vec::new();
     opened_before.read_to_end(&mut seen).unwrap();
     assert_eq!(seen, data(1000, 4), "the file was written in place");
+}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stream_sent_to_serve_is_refused_not_swallowed() {
