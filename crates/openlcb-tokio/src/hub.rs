@@ -659,7 +659,7 @@ async fn read_client(
     let mut chunk = BytesMut::new();
     let mut garbage = GarbageReport::default();
     // A complete frame heard (partial frames and garbage are not a word), and any input.
-    let (mut heard, mut first_input) = (false, true);
+    let (mut heard, mut first_input, mut input_ended) = (false, true, false);
     let silent_deadline = silent_timeout.map(|t| tokio::time::Instant::now() + t);
     let reason: String = loop {
         let read = reader.read(&mut buf);
@@ -672,7 +672,7 @@ async fn read_client(
         };
         let n = match n {
             Ok(0) => {
-                state.event(HubEvent::InputClosed { client: id });
+                input_ended = true;
                 break CLOSED_BY_CLIENT.to_string();
             }
             Ok(n) => n,
@@ -702,7 +702,12 @@ async fn read_client(
         }
     };
     garbage.flush(id, &state, true);
-    if state.remove(id) {
+    // Removed (its aliases forgotten by the bridge) before anyone hears that it left.
+    let removed = state.remove(id);
+    if input_ended {
+        state.event(HubEvent::InputClosed { client: id });
+    }
+    if removed {
         state.event(HubEvent::Disconnected { client: id, reason });
     }
 }
