@@ -12,8 +12,9 @@
 //! disconnected (with a [`HubEvent::SlowClient`]): one slow client never stalls the rest.
 //! The number of clients is capped ([`HubOptions::max_clients`]; one more is told so and
 //! closed), TCP keep-alive finds clients that vanished, a client that says nothing at all
-//! for [`HubOptions::silent_timeout`] after connecting is closed, and a client that
-//! half-closes its socket (shuts down its sending side) still receives. Garbage is counted
+//! for [`HubOptions::silent_timeout`] after connecting is closed (bytes that never make a
+//! frame are not a word), and a client whose input ends (it closed or half-closed its socket)
+//! is removed at once, so that it frees its slot. Garbage is counted
 //! and reported at most once per [`GARBAGE_REPORT_INTERVAL`] per client.
 //!
 //! Besides TCP clients, the GridConnect group takes links: any byte stream of GridConnect
@@ -63,8 +64,9 @@ pub struct HubOptions {
     pub max_queued_bytes: usize,
     /// Clients connected at once (both listeners); one more is refused and closed.
     pub max_clients: usize,
-    /// A client that sends nothing at all for this long after connecting is closed (a node
-    /// logs in at once; a silent connection is a stray or a port scan). `None` keeps them.
+    /// A client that sends no complete frame for this long after connecting is closed (a node
+    /// logs in at once; a silent connection is a stray, a port scan or a client trickling an
+    /// endless partial frame). `None` keeps them.
     pub silent_timeout: Option<std::time::Duration>,
     /// Report every relayed frame as a [`HubEvent::Frame`].
     pub trace: bool,
@@ -151,8 +153,8 @@ pub enum HubEvent {
         /// What was wrong with the first of them.
         error: String,
     },
-    /// A client closed its sending side (or its connection: the hub finds out which at its
-    /// next write). It still receives; the aliases it held are released for it.
+    /// A client closed its sending side or its connection. It is removed (a
+    /// [`HubEvent::Disconnected`] follows): a client that stopped sending holds no slot.
     InputClosed {
         /// Its number.
         client: ClientId,
@@ -293,18 +295,6 @@ impl State {
             }
             None => false,
         }
-    }
-
-    /// A client that stopped sending cannot hold or defend an alias any more: the bridge
-    /// forgets its aliases at once, even though it still receives.
-    fn release_aliases(&self, client: ClientId) {
-        let aliases = self
-            .clients
-            .lock()
-            .ok()
-            .and_then(|mut clients| clients.get_mut(&client).map(|c| std::mem::take(&mut c.aliases)))
-            .unwrap_or_default();
-        self.bridge_forgets(&aliases);
     }
 
     /// Tells the bridge (and only the bridge: no client sees it) that `aliases` were released,
@@ -587,7 +577,7 @@ async fn upstream_loop(addr: String, state: Arc<State>) {
 }
 
 /// Runs a link client (an attached stream, an upstream hub) until either direction ends,
-/// then removes it: a link whose input ended is gone, unlike a half-closed TCP client.
+/// then removes it.
 async fn serve_link(
     id: ClientId,
     (reader, writer): (ByteReader, ByteWriter),
@@ -655,7 +645,7 @@ fn other_protocol(port: Protocol, first: &[u8]) -> Option<&'static str> {
 }
 
 /// Reads a client's frames, encodes each again and relays them in one chunk per read. At
-/// the end of its input (a half-close) the client stays: it still receives.
+/// the end of its input (a close or a half-close) the client is removed.
 async fn read_client(
     id: ClientId,
     mut reader: ByteReader,
@@ -668,35 +658,39 @@ async fn read_client(
     let mut tcp_decoder = Decoder::default();
     let mut chunk = BytesMut::new();
     let mut garbage = GarbageReport::default();
-    let mut heard = false;
+    // A complete frame heard (partial frames and garbage are not a word), and any input.
+    let (mut heard, mut first_input, mut input_ended) = (false, true, false);
     let silent_deadline = silent_timeout.map(|t| tokio::time::Instant::now() + t);
-    let reason = loop {
+    let reason: String = loop {
         let read = reader.read(&mut buf);
         let n = match silent_deadline.filter(|_| !heard) {
             Some(at) => match tokio::time::timeout_at(at, read).await {
                 Ok(read) => read,
-                Err(_) => break Some("sent nothing since it connected".to_string()),
+                Err(_) => break "sent no frame since it connected".to_string(),
             },
             None => read.await,
         };
         let n = match n {
-            Ok(0) => break None,
+            Ok(0) => {
+                input_ended = true;
+                break CLOSED_BY_CLIENT.to_string();
+            }
             Ok(n) => n,
-            Err(error) => break Some(departure(&error)),
+            Err(error) => break departure(&error),
         };
         let input = buf.get(..n).unwrap_or_default();
-        if !heard {
+        if std::mem::take(&mut first_input) {
             if let Some(other) = other_protocol(protocol, input) {
-                break Some(format!("speaks {other} on this port (closed, so that it learns at once)"));
+                break format!("speaks {other} on this port (closed, so that it learns at once)");
             }
         }
-        heard = true;
         let (frames, errors) = match protocol {
             Protocol::GridConnect => {
                 relay_gridconnect(id, input, &mut gridconnect_decoder, &mut chunk, &state, &mut garbage)
             }
             Protocol::Tcp => relay_tcp(id, input, &mut tcp_decoder, &mut chunk, &state, &mut garbage),
         };
+        heard |= frames > 0;
         garbage.flush(id, &state, false);
         state.frames.fetch_add(frames, Ordering::Relaxed);
         state.decode_errors.fetch_add(errors, Ordering::Relaxed);
@@ -704,21 +698,17 @@ async fn read_client(
             state.relay(id, protocol, &chunk.split().freeze());
         }
         if let Some(failure) = tcp_decoder.failure() {
-            break Some(format!("sent an OpenLCB-TCP length that cannot be trusted ({failure})"));
+            break format!("sent an OpenLCB-TCP length that cannot be trusted ({failure})");
         }
     };
     garbage.flush(id, &state, true);
-    match reason {
-        Some(reason) => {
-            if state.remove(id) {
-                state.event(HubEvent::Disconnected { client: id, reason });
-            }
-        }
-        // A half-closed client keeps receiving; its writer ends it when the socket fails.
-        None => {
-            state.release_aliases(id);
-            state.event(HubEvent::InputClosed { client: id });
-        }
+    // Removed (its aliases forgotten by the bridge) before anyone hears that it left.
+    let removed = state.remove(id);
+    if input_ended {
+        state.event(HubEvent::InputClosed { client: id });
+    }
+    if removed {
+        state.event(HubEvent::Disconnected { client: id, reason });
     }
 }
 

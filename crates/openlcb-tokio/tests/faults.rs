@@ -395,18 +395,48 @@ async fn the_hub_refuses_a_client_over_its_cap_and_says_so() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_half_closed_client_still_receives() {
-    let hub = start_hub(HubOptions::default()).await;
+async fn clients_that_close_without_a_byte_free_their_slots() {
+    let mut options = HubOptions::default();
+    options.max_clients = 3;
+    let hub = start_hub(options).await;
     let addr = hub.local_addr();
+    // Twice the cap connect and close in silence, on a quiet hub (nothing is relayed to them).
+    for _ in 0..6 {
+        drop(TcpStream::connect(addr).await.unwrap());
+        until_clients(&hub, 0).await;
+    }
     let mut listener = TcpStream::connect(addr).await.unwrap();
-    listener.write_all(b":X19490123N;\n").await.unwrap();
-    listener.shutdown().await.unwrap();
     let mut talker = TcpStream::connect(addr).await.unwrap();
     until_clients(&hub, 2).await;
     talker.write_all(b":X19170456N0501010122AA;\n").await.unwrap();
     let mut got = vec![0u8; 64];
     let n = bounded("the frame", listener.read(&mut got)).await.unwrap();
     assert!(String::from_utf8_lossy(&got[..n]).contains(":X19170456N0501010122AA;"), "got {:?}", &got[..n]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_trickling_a_frame_that_never_ends_is_closed() {
+    let mut options = HubOptions::default();
+    options.silent_timeout = Some(Duration::from_millis(300));
+    let hub = start_hub(options).await;
+    let mut trickler = TcpStream::connect(hub.local_addr()).await.unwrap();
+    // One byte of a frame with no end every 50 ms, for at most ten times the timeout.
+    let mut closed = false;
+    for byte in b":X19170456N".iter().chain(b"0".repeat(54).iter()).take(60) {
+        if trickler.write_all(&[*byte]).await.is_err() {
+            closed = true;
+            break;
+        }
+        let mut buf = [0u8; 16];
+        if let Ok(read) = tokio::time::timeout(Duration::from_millis(50), trickler.read(&mut buf)).await {
+            closed = matches!(read, Ok(0) | Err(_));
+            if closed {
+                break;
+            }
+        }
+    }
+    assert!(closed, "the trickling client was never closed: {:?}", hub.stats());
+    until_clients(&hub, 0).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
