@@ -16,7 +16,7 @@ fn carry(now: Instant, from: &mut TcpLink, to: &mut TcpLink, endpoint: &mut Stre
     let written = pending.len();
     for piece in pending.chunks(SOCKET_READ) {
         let mut input = piece;
-        while let Some(result) = to.poll_receive(&mut input) {
+        while let Some(result) = to.read_message(&mut input) {
             endpoint.handle_message(now, result.expect("decode"));
         }
     }

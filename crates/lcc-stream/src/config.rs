@@ -186,10 +186,10 @@ pub(crate) fn run(args: &ConfigArgs) -> Result<ExitCode, String> {
         }
         let session = Session::open(client, node, &mut interrupt).await?;
         let done = session.act(&args.action, &mut interrupt).await;
-        if let Ok(done) = &done {
-            if let Action::Backup { out: Some(out), .. } = &args.action {
-                memory::save_new(out, done.text.as_bytes()).await?;
-            }
+        if let Ok(done) = &done
+            && let Action::Backup { out: Some(out), .. } = &args.action
+        {
+            memory::save_new(out, done.text.as_bytes()).await?;
         }
         session.node.close().await;
         done

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use clap::Args;
 use openlcb_stream::{NodeId, OpenOptions};
-use openlcb_tokio::{Error, Hub, HubOptions, Node, NodeOptions, Protocol};
+use openlcb_tokio::{Error, Framing, Hub, HubOptions, Node, NodeOptions};
 
 use crate::net::{self, ProtocolArg};
 use crate::outcome::{Failure, Outcome, exit_help};
@@ -51,14 +51,14 @@ pub(crate) fn generate(len: usize, seed: u64) -> Vec<u8> {
 }
 
 async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
-    let protocol = Protocol::from(args.protocol);
-    let tcp = (protocol == Protocol::Tcp).then_some("127.0.0.1:0");
+    let protocol = Framing::from(args.protocol);
+    let tcp = (protocol == Framing::Tcp).then_some("127.0.0.1:0");
     let hub = match Hub::bind("127.0.0.1:0", tcp, HubOptions::default()).await {
         Ok(hub) => hub,
         Err(error) => return Ok(net::fail("demo", &Failure::Net(error))),
     };
     let addr = match protocol {
-        Protocol::Tcp => hub.tcp_local_addr().unwrap_or(hub.local_addr()),
+        Framing::Tcp => hub.tcp_local_addr().unwrap_or(hub.local_addr()),
         _ => hub.local_addr(),
     }
     .to_string();

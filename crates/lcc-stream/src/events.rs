@@ -159,7 +159,7 @@ struct Payload(Vec<u8>);
 fn parse_hex(text: &str) -> Result<Payload, String> {
     let digits: String = text.chars().filter(|c| !matches!(c, ' ' | '.' | ':')).collect();
     let digits = digits.strip_prefix("0x").unwrap_or(&digits);
-    if digits.len() % 2 != 0 || !digits.bytes().all(|c| c.is_ascii_hexdigit()) {
+    if !digits.len().is_multiple_of(2) || !digits.bytes().all(|c| c.is_ascii_hexdigit()) {
         return Err("expected an even number of hex digits, e.g. 01020304".into());
     }
     (0..digits.len() / 2)

@@ -356,10 +356,10 @@ impl Monitor {
         mti: Mti,
         payload: &[u8],
     ) -> Line {
-        if mti.announces_sender() {
-            if let Some(node) = NodeId::from_slice(payload) {
-                self.learn(source, node);
-            }
+        if mti.announces_sender()
+            && let Some(node) = NodeId::from_slice(payload)
+        {
+            self.learn(source, node);
         }
         let (kind, detail) = self.decode(source, destination, mti, payload);
         let name = mti.name().map_or_else(|| format!("MTI 0x{:04X}", mti.0), str::to_string);
@@ -416,11 +416,11 @@ impl Monitor {
                 Kind::Stream,
                 decoded(InitiateReply::parse(payload), payload, |r| {
                     let did = r.destination_stream.map_or(0xFF, |d| d.as_raw());
-                    if r.is_accepted() {
-                        if let Some(destination) = destination {
-                            // The stream starts: its byte count too (data flows from the requester).
-                            self.streamed.insert((destination, source, did), 0);
-                        }
+                    if r.is_accepted()
+                        && let Some(destination) = destination
+                    {
+                        // The stream starts: its byte count too (data flows from the requester).
+                        self.streamed.insert((destination, source, did), 0);
                     }
                     let verdict = if r.is_accepted() {
                         "accepted".to_string()

@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Args, ValueEnum};
 use openlcb_stream::NodeId;
-use openlcb_tokio::{Error, Node, NodeOptions, Protocol};
+use openlcb_tokio::{Error, Framing, Node, NodeOptions};
 
 use crate::outcome::{Failure, Outcome, exit_help};
 
@@ -97,11 +97,11 @@ pub(crate) enum ProtocolArg {
     Tcp,
 }
 
-impl From<ProtocolArg> for Protocol {
+impl From<ProtocolArg> for Framing {
     fn from(p: ProtocolArg) -> Self {
         match p {
-            ProtocolArg::Gridconnect => Protocol::GridConnect,
-            ProtocolArg::Tcp => Protocol::Tcp,
+            ProtocolArg::Gridconnect => Framing::GridConnect,
+            ProtocolArg::Tcp => Framing::Tcp,
         }
     }
 }
@@ -149,7 +149,7 @@ impl ConnectArgs {
         #[cfg(target_os = "linux")]
         if let Some(interface) = &self.can {
             let bus = openlcb_tokio::can::FrameStream::new(openlcb_tokio::can::open_socketcan(interface)?);
-            return Node::over(bus, Protocol::GridConnect, options).await;
+            return Node::over(bus, Framing::GridConnect, options).await;
         }
         match &self.serial {
             Some(device) => {

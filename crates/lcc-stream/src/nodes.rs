@@ -129,11 +129,11 @@ async fn discover(args: &NodesArgs) -> Result<Vec<NodeReport>, Failure> {
     });
     let node = node.await?;
     let found = node.discover(Duration::from_secs_f64(args.wait), MOST_NODES).await?;
-    if found.is_empty() {
-        if let Some(failure) = args.connect.heard_the_other_protocol(&node).await {
-            node.close().await;
-            return Err(failure);
-        }
+    if found.is_empty()
+        && let Some(failure) = args.connect.heard_the_other_protocol(&node).await
+    {
+        node.close().await;
+        return Err(failure);
     }
     // One node at a time, its SNIP and PIP at once: answers take milliseconds, and a node that
     // does not answer costs at most the SNIP and PIP timeouts.

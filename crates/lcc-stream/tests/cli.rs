@@ -10,7 +10,7 @@ use std::process::ExitStatus;
 use common::{bounded, scratch, spawn};
 use openlcb_stream::wire::ReplyCode;
 use openlcb_stream::{AcceptPolicy, NodeId, OpenOptions};
-use openlcb_tokio::{Hub, HubEvent, HubOptions, Node, NodeOptions, Protocol};
+use openlcb_tokio::{Framing, Hub, HubEvent, HubOptions, Node, NodeOptions};
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, ChildStderr, Command};
 
@@ -197,7 +197,7 @@ async fn a_terminated_stream_stays_part_and_recv_says_how_much_arrived() {
 
     let sender = bounded(
         "join",
-        Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(NodeId::new(0x0501_0101_22A0).unwrap())),
+        Node::connect(&addr, Framing::GridConnect, NodeOptions::new(NodeId::new(0x0501_0101_22A0).unwrap())),
     )
     .await
     .unwrap();
@@ -226,7 +226,7 @@ async fn a_rejected_stream_exits_4_with_the_meaning() {
     let addr = hub.local_addr().to_string();
     let mut options = NodeOptions::new(RECEIVER.parse().unwrap());
     options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
-    let _busy = bounded("join", Node::connect(&addr, Protocol::GridConnect, options)).await.unwrap();
+    let _busy = bounded("join", Node::connect(&addr, Framing::GridConnect, options)).await.unwrap();
 
     let send = spawn(&["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &addr]);
     let (status, _, stderr) = finish(send).await;
@@ -273,7 +273,7 @@ async fn a_hub_that_goes_away_mid_transfer_makes_send_exit_6() {
     let mut hub = Hub::bind("127.0.0.1:0", None, options).await.unwrap();
     let addr = hub.local_addr().to_string();
     let mut receiver =
-        bounded("join", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(RECEIVER.parse().unwrap())))
+        bounded("join", Node::connect(&addr, Framing::GridConnect, NodeOptions::new(RECEIVER.parse().unwrap())))
             .await
             .unwrap();
     // Reads whatever comes until the connection goes.
@@ -460,7 +460,7 @@ async fn sigterm_ends_recv_streams_with_tde_keeps_the_part_and_exits_130() {
     let mut recv = spawn(&["recv", "--connect", &addr, "--json", "--out", output.to_str().unwrap()]);
     wait_for_line(&mut recv, "listening").await;
     let sender =
-        bounded("join", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(peer_id(0xB3)))).await.unwrap();
+        bounded("join", Node::connect(&addr, Framing::GridConnect, NodeOptions::new(peer_id(0xB3)))).await.unwrap();
     let mut stream = bounded("open", sender.open(OpenOptions::new(RECEIVER.parse().unwrap(), 2048))).await.unwrap();
     bounded("write", stream.write_all(data(5000))).await.unwrap();
     terminate(&recv).await;
@@ -492,7 +492,7 @@ async fn sigterm_ends_the_send_stream_with_tde_and_exits_130() {
     let hub = Hub::bind("127.0.0.1:0", None, HubOptions::default()).await.unwrap();
     let addr = hub.local_addr().to_string();
     let mut receiver =
-        bounded("join", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(RECEIVER.parse().unwrap())))
+        bounded("join", Node::connect(&addr, Framing::GridConnect, NodeOptions::new(RECEIVER.parse().unwrap())))
             .await
             .unwrap();
     let send = spawn(&["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &addr, "--window", "2048"]);
@@ -699,7 +699,7 @@ async fn hub_serial_relays_between_a_node_on_the_serial_line_and_recv_over_tcp()
     // The node on the line's far end, where an adapter's CAN bus would be.
     let me = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0xF0]);
     let node =
-        bounded("login over the pty", Node::over(master, Protocol::GridConnect, NodeOptions::new(me))).await.unwrap();
+        bounded("login over the pty", Node::over(master, Framing::GridConnect, NodeOptions::new(me))).await.unwrap();
     let payload = data(256 * 1024);
     bounded("sending over the serial line", async {
         let mut stream = node.open(OpenOptions::new(RECEIVER.parse().unwrap(), 2048)).await.unwrap();
@@ -727,7 +727,7 @@ async fn send_serial_reaches_a_node_behind_the_adapter() {
     let receiver_id: NodeId = RECEIVER.parse().unwrap();
     let mut receiver = bounded(
         "the receiver's login",
-        Node::connect(&bus.local_addr().to_string(), Protocol::GridConnect, NodeOptions::new(receiver_id)),
+        Node::connect(&bus.local_addr().to_string(), Framing::GridConnect, NodeOptions::new(receiver_id)),
     )
     .await
     .unwrap();

@@ -5,7 +5,7 @@
 mod common;
 
 use common::{bounded, command};
-use openlcb_tokio::{Hub, HubOptions, Node, NodeId, NodeOptions, Protocol, SnipInfo};
+use openlcb_tokio::{Framing, Hub, HubOptions, Node, NodeId, NodeOptions, SnipInfo};
 
 fn options(id: &str, model: &str, name: &str) -> NodeOptions {
     let mut options = NodeOptions::new(id.parse::<NodeId>().unwrap());
@@ -31,10 +31,10 @@ async fn nodes_lists_every_node_with_its_snip_and_protocols() {
     let hub = Hub::bind("127.0.0.1:0", Some("127.0.0.1:0"), HubOptions::default()).await.unwrap();
     let gridconnect = hub.local_addr().to_string();
     let tcp = hub.tcp_local_addr().unwrap().to_string();
-    let yard = Node::connect(&gridconnect, Protocol::GridConnect, options("05.01.01.01.40.01", "Widget", "Yard"))
+    let yard = Node::connect(&gridconnect, Framing::GridConnect, options("05.01.01.01.40.01", "Widget", "Yard"))
         .await
         .unwrap();
-    let shed = Node::connect(&tcp, Protocol::Tcp, options("05.01.01.01.40.02", "Gadget", "Shed")).await.unwrap();
+    let shed = Node::connect(&tcp, Framing::Tcp, options("05.01.01.01.40.02", "Gadget", "Shed")).await.unwrap();
 
     let (status, json) = nodes(&["--connect", &gridconnect, "--json", "--wait", "0.5"]).await;
     assert_eq!(status, 0, "{json}");

@@ -5,7 +5,7 @@
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use openlcb_tokio::{Hub, HubOptions, Node, NodeOptions, Protocol};
+use openlcb_tokio::{Framing, Hub, HubOptions, Node, NodeOptions};
 
 const BIN: &str = env!("CARGO_BIN_EXE_lcc-stream");
 const RECEIVER: &str = "05.01.01.01.22.F1";
@@ -54,7 +54,7 @@ async fn send_through(wrap: fn(&str) -> Vec<String>, len: usize) -> String {
     let addr = hub.local_addr().to_string();
     let mut options = NodeOptions::new(RECEIVER.parse().unwrap());
     options.node.stream.max_window = 512;
-    let mut receiver = Node::connect(&addr, Protocol::GridConnect, options).await.unwrap();
+    let mut receiver = Node::connect(&addr, Framing::GridConnect, options).await.unwrap();
     let reading = tokio::spawn(async move {
         let mut stream = receiver.accept().await.unwrap();
         // A slow reader, so that the transfer lasts long enough to be drawn several times.

@@ -118,10 +118,10 @@ impl AliasCache {
 
     /// Marks the entry at `index` used: it moves to the back (where it usually is already).
     fn touch(&mut self, index: usize) {
-        if index + 1 < self.entries.len() {
-            if let Some(entry) = self.take(index) {
-                self.push(entry);
-            }
+        if index + 1 < self.entries.len()
+            && let Some(entry) = self.take(index)
+        {
+            self.push(entry);
         }
     }
 

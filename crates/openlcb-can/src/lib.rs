@@ -166,10 +166,10 @@ fn bump(counter: &mut u32) {
 /// comparison for every `poll_timeout`.
 #[inline(never)]
 fn earlier(next: &mut Option<openlcb_stream::Instant>, time: Option<openlcb_stream::Instant>) {
-    if let Some(time) = time {
-        if next.is_none_or(|next| time < next) {
-            *next = Some(time);
-        }
+    if let Some(time) = time
+        && next.is_none_or(|next| time < next)
+    {
+        *next = Some(time);
     }
 }
 

@@ -546,10 +546,10 @@ impl CanLink {
         }
         let alias = self.login.alias()?;
         let mid_message = self.current.as_ref().is_some_and(Fragments::has_more);
-        if let Some(front) = self.frames.front() {
-            if !mid_message || !header::is_message_id(front.raw_id()) {
-                return self.frames.pop_front();
-            }
+        if let Some(front) = self.frames.front()
+            && (!mid_message || !header::is_message_id(front.raw_id()))
+        {
+            return self.frames.pop_front();
         }
         loop {
             if let Some(frame) = self.current.as_mut().and_then(Iterator::next) {

@@ -239,12 +239,11 @@ impl Layout {
         let mut placed: Vec<&Entry> = self.entries().filter(|e| e.size > 0).collect();
         placed.sort_by_key(|e| (e.space, e.address));
         for pair in placed.windows(2) {
-            if let [first, second] = pair {
-                if first.space == second.space
-                    && u64::from(second.address) < u64::from(first.address) + u64::from(first.size)
-                {
-                    return Err(Error::Overlap { first: first.key.clone(), second: second.key.clone() });
-                }
+            if let [first, second] = pair
+                && first.space == second.space
+                && u64::from(second.address) < u64::from(first.address) + u64::from(first.size)
+            {
+                return Err(Error::Overlap { first: first.key.clone(), second: second.key.clone() });
             }
         }
         Ok(())

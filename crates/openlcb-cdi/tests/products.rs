@@ -214,7 +214,7 @@ fn escaping_matches_jmri() {
 /// The image the JMRI files in `tests/cdi` were made from: byte `i` of each space is
 /// `(37 i + 11) mod 256`, and 0 at every 19th (see `tests/cdi/README.md`).
 fn jmri_image(address: usize) -> u8 {
-    if address % 19 == 0 { 0 } else { ((address * 37 + 11) % 256) as u8 }
+    if address.is_multiple_of(19) { 0 } else { ((address * 37 + 11) % 256) as u8 }
 }
 
 /// The layouts and backups OpenLCB_Java's own `ConfigRepresentation` and `BackupConfig`

@@ -723,10 +723,10 @@ impl Network {
         node.silent = true;
         node.inbox.clear();
         node.wake = None;
-        if let Port::Can { bus, port, .. } = &node.port {
-            if let Some(bus) = self.buses.get_mut(*bus) {
-                bus.clear(*port);
-            }
+        if let Port::Can { bus, port, .. } = &node.port
+            && let Some(bus) = self.buses.get_mut(*bus)
+        {
+            bus.clear(*port);
         }
         self.abandon_unopened(index);
     }
@@ -754,11 +754,12 @@ impl Network {
         let rogue = CanFrame::extended(0x1917_0000 | u32::from(alias.as_raw()), &[9, 9, 9, 9, 9, 9]);
         let arrival = self.now;
         for node in &mut self.nodes {
-            if let (Port::Can { bus: b, .. }, Some(frame)) = (&node.port, rogue) {
-                if *b == bus && !node.silent {
-                    node.inbox.push_back((arrival + node.options.latency, Inbound::Frame(frame)));
-                    node.wake = Some(arrival);
-                }
+            if let (Port::Can { bus: b, .. }, Some(frame)) = (&node.port, rogue)
+                && *b == bus
+                && !node.silent
+            {
+                node.inbox.push_back((arrival + node.options.latency, Inbound::Frame(frame)));
+                node.wake = Some(arrival);
             }
         }
     }
@@ -860,7 +861,7 @@ impl Network {
                 }
                 (Inbound::Bytes(bytes), Port::Tcp { link, .. }) => {
                     let mut input = &bytes[..];
-                    while let Some(result) = link.poll_receive(&mut input) {
+                    while let Some(result) = link.read_message(&mut input) {
                         if let Ok(msg) = result {
                             stack.handle_message(now, msg);
                         }
@@ -997,11 +998,11 @@ impl Network {
 
     /// The first outcome reported for a transfer stands.
     fn decide(&mut self, transfer: usize, outcome: Outcome) {
-        if let Some(t) = self.transfers.get_mut(transfer) {
-            if t.report.outcome == Outcome::Pending {
-                t.report.outcome = outcome;
-                t.report.ended_at = Some(self.now);
-            }
+        if let Some(t) = self.transfers.get_mut(transfer)
+            && t.report.outcome == Outcome::Pending
+        {
+            t.report.outcome = outcome;
+            t.report.ended_at = Some(self.now);
         }
     }
 
@@ -1135,7 +1136,7 @@ impl Network {
                 Inbound::Frame(frame) => g.gateway.handle_can_frame(now, &frame),
                 Inbound::Bytes(bytes) => {
                     let mut input = &bytes[..];
-                    while let Some(result) = g.tcp.poll_receive(&mut input) {
+                    while let Some(result) = g.tcp.read_message(&mut input) {
                         if let Ok(msg) = result {
                             g.gateway.handle_message(now, msg);
                         }

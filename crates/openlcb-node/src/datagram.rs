@@ -306,12 +306,12 @@ impl DatagramService {
     /// Sends the first queued datagram to `to`, if any (one outstanding per destination).
     fn start_next(&mut self, now: Instant, out: &mut Outputs, to: NodeId) {
         let deadline = now + self.config.timeout;
-        if let Some(next) = self.outgoing.iter_mut().find(|o| o.to == to) {
-            if next.state == SendState::Queued {
-                next.state = SendState::InFlight { deadline };
-                self.stats.sent += 1;
-                out.transmit(Message::addressed(Mti::DATAGRAM, out.node, to, next.payload.clone()));
-            }
+        if let Some(next) = self.outgoing.iter_mut().find(|o| o.to == to)
+            && next.state == SendState::Queued
+        {
+            next.state = SendState::InFlight { deadline };
+            self.stats.sent += 1;
+            out.transmit(Message::addressed(Mti::DATAGRAM, out.node, to, next.payload.clone()));
         }
     }
 

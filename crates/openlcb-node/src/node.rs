@@ -170,12 +170,12 @@ impl Outputs {
     }
 
     pub(crate) fn event(&mut self, event: NodeEvent) {
-        if let NodeEvent::DatagramDelivered { id, .. } | NodeEvent::DatagramFailed { id, .. } = &event {
-            if let Some(index) = self.memory_datagrams.iter().position(|d| d == id) {
-                self.memory_datagrams.swap_remove(index);
-                self.memory_inbox.push_back(event);
-                return;
-            }
+        if let NodeEvent::DatagramDelivered { id, .. } | NodeEvent::DatagramFailed { id, .. } = &event
+            && let Some(index) = self.memory_datagrams.iter().position(|d| d == id)
+        {
+            self.memory_datagrams.swap_remove(index);
+            self.memory_inbox.push_back(event);
+            return;
         }
         self.events.push_back(event);
     }
@@ -508,12 +508,10 @@ impl Node {
             self.datagrams.on_rejected(now, &mut self.out, peer, report.code);
             handled = true;
         }
-        if to_snip {
-            if let Some(index) = self.snip_requests.iter().position(|p| p.peer == peer) {
-                self.snip_requests.swap_remove(index);
-                self.out.event(NodeEvent::SnipFailed { peer, failure: SnipFailure::Rejected(report.code) });
-                handled = true;
-            }
+        if to_snip && let Some(index) = self.snip_requests.iter().position(|p| p.peer == peer) {
+            self.snip_requests.swap_remove(index);
+            self.out.event(NodeEvent::SnipFailed { peer, failure: SnipFailure::Rejected(report.code) });
+            handled = true;
         }
         if !handled {
             self.stats.stray_error_reports += 1;

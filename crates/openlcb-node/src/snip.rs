@@ -162,10 +162,10 @@ impl SnipInfo {
             for index in 0..strings {
                 let (value, tail) = next_string(rest);
                 rest = tail;
-                if index < section_len {
-                    if let Some(field) = fields.next() {
-                        *info.get_mut(*field) = String::from_utf8_lossy(value).into_owned();
-                    }
+                if index < section_len
+                    && let Some(field) = fields.next()
+                {
+                    *info.get_mut(*field) = String::from_utf8_lossy(value).into_owned();
                 }
             }
         }

@@ -60,12 +60,12 @@ impl Pair {
             }
             while let Some(m) = self.server.poll_transmit() {
                 moved = true;
-                if let Some((n, mti)) = self.drop_server_message {
-                    if m.mti == mti {
-                        self.server_sent += 1;
-                        if self.server_sent == n {
-                            continue;
-                        }
+                if let Some((n, mti)) = self.drop_server_message
+                    && m.mti == mti
+                {
+                    self.server_sent += 1;
+                    if self.server_sent == n {
+                        continue;
                     }
                 }
                 self.client.handle_message(self.now, m.as_ref());
@@ -711,7 +711,7 @@ impl Scripted for ReplyAfterComplete {
             }
             Mti::STREAM_DATA_SEND => {
                 self.received.extend_from_slice(&msg.payload[1..]);
-                if self.received.len() % 256 == 0 {
+                if self.received.len().is_multiple_of(256) {
                     send(out, Mti::STREAM_DATA_PROCEED, vec![self.sid, 0x03]);
                 }
             }

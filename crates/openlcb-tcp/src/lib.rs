@@ -62,7 +62,7 @@
 //!     let wire = from.transmit_pending().to_vec();
 //!     from.advance_transmit(wire.len());
 //!     let mut input = &wire[..];
-//!     while let Some(result) = to.poll_receive(&mut input) {
+//!     while let Some(result) = to.read_message(&mut input) {
 //!         to_endpoint.handle_message(now, result.unwrap());
 //!     }
 //!     assert!(to.failure().is_none());

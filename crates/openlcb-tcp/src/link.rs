@@ -11,7 +11,7 @@ use crate::{CaptureTime, DecodeError, Decoder, EncodeError, LinkPrefix, TcpFrame
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct LinkStats {
-    /// OpenLCB messages received and handed out by [`TcpLink::poll_receive`].
+    /// OpenLCB messages received and handed out by [`TcpLink::read_message`].
     pub messages_in: u64,
     /// Messages encoded for sending.
     pub messages_out: u64,
@@ -36,7 +36,7 @@ pub struct LinkStats {
 ///
 /// # The drive loop
 ///
-/// - **input**: for each read from the socket, call [`poll_receive`](Self::poll_receive)
+/// - **input**: for each read from the socket, call [`read_message`](Self::read_message)
 ///   with the bytes until it returns `None`, passing each message to the endpoint at once
 ///   (it borrows the link's buffer until the next call). If [`failure`](Self::failure) is
 ///   then `Some`, close the connection: the peer's length field cannot be trusted.
@@ -100,7 +100,7 @@ impl TcpLink {
     /// if it [closes the link](DecodeError::closes_link), the end of decoding.
     ///
     /// The link prefix is dropped here; use a [`Decoder`] directly to see it.
-    pub fn poll_receive<'s, 'i: 's>(&'s mut self, input: &mut &'i [u8]) -> Option<Result<MessageRef<'s>, DecodeError>> {
+    pub fn read_message<'s, 'i: 's>(&'s mut self, input: &mut &'i [u8]) -> Option<Result<MessageRef<'s>, DecodeError>> {
         let before = input.len();
         let decoded = self.decoder.decode(input);
         self.stats.bytes_in = self.stats.bytes_in.saturating_add((before - input.len()) as u64);
@@ -235,8 +235,8 @@ mod tests {
         let mut link = TcpLink::with_decoder(node(0x0501_0101_2201), Decoder::new(64));
         let mut input: &[u8] = &[0x80, 0x00, 0x00, 0x01, 0x00, 0xAA, 0xBB];
         let error = DecodeError::LengthTooLong { length: 256, max: 64 };
-        assert_eq!(link.poll_receive(&mut input), Some(Err(error)));
-        assert_eq!(link.poll_receive(&mut input), None);
+        assert_eq!(link.read_message(&mut input), Some(Err(error)));
+        assert_eq!(link.read_message(&mut input), None);
         assert!(input.is_empty());
         assert_eq!(link.failure(), Some(error));
         assert_eq!(link.stats().decode_errors, 1);

@@ -70,7 +70,7 @@ impl Node {
     fn receive(&mut self, now: Instant, wire: &[u8]) {
         for piece in wire.chunks(7) {
             let mut input = piece;
-            while let Some(result) = self.link.poll_receive(&mut input) {
+            while let Some(result) = self.link.read_message(&mut input) {
                 self.endpoint.handle_message(now, result.unwrap());
             }
         }

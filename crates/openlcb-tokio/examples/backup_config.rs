@@ -4,9 +4,7 @@
 //!
 //! `cargo run -p openlcb-tokio --example backup_config`
 
-use openlcb_tokio::{
-    Error, Hub, HubOptions, MemoryServer, Node, NodeId, NodeOptions, Protocol, RamSpace, TransferPath,
-};
+use openlcb_tokio::{Error, Framing, Hub, HubOptions, MemoryServer, Node, NodeId, NodeOptions, RamSpace, TransferPath};
 
 #[tokio::main]
 async fn main() -> Result<(), Error> {
@@ -19,12 +17,12 @@ async fn run() -> Result<(), Error> {
     let addr = hub.local_addr().to_string();
     // The configured node: space 0xFD in memory.
     let board_id: NodeId = "05.01.01.01.22.E0".parse().expect("a valid Node ID");
-    let board = Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(board_id)).await?;
+    let board = Node::connect(&addr, Framing::GridConnect, NodeOptions::new(board_id)).await?;
     let _events = board.serve_memory(MemoryServer::new().with_space(0xFD, RamSpace::new(256))).await?;
 
     // The tool: write 4 bytes at address 16, then read the whole space back.
     let tool_id: NodeId = "05.01.01.01.22.E1".parse().expect("a valid Node ID");
-    let tool = Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(tool_id)).await?;
+    let tool = Node::connect(&addr, Framing::GridConnect, NodeOptions::new(tool_id)).await?;
     let written = tool.write_memory(board_id, 0xFD, 16, vec![1, 2, 3, 4], TransferPath::Auto).await?;
     written.finish().await?;
     let backup = tool.read_memory(board_id, 0xFD, 0, None, TransferPath::Auto).await?.finish().await?;

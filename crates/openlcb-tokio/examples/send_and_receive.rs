@@ -4,7 +4,7 @@
 //!
 //! `cargo run -p openlcb-tokio --example send_and_receive [-- HOST:PORT]`
 
-use openlcb_tokio::{Error, Hub, HubOptions, Node, NodeId, NodeOptions, OpenOptions, Protocol};
+use openlcb_tokio::{Error, Framing, Hub, HubOptions, Node, NodeId, NodeOptions, OpenOptions};
 
 const LEN: usize = 1_000_000;
 
@@ -27,8 +27,8 @@ async fn run(hub_addr: Option<String>) -> Result<(), Error> {
     };
     let receiver_id: NodeId = "05.01.01.01.22.F1".parse().expect("a valid Node ID");
     let sender_id: NodeId = "05.01.01.01.22.F0".parse().expect("a valid Node ID");
-    let mut receiver = Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(receiver_id)).await?;
-    let sender = Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(sender_id)).await?;
+    let mut receiver = Node::connect(&addr, Framing::GridConnect, NodeOptions::new(receiver_id)).await?;
+    let sender = Node::connect(&addr, Framing::GridConnect, NodeOptions::new(sender_id)).await?;
     println!("{receiver_id} and {sender_id} logged in");
 
     let data: Vec<u8> = (0..LEN).map(|i| (i % 253) as u8).collect();

@@ -17,7 +17,7 @@ use openlcb_stream::Instant;
 use openlcb_tcp::{CaptureTime, Decoder, LinkPrefix, TcpFrame};
 use tokio::sync::mpsc;
 
-use crate::Protocol;
+use crate::Framing;
 use crate::hub::{ClientId, HubEvent, State};
 
 /// One side of the bridge: its client id in the hub and the chunks relayed to it.
@@ -112,10 +112,10 @@ pub(crate) async fn run(can: Side, tcp: Side, state: Arc<State>) {
         }
         state.count(frames, 0);
         if !to_can.is_empty() {
-            state.relay(can_id, Protocol::GridConnect, &to_can.split().freeze());
+            state.relay(can_id, Framing::GridConnect, &to_can.split().freeze());
         }
         if !to_tcp.is_empty() {
-            state.relay(tcp_id, Protocol::Tcp, &to_tcp.split().freeze());
+            state.relay(tcp_id, Framing::Tcp, &to_tcp.split().freeze());
         }
     }
 }

@@ -34,7 +34,7 @@ pub const ECHO_MEMORY: usize = 256;
 /// `poll_*` methods. A test implements it with an in-memory bus.
 pub trait FrameBus: Send + Unpin + 'static {
     /// The next frame heard on the bus.
-    fn poll_receive(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<CanFrame>>;
+    fn read_message(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<CanFrame>>;
     /// Puts `frame` on the bus (queued by the controller), or `Pending` while it has no room.
     fn poll_send(&mut self, cx: &mut Context<'_>, frame: &CanFrame) -> Poll<std::io::Result<()>>;
     /// `false` if the controller is known never to hand back the frames it sent, so that
@@ -47,7 +47,7 @@ pub trait FrameBus: Send + Unpin + 'static {
 }
 
 /// A [`FrameBus`] as a byte stream of GridConnect text, for
-/// [`Node::over`](crate::Node::over) (with [`Protocol::GridConnect`](crate::Protocol)) or
+/// [`Node::over`](crate::Node::over) (with [`Framing::GridConnect`](crate::Framing)) or
 /// [`Hub::attach`](crate::Hub::attach). Echoes of its own frames are dropped.
 #[derive(Debug)]
 pub struct FrameStream<B> {
@@ -130,7 +130,7 @@ impl<B: FrameBus> AsyncRead for FrameStream<B> {
         let mut filled = false;
         while buf.remaining() > 0 {
             if this.text_start == this.text_end {
-                let frame = match this.bus.poll_receive(cx) {
+                let frame = match this.bus.read_message(cx) {
                     Poll::Ready(Ok(frame)) => frame,
                     Poll::Ready(Err(error)) if !filled => return Poll::Ready(Err(error)),
                     // What was read goes out first; the error comes again at the next read.
@@ -213,7 +213,7 @@ const ENOBUFS: i32 = 105;
 /// reception, so it never echoes.
 #[cfg(feature = "socketcan")]
 impl FrameBus for socketcan::tokio::CanSocket {
-    fn poll_receive(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<CanFrame>> {
+    fn read_message(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<CanFrame>> {
         use futures_core::Stream;
         loop {
             match std::task::ready!(Pin::new(&mut *self).poll_next(cx)) {

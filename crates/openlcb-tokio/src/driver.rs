@@ -17,7 +17,7 @@ use crate::memory::MemoryDriver;
 use crate::node::{Command, Control, NodeStats, Shared};
 use crate::requests::Requests;
 use crate::wire::{Wire, WireStats};
-use crate::{Error, NodeOptions, Protocol, RecvStream};
+use crate::{Error, Framing, NodeOptions, RecvStream};
 
 /// Bytes read from the socket at once.
 const READ_CHUNK: usize = 64 * 1024;
@@ -89,7 +89,7 @@ pub(crate) struct Driver {
 impl Driver {
     pub(crate) fn new(
         (reader, writer): (ByteReader, ByteWriter),
-        protocol: Protocol,
+        protocol: Framing,
         options: NodeOptions,
         commands: mpsc::Receiver<Command>,
         weak_commands: mpsc::WeakSender<Command>,
@@ -146,10 +146,10 @@ impl Driver {
                 Err(error) => return self.stop(error).await,
             };
             let now = self.now();
-            if self.wire.is_up(now) {
-                if let Some(up) = up.take() {
-                    let _ = up.send(());
-                }
+            if self.wire.is_up(now)
+                && let Some(up) = up.take()
+            {
+                let _ = up.send(());
             }
             let want_write = !self.wire.pending().is_empty();
             let stalled_at = self.write_deadline(want_write);
@@ -437,10 +437,10 @@ impl Driver {
                 }
                 Event::Opened { handle, info } => self.incoming_stream(now, handle, info),
                 Event::Rejected { handle, code, .. } => {
-                    if let Some(sending) = self.sends.remove(&handle) {
-                        if let Some(reply) = sending.opening {
-                            let _ = reply.send(Err(Error::Rejected { peer: sending.peer, code }));
-                        }
+                    if let Some(sending) = self.sends.remove(&handle)
+                        && let Some(reply) = sending.opening
+                    {
+                        let _ = reply.send(Err(Error::Rejected { peer: sending.peer, code }));
                     }
                 }
                 Event::Finished { handle, total, stated, matched } => {
@@ -518,10 +518,10 @@ impl Driver {
                 Ok(n) => {
                     taken += n;
                     bytes::Buf::advance(data, n);
-                    if data.is_empty() {
-                        if let Some((_, reply)) = sending.write.take() {
-                            let _ = reply.send(Ok(()));
-                        }
+                    if data.is_empty()
+                        && let Some((_, reply)) = sending.write.take()
+                    {
+                        let _ = reply.send(Ok(()));
                     }
                 }
                 Err(StreamError::NotOpen) => {}

@@ -1,7 +1,7 @@
 //! [`Hub`]: a TCP hub that relays every frame from one client to every other client.
 //!
 //! GridConnect clients (JMRI, OpenMRN, [`Node`](crate::Node)s with
-//! [`Protocol::GridConnect`]) share one virtual CAN segment; OpenLCB-TCP clients, on their own
+//! [`Framing::GridConnect`]) share one virtual CAN segment; OpenLCB-TCP clients, on their own
 //! listener, share one full-format link. Each frame is decoded and encoded again, so garbage
 //! from one client never reaches the others (the decoder resynchronises and counts it).
 //! With both listeners and [`HubOptions::bridge`], an [`openlcb_gateway::Gateway`] joins the
@@ -38,7 +38,7 @@ use tokio::task::{AbortHandle, JoinSet};
 use tracing::Instrument as _;
 
 use crate::io::{ByteReader, ByteWriter};
-use crate::{ByteStream, Error, Protocol};
+use crate::{ByteStream, Error, Framing};
 use openlcb_stream::NodeId;
 
 /// A connected client, numbered from 1 in order of arrival.
@@ -108,7 +108,7 @@ pub enum HubEvent {
         /// Its address.
         peer: SocketAddr,
         /// The listener it came through.
-        protocol: Protocol,
+        protocol: Framing,
     },
     /// A link that is not a TCP client joined the GridConnect group: a byte stream given to
     /// [`Hub::attach`] (a serial adapter) or the connection to an upstream hub
@@ -199,7 +199,7 @@ pub struct HubStats {
 }
 
 pub(crate) struct Client {
-    protocol: Protocol,
+    protocol: Framing,
     /// The bridge: never dropped for being slow (it is in-process and bounded by the gateway).
     bridge: bool,
     queue: mpsc::UnboundedSender<Bytes>,
@@ -241,10 +241,10 @@ impl State {
     }
 
     /// Registers the bridge as a client of `protocol`'s group: its id and its queue.
-    fn add_bridge_client(&self, protocol: Protocol) -> (ClientId, mpsc::UnboundedReceiver<Bytes>) {
+    fn add_bridge_client(&self, protocol: Framing) -> (ClientId, mpsc::UnboundedReceiver<Bytes>) {
         let id = match protocol {
-            Protocol::GridConnect => BRIDGE_GRIDCONNECT,
-            Protocol::Tcp => BRIDGE_TCP,
+            Framing::GridConnect => BRIDGE_GRIDCONNECT,
+            Framing::Tcp => BRIDGE_TCP,
         };
         let (queue, rx) = mpsc::unbounded_channel();
         let client =
@@ -256,7 +256,7 @@ impl State {
     }
 
     /// Registers a new client of `protocol`'s group: its id, its queue and its queue's count.
-    fn add_client(&self, protocol: Protocol) -> (ClientId, mpsc::UnboundedReceiver<Bytes>, Arc<AtomicUsize>) {
+    fn add_client(&self, protocol: Framing) -> (ClientId, mpsc::UnboundedReceiver<Bytes>, Arc<AtomicUsize>) {
         let id = self.next_id.fetch_add(1, Ordering::Relaxed);
         self.accepted.fetch_add(1, Ordering::Relaxed);
         let (queue, rx) = mpsc::unbounded_channel();
@@ -313,10 +313,10 @@ impl State {
         if chunk.is_empty() {
             return;
         }
-        if let Ok(clients) = self.clients.lock() {
-            if let Some(bridge) = clients.get(&BRIDGE_GRIDCONNECT) {
-                let _ = bridge.queue.send(chunk.freeze());
-            }
+        if let Ok(clients) = self.clients.lock()
+            && let Some(bridge) = clients.get(&BRIDGE_GRIDCONNECT)
+        {
+            let _ = bridge.queue.send(chunk.freeze());
         }
     }
 
@@ -337,7 +337,7 @@ impl State {
     }
 
     /// Queues `chunk` for every other client of the same protocol; drops those too far behind.
-    pub(crate) fn relay(&self, from: ClientId, protocol: Protocol, chunk: &Bytes) {
+    pub(crate) fn relay(&self, from: ClientId, protocol: Framing, chunk: &Bytes) {
         let mut slow = Vec::new();
         if let Ok(clients) = self.clients.lock() {
             for (&id, client) in clients.iter() {
@@ -415,12 +415,11 @@ impl Hub {
             refused: AtomicU64::new(0),
         });
         let mut listeners = JoinSet::new();
-        listeners.spawn(accept_loop(listener, Protocol::GridConnect, state.clone()));
+        listeners.spawn(accept_loop(listener, Framing::GridConnect, state.clone()));
         if let Some(listener) = tcp_listener {
-            listeners.spawn(accept_loop(listener, Protocol::Tcp, state.clone()));
+            listeners.spawn(accept_loop(listener, Framing::Tcp, state.clone()));
             if state.options.bridge {
-                let [can, tcp] =
-                    [Protocol::GridConnect, Protocol::Tcp].map(|protocol| state.add_bridge_client(protocol));
+                let [can, tcp] = [Framing::GridConnect, Framing::Tcp].map(|protocol| state.add_bridge_client(protocol));
                 listeners.spawn(crate::bridge::run(can, tcp, state.clone()));
             }
         }
@@ -462,7 +461,7 @@ impl Hub {
     /// is no stray connection). It leaves when the stream ends or fails
     /// ([`HubEvent::Disconnected`]).
     pub fn attach(&mut self, stream: impl ByteStream, name: &str) -> ClientId {
-        let (id, queue, queued) = self.state.add_client(Protocol::GridConnect);
+        let (id, queue, queued) = self.state.add_client(Framing::GridConnect);
         self.state.event(HubEvent::Attached { client: id, name: name.to_string() });
         self._listeners.spawn(serve_link(id, crate::io::halves(stream), queue, queued, self.state.clone()));
         id
@@ -500,7 +499,7 @@ async fn open_listener(addr: &str) -> std::io::Result<TcpListener> {
     Err(last)
 }
 
-async fn accept_loop(listener: TcpListener, protocol: Protocol, state: Arc<State>) {
+async fn accept_loop(listener: TcpListener, protocol: Framing, state: Arc<State>) {
     // Client tasks live here: when the hub is dropped, this task is aborted and they go too.
     let mut clients = JoinSet::new();
     loop {
@@ -515,7 +514,7 @@ async fn accept_loop(listener: TcpListener, protocol: Protocol, state: Arc<State
     }
 }
 
-fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, protocol: Protocol, state: &Arc<State>) {
+fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, protocol: Framing, state: &Arc<State>) {
     let connected = state.clients.lock().map(|c| c.values().filter(|c| !c.bridge).count()).unwrap_or(0);
     if connected >= state.options.max_clients {
         state.refused.fetch_add(1, Ordering::Relaxed);
@@ -560,7 +559,7 @@ async fn upstream_loop(addr: String, state: Arc<State>) {
         let reason = match tokio::time::timeout(UPSTREAM_CONNECT_TIMEOUT, crate::node::dial(&addr)).await {
             Ok(Ok(socket)) => {
                 let _ = socket.set_nodelay(true);
-                let (id, queue, queued) = state.add_client(Protocol::GridConnect);
+                let (id, queue, queued) = state.add_client(Framing::GridConnect);
                 state.event(HubEvent::Attached { client: id, name: name.clone() });
                 serve_link(id, crate::io::tcp_halves(socket), queue, queued, state.clone()).await;
                 // It was up: the next attempt starts from the shortest wait.
@@ -586,7 +585,7 @@ async fn serve_link(
     state: Arc<State>,
 ) {
     tokio::select! {
-        () = read_client(id, reader, Protocol::GridConnect, None, state.clone()) => {}
+        () = read_client(id, reader, Framing::GridConnect, None, state.clone()) => {}
         () = write_client(id, writer, queue, queued, state.clone()) => {}
     }
     if state.remove(id) {
@@ -596,8 +595,8 @@ async fn serve_link(
 
 /// Tells a client over the cap why it is closed. GridConnect clients get one line of text
 /// (decoders skip text outside frames); OpenLCB-TCP clients just see the close.
-async fn refuse(mut socket: TcpStream, protocol: Protocol, clients: usize) {
-    if protocol == Protocol::GridConnect {
+async fn refuse(mut socket: TcpStream, protocol: Framing, clients: usize) {
+    if protocol == Framing::GridConnect {
         let line = format!("hub full: {clients} clients connected; try again later\r\n");
         let _ = tokio::time::timeout(std::time::Duration::from_secs(1), socket.write_all(line.as_bytes())).await;
     }
@@ -636,10 +635,10 @@ impl GarbageReport {
 /// The protocol a client's first bytes are in, if it is not the one of its port: GridConnect
 /// text starts with `:X` or `:S`; an OpenLCB-TCP message with the flags byte 0x80 (a
 /// message, not a link control one) and never with `:`.
-fn other_protocol(port: Protocol, first: &[u8]) -> Option<&'static str> {
+fn other_protocol(port: Framing, first: &[u8]) -> Option<&'static str> {
     match (port, first) {
-        (Protocol::Tcp, [b':', b'X' | b'x' | b'S' | b's', ..]) => Some("GridConnect"),
-        (Protocol::GridConnect, [0x80, ..]) => Some("OpenLCB-TCP"),
+        (Framing::Tcp, [b':', b'X' | b'x' | b'S' | b's', ..]) => Some("GridConnect"),
+        (Framing::GridConnect, [0x80, ..]) => Some("OpenLCB-TCP"),
         _ => None,
     }
 }
@@ -649,7 +648,7 @@ fn other_protocol(port: Protocol, first: &[u8]) -> Option<&'static str> {
 async fn read_client(
     id: ClientId,
     mut reader: ByteReader,
-    protocol: Protocol,
+    protocol: Framing,
     silent_timeout: Option<std::time::Duration>,
     state: Arc<State>,
 ) {
@@ -679,16 +678,16 @@ async fn read_client(
             Err(error) => break departure(&error),
         };
         let input = buf.get(..n).unwrap_or_default();
-        if std::mem::take(&mut first_input) {
-            if let Some(other) = other_protocol(protocol, input) {
-                break format!("speaks {other} on this port (closed, so that it learns at once)");
-            }
+        if std::mem::take(&mut first_input)
+            && let Some(other) = other_protocol(protocol, input)
+        {
+            break format!("speaks {other} on this port (closed, so that it learns at once)");
         }
         let (frames, errors) = match protocol {
-            Protocol::GridConnect => {
+            Framing::GridConnect => {
                 relay_gridconnect(id, input, &mut gridconnect_decoder, &mut chunk, &state, &mut garbage)
             }
-            Protocol::Tcp => relay_tcp(id, input, &mut tcp_decoder, &mut chunk, &state, &mut garbage),
+            Framing::Tcp => relay_tcp(id, input, &mut tcp_decoder, &mut chunk, &state, &mut garbage),
         };
         heard |= frames > 0;
         garbage.flush(id, &state, false);

@@ -44,7 +44,7 @@
 //!
 //! ```
 //! use openlcb_stream::{NodeId, OpenOptions};
-//! use openlcb_tokio::{Hub, HubOptions, Node, NodeOptions, Protocol};
+//! use openlcb_tokio::{Framing, Hub, HubOptions, Node, NodeOptions};
 //!
 //! # #[tokio::main(flavor = "current_thread")]
 //! # async fn main() -> Result<(), openlcb_tokio::Error> {
@@ -52,9 +52,9 @@
 //! let addr = hub.local_addr().to_string();
 //!
 //! let receiver_id: NodeId = "05.01.01.01.22.F1".parse().unwrap();
-//! let mut receiver = Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(receiver_id)).await?;
+//! let mut receiver = Node::connect(&addr, Framing::GridConnect, NodeOptions::new(receiver_id)).await?;
 //! let sender_id: NodeId = "05.01.01.01.22.F0".parse().unwrap();
-//! let sender = Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(sender_id)).await?;
+//! let sender = Node::connect(&addr, Framing::GridConnect, NodeOptions::new(sender_id)).await?;
 //!
 //! let send = async {
 //!     let mut stream = sender.open(OpenOptions::new(receiver_id, 2048)).await?;
@@ -110,5 +110,5 @@ pub use openlcb_node::{
     NodeConfig, Protocols, RamSpace, ReadOnlySpace, SnipInfo, TransferPath,
 };
 pub use openlcb_stream::{Config as StreamConfig, EventId, NodeId, OpenOptions};
-pub use wire::{Protocol, WireStats};
+pub use wire::{Framing, WireStats};
 pub use {openlcb_can, openlcb_node, openlcb_stream};

@@ -16,7 +16,7 @@ use tracing::Instrument as _;
 use crate::driver::Driver;
 use crate::events::{EVENT_NOTICE_QUEUE, EventCommand, EventNotices};
 use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents};
-use crate::{Error, Protocol, WireStats};
+use crate::{Error, Framing, WireStats};
 use openlcb_node::EventRole;
 use openlcb_stream::EventId;
 
@@ -192,12 +192,12 @@ async fn connect_socket(address: std::net::SocketAddr) -> std::io::Result<TcpStr
 ///
 /// ```no_run
 /// use openlcb_stream::{NodeId, OpenOptions};
-/// use openlcb_tokio::{Node, NodeOptions, Protocol};
+/// use openlcb_tokio::{Framing, Node, NodeOptions};
 ///
 /// # async fn run() -> Result<(), openlcb_tokio::Error> {
 /// let me: NodeId = "05.01.01.01.22.F0".parse().unwrap();
 /// let peer: NodeId = "05.01.01.01.22.F1".parse().unwrap();
-/// let node = Node::connect("127.0.0.1:12021", Protocol::GridConnect, NodeOptions::new(me)).await?;
+/// let node = Node::connect("127.0.0.1:12021", Framing::GridConnect, NodeOptions::new(me)).await?;
 /// let mut stream = node.open(OpenOptions::new(peer, 2048)).await?; // Opened, or Rejected with its meaning
 /// stream.write_all(&b"hello"[..]).await?;
 /// stream.finish().await?;
@@ -217,7 +217,7 @@ impl Node {
     /// Connects to the hub at `addr` (`host:port`), logs in (on GridConnect: CAN alias
     /// reservation, about 200 ms) and sends Initialization Complete. Fails if the hub cannot be
     /// reached or the login does not finish within [`NodeOptions::connect_timeout`].
-    pub async fn connect(addr: &str, protocol: Protocol, options: NodeOptions) -> Result<Node, Error> {
+    pub async fn connect(addr: &str, protocol: Framing, options: NodeOptions) -> Result<Node, Error> {
         let connect_error =
             |source: std::io::Error| Error::Connect { addr: addr.to_string(), source: Arc::new(source) };
         let timeout = options.connect_timeout;
@@ -242,7 +242,7 @@ impl Node {
     /// [`NodeOptions::connect_timeout`].
     ///
     /// ```
-    /// use openlcb_tokio::{Node, NodeOptions, Protocol};
+    /// use openlcb_tokio::{Framing, Node, NodeOptions};
     ///
     /// # #[tokio::main(flavor = "current_thread")]
     /// # async fn main() -> Result<(), openlcb_tokio::Error> {
@@ -250,13 +250,13 @@ impl Node {
     /// let (one, other) = tokio::io::duplex(64 * 1024);
     /// let id = |last| openlcb_tokio::NodeId::from_bytes([5, 1, 1, 1, 0x22, last]);
     /// let (a, b) = tokio::try_join!(
-    ///     Node::over(one, Protocol::GridConnect, NodeOptions::new(id(1))),
-    ///     Node::over(other, Protocol::GridConnect, NodeOptions::new(id(2))),
+    ///     Node::over(one, Framing::GridConnect, NodeOptions::new(id(1))),
+    ///     Node::over(other, Framing::GridConnect, NodeOptions::new(id(2))),
     /// )?;
     /// assert_eq!(a.discover(std::time::Duration::from_millis(500), 1).await?, vec![b.node_id()]);
     /// # Ok(()) }
     /// ```
-    pub async fn over(stream: impl crate::ByteStream, protocol: Protocol, options: NodeOptions) -> Result<Node, Error> {
+    pub async fn over(stream: impl crate::ByteStream, protocol: Framing, options: NodeOptions) -> Result<Node, Error> {
         Node::start(crate::io::halves(stream), "a byte stream", protocol, options).await
     }
 
@@ -265,7 +265,7 @@ impl Node {
     async fn start(
         halves: (crate::io::ByteReader, crate::io::ByteWriter),
         via: &str,
-        protocol: Protocol,
+        protocol: Framing,
         options: NodeOptions,
     ) -> Result<Node, Error> {
         let timeout = options.connect_timeout;

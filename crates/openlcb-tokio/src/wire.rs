@@ -13,7 +13,7 @@ use crate::Error;
 
 /// Which framing a node speaks to its hub.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Protocol {
+pub enum Framing {
     /// CAN frames as GridConnect text (`:X19CC8123N...;`), the protocol of JMRI and OpenMRN
     /// hubs (port 12021 by convention). The node logs in with a CAN alias.
     GridConnect,
@@ -128,9 +128,9 @@ pub(crate) enum Wire {
 }
 
 impl Wire {
-    pub(crate) fn new(protocol: Protocol, now: Instant, node: NodeId, can: CanConfig) -> Self {
+    pub(crate) fn new(protocol: Framing, now: Instant, node: NodeId, can: CanConfig) -> Self {
         match protocol {
-            Protocol::GridConnect => Wire::GridConnect {
+            Framing::GridConnect => Wire::GridConnect {
                 link: Box::new(CanLink::new(now, node, can)),
                 decoder: GridConnectDecoder::default(),
                 waiting: VecDeque::new(),
@@ -138,7 +138,7 @@ impl Wire {
                 taken: 0,
                 joining: Joining::LoggingIn,
             },
-            Protocol::Tcp => Wire::Tcp { link: TcpLink::new(node) },
+            Framing::Tcp => Wire::Tcp { link: TcpLink::new(node) },
         }
     }
 
@@ -189,7 +189,7 @@ impl Wire {
             }
             Wire::Tcp { link } => {
                 let mut input = bytes;
-                while let Some(decoded) = link.poll_receive(&mut input) {
+                while let Some(decoded) = link.read_message(&mut input) {
                     match decoded {
                         Ok(msg) => {
                             stats.frames_in += 1;
@@ -273,10 +273,10 @@ impl Wire {
                         stats.frames_out += 1;
                     }
                     // Refill the link from the driver's queue as it drains.
-                    if link.queued_messages() < CAN_LINK_QUEUE {
-                        if let Some(message) = waiting.pop_front() {
-                            let _ = link.send(now, message);
-                        }
+                    if link.queued_messages() < CAN_LINK_QUEUE
+                        && let Some(message) = waiting.pop_front()
+                    {
+                        let _ = link.send(now, message);
                     }
                 }
             }

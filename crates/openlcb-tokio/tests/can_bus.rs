@@ -9,7 +9,7 @@ use std::task::{Context, Poll};
 use openlcb_can::CanFrame;
 use openlcb_stream::NodeId;
 use openlcb_tokio::can::{FrameBus, FrameStream};
-use openlcb_tokio::{Hub, HubOptions, Node, NodeOptions, Protocol};
+use openlcb_tokio::{Framing, Hub, HubOptions, Node, NodeOptions};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::mpsc;
 
@@ -48,7 +48,7 @@ impl MemoryBus {
 }
 
 impl FrameBus for Controller {
-    fn poll_receive(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<CanFrame>> {
+    fn read_message(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<CanFrame>> {
         self.heard.poll_recv(cx).map(|frame| frame.ok_or_else(|| std::io::ErrorKind::BrokenPipe.into()))
     }
 
@@ -81,8 +81,8 @@ async fn nodes_on_an_echoing_bus_log_in_and_move_a_stream() {
     let echoes = [one.echoes(), other.echoes()];
     let (sender, mut receiver) = bounded("two logins on the bus", async {
         tokio::try_join!(
-            Node::over(one, Protocol::GridConnect, NodeOptions::new(id(1))),
-            Node::over(other, Protocol::GridConnect, NodeOptions::new(id(2))),
+            Node::over(one, Framing::GridConnect, NodeOptions::new(id(1))),
+            Node::over(other, Framing::GridConnect, NodeOptions::new(id(2))),
         )
     })
     .await
@@ -102,13 +102,13 @@ async fn a_hub_attached_to_the_bus_relays_between_a_bus_node_and_a_tcp_node() {
     hub.attach(FrameStream::new(bus.controller()), "can0");
     let mut on_bus = bounded(
         "login on the bus",
-        Node::over(FrameStream::new(bus.controller()), Protocol::GridConnect, NodeOptions::new(id(3))),
+        Node::over(FrameStream::new(bus.controller()), Framing::GridConnect, NodeOptions::new(id(3))),
     )
     .await
     .unwrap();
     let on_tcp = bounded(
         "login through the hub",
-        Node::connect(&hub.local_addr().to_string(), Protocol::GridConnect, NodeOptions::new(id(4))),
+        Node::connect(&hub.local_addr().to_string(), Framing::GridConnect, NodeOptions::new(id(4))),
     )
     .await
     .unwrap();

@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use openlcb_stream::wire::ReplyCode;
 use openlcb_stream::{AcceptPolicy, NodeId, OpenOptions};
-use openlcb_tokio::{Error, Hub, HubEvent, HubOptions, Node, NodeOptions, Protocol};
+use openlcb_tokio::{Error, Framing, Hub, HubEvent, HubOptions, Node, NodeOptions};
 use tokio::io::AsyncWriteExt;
 
 mod common;
@@ -24,14 +24,14 @@ async fn start_hub(options: HubOptions) -> Hub {
     bounded("binding the hub", Hub::bind("127.0.0.1:0", Some("127.0.0.1:0"), options)).await.unwrap()
 }
 
-fn addr(hub: &Hub, protocol: Protocol) -> String {
+fn addr(hub: &Hub, protocol: Framing) -> String {
     match protocol {
-        Protocol::Tcp => hub.tcp_local_addr().unwrap().to_string(),
+        Framing::Tcp => hub.tcp_local_addr().unwrap().to_string(),
         _ => hub.local_addr().to_string(),
     }
 }
 
-async fn join(addr: &str, protocol: Protocol, node: NodeId, window: u16) -> Node {
+async fn join(addr: &str, protocol: Framing, node: NodeId, window: u16) -> Node {
     let mut options = NodeOptions::new(node);
     options.node.stream.max_window = window;
     bounded("joining", Node::connect(addr, protocol, options)).await.unwrap()
@@ -62,7 +62,7 @@ async fn transfer(sender: &Node, receiver: &mut Node, payload: &[u8], window: u1
     received
 }
 
-async fn sizes_through_hub(protocol: Protocol) {
+async fn sizes_through_hub(protocol: Framing) {
     const WINDOW: u16 = 2048;
     let hub = start_hub(HubOptions::default()).await;
     let addr = addr(&hub, protocol);
@@ -77,7 +77,7 @@ async fn sizes_through_hub(protocol: Protocol) {
     let stats = sender.stats().await.unwrap();
     // Batching: a window's CAN frames go out in a few write calls, not one call per frame.
     // (On OpenLCB-TCP a window is one message anyway.)
-    if protocol == Protocol::GridConnect {
+    if protocol == Framing::GridConnect {
         assert!(stats.wire.writes * 10 < stats.wire.frames_out, "{:?}", stats.wire);
     }
     assert_eq!(hub.stats().decode_errors, 0);
@@ -85,21 +85,21 @@ async fn sizes_through_hub(protocol: Protocol) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn gridconnect_transfers_of_every_edge_size_through_the_hub() {
-    sizes_through_hub(Protocol::GridConnect).await;
+    sizes_through_hub(Framing::GridConnect).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn openlcb_tcp_transfers_of_every_edge_size_through_the_hub() {
-    sizes_through_hub(Protocol::Tcp).await;
+    sizes_through_hub(Framing::Tcp).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_senders_to_one_receiver_at_once() {
     let hub = start_hub(HubOptions::default()).await;
-    let addr = addr(&hub, Protocol::GridConnect);
-    let mut receiver = join(&addr, Protocol::GridConnect, id(0xF1), 4096).await;
-    let a = join(&addr, Protocol::GridConnect, id(0xA0), 4096).await;
-    let b = join(&addr, Protocol::GridConnect, id(0xB0), 4096).await;
+    let addr = addr(&hub, Framing::GridConnect);
+    let mut receiver = join(&addr, Framing::GridConnect, id(0xF1), 4096).await;
+    let a = join(&addr, Framing::GridConnect, id(0xA0), 4096).await;
+    let b = join(&addr, Framing::GridConnect, id(0xB0), 4096).await;
     let (payload_a, payload_b) = (data(300_000, 0xAA), data(200_001, 0xBB));
     let receiver_id = receiver.node_id();
 
@@ -141,11 +141,11 @@ async fn read_all(stream: &mut openlcb_tokio::RecvStream) -> Result<(NodeId, Vec
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_rejection_reports_the_code_and_its_meaning() {
     let hub = start_hub(HubOptions::default()).await;
-    let addr = addr(&hub, Protocol::GridConnect);
+    let addr = addr(&hub, Framing::GridConnect);
     let mut options = NodeOptions::new(id(0xF1));
     options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
-    let _busy = bounded("joining", Node::connect(&addr, Protocol::GridConnect, options)).await.unwrap();
-    let sender = join(&addr, Protocol::GridConnect, id(0xF0), 2048).await;
+    let _busy = bounded("joining", Node::connect(&addr, Framing::GridConnect, options)).await.unwrap();
+    let sender = join(&addr, Framing::GridConnect, id(0xF0), 2048).await;
     let error = bounded("open", sender.open(OpenOptions::new(id(0xF1), 2048))).await.unwrap_err();
     assert!(matches!(error, Error::Rejected { code: ReplyCode::BUFFER_UNAVAILABLE, .. }), "{error:?}");
     let text = error.to_string();
@@ -156,8 +156,8 @@ async fn a_rejection_reports_the_code_and_its_meaning() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_node_nobody_answers_for_is_reported_unreachable() {
     let hub = start_hub(HubOptions::default()).await;
-    let addr = addr(&hub, Protocol::GridConnect);
-    let sender = join(&addr, Protocol::GridConnect, id(0xF0), 2048).await;
+    let addr = addr(&hub, Framing::GridConnect);
+    let sender = join(&addr, Framing::GridConnect, id(0xF0), 2048).await;
     let error = bounded("open", sender.open(OpenOptions::new(id(0x99), 2048))).await.unwrap_err();
     assert!(matches!(error, Error::Unreachable(node) if node == id(0x99)), "{error:?}");
 }
@@ -168,7 +168,7 @@ async fn an_unreachable_hub_is_a_connect_error() {
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
     let addr = format!("127.0.0.1:{port}");
     let error =
-        bounded("connect", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(id(0xF0)))).await.unwrap_err();
+        bounded("connect", Node::connect(&addr, Framing::GridConnect, NodeOptions::new(id(0xF0)))).await.unwrap_err();
     assert!(matches!(error, Error::Connect { .. }), "{error:?}");
     assert!(error.to_string().contains(&addr));
 }
@@ -176,9 +176,9 @@ async fn an_unreachable_hub_is_a_connect_error() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_restarted_hub_loses_its_clients_and_serves_new_ones() {
     let hub = start_hub(HubOptions::default()).await;
-    let addr = addr(&hub, Protocol::GridConnect);
-    let mut receiver = join(&addr, Protocol::GridConnect, id(0xF1), 2048).await;
-    let mut sender = join(&addr, Protocol::GridConnect, id(0xF0), 2048).await;
+    let addr = addr(&hub, Framing::GridConnect);
+    let mut receiver = join(&addr, Framing::GridConnect, id(0xF1), 2048).await;
+    let mut sender = join(&addr, Framing::GridConnect, id(0xF0), 2048).await;
     let before = data(10_000, 1);
     assert!(transfer(&sender, &mut receiver, &before, 2048).await == before);
 
@@ -194,8 +194,8 @@ async fn a_restarted_hub_loses_its_clients_and_serves_new_ones() {
     // The same port again; new nodes with the same Node IDs.
     let hub = bounded("rebinding", Hub::bind(&addr, None, HubOptions::default())).await.unwrap();
     assert_eq!(hub.local_addr().to_string(), addr);
-    let mut receiver = join(&addr, Protocol::GridConnect, id(0xF1), 2048).await;
-    let sender = join(&addr, Protocol::GridConnect, id(0xF0), 2048).await;
+    let mut receiver = join(&addr, Framing::GridConnect, id(0xF1), 2048).await;
+    let sender = join(&addr, Framing::GridConnect, id(0xF0), 2048).await;
     let after = data(100_000, 2);
     assert!(transfer(&sender, &mut receiver, &after, 2048).await == after);
 }
@@ -203,9 +203,9 @@ async fn a_restarted_hub_loses_its_clients_and_serves_new_ones() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn garbage_from_one_client_does_not_hurt_the_others() {
     let mut hub = start_hub(HubOptions::default()).await;
-    let addr = addr(&hub, Protocol::GridConnect);
-    let mut receiver = join(&addr, Protocol::GridConnect, id(0xF1), 2048).await;
-    let sender = join(&addr, Protocol::GridConnect, id(0xF0), 2048).await;
+    let addr = addr(&hub, Framing::GridConnect);
+    let mut receiver = join(&addr, Framing::GridConnect, id(0xF1), 2048).await;
+    let sender = join(&addr, Framing::GridConnect, id(0xF0), 2048).await;
 
     let mut rogue = bounded("rogue connect", tokio::net::TcpStream::connect(&addr)).await.unwrap();
     let garbage: Vec<u8> = (0..64 * 1024u32).map(|i| (i.wrapping_mul(2_246_822_519) >> 7) as u8).collect();
@@ -235,7 +235,7 @@ async fn garbage_from_one_client_does_not_hurt_the_others() {
     assert!(saw_garbage, "the hub reported no garbage");
     assert!(hub.stats().decode_errors > 0);
     // The hub still takes new clients.
-    let late = join(&addr, Protocol::GridConnect, id(0xF2), 2048).await;
+    let late = join(&addr, Framing::GridConnect, id(0xF2), 2048).await;
     let again = data(3000, 4);
     assert!(transfer(&late, &mut receiver, &again, 2048).await == again);
 }
@@ -245,7 +245,7 @@ async fn a_client_that_does_not_read_is_dropped_and_the_rest_go_on() {
     let mut options = HubOptions::default();
     options.max_queued_bytes = 64 * 1024;
     let mut hub = start_hub(options).await;
-    let addr = addr(&hub, Protocol::GridConnect);
+    let addr = addr(&hub, Framing::GridConnect);
     // Connects with a small receive buffer, then never reads.
     let socket = tokio::net::TcpSocket::new_v4().unwrap();
     socket.set_recv_buffer_size(4096).unwrap();
@@ -258,8 +258,8 @@ async fn a_client_that_does_not_read_is_dropped_and_the_rest_go_on() {
         }
     })
     .await;
-    let mut receiver = join(&addr, Protocol::GridConnect, id(0xF1), 2048).await;
-    let sender = join(&addr, Protocol::GridConnect, id(0xF0), 2048).await;
+    let mut receiver = join(&addr, Framing::GridConnect, id(0xF1), 2048).await;
+    let sender = join(&addr, Framing::GridConnect, id(0xF0), 2048).await;
     // Enough text to fill the stuck client's socket buffers and its queue.
     let payload = data(4 * 1024 * 1024, 5);
     assert!(transfer(&sender, &mut receiver, &payload, 2048).await == payload);
@@ -280,11 +280,11 @@ async fn a_client_that_does_not_read_is_dropped_and_the_rest_go_on() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_receiver_that_vanishes_mid_transfer_fails_the_sender() {
     let hub = start_hub(HubOptions::default()).await;
-    let addr = addr(&hub, Protocol::GridConnect);
+    let addr = addr(&hub, Framing::GridConnect);
     let mut options = NodeOptions::new(id(0xF0));
     options.node.stream.proceed_timeout = openlcb_stream::Duration::from_millis(1500);
-    let sender = bounded("joining", Node::connect(&addr, Protocol::GridConnect, options)).await.unwrap();
-    let mut receiver = join(&addr, Protocol::GridConnect, id(0xF1), 2048).await;
+    let sender = bounded("joining", Node::connect(&addr, Framing::GridConnect, options)).await.unwrap();
+    let mut receiver = join(&addr, Framing::GridConnect, id(0xF1), 2048).await;
 
     let mut stream = bounded("open", sender.open(OpenOptions::new(id(0xF1), 2048))).await.unwrap();
     let mut incoming = bounded("accept", receiver.accept()).await.unwrap();
@@ -315,9 +315,9 @@ async fn a_receiver_that_vanishes_mid_transfer_fails_the_sender() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_hub_bridges_openlcb_tcp_and_gridconnect_nodes_both_ways() {
     let hub = start_hub(HubOptions::default()).await;
-    let (gridconnect, tcp) = (addr(&hub, Protocol::GridConnect), addr(&hub, Protocol::Tcp));
-    let mut can_node = join(&gridconnect, Protocol::GridConnect, id(0xC1), 2048).await;
-    let mut tcp_node = join(&tcp, Protocol::Tcp, id(0x71), 2048).await;
+    let (gridconnect, tcp) = (addr(&hub, Framing::GridConnect), addr(&hub, Framing::Tcp));
+    let mut can_node = join(&gridconnect, Framing::GridConnect, id(0xC1), 2048).await;
+    let mut tcp_node = join(&tcp, Framing::Tcp, id(0x71), 2048).await;
     for (n, window) in [2048u16, 300].into_iter().enumerate() {
         let payload = data(100_003, n as u8);
         let received = transfer(&tcp_node, &mut can_node, &payload, window).await;
@@ -368,8 +368,8 @@ impl RawClient {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_node_answers_alias_enquiry_verify_node_id_and_protocol_support_inquiry() {
     let hub = start_hub(HubOptions::default()).await;
-    let addr = addr(&hub, Protocol::GridConnect);
-    let _node = join(&addr, Protocol::GridConnect, id(0xF1), 2048).await;
+    let addr = addr(&hub, Framing::GridConnect);
+    let _node = join(&addr, Framing::GridConnect, id(0xF1), 2048).await;
     let mut raw = RawClient::connect(&addr).await;
     // Announce alias 0xAAA for 05.01.01.01.22.99 (AMD), so the node knows who asks.
     raw.send(":X10701AAAN050101012299;").await;
@@ -395,13 +395,13 @@ async fn a_node_answers_alias_enquiry_verify_node_id_and_protocol_support_inquir
 async fn a_window_whose_frames_exceed_the_output_buffer_still_flows() {
     // 65535 bytes are about 270 kB of GridConnect text, more than the driver frames at once.
     let hub = start_hub(HubOptions::default()).await;
-    let addr = addr(&hub, Protocol::GridConnect);
+    let addr = addr(&hub, Framing::GridConnect);
     for (n, early_proceed) in [false, true].into_iter().enumerate() {
         let mut options = NodeOptions::new(id(0xE0 + n as u8));
         options.node.stream.max_window = 65535;
         options.node.stream.early_proceed = early_proceed;
-        let mut receiver = bounded("joining", Node::connect(&addr, Protocol::GridConnect, options)).await.unwrap();
-        let sender = join(&addr, Protocol::GridConnect, id(0xD0 + n as u8), 65535).await;
+        let mut receiver = bounded("joining", Node::connect(&addr, Framing::GridConnect, options)).await.unwrap();
+        let sender = join(&addr, Framing::GridConnect, id(0xD0 + n as u8), 65535).await;
         let payload = data(3 * 65535 + 1, 9);
         assert!(transfer(&sender, &mut receiver, &payload, 65535).await == payload, "early Proceed {early_proceed}");
     }

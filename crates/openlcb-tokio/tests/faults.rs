@@ -7,7 +7,7 @@ use std::time::Duration;
 use bytes::BytesMut;
 use openlcb_stream::{Message, Mti, NodeId, OpenOptions};
 use openlcb_tcp::{CaptureTime, Decoder, LinkPrefix, TcpFrame};
-use openlcb_tokio::{Error, Node, NodeOptions, Protocol};
+use openlcb_tokio::{Error, Framing, Node, NodeOptions};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
@@ -66,7 +66,7 @@ async fn a_hub_that_stops_reading_ends_the_transfer_with_write_stalled() {
     let hub = tokio::spawn(hub_that_stops_reading(listener, receiver_id, sender_id));
     let mut options = NodeOptions::new(sender_id);
     options.write_timeout = Duration::from_millis(500);
-    let node = bounded("joining", Node::connect(&addr, Protocol::Tcp, options)).await.unwrap();
+    let node = bounded("joining", Node::connect(&addr, Framing::Tcp, options)).await.unwrap();
     let mut stream = bounded("opening", node.open(OpenOptions::new(receiver_id, 65535))).await.unwrap();
     let chunk = data(1 << 20);
     let outcome = bounded("writing into a hub that reads nothing", async {
@@ -92,7 +92,7 @@ async fn a_port_that_closes_at_once_is_an_unreachable_hub() {
             drop(socket);
         }
     });
-    let outcome = bounded("connecting", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(id(0x12)))).await;
+    let outcome = bounded("connecting", Node::connect(&addr, Framing::GridConnect, NodeOptions::new(id(0x12)))).await;
     assert!(matches!(outcome, Err(Error::Connect { .. })), "got {outcome:?}");
     closer.abort();
 }
@@ -142,9 +142,9 @@ async fn a_large_window_crosses_a_relay_with_small_socket_buffers() {
     let relay = tokio::spawn(small_window_relay(listener));
     let (sender_id, receiver_id) = (id(0x13), id(0x14));
     let mut receiver =
-        bounded("joining", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(receiver_id))).await.unwrap();
+        bounded("joining", Node::connect(&addr, Framing::GridConnect, NodeOptions::new(receiver_id))).await.unwrap();
     let sender =
-        bounded("joining", Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(sender_id))).await.unwrap();
+        bounded("joining", Node::connect(&addr, Framing::GridConnect, NodeOptions::new(sender_id))).await.unwrap();
     // The cause of the stall through OpenMRN's hub: segments larger than the ~16 KB window
     // such a hub advertises. Every node must keep its segments below it.
     let mss = bounded("the relay", relay).await.unwrap();
@@ -214,7 +214,7 @@ async fn a_node_logs_in_with_four_cids_rid_and_amd_and_nothing_between() {
     until_clients(&hub, 1).await;
     let me = id(0x30);
     let _node =
-        bounded("joining", Node::connect(&hub.local_addr().to_string(), Protocol::GridConnect, NodeOptions::new(me)))
+        bounded("joining", Node::connect(&hub.local_addr().to_string(), Framing::GridConnect, NodeOptions::new(me)))
             .await
             .unwrap();
     let frames = frames_until(&mut observer, ":X19490").await;
@@ -239,7 +239,7 @@ async fn a_running_node_reports_a_claim_of_its_node_id_and_keeps_running() {
     let hub = start_hub(HubOptions::default()).await;
     let me = id(0x31);
     let _node =
-        bounded("joining", Node::connect(&hub.local_addr().to_string(), Protocol::GridConnect, NodeOptions::new(me)))
+        bounded("joining", Node::connect(&hub.local_addr().to_string(), Framing::GridConnect, NodeOptions::new(me)))
             .await
             .unwrap();
     let mut checker = TcpStream::connect(hub.local_addr()).await.unwrap();
@@ -264,7 +264,7 @@ async fn a_second_node_with_a_taken_node_id_refuses_to_join_and_the_first_keeps_
     let hub = start_hub(HubOptions::default()).await;
     let addr = hub.local_addr().to_string();
     let taken = id(0x20);
-    let join = |node| Node::connect(&addr, Protocol::GridConnect, NodeOptions::new(node));
+    let join = |node| Node::connect(&addr, Framing::GridConnect, NodeOptions::new(node));
     let mut first = bounded("joining", join(taken)).await.unwrap();
     let mut observer = TcpStream::connect(hub.local_addr()).await.unwrap();
     until_clients(&hub, 2).await;
@@ -289,7 +289,7 @@ async fn a_node_that_closes_releases_its_alias() {
     until_clients(&hub, 1).await;
     let node = bounded(
         "joining",
-        Node::connect(&hub.local_addr().to_string(), Protocol::GridConnect, NodeOptions::new(id(0x32))),
+        Node::connect(&hub.local_addr().to_string(), Framing::GridConnect, NodeOptions::new(id(0x32))),
     )
     .await
     .unwrap();
@@ -338,13 +338,11 @@ async fn a_node_id_that_left_the_gridconnect_side_can_join_over_openlcb_tcp() {
     let gridconnect = hub.local_addr().to_string();
     let tcp = hub.tcp_local_addr().unwrap().to_string();
     let roaming = id(0x22);
-    let sender = bounded("joining", Node::connect(&gridconnect, Protocol::GridConnect, NodeOptions::new(id(0x23))))
+    let sender = bounded("joining", Node::connect(&gridconnect, Framing::GridConnect, NodeOptions::new(id(0x23))))
         .await
         .unwrap();
     let mut was_here =
-        bounded("joining", Node::connect(&gridconnect, Protocol::GridConnect, NodeOptions::new(roaming)))
-            .await
-            .unwrap();
+        bounded("joining", Node::connect(&gridconnect, Framing::GridConnect, NodeOptions::new(roaming))).await.unwrap();
     transfer(&sender, &mut was_here, 1000, 2048).await;
     // It leaves without a word (no AMR), like a program that was killed.
     was_here.abort();
@@ -352,7 +350,7 @@ async fn a_node_id_that_left_the_gridconnect_side_can_join_over_openlcb_tcp() {
         while !matches!(hub.next_event().await, Some(HubEvent::InputClosed { .. }) | None) {}
     })
     .await;
-    let mut back = bounded("joining over OpenLCB-TCP", Node::connect(&tcp, Protocol::Tcp, NodeOptions::new(roaming)))
+    let mut back = bounded("joining over OpenLCB-TCP", Node::connect(&tcp, Framing::Tcp, NodeOptions::new(roaming)))
         .await
         .unwrap();
     // The gateway gives it a CAN alias (a proxy) once it has forgotten the old one.

@@ -3,7 +3,7 @@
 
 use openlcb_stream::{NodeId, OpenOptions};
 use openlcb_tokio::serial::{self, SerialPort};
-use openlcb_tokio::{Error, Hub, HubEvent, HubOptions, Node, NodeOptions, Protocol};
+use openlcb_tokio::{Error, Framing, Hub, HubEvent, HubOptions, Node, NodeOptions};
 use tokio_serial::SerialPort as _;
 
 mod common;
@@ -28,7 +28,7 @@ async fn gridconnect_hub() -> Hub {
 }
 
 async fn join(addr: &str, node: NodeId) -> Node {
-    bounded("joining", Node::connect(addr, Protocol::GridConnect, NodeOptions::new(node))).await.unwrap()
+    bounded("joining", Node::connect(addr, Framing::GridConnect, NodeOptions::new(node))).await.unwrap()
 }
 
 /// Waits for the hub's next [`HubEvent::Attached`]; returns its name.
@@ -62,7 +62,7 @@ async fn a_node_on_a_serial_port_sends_a_mebibyte_to_a_tcp_node_through_the_hub(
     assert_eq!(attached(&mut hub).await, "pty");
     let port = serial::open(&path, serial::DEFAULT_BAUD).unwrap();
     let serial_node =
-        bounded("login over the pty", Node::over(port, Protocol::GridConnect, NodeOptions::new(id(1)))).await.unwrap();
+        bounded("login over the pty", Node::over(port, Framing::GridConnect, NodeOptions::new(id(1)))).await.unwrap();
     let mut tcp_node = join(&hub.local_addr().to_string(), id(2)).await;
 
     let payload = pattern(MIB);

@@ -7,17 +7,17 @@ mod common;
 use common::bounded;
 use openlcb_tokio::openlcb_node::MemoryError;
 use openlcb_tokio::{
-    Error, Hub, HubOptions, MemoryEvent, MemoryServer, Node, NodeId, NodeOptions, Protocol, RamSpace, TransferPath,
+    Error, Framing, Hub, HubOptions, MemoryEvent, MemoryServer, Node, NodeId, NodeOptions, RamSpace, TransferPath,
 };
 
 fn data(len: usize, key: u8) -> Vec<u8> {
     (0..len).map(|i| (i as u8).wrapping_mul(31).wrapping_add(key) ^ (i >> 8) as u8).collect()
 }
 
-async fn pair(protocol: Protocol) -> (Hub, Node, Node, openlcb_tokio::ServerEvents) {
+async fn pair(protocol: Framing) -> (Hub, Node, Node, openlcb_tokio::ServerEvents) {
     let hub = Hub::bind("127.0.0.1:0", Some("127.0.0.1:0"), HubOptions::default()).await.unwrap();
     let addr = match protocol {
-        Protocol::Tcp => hub.tcp_local_addr().unwrap().to_string(),
+        Framing::Tcp => hub.tcp_local_addr().unwrap().to_string(),
         _ => hub.local_addr().to_string(),
     };
     let server_id: NodeId = "05.01.01.01.22.D2".parse().unwrap();
@@ -34,7 +34,7 @@ async fn pair(protocol: Protocol) -> (Hub, Node, Node, openlcb_tokio::ServerEven
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn read_write_and_upgrade_by_stream_and_by_datagrams() {
-    for protocol in [Protocol::GridConnect, Protocol::Tcp] {
+    for protocol in [Framing::GridConnect, Framing::Tcp] {
         let (_hub, server, client, mut events) = pair(protocol).await;
         let peer = server.node_id();
         for path in [TransferPath::Stream, TransferPath::Datagrams, TransferPath::Auto] {
@@ -70,7 +70,7 @@ async fn read_write_and_upgrade_by_stream_and_by_datagrams() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn errors_are_typed() {
-    let (_hub, server, client, _events) = pair(Protocol::GridConnect).await;
+    let (_hub, server, client, _events) = pair(Framing::GridConnect).await;
     let peer = server.node_id();
     let unknown = client.read_memory(peer, 0x42, 0, Some(10), TransferPath::Datagrams).await.unwrap();
     let error = bounded("unknown space", unknown.finish()).await.unwrap_err();

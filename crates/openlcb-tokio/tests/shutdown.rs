@@ -1,17 +1,17 @@
 //! Every way a node's handle can end, in whatever order the hub and the node go: no panic.
 
 use openlcb_stream::NodeId;
-use openlcb_tokio::{Hub, HubOptions, Node, NodeOptions, Protocol};
+use openlcb_tokio::{Framing, Hub, HubOptions, Node, NodeOptions};
 
 mod common;
 use common::bounded;
 
 #[tokio::test]
 async fn close_after_the_hub_went_away_and_closed_returned() {
-    for protocol in [Protocol::GridConnect, Protocol::Tcp] {
+    for protocol in [Framing::GridConnect, Framing::Tcp] {
         let hub = Hub::bind("127.0.0.1:0", Some("127.0.0.1:0"), HubOptions::default()).await.unwrap();
         let addr = match protocol {
-            Protocol::Tcp => hub.tcp_local_addr().unwrap().to_string(),
+            Framing::Tcp => hub.tcp_local_addr().unwrap().to_string(),
             _ => hub.local_addr().to_string(),
         };
         let id = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x31]);

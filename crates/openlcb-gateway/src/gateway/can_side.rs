@@ -364,14 +364,14 @@ impl Gateway {
             }
         }
         loop {
-            if let Some(in_flight) = self.current_data.as_mut() {
-                if let Some(frame) = in_flight.fragments.next() {
-                    let len = frame.payload().len().saturating_sub(1);
-                    in_flight.bytes_left = in_flight.bytes_left.saturating_sub(len);
-                    let stream = in_flight.stream;
-                    self.data_frame_sent(stream, len);
-                    return Some(frame);
-                }
+            if let Some(in_flight) = self.current_data.as_mut()
+                && let Some(frame) = in_flight.fragments.next()
+            {
+                let len = frame.payload().len().saturating_sub(1);
+                in_flight.bytes_left = in_flight.bytes_left.saturating_sub(len);
+                let stream = in_flight.stream;
+                self.data_frame_sent(stream, len);
+                return Some(frame);
             }
             self.current_data = None;
             let ready = self.data.pop_front()?;

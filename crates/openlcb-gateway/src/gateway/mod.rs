@@ -343,10 +343,10 @@ impl Gateway {
 
     fn can_message(&mut self, now: Instant, source: NodeAlias, mti: Mti, data: &[u8]) {
         if !mti.is_addressed() {
-            if mti.announces_sender() {
-                if let Some(node) = NodeId::from_slice(data) {
-                    self.learn(now, source, node);
-                }
+            if mti.announces_sender()
+                && let Some(node) = NodeId::from_slice(data)
+            {
+                self.learn(now, source, node);
             }
             let Some(node) = self.cache.node(source) else {
                 return bump(&mut self.stats.unknown_source_dropped);

@@ -215,7 +215,7 @@ impl Net {
         let bytes = self.full_link.transmit_pending().to_vec();
         self.full_link.advance_transmit(bytes.len());
         let mut input = &bytes[..];
-        while let Some(result) = self.gateway_link.poll_receive(&mut input) {
+        while let Some(result) = self.gateway_link.read_message(&mut input) {
             let message = result.unwrap();
             moved = true;
             self.from_full.push(message.to_message());
@@ -247,7 +247,7 @@ impl Net {
         let bytes = self.gateway_link.transmit_pending().to_vec();
         self.gateway_link.advance_transmit(bytes.len());
         let mut input = &bytes[..];
-        while let Some(result) = self.full_link.poll_receive(&mut input) {
+        while let Some(result) = self.full_link.read_message(&mut input) {
             self.full.endpoint.handle_message(now, result.unwrap());
         }
 
