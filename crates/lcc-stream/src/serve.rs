@@ -286,6 +286,10 @@ fn free_path(out: &Path, force: bool) -> PathBuf {
 fn save_whole(path: &Path, bytes: &[u8], replace: bool) -> std::io::Result<()> {
     let part = part_path(path);
     let written = std::fs::File::create(&part).and_then(|mut file| {
+        if let Ok(meta) = std::fs::metadata(path) {
+            // A file replaced keeps its permissions.
+            file.set_permissions(meta.permissions())?;
+        }
         file.write_all(bytes)?;
         file.sync_all()?;
         if replace { std::fs::rename(&part, path) } else { publish_blocking(&part, path) }

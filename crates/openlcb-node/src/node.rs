@@ -247,7 +247,8 @@ impl Cx<'_> {
 /// applies the application's policy to the rest, at once. `AcceptAll` accepts them;
 /// `RejectAll(code)` refuses them with `code` while Memory Configuration still takes its own:
 /// the policy of a node that takes streams only for Memory Configuration. With
-/// [`NodeConfig::streams_enabled`] off no stream is taken at all. While Memory Configuration has something running, take stream events from
+/// [`NodeConfig::streams_enabled`] off no stream is taken at all. While Memory
+/// Configuration has something running, take stream events from
 /// [`poll_event`](Node::poll_event), not from the endpoint: it keeps its own.
 ///
 /// A Memory Configuration Reset/Reboot command makes the node start again as after a
@@ -262,10 +263,6 @@ pub struct Node {
     protocols: Protocols,
     memory_server: Option<MemoryServer>,
     memory_client: MemoryClient,
-    /// The application's policy for the stream requests Memory Configuration does not
-    /// claim, once a memory server is set (the endpoint then asks, so the server can claim
-    /// its streams first). `Ask` raises them.
-    unclaimed_streams: AcceptPolicy,
     /// The time of the last call that gave one (for events drained by `poll_event`).
     last_now: Instant,
     streams: StreamEndpoint,
@@ -305,7 +302,6 @@ impl Node {
             protocols,
             memory_server: None,
             memory_client: MemoryClient::default(),
-            unclaimed_streams: AcceptPolicy::Ask,
             last_now: Instant::ZERO,
             streams: StreamEndpoint::new(id, config.stream.clone()),
             datagrams: DatagramService::new(config.datagrams.clone()),
@@ -676,7 +672,6 @@ impl Node {
         self.memory_server = Some(server);
         // The server claims its Write Streams before anything is decided, to grant them the
         // window their space can take; the node applies the application's policy to the rest.
-        self.unclaimed_streams = self.config.stream.accept_policy;
         self.streams.set_accept_policy(AcceptPolicy::Ask);
     }
 
@@ -853,7 +848,9 @@ impl Node {
     /// nobody here claimed. Runs from `poll_event`, at the time of the last input (the
     /// time those events arose).
     fn settle(&mut self, now: Instant) {
-        let unclaimed_streams = self.unclaimed_streams;
+        // The application's policy, for the requests Memory Configuration did not claim (the
+        // endpoint raises requests only when it asks: with a server, or with `Ask`).
+        let unclaimed_streams = self.config.stream.accept_policy;
         loop {
             let mut moved = false;
             while let Some(event) = self.out.memory_inbox.pop_front() {
