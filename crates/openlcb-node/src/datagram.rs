@@ -5,10 +5,11 @@
 use alloc::vec::Vec;
 use core::fmt;
 
-use openlcb_stream::wire::ErrorCode;
-use openlcb_stream::{Duration, Instant, Message, Mti, NodeId, Queue};
+use openlcb_stream::wire::{ErrorCode, ErrorReport};
+use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId, Queue};
 
 use crate::node::{NodeEvent, Outputs};
+use crate::service::{Lent, PeerChange, Service};
 
 /// The longest datagram (DG §4.1).
 pub const MAX_DATAGRAM_LEN: usize = 72;
@@ -196,9 +197,26 @@ enum SendState {
     Backoff { until: Instant },
 }
 
+/// Who sent a datagram: its outcome (OK, Rejected, timed out, lost) goes back there, as
+/// OpenMRN's `DatagramClient` reports its `result()` to the one that wrote the datagram.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum DatagramOwner {
+    /// [`Node::send_datagram`](crate::Node::send_datagram): `DatagramDelivered` or
+    /// `DatagramFailed` follows.
+    Application,
+    /// A command of the Memory Configuration client: the client takes the outcome.
+    MemoryClient,
+    /// A reply of the Memory Configuration server: nothing waits on its outcome.
+    MemoryServer,
+}
+
+/// The outcome of a datagram: its OK's flags, or why it failed.
+pub(crate) type Outcome = Result<OkFlags, DatagramFailure>;
+
 #[derive(Debug)]
 struct Outgoing {
     id: DatagramId,
+    owner: DatagramOwner,
     to: NodeId,
     payload: Vec<u8>,
     state: SendState,
@@ -218,6 +236,8 @@ pub(crate) struct DatagramService {
     claimed: [u64; 4],
     outgoing: Queue<Outgoing>,
     awaiting: Vec<Awaiting>,
+    /// Outcomes of the memory client's datagrams, until the node hands them to it.
+    client_outcomes: Queue<(DatagramId, Outcome)>,
     next_id: u32,
     pub(crate) stats: DatagramStats,
 }
@@ -234,6 +254,7 @@ impl DatagramService {
             outgoing: Queue::with_capacity(config.max_outgoing),
             awaiting: Vec::with_capacity(config.max_awaiting_answer),
             claimed,
+            client_outcomes: Queue::new(),
             next_id: 0,
             stats: DatagramStats::default(),
             config,
@@ -249,23 +270,16 @@ impl DatagramService {
         self.claimed.get(usize::from(content / 64)).is_some_and(|word| word & (1 << (content % 64)) != 0)
     }
 
-    pub(crate) fn poll_timeout(&self) -> Option<Instant> {
-        let sends = self.outgoing.iter().filter_map(|o| match o.state {
-            SendState::InFlight { deadline } => Some(deadline),
-            SendState::Backoff { until } => Some(until),
-            SendState::Queued => None,
-        });
-        sends.chain(self.awaiting.iter().map(|a| a.deadline)).min()
-    }
-
     // ----- sending -----
 
+    /// Sends a datagram for `owner`, who gets its outcome.
     pub(crate) fn send(
         &mut self,
         now: Instant,
         out: &mut Outputs,
         to: NodeId,
         payload: &[u8],
+        owner: DatagramOwner,
     ) -> Result<DatagramId, DatagramError> {
         if payload.len() > MAX_DATAGRAM_LEN {
             return Err(DatagramError::TooLong);
@@ -276,7 +290,7 @@ impl DatagramService {
         if !self.has_room(to) {
             return Err(DatagramError::QueueFull);
         }
-        Ok(self.queue(now, out, to, payload))
+        Ok(self.queue(now, out, to, payload, owner))
     }
 
     /// Room for one more datagram to `to`: under both bounds of the config.
@@ -285,18 +299,27 @@ impl DatagramService {
             && self.outgoing.iter().filter(|o| o.to == to).count() < self.config.max_outgoing_per_destination
     }
 
-    /// Sends a reply that was promised (a Datagram OK with Reply Pending went out, after
-    /// [`has_room`](Self::has_room) said yes): queued even above the bounds, which the
-    /// promises themselves bound.
-    pub(crate) fn send_promised(&mut self, now: Instant, out: &mut Outputs, to: NodeId, payload: &[u8]) -> DatagramId {
-        self.queue(now, out, to, payload.get(..MAX_DATAGRAM_LEN).unwrap_or(payload))
+    /// Sends a reply of the memory server that was promised (a Datagram OK with Reply
+    /// Pending went out, after [`has_room`](Self::has_room) said yes): queued even above the
+    /// bounds, which the promises themselves bound.
+    pub(crate) fn send_promised(&mut self, now: Instant, out: &mut Outputs, to: NodeId, payload: &[u8]) {
+        let payload = payload.get(..MAX_DATAGRAM_LEN).unwrap_or(payload);
+        self.queue(now, out, to, payload, DatagramOwner::MemoryServer);
     }
 
-    fn queue(&mut self, now: Instant, out: &mut Outputs, to: NodeId, payload: &[u8]) -> DatagramId {
+    fn queue(
+        &mut self,
+        now: Instant,
+        out: &mut Outputs,
+        to: NodeId,
+        payload: &[u8],
+        owner: DatagramOwner,
+    ) -> DatagramId {
         let id = DatagramId(self.next_id);
         self.next_id = self.next_id.wrapping_add(1);
         let busy = self.outgoing.iter().any(|o| o.to == to);
-        self.outgoing.push_back(Outgoing { id, to, payload: payload.to_vec(), state: SendState::Queued, resends: 0 });
+        let payload = payload.to_vec();
+        self.outgoing.push_back(Outgoing { id, owner, to, payload, state: SendState::Queued, resends: 0 });
         if !busy {
             self.start_next(now, out, to);
         }
@@ -316,7 +339,7 @@ impl DatagramService {
     }
 
     /// A datagram to `peer` waits for its OK or Rejected (or for its resend).
-    pub(crate) fn is_waiting_for(&self, peer: NodeId) -> bool {
+    fn is_waiting_for(&self, peer: NodeId) -> bool {
         self.active(peer).is_some()
     }
 
@@ -325,22 +348,33 @@ impl DatagramService {
         self.outgoing.iter().position(|o| o.to == to && o.state != SendState::Queued)
     }
 
-    fn finish(&mut self, now: Instant, out: &mut Outputs, index: usize, result: Result<OkFlags, DatagramFailure>) {
+    fn finish(&mut self, now: Instant, out: &mut Outputs, index: usize, result: Outcome) {
         let Some(done) = self.outgoing.remove(index) else { return };
-        match result {
-            Ok(flags) => {
-                self.stats.delivered += 1;
-                out.event(NodeEvent::DatagramDelivered { id: done.id, to: done.to, flags });
-            }
-            Err(failure) => {
-                self.stats.failed += 1;
-                out.event(NodeEvent::DatagramFailed { id: done.id, to: done.to, failure });
-            }
-        }
+        self.report(out, &done, result);
         self.start_next(now, out, done.to);
     }
 
-    pub(crate) fn on_received_ok(&mut self, now: Instant, out: &mut Outputs, from: NodeId, payload: &[u8]) {
+    /// Gives the outcome of `done` to its owner.
+    fn report(&mut self, out: &mut Outputs, done: &Outgoing, result: Outcome) {
+        match result {
+            Ok(_) => self.stats.delivered += 1,
+            Err(_) => self.stats.failed += 1,
+        }
+        let (id, to) = (done.id, done.to);
+        match (done.owner, result) {
+            (DatagramOwner::Application, Ok(flags)) => out.event(NodeEvent::DatagramDelivered { id, to, flags }),
+            (DatagramOwner::Application, Err(failure)) => out.event(NodeEvent::DatagramFailed { id, to, failure }),
+            (DatagramOwner::MemoryClient, result) => self.client_outcomes.push_back((id, result)),
+            (DatagramOwner::MemoryServer, _) => {}
+        }
+    }
+
+    /// The next outcome of a datagram of the memory client.
+    pub(crate) fn poll_client_outcome(&mut self) -> Option<(DatagramId, Outcome)> {
+        self.client_outcomes.pop_front()
+    }
+
+    fn on_received_ok(&mut self, now: Instant, out: &mut Outputs, from: NodeId, payload: &[u8]) {
         let Some(index) = self.active(from) else {
             self.stats.stray_answers += 1;
             return;
@@ -350,7 +384,7 @@ impl DatagramService {
     }
 
     /// Datagram Rejected, or an OIR/TDE naming Datagram (or nothing), from `from`.
-    pub(crate) fn on_rejected(&mut self, now: Instant, out: &mut Outputs, from: NodeId, code: ErrorCode) {
+    fn on_rejected(&mut self, now: Instant, out: &mut Outputs, from: NodeId, code: ErrorCode) {
         let Some(index) = self.active(from) else {
             self.stats.stray_answers += 1;
             return;
@@ -369,40 +403,14 @@ impl DatagramService {
     }
 
     /// `peer` sent Initialization Complete: a datagram it had not answered is lost.
-    pub(crate) fn peer_restarted(&mut self, now: Instant, out: &mut Outputs, peer: NodeId) {
+    fn peer_restarted(&mut self, now: Instant, out: &mut Outputs, peer: NodeId) {
         if let Some(index) = self.active(peer) {
             self.finish(now, out, index, Err(DatagramFailure::PeerRestarted));
         }
         self.awaiting.retain(|a| a.from != peer);
     }
 
-    /// Every datagram to `peer` fails (`None`: to every node), and what it sent us is forgotten.
-    pub(crate) fn peer_lost(&mut self, out: &mut Outputs, peer: Option<NodeId>) {
-        let lost = |to: NodeId| peer.is_none_or(|p| p == to);
-        let mut index = 0;
-        while let Some(o) = self.outgoing.get(index) {
-            if !lost(o.to) {
-                index += 1;
-                continue;
-            }
-            if let Some(done) = self.outgoing.remove(index) {
-                self.stats.failed += 1;
-                out.event(NodeEvent::DatagramFailed { id: done.id, to: done.to, failure: DatagramFailure::PeerLost });
-            }
-        }
-        self.awaiting.retain(|a| !lost(a.from));
-    }
-
-    pub(crate) fn rename_peer(&mut self, from: NodeId, to: NodeId) {
-        for o in self.outgoing.iter_mut().filter(|o| o.to == from) {
-            o.to = to;
-        }
-        for a in self.awaiting.iter_mut().filter(|a| a.from == from) {
-            a.from = to;
-        }
-    }
-
-    pub(crate) fn handle_timeout(&mut self, now: Instant, out: &mut Outputs) {
+    fn timeout(&mut self, now: Instant, out: &mut Outputs) {
         loop {
             let expired = self
                 .outgoing
@@ -429,7 +437,7 @@ impl DatagramService {
 
     // ----- receiving -----
 
-    pub(crate) fn on_datagram(&mut self, now: Instant, out: &mut Outputs, from: NodeId, payload: &[u8]) {
+    fn on_datagram(&mut self, now: Instant, out: &mut Outputs, from: NodeId, payload: &[u8]) {
         let claimed = payload.first().is_some_and(|&c| self.is_claimed(c));
         let Some(datagram) = Datagram::new(payload).filter(|_| claimed) else {
             self.stats.rejected_unclaimed += 1;
@@ -462,6 +470,72 @@ impl DatagramService {
         };
         out.transmit(message);
         Ok(())
+    }
+}
+
+impl Service<Lent<'_>> for DatagramService {
+    /// Datagrams nobody else took (Memory Configuration is asked first), their OKs and
+    /// rejections, and Initialization Complete (what the peer had not answered is lost).
+    fn handle_message(&mut self, cx: &mut Lent<'_>, msg: MessageRef<'_>) -> bool {
+        let (now, out, peer) = (cx.now, &mut *cx.out, msg.source);
+        match msg.mti {
+            Mti::DATAGRAM => self.on_datagram(now, out, peer, msg.payload),
+            Mti::DATAGRAM_RECEIVED_OK => self.on_received_ok(now, out, peer, msg.payload),
+            Mti::DATAGRAM_REJECTED => self.on_rejected(now, out, peer, rejection_code(msg.payload)),
+            Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => {
+                self.peer_restarted(now, out, peer);
+                return false;
+            }
+            _ => return false,
+        }
+        true
+    }
+
+    /// OpenMRN reads an OIR or TDE naming Datagram, or nothing, as a rejection.
+    fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
+        let ours = matches!(report.mti, None | Some(Mti::DATAGRAM)) && self.is_waiting_for(peer);
+        if ours {
+            self.on_rejected(cx.now, cx.out, peer, report.code);
+        }
+        ours
+    }
+
+    /// A lost peer: every datagram to it fails, and what it sent us is forgotten. Only the
+    /// application hears of its own: the memory client and server end their work with the
+    /// peer in their own hook.
+    fn peer_changed(&mut self, out: &mut Outputs, change: PeerChange) {
+        let mut index = 0;
+        while let Some(o) = self.outgoing.get_mut(index) {
+            change.rename(&mut o.to);
+            if !change.loses(o.to) {
+                index += 1;
+                continue;
+            }
+            if let Some(done) = self.outgoing.remove(index) {
+                if done.owner == DatagramOwner::Application {
+                    self.report(out, &done, Err(DatagramFailure::PeerLost));
+                } else {
+                    self.stats.failed += 1;
+                }
+            }
+        }
+        for a in self.awaiting.iter_mut() {
+            change.rename(&mut a.from);
+        }
+        self.awaiting.retain(|a| !change.loses(a.from));
+    }
+
+    fn handle_timeout(&mut self, cx: &mut Lent<'_>) {
+        self.timeout(cx.now, cx.out);
+    }
+
+    fn poll_timeout(&self) -> Option<Instant> {
+        let sends = self.outgoing.iter().filter_map(|o| match o.state {
+            SendState::InFlight { deadline } => Some(deadline),
+            SendState::Backoff { until } => Some(until),
+            SendState::Queued => None,
+        });
+        sends.chain(self.awaiting.iter().map(|a| a.deadline)).min()
     }
 }
 

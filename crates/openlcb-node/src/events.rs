@@ -16,9 +16,11 @@
 
 use alloc::vec::Vec;
 
-use openlcb_stream::{EventId, Message, MessageRef, Mti, NodeId};
+use openlcb_stream::wire::ErrorReport;
+use openlcb_stream::{EventId, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::node::Outputs;
+use crate::service::{Lent, PeerChange, Service};
 use crate::{Node, NodeEvent};
 
 /// What a producer or consumer knows of the state an event stands for (Event Transport
@@ -304,7 +306,7 @@ impl EventService {
     }
 
     /// A received message with an event MTI (the node routes only those here).
-    pub(crate) fn handle_message(&mut self, config: &EventConfig, out: &mut Outputs, msg: MessageRef<'_>) {
+    fn on_message(&mut self, config: &EventConfig, out: &mut Outputs, msg: MessageRef<'_>) {
         if matches!(msg.mti, Mti::IDENTIFY_EVENTS_GLOBAL | Mti::IDENTIFY_EVENTS_ADDRESSED) {
             self.stats.identify_events += 1;
             self.announce(config);
@@ -344,6 +346,34 @@ impl EventService {
         if !out.notify(NodeEvent::Events(notice)) {
             self.stats.notices_dropped += 1;
         }
+    }
+}
+
+impl Service<Lent<'_>> for EventService {
+    /// The messages with an event MTI, while the node produces or consumes anything.
+    fn handle_message(&mut self, cx: &mut Lent<'_>, msg: MessageRef<'_>) -> bool {
+        let events = &cx.config.events;
+        let ours = is_event_mti(msg.mti) && events.is_active();
+        if ours {
+            self.on_message(events, cx.out, msg);
+        }
+        ours
+    }
+
+    /// Event Transport has no interaction to reject.
+    fn handle_error_report(&mut self, _: &mut Lent<'_>, _: NodeId, _: ErrorReport) -> bool {
+        false
+    }
+
+    /// Nothing is open with a peer. (A lost link announces the node's events again: the
+    /// node asks for that, as it has the declarations.)
+    fn peer_changed(&mut self, _: &mut Outputs, _: PeerChange) {}
+
+    /// No timers.
+    fn handle_timeout(&mut self, _: &mut Lent<'_>) {}
+
+    fn poll_timeout(&self) -> Option<Instant> {
+        None
     }
 }
 

@@ -176,6 +176,7 @@ mod datagram;
 mod events;
 pub mod memconfig;
 mod node;
+mod service;
 mod snip;
 
 #[cfg(feature = "fuzzing")]
@@ -194,5 +195,5 @@ pub use memconfig::{
     MemoryConfigOptions, MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, MemorySpace,
     RamSpace, ReadOnlySpace, SpaceError, TransferPath,
 };
-pub use node::{DUPLICATE_NODE_ID_DETECTED, Node, NodeEvent, NodeStats};
+pub use node::{DUPLICATE_NODE_ID_DETECTED, Node, NodeEvent, NodeStats, Streams};
 pub use snip::{MAX_REPLY_LEN, SnipFailure, SnipField, SnipInfo, SnipRequestError, SnipTooLong};

@@ -1,21 +1,25 @@
-//! [`Node`]: one local node. It routes every message to the protocol it belongs to, answers
-//! the message-network basics itself, and drains its protocols in one drive loop.
+//! [`Node`]: one local node. It answers the message-network basics itself, routes every
+//! other message to the first of its services that takes it, and drains them in one drive
+//! loop.
 
 use alloc::vec::Vec;
 
-use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport};
+use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport, ReplyCode};
 use openlcb_stream::{
-    AcceptPolicy, Event, EventId, Instant, Message, MessageRef, Mti, NodeId, Queue, StreamEndpoint, StreamHandle,
+    AcceptOptions, AcceptPolicy, Event, EventId, Instant, Message, MessageRef, Mti, NodeId, OpenOptions, Queue,
+    StreamEndpoint, StreamError, StreamHandle,
 };
 
 use crate::datagram::{
-    Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramService, OkFlags, rejected,
+    Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramOwner, DatagramService, OkFlags,
 };
 use crate::events::{EventNotice, EventService};
-use crate::memconfig::{MemoryClient, MemoryConfigOptions, MemoryEvent, MemoryServer, acdi_user_strings, wire as mc};
+pub(crate) use crate::memconfig::Cx;
+use crate::memconfig::{MemoryConfig, MemoryEvent, MemoryLent, MemoryServer, acdi_user_strings};
 #[cfg(feature = "memory-client")]
 use crate::memconfig::{MemoryOperation, MemoryRequestError, TransferPath};
-use crate::snip::{PendingSnip, SnipFailure, SnipInfo, SnipRequestError};
+use crate::service::{Lent, PeerChange, Service};
+use crate::snip::{SnipFailure, SnipInfo, SnipRequestError, SnipService};
 use crate::{DatagramStats, NodeConfig, Protocols};
 
 /// The well-known Event ID Duplicate Node ID Detected.
@@ -112,7 +116,7 @@ pub struct NodeStats {
     pub datagrams: DatagramStats,
 }
 
-/// The node's own output queues, lent to each protocol.
+/// The node's own output queues, lent to each service.
 #[derive(Debug)]
 pub(crate) struct Outputs {
     pub(crate) node: NodeId,
@@ -120,12 +124,6 @@ pub(crate) struct Outputs {
     transmits: Queue<Message>,
     events: Queue<NodeEvent>,
     answers_dropped: u64,
-    /// Datagrams Memory Configuration sent and waits on: their outcome goes to
-    /// `memory_inbox`, not to the application.
-    memory_datagrams: Vec<DatagramId>,
-    memory_inbox: Queue<NodeEvent>,
-    /// Streams Memory Configuration finished: their `Sent` event is its, not the application's.
-    memory_finished: Vec<StreamHandle>,
 }
 
 impl Outputs {
@@ -169,77 +167,15 @@ impl Outputs {
         self.transmits.len() < self.limit
     }
 
+    /// Queues an event that ends something this node started (bounded by what it started).
     pub(crate) fn event(&mut self, event: NodeEvent) {
-        if let NodeEvent::DatagramDelivered { id, .. } | NodeEvent::DatagramFailed { id, .. } = &event
-            && let Some(index) = self.memory_datagrams.iter().position(|d| d == id)
-        {
-            self.memory_datagrams.swap_remove(index);
-            self.memory_inbox.push_back(event);
-            return;
-        }
         self.events.push_back(event);
     }
 }
 
-/// What Memory Configuration's server and client get from the node for one call: its
-/// queues, its datagram service and its stream endpoint.
-pub(crate) struct Cx<'a> {
-    pub(crate) now: Instant,
-    pub(crate) out: &'a mut Outputs,
-    pub(crate) datagrams: &'a mut DatagramService,
-    pub(crate) streams: &'a mut StreamEndpoint,
-    pub(crate) streams_enabled: bool,
-    pub(crate) options: &'a MemoryConfigOptions,
-    /// The node must send Initialization Complete (it changed Firmware Upgrade state).
-    pub(crate) announce: bool,
-    /// Reset/Reboot was asked for: the node reinitializes once the command is answered.
-    pub(crate) reboot: bool,
-}
-
-impl Cx<'_> {
-    /// Datagram Received OK for the datagram `to` sent.
-    pub(crate) fn ok(&mut self, to: NodeId, flags: OkFlags) {
-        let ok = Message::addressed(Mti::DATAGRAM_RECEIVED_OK, self.out.node, to, [flags.to_byte()].to_vec());
-        self.out.reply(ok);
-    }
-
-    /// Datagram Rejected for the datagram `to` sent.
-    pub(crate) fn reject(&mut self, to: NodeId, code: ErrorCode) {
-        self.out.reply(rejected(self.out.node, to, code));
-    }
-
-    /// Sends a datagram whose outcome Memory Configuration takes.
-    pub(crate) fn send_datagram(&mut self, to: NodeId, payload: &[u8]) -> Option<DatagramId> {
-        let id = self.datagrams.send(self.now, self.out, to, payload).ok()?;
-        self.out.memory_datagrams.push(id);
-        Some(id)
-    }
-
-    /// Finishes a stream of Memory Configuration (its `Sent` event stays inside).
-    pub(crate) fn finish_stream(&mut self, handle: StreamHandle) -> bool {
-        let finished = self.streams.finish(self.now, handle).is_ok();
-        if finished {
-            self.out.memory_finished.push(handle);
-        }
-        finished
-    }
-
-    /// Sends a reply datagram that a Datagram OK promised: never dropped (its delivery is
-    /// the datagram service's business).
-    pub(crate) fn send_reply(&mut self, to: NodeId, payload: &[u8]) {
-        let id = self.datagrams.send_promised(self.now, self.out, to, payload);
-        self.out.memory_datagrams.push(id);
-    }
-
-    /// A reply to `to` could be queued now.
-    pub(crate) fn has_reply_room(&self, to: NodeId) -> bool {
-        self.datagrams.has_room(to)
-    }
-}
-
-/// One local OpenLCB node: the stream endpoint, the datagram service, Memory
-/// Configuration, SNIP and the message-network basics, in the handle / command / poll shape
-/// of the stream core. See the crate documentation for the drive loop.
+/// One local OpenLCB node: the stream endpoint and the services built beside it (datagrams,
+/// SNIP, Memory Configuration, events), with the message-network basics, in the handle /
+/// command / poll shape of the stream core. See the crate documentation for the drive loop.
 ///
 /// Once a memory server is set, the policy in [`NodeConfig::stream`] becomes
 /// [`AcceptPolicy::Ask`] in the endpoint: the server claims the requests of the Write Streams
@@ -247,9 +183,9 @@ impl Cx<'_> {
 /// applies the application's policy to the rest, at once. `AcceptAll` accepts them;
 /// `RejectAll(code)` refuses them with `code` while Memory Configuration still takes its own:
 /// the policy of a node that takes streams only for Memory Configuration. With
-/// [`NodeConfig::streams_enabled`] off no stream is taken at all. While Memory
-/// Configuration has something running, take stream events from
-/// [`poll_event`](Node::poll_event), not from the endpoint: it keeps its own.
+/// [`NodeConfig::streams_enabled`] off no stream is taken at all. Memory Configuration's
+/// stream events never reach [`poll_event`](Node::poll_event): give stream commands through
+/// [`streams_mut`](Node::streams_mut), which lets it act on them after each command.
 ///
 /// A Memory Configuration Reset/Reboot command makes the node start again as after a
 /// power-up, as far as its protocols go: every stream, datagram, SNIP request and Memory
@@ -261,17 +197,36 @@ impl Cx<'_> {
 pub struct Node {
     config: NodeConfig,
     protocols: Protocols,
-    memory_server: Option<MemoryServer>,
-    memory_client: MemoryClient,
-    /// The time of the last call that gave one (for events drained by `poll_event`).
-    last_now: Instant,
     streams: StreamEndpoint,
     datagrams: DatagramService,
-    snip_reply: Vec<u8>,
-    snip_requests: Vec<PendingSnip>,
+    snip: SnipService,
+    memory: MemoryConfig,
     pub(crate) events: EventService,
     pub(crate) out: Outputs,
     stats: NodeStats,
+}
+
+/// Lends the node's parts to its services: `$lent` is what every service gets, `$memory`
+/// what Memory Configuration gets (also the datagram service and the stream endpoint).
+macro_rules! lend {
+    ($node:expr, $now:expr, |$lent:ident, $parts:pat_param| $body:expr) => {{
+        let Node { config, out, streams, datagrams, snip, memory, events, .. } = $node;
+        #[allow(unused_mut, unused_variables)]
+        let mut $lent = Lent { now: $now, out, config };
+        let $parts = (streams, datagrams, snip, memory, events);
+        $body
+    }};
+}
+
+/// Memory Configuration's loan: the node's queues, the datagram service, the endpoint.
+fn memory_lent<'a>(
+    now: Instant,
+    out: &'a mut Outputs,
+    config: &'a NodeConfig,
+    datagrams: &'a mut DatagramService,
+    streams: &'a mut StreamEndpoint,
+) -> MemoryLent<'a> {
+    MemoryLent { lent: Lent { now, out, config }, datagrams, streams }
 }
 
 impl Node {
@@ -284,9 +239,6 @@ impl Node {
             transmits: Queue::new(),
             events: Queue::new(),
             answers_dropped: 0,
-            memory_datagrams: Vec::new(),
-            memory_inbox: Queue::new(),
-            memory_finished: Vec::new(),
         };
         if config.send_initialization_complete {
             out.announce_start();
@@ -300,13 +252,10 @@ impl Node {
         }
         Node {
             protocols,
-            memory_server: None,
-            memory_client: MemoryClient::default(),
-            last_now: Instant::ZERO,
             streams: StreamEndpoint::new(id, config.stream.clone()),
             datagrams: DatagramService::new(config.datagrams.clone()),
-            snip_reply: config.snip.to_payload(),
-            snip_requests: Vec::with_capacity(config.max_snip_requests),
+            snip: SnipService::new(&config.snip, config.max_snip_requests, config.snip_timeout),
+            memory: MemoryConfig::default(),
             events: EventService::new(&config.events, config.send_initialization_complete),
             out,
             stats: NodeStats::default(),
@@ -329,7 +278,7 @@ impl Node {
     /// The protocols this node announces in its Protocol Support Reply: exactly what it
     /// implements, and with a memory server what it serves ([`MemoryServer::protocols`]).
     pub fn protocols(&self) -> Protocols {
-        match &self.memory_server {
+        match &self.memory.server {
             None => self.protocols,
             Some(server) => self.protocols | server.protocols(),
         }
@@ -337,18 +286,18 @@ impl Node {
 
     /// The memory server, to read back its spaces and state.
     pub fn memory_server(&self) -> Option<&MemoryServer> {
-        self.memory_server.as_ref()
+        self.memory.server.as_ref()
     }
 
     /// The memory server, mutable (to change a space between transfers).
     pub fn memory_server_mut(&mut self) -> Option<&mut MemoryServer> {
-        self.memory_server.as_mut()
+        self.memory.server.as_mut()
     }
 
     /// Bytes an operation has moved so far (`None` once it has ended).
     #[cfg(feature = "memory-client")]
     pub fn memory_progress(&self, operation: MemoryOperation) -> Option<u64> {
-        self.memory_client.progress(operation)
+        self.memory.client().and_then(|c| c.progress(operation))
     }
 
     /// The stream endpoint, for its getters.
@@ -356,15 +305,22 @@ impl Node {
         &self.streams
     }
 
-    /// The stream endpoint, for its commands (`open`, `write`, `read`, `accept`, ...). Its
-    /// messages and events come out of the node's `poll_transmit` and `poll_event`.
-    pub fn streams_mut(&mut self) -> &mut StreamEndpoint {
-        &mut self.streams
+    /// The stream commands (`open`, `write`, `read`, `accept`, ...) and, through `Deref`, the
+    /// endpoint's getters. Each command lets Memory Configuration act on what it caused, so
+    /// that [`poll_event`](Self::poll_event) only pops.
+    pub fn streams_mut(&mut self) -> Streams<'_> {
+        Streams { node: self }
     }
 
     /// Counters.
     pub fn stats(&self) -> NodeStats {
-        NodeStats { answers_dropped: self.out.answers_dropped, datagrams: self.datagrams.stats, ..self.stats }
+        NodeStats {
+            answers_dropped: self.out.answers_dropped,
+            snip_answered: self.snip.answered,
+            stray_snip_replies: self.snip.stray_replies,
+            datagrams: self.datagrams.stats,
+            ..self.stats
+        }
     }
 
     // ----- outputs -----
@@ -380,85 +336,76 @@ impl Node {
             .or_else(|| self.streams.poll_transmit())
     }
 
-    /// The next event.
-    ///
-    /// Memory Configuration works here: the stream events and datagram outcomes of its
-    /// transfers are taken in and acted on (which may queue messages for `poll_transmit`),
-    /// so drain both, as the drive loop says, until neither has anything.
+    /// The next event. Every input and command has already done the work it caused; this
+    /// only pops.
     pub fn poll_event(&mut self) -> Option<NodeEvent> {
-        if self.out.events.is_empty() {
-            self.settle(self.last_now);
-        }
         self.out.events.pop_front()
     }
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let snip = self.snip_requests.iter().map(|p| p.deadline).min();
-        let server = self.memory_server.as_ref().and_then(MemoryServer::poll_timeout);
-        let client = self.client().and_then(MemoryClient::poll_timeout);
-        [self.streams.poll_timeout(), self.datagrams.poll_timeout(), snip, server, client].into_iter().flatten().min()
+        let services = [self.datagrams.poll_timeout(), self.snip.poll_timeout(), self.memory.poll_timeout()];
+        services.into_iter().chain([self.streams.poll_timeout(), self.events.poll_timeout()]).flatten().min()
     }
 
     // ----- inputs -----
 
-    /// Feeds one received message; it goes to the protocol it belongs to.
+    /// Feeds one received message. The node answers the basics itself; anything else goes
+    /// to the first service that takes it, and an error report to every service it may
+    /// concern.
     pub fn handle_message(&mut self, now: Instant, msg: MessageRef<'_>) {
-        self.last_now = now;
         self.stats.messages_in += 1;
-        let protocols = self.protocols();
-        let memory_datagram = msg.mti == Mti::DATAGRAM && self.is_memory_datagram(msg.source, msg.payload);
         if msg.source == self.out.node {
             self.stats.own_echoes += 1;
             return;
         }
-        match msg.destination {
-            Some(destination) if destination != self.out.node => {
-                self.stats.not_for_us += 1;
-                return;
+        if msg.destination.is_some_and(|d| d != self.out.node) || (msg.destination.is_none() && msg.mti.is_addressed())
+        {
+            self.stats.not_for_us += 1;
+            return;
+        }
+        match msg.mti {
+            Mti::OPTIONAL_INTERACTION_REJECTED | Mti::TERMINATE_DUE_TO_ERROR => self.on_error_report(now, msg),
+            _ if self.answer_basics(now, msg) => {}
+            _ if self.offer(now, msg) => {}
+            Mti::PROTOCOL_SUPPORT_REPLY => {
+                let protocols = Protocols::from_payload(msg.payload);
+                self.out.event(NodeEvent::ProtocolsReceived { peer: msg.source, protocols });
             }
-            None if msg.mti.is_addressed() => {
-                self.stats.not_for_us += 1;
-                return;
+            mti if mti.is_addressed() && !is_answer(mti) => {
+                // MN §3.5.2: an addressed message of a protocol this node lacks.
+                self.stats.unknown_mti_rejected += 1;
+                let oir = ErrorReport { code: ErrorCode::NOT_IMPLEMENTED_MTI, mti: Some(mti) };
+                let node = self.out.node;
+                self.out.reply(Message::addressed(
+                    Mti::OPTIONAL_INTERACTION_REJECTED,
+                    node,
+                    msg.source,
+                    oir.to_bytes(),
+                ));
             }
             _ => {}
         }
-        let peer = msg.source;
+        self.settle(now);
+    }
+
+    /// The message-network basics: Verify Node ID, Verified Node ID, Protocol Support
+    /// Inquiry, and Initialization Complete (every service hears that the peer restarted).
+    fn answer_basics(&mut self, now: Instant, msg: MessageRef<'_>) -> bool {
         let out = &mut self.out;
         match msg.mti {
-            mti if mti.is_stream() && self.config.streams_enabled => self.streams.handle_message(now, msg),
             Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => {
                 self.streams.handle_message(now, msg);
-                self.datagrams.peer_restarted(now, out, peer);
-                if let Some(server) = &mut self.memory_server {
-                    server.forget_peer(Some(peer));
-                }
-                self.with_client(now, |cx, client| client.peer_restarted(cx, peer));
-            }
-            Mti::DATAGRAM if memory_datagram => self.on_memory_datagram(now, peer, msg.payload),
-            Mti::OPTIONAL_INTERACTION_REJECTED | Mti::TERMINATE_DUE_TO_ERROR => self.on_error_report(now, msg),
-            Mti::DATAGRAM => self.datagrams.on_datagram(now, out, peer, msg.payload),
-            Mti::DATAGRAM_RECEIVED_OK => self.datagrams.on_received_ok(now, out, peer, msg.payload),
-            Mti::DATAGRAM_REJECTED => {
-                self.datagrams.on_rejected(now, out, peer, crate::datagram::rejection_code(msg.payload));
-            }
-            Mti::SIMPLE_NODE_INFO_REQUEST => {
-                self.stats.snip_answered += 1;
-                out.reply(Message::addressed(Mti::SIMPLE_NODE_INFO_REPLY, out.node, peer, self.snip_reply.clone()));
-            }
-            Mti::SIMPLE_NODE_INFO_REPLY => self.on_snip_reply(peer, msg.payload),
-            Mti::PROTOCOL_SUPPORT_REPLY
-                if cfg!(feature = "memory-client") && self.memory_client.wants_protocols(peer) =>
-            {
-                let protocols = Protocols::from_payload(msg.payload);
-                self.with_client(now, |cx, client| client.on_protocols(cx, peer, protocols));
-            }
-            Mti::PROTOCOL_SUPPORT_REPLY => {
-                out.event(NodeEvent::ProtocolsReceived { peer, protocols: Protocols::from_payload(msg.payload) });
+                lend!(self, now, |lent, (streams, datagrams, snip, memory, events)| {
+                    datagrams.handle_message(&mut lent, msg);
+                    snip.handle_message(&mut lent, msg);
+                    events.handle_message(&mut lent, msg);
+                    memory.handle_message(&mut memory_lent(now, lent.out, lent.config, datagrams, streams), msg);
+                });
             }
             Mti::VERIFIED_NODE_ID | Mti::VERIFIED_NODE_ID_SIMPLE => {
                 // The payload names the node; on CAN the source may be a provisional name.
-                let node = NodeId::from_slice(msg.payload).unwrap_or(peer);
+                let node = NodeId::from_slice(msg.payload).unwrap_or(msg.source);
                 out.event(NodeEvent::Verified { node });
             }
             // MN §3.3.2: a global Verify is answered when it names no node, or this one.
@@ -469,84 +416,63 @@ impl Node {
             }
             Mti::VERIFY_NODE_ID_ADDRESSED => out.reply(Message::verified_node_id(out.node)),
             Mti::PROTOCOL_SUPPORT_INQUIRY => {
-                let flags = protocols.to_bytes().to_vec();
-                out.reply(Message::addressed(Mti::PROTOCOL_SUPPORT_REPLY, out.node, peer, flags));
+                let flags = self.protocols().to_bytes().to_vec();
+                let node = self.out.node;
+                self.out.reply(Message::addressed(Mti::PROTOCOL_SUPPORT_REPLY, node, msg.source, flags));
             }
-            mti if crate::events::is_event_mti(mti) && self.config.events.is_active() => {
-                self.events.handle_message(&self.config.events, out, msg);
-            }
-            mti if mti.is_addressed() && !is_answer(mti) => {
-                // MN §3.5.2: an addressed message of a protocol this node lacks.
-                self.stats.unknown_mti_rejected += 1;
-                let oir = ErrorReport { code: ErrorCode::NOT_IMPLEMENTED_MTI, mti: Some(mti) };
-                out.reply(Message::addressed(Mti::OPTIONAL_INTERACTION_REJECTED, out.node, peer, oir.to_bytes()));
-            }
-            _ => {}
+            _ => return false,
         }
+        true
     }
 
-    /// An OIR or TDE goes to the protocol whose MTI it names; one naming nothing goes to every
-    /// protocol with something open with that peer (node-protocols.md C-13).
+    /// Offers `msg` to each service in turn; whether one took it.
+    fn offer(&mut self, now: Instant, msg: MessageRef<'_>) -> bool {
+        if msg.mti.is_stream() && self.config.streams_enabled {
+            self.streams.handle_message(now, msg);
+            return true;
+        }
+        lend!(self, now, |lent, (streams, datagrams, snip, memory, events)| {
+            // Memory Configuration first: it takes the datagrams with its content ID.
+            memory.handle_message(&mut memory_lent(now, lent.out, lent.config, datagrams, streams), msg)
+                || datagrams.handle_message(&mut lent, msg)
+                || snip.handle_message(&mut lent, msg)
+                || events.handle_message(&mut lent, msg)
+        })
+    }
+
+    /// An OIR or TDE goes to the services whose MTI it names; one naming nothing goes to
+    /// every service with something open with that peer (node-protocols.md C-13).
     fn on_error_report(&mut self, now: Instant, msg: MessageRef<'_>) {
         let report = ErrorReport::parse(msg.payload);
         let peer = msg.source;
-        let to_streams = report.mti.is_none_or(Mti::is_stream) && self.config.streams_enabled;
-        let to_datagrams = matches!(report.mti, None | Some(Mti::DATAGRAM));
-        let to_snip = matches!(report.mti, None | Some(Mti::SIMPLE_NODE_INFO_REQUEST));
-        let before = self.streams.stats().stray_error_reports;
         let mut handled = false;
-        if to_streams {
+        if report.mti.is_none_or(Mti::is_stream) && self.config.streams_enabled {
+            let before = self.streams.stats().stray_error_reports;
             self.streams.handle_message(now, msg);
-            handled |= self.streams.stats().stray_error_reports == before;
+            handled = self.streams.stats().stray_error_reports == before;
         }
-        if to_datagrams && self.datagrams.is_waiting_for(peer) {
-            // OpenMRN reads an OIR or TDE naming Datagram, or nothing, as a rejection.
-            self.datagrams.on_rejected(now, &mut self.out, peer, report.code);
-            handled = true;
-        }
-        if to_snip && let Some(index) = self.snip_requests.iter().position(|p| p.peer == peer) {
-            self.snip_requests.swap_remove(index);
-            self.out.event(NodeEvent::SnipFailed { peer, failure: SnipFailure::Rejected(report.code) });
-            handled = true;
-        }
+        lend!(self, now, |lent, (streams, datagrams, snip, memory, events)| {
+            handled |= datagrams.handle_error_report(&mut lent, peer, report);
+            handled |= snip.handle_error_report(&mut lent, peer, report);
+            handled |= events.handle_error_report(&mut lent, peer, report);
+            let mut memory_lent = memory_lent(now, lent.out, lent.config, datagrams, streams);
+            handled |= memory.handle_error_report(&mut memory_lent, peer, report);
+        });
         if !handled {
             self.stats.stray_error_reports += 1;
         }
     }
 
-    fn on_snip_reply(&mut self, peer: NodeId, payload: &[u8]) {
-        let Some(index) = self.snip_requests.iter().position(|p| p.peer == peer) else {
-            self.stats.stray_snip_replies += 1;
-            return;
-        };
-        let whole = self.snip_requests.get_mut(index).is_some_and(|p| p.push(payload));
-        if whole {
-            let done = self.snip_requests.swap_remove(index);
-            self.out.event(NodeEvent::SnipReceived { peer, info: SnipInfo::parse(&done.reply) });
-        }
-    }
-
     /// Runs every timer due at `now`. Early or repeated calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
-        self.last_now = now;
         self.streams.handle_timeout(now);
-        self.datagrams.handle_timeout(now, &mut self.out);
-        self.with_memory(now, |cx, server, _| {
-            if let Some(server) = server {
-                server.handle_timeout(cx);
-            }
+        lend!(self, now, |lent, (streams, datagrams, snip, memory, events)| {
+            datagrams.handle_timeout(&mut lent);
+            snip.handle_timeout(&mut lent);
+            events.handle_timeout(&mut lent);
+            memory.handle_timeout(&mut memory_lent(now, lent.out, lent.config, datagrams, streams));
         });
-        self.with_client(now, |cx, client| client.handle_timeout(cx));
-        while let Some(index) = self.snip_requests.iter().position(|p| p.deadline <= now) {
-            let expired = self.snip_requests.swap_remove(index);
-            // A partial reply is still worth having (SNIP-TN §2.6: be liberal).
-            let event = if expired.reply.is_empty() {
-                NodeEvent::SnipFailed { peer: expired.peer, failure: SnipFailure::TimedOut }
-            } else {
-                NodeEvent::SnipReceived { peer: expired.peer, info: SnipInfo::parse(&expired.reply) }
-            };
-            self.out.event(event);
-        }
+        self.settle(now);
     }
 
     /// The transport now names a peer differently (on CAN: its Node ID was learnt, or its
@@ -557,25 +483,14 @@ impl Node {
             message.rename_peer(from, to);
         }
         self.streams.rename_peer(from, to);
-        self.datagrams.rename_peer(from, to);
-        if let Some(client) = self.client_mut() {
-            client.rename_peer(from, to);
-        }
-        if let Some(server) = &mut self.memory_server {
-            server.rename_peer(from, to);
-        }
-        for pending in self.snip_requests.iter_mut().filter(|p| p.peer == from) {
-            pending.peer = to;
-        }
+        self.peer_changed(PeerChange::Renamed { from, to });
     }
 
-    /// The transport reports `peer` gone: its streams end, datagrams to it fail, SNIP requests
-    /// to it fail.
+    /// The transport reports `peer` gone: what is open with it ends (streams, datagrams,
+    /// SNIP requests, Memory Configuration operations), and nothing is sent to it.
     pub fn peer_lost(&mut self, peer: NodeId) {
         self.streams.peer_lost(peer);
-        self.datagrams.peer_lost(&mut self.out, Some(peer));
-        self.fail_snip(Some(peer));
-        self.forget_memory_peer(Some(peer));
+        self.peer_changed(PeerChange::Lost(Some(peer)));
     }
 
     /// The transport lost its link (e.g. this node's CAN alias): everything open ends.
@@ -583,23 +498,20 @@ impl Node {
         // The transport announces the node again once it is back; its events follow.
         self.events.announce(&self.config.events);
         self.streams.link_lost();
-        self.datagrams.peer_lost(&mut self.out, None);
-        self.fail_snip(None);
-        self.forget_memory_peer(None);
+        self.peer_changed(PeerChange::Lost(None));
     }
 
-    fn forget_memory_peer(&mut self, peer: Option<NodeId>) {
-        if let Some(server) = &mut self.memory_server {
-            server.forget_peer(peer);
-        }
-        let now = self.last_now;
-        self.with_client(now, |cx, client| client.peer_lost(cx, peer));
-    }
-
-    fn fail_snip(&mut self, peer: Option<NodeId>) {
-        while let Some(index) = self.snip_requests.iter().position(|p| peer.is_none_or(|n| n == p.peer)) {
-            let lost = self.snip_requests.swap_remove(index);
-            self.out.event(NodeEvent::SnipFailed { peer: lost.peer, failure: SnipFailure::PeerLost });
+    /// Tells every service of `change` (the endpoint has been told). A lost peer's streams
+    /// end with it: the application hears of its own, Memory Configuration has let go of its.
+    fn peer_changed(&mut self, change: PeerChange) {
+        self.datagrams.peer_changed(&mut self.out, change);
+        self.snip.peer_changed(&mut self.out, change);
+        self.events.peer_changed(&mut self.out, change);
+        self.memory.peer_changed(&mut self.out, change);
+        while let Some(event) = self.streams.poll_event() {
+            if !self.memory.forget_ended(&event) {
+                self.out.event(NodeEvent::Stream(event));
+            }
         }
     }
 
@@ -608,7 +520,7 @@ impl Node {
     /// Sends a datagram of at most 72 bytes to `to`. Datagrams to one node go one at a time
     /// (DG §6.1); later ones wait their turn. `DatagramDelivered` or `DatagramFailed` follows.
     pub fn send_datagram(&mut self, now: Instant, to: NodeId, payload: &[u8]) -> Result<DatagramId, DatagramError> {
-        self.datagrams.send(now, &mut self.out, to, payload)
+        self.datagrams.send(now, &mut self.out, to, payload, DatagramOwner::Application)
     }
 
     /// Answers the datagram `from` sent (raised by `DatagramReceived`).
@@ -618,19 +530,7 @@ impl Node {
 
     /// Asks `peer` for its Simple Node Information. `SnipReceived` or `SnipFailed` follows.
     pub fn request_snip(&mut self, now: Instant, peer: NodeId) -> Result<(), SnipRequestError> {
-        if peer == self.out.node {
-            return Err(SnipRequestError::SelfAddressed);
-        }
-        if self.snip_requests.iter().any(|p| p.peer == peer) {
-            return Err(SnipRequestError::AlreadyPending);
-        }
-        if self.snip_requests.len() >= self.config.max_snip_requests {
-            return Err(SnipRequestError::TooMany);
-        }
-        let deadline = now + self.config.snip_timeout;
-        self.snip_requests.push(PendingSnip { peer, deadline, reply: Vec::new() });
-        self.out.transmit(Message::addressed(Mti::SIMPLE_NODE_INFO_REQUEST, self.out.node, peer, Vec::new()));
-        Ok(())
+        self.snip.request(now, &mut self.out, peer)
     }
 
     /// Sends a global Verify Node ID: every node on the network answers with Verified Node
@@ -659,17 +559,133 @@ impl Node {
     pub fn request_protocols(&mut self, peer: NodeId) {
         self.out.transmit(Message::addressed(Mti::PROTOCOL_SUPPORT_INQUIRY, self.out.node, peer, Vec::new()));
     }
+
+    /// Routes what the services' work left for each other, in one place: the outcomes of the
+    /// memory client's datagrams to it, the stream events to Memory Configuration or (with
+    /// the application's accept policy for requests nobody claimed) to the application.
+    /// Then a Reset/Reboot command answered reinitializes the node. Runs at the end of every
+    /// input and stream command, with its time.
+    fn settle(&mut self, now: Instant) {
+        // The application's policy, for the requests Memory Configuration did not claim (the
+        // endpoint raises requests only when it asks: with a server, or with `Ask`).
+        let unclaimed_streams = self.config.stream.accept_policy;
+        let Node { config, out, streams, datagrams, memory, .. } = self;
+        let mut lent = memory_lent(now, out, config, datagrams, streams);
+        loop {
+            let mut moved = false;
+            while let Some((id, result)) = lent.datagrams.poll_client_outcome() {
+                moved = true;
+                memory.on_datagram_outcome(&mut lent, id, result);
+            }
+            while let Some(event) = lent.streams.poll_event() {
+                moved = true;
+                match event {
+                    _ if memory.on_stream_event(&mut lent, &event) => {}
+                    Event::IncomingRequest { handle, .. } if unclaimed_streams != AcceptPolicy::Ask => {
+                        let _ = match unclaimed_streams {
+                            AcceptPolicy::RejectAll(code) => lent.streams.reject(now, handle, code),
+                            _ => lent.streams.accept(now, handle, None),
+                        };
+                    }
+                    event => lent.lent.out.event(NodeEvent::Stream(event)),
+                }
+            }
+            memory.poll_streams(&mut lent);
+            if !moved {
+                break;
+            }
+        }
+        self.update_user_info();
+        if core::mem::take(&mut self.memory.reboot) {
+            self.reinitialize();
+        }
+    }
 }
 
-/// Memory Configuration: the server, the client, and the routing of their datagrams and
-/// streams.
+/// The stream commands of a [`Node`], borrowed from [`Node::streams_mut`]; the endpoint's
+/// getters through `Deref`. Each command takes `now`, and the node settles what it caused
+/// (Memory Configuration acts on its streams' events) before it returns, so that
+/// [`Node::poll_event`] only pops.
+#[derive(Debug)]
+pub struct Streams<'a> {
+    node: &'a mut Node,
+}
+
+impl core::ops::Deref for Streams<'_> {
+    type Target = StreamEndpoint;
+
+    fn deref(&self) -> &StreamEndpoint {
+        &self.node.streams
+    }
+}
+
+impl Streams<'_> {
+    /// Runs one command of the endpoint, then settles the node.
+    fn command<T>(&mut self, now: Instant, command: impl FnOnce(&mut StreamEndpoint) -> T) -> T {
+        let result = command(&mut self.node.streams);
+        self.node.settle(now);
+        result
+    }
+
+    /// [`StreamEndpoint::open`]: sends a Stream Initiate Request.
+    pub fn open(&mut self, now: Instant, options: OpenOptions) -> Result<StreamHandle, StreamError> {
+        self.command(now, |s| s.open(now, options))
+    }
+
+    /// [`StreamEndpoint::write`]: queues what the credit allows; returns how much it took.
+    pub fn write(&mut self, now: Instant, handle: StreamHandle, data: &[u8]) -> Result<usize, StreamError> {
+        self.command(now, |s| s.write(now, handle, data))
+    }
+
+    /// [`StreamEndpoint::flush`]: sends a partly filled message now.
+    pub fn flush(&mut self, now: Instant, handle: StreamHandle) -> Result<(), StreamError> {
+        self.command(now, |s| s.flush(now, handle))
+    }
+
+    /// [`StreamEndpoint::finish`]: sends Stream Data Complete.
+    pub fn finish(&mut self, now: Instant, handle: StreamHandle) -> Result<(), StreamError> {
+        self.command(now, |s| s.finish(now, handle))
+    }
+
+    /// [`StreamEndpoint::accept`]: accepts a pending request.
+    pub fn accept(&mut self, now: Instant, handle: StreamHandle, window: Option<u16>) -> Result<(), StreamError> {
+        self.command(now, |s| s.accept(now, handle, window))
+    }
+
+    /// [`StreamEndpoint::accept_with`]: accepts a pending request with these options.
+    pub fn accept_with(
+        &mut self,
+        now: Instant,
+        handle: StreamHandle,
+        options: AcceptOptions,
+    ) -> Result<(), StreamError> {
+        self.command(now, |s| s.accept_with(now, handle, options))
+    }
+
+    /// [`StreamEndpoint::reject`]: refuses a pending request with `code`.
+    pub fn reject(&mut self, now: Instant, handle: StreamHandle, code: ReplyCode) -> Result<(), StreamError> {
+        self.command(now, |s| s.reject(now, handle, code))
+    }
+
+    /// [`StreamEndpoint::read`]: takes received bytes; returns how many.
+    pub fn read(&mut self, now: Instant, handle: StreamHandle, buf: &mut [u8]) -> Result<usize, StreamError> {
+        self.command(now, |s| s.read(now, handle, buf))
+    }
+
+    /// [`StreamEndpoint::abort`]: ends the stream at once with Terminate Due To Error.
+    pub fn abort(&mut self, now: Instant, handle: StreamHandle, code: ErrorCode) -> Result<(), StreamError> {
+        self.command(now, |s| s.abort(now, handle, code))
+    }
+}
+
+/// Memory Configuration: the server, the client, and what the node does for them.
 impl Node {
     /// Serves `server`'s spaces from now on: datagrams with content ID 0x20 that are
     /// commands go to it, and the PIP announces Memory Configuration (and Firmware Upgrade
     /// with space 0xEF). Its ACDI spaces mirror this node's SNIP strings.
     pub fn set_memory_server(&mut self, mut server: MemoryServer) {
         server.mirror_snip(&self.config.snip);
-        self.memory_server = Some(server);
+        self.memory.server = Some(server);
         // The server claims its Write Streams before anything is decided, to grant them the
         // window their space can take; the node applies the application's policy to the rest.
         self.streams.set_accept_policy(AcceptPolicy::Ask);
@@ -694,7 +710,6 @@ impl Node {
         len: Option<u32>,
         path: TransferPath,
     ) -> Result<MemoryOperation, MemoryRequestError> {
-        self.last_now = now;
         self.with_memory(now, |cx, _, client| client.read(cx, peer, space, address, len, path))
     }
 
@@ -709,7 +724,6 @@ impl Node {
         data: impl Into<Vec<u8>>,
         path: TransferPath,
     ) -> Result<MemoryOperation, MemoryRequestError> {
-        self.last_now = now;
         let data = data.into();
         self.with_memory(now, |cx, _, client| client.write(cx, peer, space, address, data, path))
     }
@@ -726,7 +740,6 @@ impl Node {
         image: impl Into<Vec<u8>>,
         path: TransferPath,
     ) -> Result<MemoryOperation, MemoryRequestError> {
-        self.last_now = now;
         let image = image.into();
         self.with_memory(now, |cx, _, client| client.upgrade(cx, peer, image, path))
     }
@@ -735,85 +748,18 @@ impl Node {
     /// §4.23), so that it applies what changed; `WriteDone` (of 0 bytes) or `Failed` follows.
     #[cfg(feature = "memory-client")]
     pub fn update_complete(&mut self, now: Instant, peer: NodeId) -> Result<MemoryOperation, MemoryRequestError> {
-        self.last_now = now;
         self.with_memory(now, |cx, _, client| client.update_complete(cx, peer))
     }
 
-    /// The Memory Configuration client, when the `memory-client` feature builds it in
-    /// (without it the client is never called, so none of its code is linked).
-    fn client(&self) -> Option<&MemoryClient> {
-        cfg!(feature = "memory-client").then_some(&self.memory_client)
-    }
-
-    fn client_mut(&mut self) -> Option<&mut MemoryClient> {
-        cfg!(feature = "memory-client").then_some(&mut self.memory_client)
-    }
-
-    /// Runs `f` on the client with the node's parts lent to it (nothing without the
-    /// `memory-client` feature).
-    fn with_client(&mut self, now: Instant, f: impl FnOnce(&mut Cx<'_>, &mut MemoryClient)) {
-        if cfg!(feature = "memory-client") {
-            self.with_memory(now, |cx, _, client| f(cx, client));
-        }
-    }
-
     /// Runs `f` on the memory server and client with the node's parts lent to them.
+    #[cfg(feature = "memory-client")]
     fn with_memory<T>(
         &mut self,
         now: Instant,
-        f: impl FnOnce(&mut Cx<'_>, Option<&mut MemoryServer>, &mut MemoryClient) -> T,
+        f: impl FnOnce(&mut Cx<'_>, Option<&mut MemoryServer>, &mut crate::memconfig::MemoryClient) -> T,
     ) -> T {
-        let Node { config, out, datagrams, streams, memory_server, memory_client, .. } = self;
-        let mut cx = Cx {
-            now,
-            out,
-            datagrams,
-            streams,
-            streams_enabled: config.streams_enabled,
-            options: &config.memory,
-            announce: false,
-            reboot: false,
-        };
-        let result = f(&mut cx, memory_server.as_mut(), memory_client);
-        if cx.announce {
-            // FWU §5.2: every change of state ends with a new Initialization Complete.
-            let node = out.node;
-            out.transmit(Message::initialization_complete(node));
-        }
-        result
-    }
-
-    /// A datagram with content ID 0x20 that Memory Configuration takes: a command when a
-    /// server is configured; a reply when the client has an operation with the sender (or
-    /// the application does not claim 0x20).
-    fn is_memory_datagram(&self, peer: NodeId, payload: &[u8]) -> bool {
-        match payload {
-            [mc::CONTENT_ID, command, ..] if mc::is_reply(*command) => {
-                self.client().is_some_and(|c| c.has_operation_with(peer) || !self.datagrams.claims(mc::CONTENT_ID))
-            }
-            [mc::CONTENT_ID, ..] => self.memory_server.is_some(),
-            _ => false,
-        }
-    }
-
-    fn on_memory_datagram(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
-        let is_reply = payload.get(1).is_some_and(|c| mc::is_reply(*c));
-        let reboot = self.with_memory(now, |cx, server, client| {
-            if is_reply {
-                // Acknowledge a reply before anything else is sent (MC-TN §3.1.3.3).
-                cx.ok(peer, OkFlags::default());
-                if cfg!(feature = "memory-client") {
-                    client.on_reply(cx, peer, payload);
-                }
-            } else if let Some(server) = server {
-                server.on_command(cx, peer, payload);
-            }
-            cx.reboot
-        });
-        self.update_user_info();
-        if reboot {
-            self.reinitialize();
-        }
+        let Node { config, out, datagrams, streams, memory, .. } = self;
+        memory.run(&mut memory_lent(now, out, config, datagrams, streams), f)
     }
 
     /// Reset/Reboot (MC §4.24) of a library node: it starts again as after a power-up, as far
@@ -824,7 +770,7 @@ impl Node {
     /// told by `MemoryEvent::ResetRequested`, may do more (a firmware resets its processor).
     fn reinitialize(&mut self) {
         self.link_lost();
-        if let Some(server) = &mut self.memory_server {
+        if let Some(server) = &mut self.memory.server {
             server.reinitialize();
         }
         self.out.announce_start();
@@ -832,70 +778,15 @@ impl Node {
 
     /// A write to space 0xFB changed the user strings: SNIP follows them.
     fn update_user_info(&mut self) {
-        let Some(server) = &mut self.memory_server else { return };
+        let Some(server) = &mut self.memory.server else { return };
         if !core::mem::take(&mut server.user_info_changed) {
             return;
         }
         let (name, description) = acdi_user_strings(server.acdi_user());
         self.config.snip.user_name = name;
         self.config.snip.user_description = description;
-        self.snip_reply = self.config.snip.to_payload();
+        self.snip.set_info(&self.config.snip);
         self.out.event(NodeEvent::Memory(MemoryEvent::UserInfoChanged));
-    }
-
-    /// Feeds Memory Configuration what waits for it (its datagrams' outcomes, the stream
-    /// events), raises the rest, and applies the application's accept policy to streams
-    /// nobody here claimed. Runs from `poll_event`, at the time of the last input (the
-    /// time those events arose).
-    fn settle(&mut self, now: Instant) {
-        // The application's policy, for the requests Memory Configuration did not claim (the
-        // endpoint raises requests only when it asks: with a server, or with `Ask`).
-        let unclaimed_streams = self.config.stream.accept_policy;
-        loop {
-            let mut moved = false;
-            while let Some(event) = self.out.memory_inbox.pop_front() {
-                moved = true;
-                let (id, result) = match event {
-                    NodeEvent::DatagramDelivered { id, flags, .. } => (id, Ok(flags)),
-                    NodeEvent::DatagramFailed { id, failure, .. } => (id, Err(failure)),
-                    _ => continue,
-                };
-                // Outcomes of the server's reply datagrams need nothing more.
-                self.with_client(now, |cx, client| {
-                    client.on_datagram_outcome(cx, id, result);
-                });
-            }
-            while let Some(event) = self.streams.poll_event() {
-                moved = true;
-                let claimed = self.with_memory(now, |cx, server, client| {
-                    server.is_some_and(|s| s.on_stream_event(cx, &event))
-                        || (cfg!(feature = "memory-client") && client.on_stream_event(cx, &event))
-                });
-                let ours_sent = match event {
-                    Event::Sent { handle, .. } => self.out.memory_finished.iter().position(|h| *h == handle),
-                    _ => None,
-                };
-                match event {
-                    _ if claimed => {}
-                    Event::Sent { .. } if ours_sent.is_some() => {
-                        if let Some(index) = ours_sent {
-                            self.out.memory_finished.swap_remove(index);
-                        }
-                    }
-                    Event::IncomingRequest { handle, .. } if unclaimed_streams != AcceptPolicy::Ask => {
-                        let _ = match unclaimed_streams {
-                            AcceptPolicy::RejectAll(code) => self.streams.reject(now, handle, code),
-                            _ => self.streams.accept(now, handle, None),
-                        };
-                    }
-                    event => self.out.events.push_back(NodeEvent::Stream(event)),
-                }
-            }
-            self.with_client(now, |cx, client| client.poll_streams(cx));
-            if !moved {
-                break;
-            }
-        }
     }
 }
 

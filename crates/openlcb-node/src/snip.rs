@@ -5,7 +5,11 @@ use alloc::string::String;
 use alloc::vec::Vec;
 use core::fmt;
 
-use openlcb_stream::{Instant, NodeId};
+use openlcb_stream::wire::ErrorReport;
+use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
+
+use crate::node::{NodeEvent, Outputs};
+use crate::service::{Lent, PeerChange, Service};
 
 /// The most bytes a SNIP reply can carry (SNIP-TN §2.5.1).
 pub const MAX_REPLY_LEN: usize = 253;
@@ -249,21 +253,130 @@ pub enum SnipRequestError {
 
 /// One request of this node waiting for its reply.
 #[derive(Debug)]
-pub(crate) struct PendingSnip {
-    pub(crate) peer: NodeId,
-    pub(crate) deadline: Instant,
+struct PendingSnip {
+    peer: NodeId,
+    deadline: Instant,
     /// The reply so far (at most [`MAX_REPLY_LEN`] bytes).
-    pub(crate) reply: Vec<u8>,
+    reply: Vec<u8>,
 }
 
 impl PendingSnip {
     /// Adds a reply message; returns whether the reply is now whole. A message longer than
     /// one CAN frame's 6 bytes is a whole framed reply; short ones are the frames of an older
     /// node, whole once every string has arrived.
-    pub(crate) fn push(&mut self, payload: &[u8]) -> bool {
+    fn push(&mut self, payload: &[u8]) -> bool {
         let room = MAX_REPLY_LEN.saturating_sub(self.reply.len());
         self.reply.extend_from_slice(payload.get(..room.min(payload.len())).unwrap_or(&[]));
         payload.len() > 6 || SnipInfo::is_complete(&self.reply) || self.reply.len() >= MAX_REPLY_LEN
+    }
+}
+
+/// SNIP both ways: the node's own strings, answered to every request, and the requests this
+/// node makes, each waiting for its reply until its deadline.
+#[derive(Debug)]
+pub(crate) struct SnipService {
+    /// The node's reply payload.
+    reply: Vec<u8>,
+    requests: Vec<PendingSnip>,
+    max_requests: usize,
+    timeout: Duration,
+    /// Requests answered.
+    pub(crate) answered: u64,
+    /// Replies nobody here asked for.
+    pub(crate) stray_replies: u64,
+}
+
+impl SnipService {
+    pub(crate) fn new(info: &SnipInfo, max_requests: usize, timeout: Duration) -> Self {
+        SnipService {
+            reply: info.to_payload(),
+            requests: Vec::with_capacity(max_requests),
+            max_requests,
+            timeout,
+            answered: 0,
+            stray_replies: 0,
+        }
+    }
+
+    /// The node's strings changed.
+    pub(crate) fn set_info(&mut self, info: &SnipInfo) {
+        self.reply = info.to_payload();
+    }
+
+    /// Asks `peer` for its strings.
+    pub(crate) fn request(&mut self, now: Instant, out: &mut Outputs, peer: NodeId) -> Result<(), SnipRequestError> {
+        if peer == out.node {
+            return Err(SnipRequestError::SelfAddressed);
+        }
+        if self.requests.iter().any(|p| p.peer == peer) {
+            return Err(SnipRequestError::AlreadyPending);
+        }
+        if self.requests.len() >= self.max_requests {
+            return Err(SnipRequestError::TooMany);
+        }
+        self.requests.push(PendingSnip { peer, deadline: now + self.timeout, reply: Vec::new() });
+        out.transmit(Message::addressed(Mti::SIMPLE_NODE_INFO_REQUEST, out.node, peer, Vec::new()));
+        Ok(())
+    }
+
+    /// Ends the request at `index` with `event`.
+    fn end(&mut self, out: &mut Outputs, index: usize, event: impl FnOnce(NodeId, Vec<u8>) -> NodeEvent) {
+        let done = self.requests.swap_remove(index);
+        out.event(event(done.peer, done.reply));
+    }
+}
+
+impl Service<Lent<'_>> for SnipService {
+    fn handle_message(&mut self, cx: &mut Lent<'_>, msg: MessageRef<'_>) -> bool {
+        let (out, peer) = (&mut *cx.out, msg.source);
+        match msg.mti {
+            Mti::SIMPLE_NODE_INFO_REQUEST => {
+                self.answered += 1;
+                out.reply(Message::addressed(Mti::SIMPLE_NODE_INFO_REPLY, out.node, peer, self.reply.clone()));
+            }
+            Mti::SIMPLE_NODE_INFO_REPLY => {
+                let Some(index) = self.requests.iter().position(|p| p.peer == peer) else {
+                    self.stray_replies += 1;
+                    return true;
+                };
+                if self.requests.get_mut(index).is_some_and(|p| p.push(msg.payload)) {
+                    self.end(out, index, |peer, reply| NodeEvent::SnipReceived { peer, info: SnipInfo::parse(&reply) });
+                }
+            }
+            _ => return false,
+        }
+        true
+    }
+
+    fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
+        let named = matches!(report.mti, None | Some(Mti::SIMPLE_NODE_INFO_REQUEST));
+        let Some(index) = self.requests.iter().position(|p| p.peer == peer).filter(|_| named) else { return false };
+        let failure = SnipFailure::Rejected(report.code);
+        self.end(cx.out, index, |peer, _| NodeEvent::SnipFailed { peer, failure });
+        true
+    }
+
+    fn peer_changed(&mut self, out: &mut Outputs, change: PeerChange) {
+        for pending in self.requests.iter_mut() {
+            change.rename(&mut pending.peer);
+        }
+        while let Some(index) = self.requests.iter().position(|p| change.loses(p.peer)) {
+            self.end(out, index, |peer, _| NodeEvent::SnipFailed { peer, failure: SnipFailure::PeerLost });
+        }
+    }
+
+    fn handle_timeout(&mut self, cx: &mut Lent<'_>) {
+        while let Some(index) = self.requests.iter().position(|p| p.deadline <= cx.now) {
+            // A partial reply is still worth having (SNIP-TN §2.6: be liberal).
+            self.end(cx.out, index, |peer, reply| match reply.is_empty() {
+                true => NodeEvent::SnipFailed { peer, failure: SnipFailure::TimedOut },
+                false => NodeEvent::SnipReceived { peer, info: SnipInfo::parse(&reply) },
+            });
+        }
+    }
+
+    fn poll_timeout(&self) -> Option<Instant> {
+        self.requests.iter().map(|p| p.deadline).min()
     }
 }
 

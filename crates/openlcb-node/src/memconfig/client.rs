@@ -12,6 +12,8 @@ use openlcb_stream::{Event, Instant, Message, Mti, NodeId, OpenOptions, Role, St
 use super::wire::{Command, FailedKind, MAX_DATA_LEN, Reply, SPACE_FIRMWARE, codes};
 use super::{MemoryError, MemoryEvent};
 use crate::node::Cx;
+use crate::node::Outputs;
+use crate::service::PeerChange;
 use crate::{DatagramFailure, DatagramId, NodeEvent, OkFlags, Protocols};
 
 /// Names one client operation ([`Node::read_memory`](crate::Node::read_memory) and the
@@ -170,6 +172,16 @@ pub(crate) struct MemoryClient {
 enum Outcome {
     Done,
     Fail(MemoryError),
+}
+
+/// The event that ends `op`.
+fn final_event(op: Operation, outcome: Outcome) -> NodeEvent {
+    let (operation, peer) = (op.id, op.peer);
+    NodeEvent::Memory(match (outcome, op.kind) {
+        (Outcome::Fail(error), _) => MemoryEvent::Failed { operation, peer, error },
+        (Outcome::Done, Kind::Read { data, .. }) => MemoryEvent::ReadDone { operation, peer, data },
+        (Outcome::Done, _) => MemoryEvent::WriteDone { operation, peer, len: op.progress },
+    })
 }
 
 impl MemoryClient {
@@ -420,12 +432,7 @@ impl MemoryClient {
             // Released once the last command is answered; its outcome needs nothing more.
             let _ = cx.send_datagram(op.peer, &Command::Lock { node: 0 }.to_bytes());
         }
-        let event = match (outcome, op.kind) {
-            (Outcome::Fail(error), _) => MemoryEvent::Failed { operation: op.id, peer: op.peer, error },
-            (Outcome::Done, Kind::Read { data, .. }) => MemoryEvent::ReadDone { operation: op.id, peer: op.peer, data },
-            (Outcome::Done, _) => MemoryEvent::WriteDone { operation: op.id, peer: op.peer, len: op.progress },
-        };
-        cx.out.event(NodeEvent::Memory(event));
+        cx.out.event(final_event(op, outcome));
     }
 
     fn find(&self, peer: NodeId) -> Option<usize> {
@@ -682,16 +689,17 @@ impl MemoryClient {
         self.settle(cx, index, outcome);
     }
 
-    /// The transport lost `peer` (`None`: every peer).
-    pub(crate) fn peer_lost(&mut self, cx: &mut Cx<'_>, peer: Option<NodeId>) {
-        while let Some(index) = self.operations.iter().position(|o| peer.is_none_or(|p| p == o.peer)) {
-            self.settle(cx, index, Some(Outcome::Fail(MemoryError::PeerLost)));
+    /// A renamed peer's operations go on under its new name. A lost one's fail, nothing
+    /// sent to it (its lock lapses by itself); their streams go to `ended` (the endpoint ends
+    /// them itself).
+    pub(crate) fn peer_changed(&mut self, out: &mut Outputs, ended: &mut Vec<StreamHandle>, change: PeerChange) {
+        for op in self.operations.iter_mut() {
+            change.rename(&mut op.peer);
         }
-    }
-
-    pub(crate) fn rename_peer(&mut self, from: NodeId, to: NodeId) {
-        for op in self.operations.iter_mut().filter(|o| o.peer == from) {
-            op.peer = to;
+        while let Some(index) = self.operations.iter().position(|o| change.loses(o.peer)) {
+            let op = self.operations.swap_remove(index);
+            ended.extend(op.stream_handle());
+            out.event(final_event(op, Outcome::Fail(MemoryError::PeerLost)));
         }
     }
 

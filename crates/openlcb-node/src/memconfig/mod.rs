@@ -28,9 +28,15 @@ mod space;
 
 use alloc::vec::Vec;
 
-use openlcb_stream::wire::ErrorCode;
-use openlcb_stream::{Duration, NodeId, TimeoutKind};
+use openlcb_stream::wire::{ErrorCode, ErrorReport};
+use openlcb_stream::{
+    Duration, Event, Instant, Message, MessageRef, Mti, NodeId, StreamEndpoint, StreamHandle, TimeoutKind,
+};
 
+use crate::Protocols;
+use crate::datagram::{DatagramId, DatagramOwner, DatagramService, OkFlags, Outcome, rejected};
+use crate::node::Outputs;
+use crate::service::{Lent, PeerChange, Service};
 pub(crate) use client::MemoryClient;
 pub use client::{MemoryOperation, MemoryRequestError, TransferPath};
 pub use server::{MemoryServer, MemoryServerStats};
@@ -213,4 +219,243 @@ pub enum MemoryEvent {
     /// Server: space 0xFB was written; the node's SNIP user name and description now
     /// follow it.
     UserInfoChanged,
+}
+
+/// What the server and the client get for one call: the node's queues, and the datagram
+/// service and stream endpoint they are built on.
+pub(crate) struct Cx<'a> {
+    pub(crate) now: Instant,
+    pub(crate) out: &'a mut Outputs,
+    pub(crate) datagrams: &'a mut DatagramService,
+    pub(crate) streams: &'a mut StreamEndpoint,
+    pub(crate) streams_enabled: bool,
+    pub(crate) options: &'a MemoryConfigOptions,
+    /// Streams Memory Configuration is done with (see [`MemoryConfig`]).
+    ended: &'a mut Vec<StreamHandle>,
+    /// The node must send Initialization Complete (it changed Firmware Upgrade state).
+    pub(crate) announce: bool,
+    /// Reset/Reboot was asked for: the node reinitializes once the command is answered.
+    pub(crate) reboot: bool,
+}
+
+impl Cx<'_> {
+    /// Datagram Received OK for the datagram `to` sent.
+    pub(crate) fn ok(&mut self, to: NodeId, flags: OkFlags) {
+        let ok = Message::addressed(Mti::DATAGRAM_RECEIVED_OK, self.out.node, to, [flags.to_byte()].to_vec());
+        self.out.reply(ok);
+    }
+
+    /// Datagram Rejected for the datagram `to` sent.
+    pub(crate) fn reject(&mut self, to: NodeId, code: ErrorCode) {
+        self.out.reply(rejected(self.out.node, to, code));
+    }
+
+    /// Sends a command datagram of the client, whose outcome comes back to the client.
+    pub(crate) fn send_datagram(&mut self, to: NodeId, payload: &[u8]) -> Option<DatagramId> {
+        self.datagrams.send(self.now, self.out, to, payload, DatagramOwner::MemoryClient).ok()
+    }
+
+    /// Finishes a stream of Memory Configuration (its `Sent` event stays inside).
+    pub(crate) fn finish_stream(&mut self, handle: StreamHandle) -> bool {
+        let finished = self.streams.finish(self.now, handle).is_ok();
+        if finished {
+            self.ended.push(handle);
+        }
+        finished
+    }
+
+    /// Sends a reply datagram of the server that a Datagram OK promised: never dropped (its
+    /// delivery is the datagram service's business).
+    pub(crate) fn send_reply(&mut self, to: NodeId, payload: &[u8]) {
+        self.datagrams.send_promised(self.now, self.out, to, payload);
+    }
+
+    /// A reply to `to` could be queued now.
+    pub(crate) fn has_reply_room(&self, to: NodeId) -> bool {
+        self.datagrams.has_room(to)
+    }
+}
+
+/// What the node lends Memory Configuration: what every service gets, and the services it
+/// is built on.
+pub(crate) struct MemoryLent<'a> {
+    pub(crate) lent: Lent<'a>,
+    pub(crate) datagrams: &'a mut DatagramService,
+    pub(crate) streams: &'a mut StreamEndpoint,
+}
+
+/// Memory Configuration as one service of the node: the server (once set), the client, and
+/// the streams they are done with, whose last event (the `Sent` of a stream they finished,
+/// the `Terminated` of one whose peer was lost) is theirs, not the application's.
+#[derive(Debug, Default)]
+pub(crate) struct MemoryConfig {
+    pub(crate) server: Option<MemoryServer>,
+    client: MemoryClient,
+    ended: Vec<StreamHandle>,
+    /// A Reset/Reboot command was answered: the node reinitializes.
+    pub(crate) reboot: bool,
+}
+
+impl MemoryConfig {
+    /// The client, when the `memory-client` feature builds it in (without it the client is
+    /// never called, so none of its code is linked).
+    pub(crate) fn client(&self) -> Option<&MemoryClient> {
+        cfg!(feature = "memory-client").then_some(&self.client)
+    }
+
+    /// Runs `f` on the server and the client with the node's parts lent to them.
+    pub(crate) fn run<T>(
+        &mut self,
+        lent: &mut MemoryLent<'_>,
+        f: impl FnOnce(&mut Cx<'_>, Option<&mut MemoryServer>, &mut MemoryClient) -> T,
+    ) -> T {
+        let MemoryConfig { server, client, ended, reboot } = self;
+        let mut cx = Cx {
+            now: lent.lent.now,
+            out: lent.lent.out,
+            datagrams: lent.datagrams,
+            streams: lent.streams,
+            streams_enabled: lent.lent.config.streams_enabled,
+            options: &lent.lent.config.memory,
+            ended,
+            announce: false,
+            reboot: false,
+        };
+        let result = f(&mut cx, server.as_mut(), client);
+        *reboot |= cx.reboot;
+        if cx.announce {
+            // FWU §5.2: every change of state ends with a new Initialization Complete.
+            let node = cx.out.node;
+            cx.out.transmit(Message::initialization_complete(node));
+        }
+        result
+    }
+
+    /// Runs `f` on the client (nothing without the `memory-client` feature).
+    pub(crate) fn run_client(&mut self, lent: &mut MemoryLent<'_>, f: impl FnOnce(&mut Cx<'_>, &mut MemoryClient)) {
+        if cfg!(feature = "memory-client") {
+            self.run(lent, |cx, _, client| f(cx, client));
+        }
+    }
+
+    /// A datagram with content ID 0x20 that Memory Configuration takes: a command when a
+    /// server is configured; a reply when the client has an operation with the sender (or
+    /// the application does not claim 0x20).
+    fn takes_datagram(&self, datagrams: &DatagramService, peer: NodeId, payload: &[u8]) -> bool {
+        match payload {
+            [wire::CONTENT_ID, command, ..] if wire::is_reply(*command) => {
+                self.client().is_some_and(|c| c.has_operation_with(peer) || !datagrams.claims(wire::CONTENT_ID))
+            }
+            [wire::CONTENT_ID, ..] => self.server.is_some(),
+            _ => false,
+        }
+    }
+
+    /// The outcome of one of the client's command datagrams.
+    pub(crate) fn on_datagram_outcome(&mut self, lent: &mut MemoryLent<'_>, id: DatagramId, result: Outcome) {
+        self.run_client(lent, |cx, client| {
+            client.on_datagram_outcome(cx, id, result);
+        });
+    }
+
+    /// Takes a stream event of one of its transfers (or the last event of a stream it is
+    /// done with); false for any other.
+    pub(crate) fn on_stream_event(&mut self, lent: &mut MemoryLent<'_>, event: &Event) -> bool {
+        self.forget_ended(event)
+            || self.run(lent, |cx, server, client| {
+                server.is_some_and(|s| s.on_stream_event(cx, event))
+                    || (cfg!(feature = "memory-client") && client.on_stream_event(cx, event))
+            })
+    }
+
+    /// Whether `event` is about a stream Memory Configuration is done with; its last event
+    /// ends the record.
+    pub(crate) fn forget_ended(&mut self, event: &Event) -> bool {
+        let handle = event.handle();
+        let Some(index) = self.ended.iter().position(|h| *h == handle) else { return false };
+        if matches!(
+            event,
+            Event::Sent { .. } | Event::Terminated { .. } | Event::TimedOut { .. } | Event::Rejected { .. }
+        ) {
+            self.ended.swap_remove(index);
+        }
+        true
+    }
+
+    /// Streams whose last window may have been acknowledged since: the client finishes them.
+    pub(crate) fn poll_streams(&mut self, lent: &mut MemoryLent<'_>) {
+        self.run_client(lent, |cx, client| client.poll_streams(cx));
+    }
+}
+
+impl Service<MemoryLent<'_>> for MemoryConfig {
+    /// Its datagrams (commands to the server, replies to the client), the Protocol Support
+    /// Reply a firmware upgrade waits for, and Initialization Complete.
+    fn handle_message(&mut self, lent: &mut MemoryLent<'_>, msg: MessageRef<'_>) -> bool {
+        let peer = msg.source;
+        match msg.mti {
+            Mti::DATAGRAM if self.takes_datagram(lent.datagrams, peer, msg.payload) => {
+                let is_reply = msg.payload.get(1).is_some_and(|c| wire::is_reply(*c));
+                self.run(lent, |cx, server, client| {
+                    if is_reply {
+                        // Acknowledge a reply before anything else is sent (MC-TN §3.1.3.3).
+                        cx.ok(peer, OkFlags::default());
+                        if cfg!(feature = "memory-client") {
+                            client.on_reply(cx, peer, msg.payload);
+                        }
+                    } else if let Some(server) = server {
+                        server.on_command(cx, peer, msg.payload);
+                    }
+                });
+                true
+            }
+            Mti::PROTOCOL_SUPPORT_REPLY if self.client().is_some_and(|c| c.wants_protocols(peer)) => {
+                let protocols = Protocols::from_payload(msg.payload);
+                self.run_client(lent, |cx, client| client.on_protocols(cx, peer, protocols));
+                true
+            }
+            Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => {
+                if let Some(server) = &mut self.server {
+                    server.forget_peer(Some(peer));
+                }
+                self.run_client(lent, |cx, client| client.peer_restarted(cx, peer));
+                false
+            }
+            _ => false,
+        }
+    }
+
+    /// Its commands travel in datagrams: a rejection reaches the client as its datagram's
+    /// outcome, never as an error report of its own.
+    fn handle_error_report(&mut self, _: &mut MemoryLent<'_>, _: NodeId, _: ErrorReport) -> bool {
+        false
+    }
+
+    /// A lost peer's transfers and operations end here, nothing sent (the peer is gone);
+    /// their streams' last events stay inside.
+    fn peer_changed(&mut self, out: &mut Outputs, change: PeerChange) {
+        if let Some(server) = &mut self.server {
+            server.peer_changed(&mut self.ended, change);
+        }
+        if cfg!(feature = "memory-client") {
+            self.client.peer_changed(out, &mut self.ended, change);
+        }
+    }
+
+    fn handle_timeout(&mut self, lent: &mut MemoryLent<'_>) {
+        self.run(lent, |cx, server, client| {
+            if let Some(server) = server {
+                server.handle_timeout(cx);
+            }
+            if cfg!(feature = "memory-client") {
+                client.handle_timeout(cx);
+            }
+        });
+    }
+
+    fn poll_timeout(&self) -> Option<Instant> {
+        let server = self.server.as_ref().and_then(MemoryServer::poll_timeout);
+        let client = self.client().and_then(MemoryClient::poll_timeout);
+        server.into_iter().chain(client).min()
+    }
 }

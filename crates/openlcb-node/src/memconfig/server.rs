@@ -8,11 +8,12 @@ use core::fmt;
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{AcceptOptions, Event, Instant, NodeId, OpenOptions, StreamHandle, StreamId};
 
+use super::Cx;
 use super::space::{MemorySpace, SpaceError, acdi_manufacturer_bytes, acdi_user_bytes, read_slice};
 use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceForm, SpaceInfoReply, codes};
 use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FIRMWARE};
 use super::{MemoryEvent, MemoryEvent as E};
-use crate::node::Cx;
+use crate::service::PeerChange;
 use crate::{OkFlags, Protocols, SnipInfo};
 
 /// Bytes read from or written to a space at once on the stream paths.
@@ -970,13 +971,24 @@ impl MemoryServer {
         }
     }
 
-    /// Moves what is open with `from` to `to` (the transport renamed the peer).
-    pub(crate) fn rename_peer(&mut self, from: NodeId, to: NodeId) {
-        for t in self.transfers.iter_mut().filter(|t| t.peer == from) {
-            t.peer = to;
+    /// A renamed peer keeps what is open under its new name. A lost one's transfers end,
+    /// nothing sent to it; their streams go to `ended` (the endpoint ends them itself).
+    pub(crate) fn peer_changed(&mut self, ended: &mut Vec<StreamHandle>, change: PeerChange) {
+        for t in self.transfers.iter_mut() {
+            change.rename(&mut t.peer);
         }
-        if self.firmware_owner == Some(from) {
-            self.firmware_owner = Some(to);
+        for peer in [&mut self.firmware_owner, &mut self.unfreeze_pending].into_iter().flatten() {
+            change.rename(peer);
+        }
+        let PeerChange::Lost(lost) = change else { return };
+        self.forget_peer(lost);
+        self.unfreeze_pending = self.unfreeze_pending.filter(|p| !change.loses(*p));
+        while let Some(index) = self.transfers.iter().position(|t| change.loses(t.peer)) {
+            ended.extend(self.transfers.get(index).and_then(|t| match t.job {
+                Job::Read { handle, .. } => Some(handle),
+                Job::Write { handle, .. } => handle,
+            }));
+            self.end(index, false);
         }
     }
 }
