@@ -7,10 +7,8 @@ use bytes::Bytes;
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
 use openlcb_gateway::{Gateway, GatewayConfig};
-use openlcb_node::{MemoryServer, Node, NodeConfig, NodeEvent};
-use openlcb_stream::{
-    Duration, Event, Instant, NodeId, OpenOptions, Role, StreamEndpoint, StreamHandle, Termination, TimeoutKind,
-};
+use openlcb_node::{MemoryServer, Node, NodeConfig, NodeEvent, Streams};
+use openlcb_stream::{Duration, Event, Instant, NodeId, OpenOptions, Role, StreamHandle, Termination, TimeoutKind};
 use openlcb_tcp::TcpLink;
 
 use crate::bus::{CanBus, Delivery};
@@ -574,8 +572,9 @@ impl Network {
         stats
     }
 
-    /// A node's stream endpoint, to script it directly.
-    pub fn endpoint(&mut self, node: NodeIndex) -> Option<&mut StreamEndpoint> {
+    /// A node's stream commands (and, through them, its endpoint's getters), to script it
+    /// directly.
+    pub fn endpoint(&mut self, node: NodeIndex) -> Option<Streams<'_>> {
         self.nodes.get_mut(node).map(|n| n.stack.streams_mut())
     }
 

@@ -197,37 +197,47 @@ pub mod exercise {
         CanLink::new(now(), node_id(), CanConfig::default())
     }
 
+    /// One opaque command of either role on any stream of `$streams` (a `StreamEndpoint`, or
+    /// a node's `Streams` view: the command names are the same), or one of the `$arm`s.
+    macro_rules! stream_turn {
+        ($streams:ident, $now:ident, $op:ident, $peer:ident, $word:ident, $data:ident; $($arm:pat => $body:expr,)*) => {{
+            let $now = now();
+            let $op = input();
+            let mut payload = [0u8; 64];
+            input_bytes(&mut payload);
+            let len = ($op >> 8) as usize % payload.len();
+            let $data = payload.get(..len).unwrap_or(&[]);
+            let handle = $streams.handles().nth(($op >> 4) as usize & 3);
+            let $peer = node_id();
+            let $word = ($op >> 16) as u16;
+            match ($op & 0xF, handle) {
+                $($arm => $body,)*
+                (2, _) => output($streams.open($now, OpenOptions::new($peer, $word)).is_ok().into()),
+                (3, Some(h)) => output($streams.write($now, h, $data).unwrap_or(0) as u32),
+                (4, Some(h)) => output($streams.flush($now, h).is_ok().into()),
+                (5, Some(h)) => output($streams.finish($now, h).is_ok().into()),
+                (6, Some(h)) => output($streams.accept($now, h, Some($word)).is_ok().into()),
+                (7, Some(h)) => output($streams.reject($now, h, ReplyCode($word)).is_ok().into()),
+                (8, Some(h)) => output($streams.read($now, h, &mut payload).unwrap_or(0) as u32),
+                (9, Some(h)) => output($streams.abort($now, h, ErrorCode($word)).is_ok().into()),
+                (10, Some(h)) => output($streams.credit(h).unwrap_or(0)),
+                _ => {}
+            }
+        }};
+    }
+
     /// One opaque input or command into the endpoint: a received message, a timeout, or any
     /// command of either role on any of its streams.
     pub fn endpoint_turn(endpoint: &mut StreamEndpoint) {
-        let now = now();
-        let op = input();
-        let mut payload = [0u8; 64];
-        input_bytes(&mut payload);
-        let len = (op >> 8) as usize % payload.len();
-        let data = payload.get(..len).unwrap_or(&[]);
-        let handle = endpoint.handles().nth((op >> 4) as usize & 3);
-        let peer = node_id();
-        let word = (op >> 16) as u16;
-        match (op & 0xF, handle) {
+        stream_turn!(endpoint, now, op, peer, word, data;
             (0, _) => {
                 let destination = (op & 0x10 != 0).then(|| endpoint.node_id());
                 endpoint.handle_message(now, MessageRef { mti: Mti(word), source: peer, destination, payload: data });
-            }
+            },
             (1, _) => endpoint.handle_timeout(now),
-            (2, _) => output(endpoint.open(now, OpenOptions::new(peer, word)).is_ok().into()),
-            (3, Some(h)) => output(endpoint.write(now, h, data).unwrap_or(0) as u32),
-            (4, Some(h)) => output(endpoint.flush(now, h).is_ok().into()),
-            (5, Some(h)) => output(endpoint.finish(now, h).is_ok().into()),
-            (6, Some(h)) => output(endpoint.accept(now, h, Some(word)).is_ok().into()),
-            (7, Some(h)) => output(endpoint.reject(now, h, ReplyCode(word)).is_ok().into()),
-            (8, Some(h)) => output(endpoint.read(now, h, &mut payload).unwrap_or(0) as u32),
-            (9, Some(h)) => output(endpoint.abort(now, h, ErrorCode(word)).is_ok().into()),
-            (10, Some(h)) => output(endpoint.credit(h).unwrap_or(0)),
             (11, _) => endpoint.peer_lost(peer),
             (12, _) => endpoint.link_lost(),
-            _ => {}
-        }
+        )
     }
 
     /// Drains the endpoint's events and timeout into the opaque output (its transmits go to
@@ -325,7 +335,10 @@ pub mod exercise {
             5 => output(node.request_snip(now, peer).is_ok().into()),
             6 => node.peer_lost(peer),
             7 => node.link_lost(),
-            _ => endpoint_turn(node.streams_mut()),
+            _ => {
+                let mut streams = node.streams_mut();
+                stream_turn!(streams, now, op, peer, word, data;)
+            }
         }
         while let Some(message) = node.poll_transmit() {
             output(u32::from(message.mti.0) + message.payload.len() as u32);
