@@ -10,7 +10,7 @@ use embedded_can::{ErrorKind, ExtendedId, Frame, Id};
 use openlcb_can::{CanConfig, CanFrame, CanLink};
 use openlcb_embedded::memory_bus::MemoryBus;
 use openlcb_embedded::{Driver, Error, Poll, Upper};
-use openlcb_node::{Node, NodeConfig, NodeEvent, SnipInfo};
+use openlcb_node::{MemoryEvent, MemoryServer, Node, NodeConfig, NodeEvent, RamSpace, SnipInfo, TransferPath};
 use openlcb_stream::{Config, Event, Instant, NodeId, OpenOptions, StreamEndpoint, StreamHandle};
 
 const A: u64 = 0x05_01_01_01_22_00;
@@ -110,6 +110,44 @@ fn nodes_on_memory_bus_announce_themselves_and_answer_snip_by_alias() {
         }
     }
     assert_eq!(snip, Some((node(B), "Widget".into())), "B's node answered through its driver");
+}
+
+#[test]
+fn memory_configuration_works_through_the_driver_alone() {
+    // A firmware drives its node through the driver and may leave its events for later: the
+    // server's Read Stream and the client's read of it run all the same.
+    let bus: MemoryBus<CanFrame, 2, 8> = MemoryBus::new();
+    let time = Cell::new(Instant::ZERO);
+    let clock = || time.get();
+    let mut a = Driver::new(bus.port(0).unwrap(), clock, CanLink::new(time.get(), node(A), CanConfig::default()));
+    let mut b = Driver::new(bus.port(1).unwrap(), clock, CanLink::new(time.get(), node(B), CanConfig::default()));
+    let contents: Vec<u8> = (0..600).map(pattern).collect();
+    let space = RamSpace::from_bytes(contents.clone());
+    let mut na = Node::new(node(A), NodeConfig::default());
+    let mut nb =
+        Node::new(node(B), NodeConfig::default()).with_memory_server(MemoryServer::new().with_space(0xFD, space));
+
+    let mut operation = None;
+    for _ in 0..2000 {
+        let pa = a.poll(&mut na).unwrap();
+        let pb = b.poll(&mut nb).unwrap();
+        if operation.is_none() && a.link().alias().is_some() && b.link().alias().is_some() && bus.queued() == 0 {
+            operation = Some(na.read_memory(time.get(), node(B), 0xFD, 0, None, TransferPath::Stream).unwrap());
+        }
+        if operation.is_some_and(|op| na.memory_progress(op).is_none()) {
+            break;
+        }
+        if pa.is_idle() && pb.is_idle() {
+            advance(&time, &[pa, pb]);
+        }
+    }
+    let events: Vec<NodeEvent> = std::iter::from_fn(|| na.poll_event()).collect();
+    let read = events.iter().find_map(|e| match e {
+        NodeEvent::Memory(MemoryEvent::ReadDone { data, .. }) => Some(data),
+        _ => None,
+    });
+    assert_eq!(read, Some(&contents), "{events:?}");
+    assert_eq!(nb.memory_server().map(|s| s.stats().streams_done), Some(1));
 }
 
 // ----- a transfer -----

@@ -974,3 +974,104 @@ fn a_node_taking_streams_only_for_memory_configuration_refuses_the_others() {
     }
     assert_eq!(&read_back(&mut pair.server, 0xFD)[..3000], &data[..]);
 }
+
+// ----- the node's shape: work done at each input, outcomes to their owners -----
+
+impl Pair {
+    /// Passes every queued message both ways once; returns how many.
+    fn exchange(&mut self) -> usize {
+        let mut moved = 0;
+        while let Some(m) = self.client.poll_transmit() {
+            self.server.handle_message(self.now, m.as_ref());
+            moved += 1;
+        }
+        while let Some(m) = self.server.poll_transmit() {
+            self.client.handle_message(self.now, m.as_ref());
+            moved += 1;
+        }
+        moved
+    }
+}
+
+#[test]
+fn transfers_run_on_messages_alone_and_poll_event_only_pops() {
+    // A driver that passes messages and leaves the events for later (a firmware's): every
+    // step of a datagram write and of a stream read is taken at the input that caused it.
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 300));
+    pair.pump(); // both announce themselves
+    let data = pattern(200, 3);
+    let write = pair.client.write_memory(pair.now, SERVER, 0xFD, 0, data.clone(), TransferPath::Datagrams).unwrap();
+    while pair.exchange() > 0 {}
+    assert_eq!(pair.client.memory_progress(write), None, "the write ended without poll_event");
+    let read = pair.client.read_memory(pair.now, SERVER, 0xFD, 0, None, TransferPath::Stream).unwrap();
+    while pair.exchange() > 0 {}
+    assert_eq!(pair.client.memory_progress(read), None, "the read ended without poll_event");
+    let events: Vec<NodeEvent> = std::iter::from_fn(|| pair.client.poll_event()).collect();
+    let mut expected = pattern(300, 7);
+    expected[..200].copy_from_slice(&data);
+    assert!(
+        matches!(events[..], [
+        NodeEvent::Memory(MemoryEvent::WriteDone { operation, len: 200, .. }),
+        NodeEvent::Memory(MemoryEvent::ReadDone { operation: second, ref data, .. }),
+    ] if operation == write && second == read && *data == expected),
+        "{events:?}"
+    );
+}
+
+#[test]
+fn a_lost_server_is_sent_nothing_and_the_operation_fails() {
+    // A write of more than one chunk holds the server's lock; the peer is lost in the middle:
+    // the operation fails at once, and no lock release (nor the next chunk) goes to it.
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 300));
+    pair.pump(); // both announce themselves
+    let write = pair.client.write_memory(pair.now, SERVER, 0xFD, 0, pattern(200, 3), TransferPath::Datagrams).unwrap();
+    while pair.client.memory_progress(write) == Some(0) {
+        assert!(pair.exchange() > 0, "the write stalled");
+    }
+    assert_eq!(pair.server.memory_server().map(|s| s.lock_owner()), Some(CLIENT.as_raw()));
+    while pair.client.poll_transmit().is_some() {} // the next chunk, lost on the way
+    pair.client.peer_lost(SERVER);
+    let sent: Vec<Message> = std::iter::from_fn(|| pair.client.poll_transmit()).collect();
+    assert!(sent.is_empty(), "sent to a lost peer: {sent:?}");
+    let events: Vec<NodeEvent> = std::iter::from_fn(|| pair.client.poll_event()).collect();
+    assert_eq!(
+        events,
+        [NodeEvent::Memory(MemoryEvent::Failed { operation: write, peer: SERVER, error: MemoryError::PeerLost })]
+    );
+}
+
+#[test]
+fn an_application_datagram_is_answered_to_the_application_while_an_operation_runs() {
+    // The application's datagram and the client's commands go to the same node at once; each
+    // outcome goes back to the one that sent the datagram.
+    let mut config = NodeConfig::default();
+    config.datagrams.claimed = vec![0x21];
+    let mut pair = Pair::new(NodeConfig::default(), server_with(config, 300));
+    pair.pump(); // both announce themselves
+    let read = pair.client.read_memory(pair.now, SERVER, 0xFD, 0, Some(200), TransferPath::Datagrams).unwrap();
+    let sent = pair.client.send_datagram(pair.now, SERVER, &[0x21, 1]).unwrap();
+    // It waits behind the client's command (one datagram at a time to a node, DG §6.1).
+    let received = loop {
+        assert!(pair.exchange() > 0, "the datagram never arrived");
+        let received = std::iter::from_fn(|| pair.server.poll_event()).find_map(|e| match e {
+            NodeEvent::DatagramReceived { from, datagram } => Some((from, datagram.as_slice().to_vec())),
+            _ => None,
+        });
+        if received.is_some() {
+            break received;
+        }
+    };
+    assert_eq!(received, Some((CLIENT, vec![0x21, 1])));
+    let ok = openlcb_node::DatagramAnswer::Ok(openlcb_node::OkFlags::default());
+    pair.server.answer_datagram(CLIENT, ok).unwrap();
+    let event = pair.finish();
+    assert!(
+        matches!(event, MemoryEvent::ReadDone { operation, ref data, .. } if operation == read && data.len() == 200)
+    );
+    let delivered: Vec<&NodeEvent> =
+        pair.events.iter().filter(|e| matches!(e, NodeEvent::DatagramDelivered { .. })).collect();
+    assert_eq!(
+        delivered,
+        [&NodeEvent::DatagramDelivered { id: sent, to: SERVER, flags: openlcb_node::OkFlags::default() }]
+    );
+}
