@@ -364,7 +364,11 @@ impl DatagramService {
         match (done.owner, result) {
             (DatagramOwner::Application, Ok(flags)) => out.event(NodeEvent::DatagramDelivered { id, to, flags }),
             (DatagramOwner::Application, Err(failure)) => out.event(NodeEvent::DatagramFailed { id, to, failure }),
-            (DatagramOwner::MemoryClient, result) => self.client_outcomes.push_back((id, result)),
+            // Without the `memory-client` feature nothing sends for the client.
+            (DatagramOwner::MemoryClient, result) if cfg!(feature = "memory-client") => {
+                self.client_outcomes.push_back((id, result));
+            }
+            (DatagramOwner::MemoryClient, _) => {}
             (DatagramOwner::MemoryServer, _) => {}
         }
     }

@@ -344,8 +344,11 @@ impl Node {
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let services = [self.datagrams.poll_timeout(), self.snip.poll_timeout(), self.memory.poll_timeout()];
-        services.into_iter().chain([self.streams.poll_timeout(), self.events.poll_timeout()]).flatten().min()
+        let streams = self.streams.poll_timeout();
+        [streams, self.datagrams.poll_timeout(), self.snip.poll_timeout(), self.memory.poll_timeout()]
+            .into_iter()
+            .flatten()
+            .min()
     }
 
     // ----- inputs -----
@@ -573,7 +576,9 @@ impl Node {
         let mut lent = memory_lent(now, out, config, datagrams, streams);
         loop {
             let mut moved = false;
-            while let Some((id, result)) = lent.datagrams.poll_client_outcome() {
+            while let Some((id, result)) =
+                lent.datagrams.poll_client_outcome().filter(|_| cfg!(feature = "memory-client"))
+            {
                 moved = true;
                 memory.on_datagram_outcome(&mut lent, id, result);
             }

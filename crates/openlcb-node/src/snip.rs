@@ -319,10 +319,16 @@ impl SnipService {
         Ok(())
     }
 
-    /// Ends the request at `index` with `event`.
-    fn end(&mut self, out: &mut Outputs, index: usize, event: impl FnOnce(NodeId, Vec<u8>) -> NodeEvent) {
-        let done = self.requests.swap_remove(index);
-        out.event(event(done.peer, done.reply));
+    /// Ends the request at `index` with its reply, unless it `failed`. A partial reply at
+    /// the deadline is still worth having (SNIP-TN §2.6: be liberal).
+    fn end(&mut self, out: &mut Outputs, index: usize, failed: Option<SnipFailure>) {
+        let PendingSnip { peer, reply, .. } = self.requests.swap_remove(index);
+        out.event(match failed {
+            Some(failure) if reply.is_empty() || failure != SnipFailure::TimedOut => {
+                NodeEvent::SnipFailed { peer, failure }
+            }
+            _ => NodeEvent::SnipReceived { peer, info: SnipInfo::parse(&reply) },
+        });
     }
 }
 
@@ -340,7 +346,7 @@ impl Service<Lent<'_>> for SnipService {
                     return true;
                 };
                 if self.requests.get_mut(index).is_some_and(|p| p.push(msg.payload)) {
-                    self.end(out, index, |peer, reply| NodeEvent::SnipReceived { peer, info: SnipInfo::parse(&reply) });
+                    self.end(out, index, None);
                 }
             }
             _ => return false,
@@ -351,8 +357,7 @@ impl Service<Lent<'_>> for SnipService {
     fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
         let named = matches!(report.mti, None | Some(Mti::SIMPLE_NODE_INFO_REQUEST));
         let Some(index) = self.requests.iter().position(|p| p.peer == peer).filter(|_| named) else { return false };
-        let failure = SnipFailure::Rejected(report.code);
-        self.end(cx.out, index, |peer, _| NodeEvent::SnipFailed { peer, failure });
+        self.end(cx.out, index, Some(SnipFailure::Rejected(report.code)));
         true
     }
 
@@ -361,17 +366,13 @@ impl Service<Lent<'_>> for SnipService {
             change.rename(&mut pending.peer);
         }
         while let Some(index) = self.requests.iter().position(|p| change.loses(p.peer)) {
-            self.end(out, index, |peer, _| NodeEvent::SnipFailed { peer, failure: SnipFailure::PeerLost });
+            self.end(out, index, Some(SnipFailure::PeerLost));
         }
     }
 
     fn handle_timeout(&mut self, cx: &mut Lent<'_>) {
         while let Some(index) = self.requests.iter().position(|p| p.deadline <= cx.now) {
-            // A partial reply is still worth having (SNIP-TN §2.6: be liberal).
-            self.end(cx.out, index, |peer, reply| match reply.is_empty() {
-                true => NodeEvent::SnipFailed { peer, failure: SnipFailure::TimedOut },
-                false => NodeEvent::SnipReceived { peer, info: SnipInfo::parse(&reply) },
-            });
+            self.end(cx.out, index, Some(SnipFailure::TimedOut));
         }
     }
 

@@ -456,6 +456,6 @@ impl Service<MemoryLent<'_>> for MemoryConfig {
     fn poll_timeout(&self) -> Option<Instant> {
         let server = self.server.as_ref().and_then(MemoryServer::poll_timeout);
         let client = self.client().and_then(MemoryClient::poll_timeout);
-        server.into_iter().chain(client).min()
+        [server, client].into_iter().flatten().min()
     }
 }
