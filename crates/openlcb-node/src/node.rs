@@ -399,10 +399,9 @@ impl Node {
         match msg.mti {
             Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => {
                 self.streams.handle_message(now, msg);
-                lend!(self, now, |lent, (streams, datagrams, snip, memory, events)| {
+                // SNIP and Event Transport keep nothing that a restart ends.
+                lend!(self, now, |lent, (streams, datagrams, _, memory, _)| {
                     datagrams.handle_message(&mut lent, msg);
-                    snip.handle_message(&mut lent, msg);
-                    events.handle_message(&mut lent, msg);
                     memory.handle_message(&mut memory_lent(now, lent.out, lent.config, datagrams, streams), msg);
                 });
             }
@@ -576,8 +575,8 @@ impl Node {
         let mut lent = memory_lent(now, out, config, datagrams, streams);
         loop {
             let mut moved = false;
-            while let Some((id, result)) =
-                lent.datagrams.poll_client_outcome().filter(|_| cfg!(feature = "memory-client"))
+            while cfg!(feature = "memory-client")
+                && let Some((id, result)) = lent.datagrams.poll_client_outcome()
             {
                 moved = true;
                 memory.on_datagram_outcome(&mut lent, id, result);

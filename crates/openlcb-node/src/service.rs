@@ -10,7 +10,7 @@ use crate::node::Outputs;
 
 /// What the transport reports about a peer. Neither change reads the clock: a lost peer is
 /// sent nothing, and a renamed one keeps every timer. (A restart is a message, Initialization
-/// Complete, offered to every service through [`Service::handle_message`].)
+/// Complete, offered through [`Service::handle_message`] to each service it concerns.)
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum PeerChange {
     /// `Some(peer)`: that peer is gone; `None`: this node lost its link, every peer is gone.
@@ -47,7 +47,8 @@ pub(crate) struct Lent<'a> {
 /// service built on other services).
 pub(crate) trait Service<C> {
     /// A message for this node; `false`: not this service's, the next one is asked.
-    /// Initialization Complete is offered to every service (the peer restarted).
+    /// Initialization Complete is offered to every service that keeps something a restart
+    /// of the peer ends.
     fn handle_message(&mut self, cx: &mut C, msg: MessageRef<'_>) -> bool;
 
     /// An Optional Interaction Rejected or Terminate Due To Error from `peer` that may be
