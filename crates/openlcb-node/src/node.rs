@@ -18,7 +18,7 @@ pub(crate) use crate::memconfig::Cx;
 use crate::memconfig::{MemoryConfig, MemoryEvent, MemoryLent, MemoryServer, acdi_user_strings};
 #[cfg(feature = "memory-client")]
 use crate::memconfig::{MemoryOperation, MemoryRequestError, TransferPath};
-use crate::service::{Lent, PeerChange, Service};
+use crate::service::{Lent, PeerChange, Service, earliest};
 use crate::snip::{SnipFailure, SnipInfo, SnipRequestError, SnipService};
 use crate::{DatagramStats, NodeConfig, Protocols};
 
@@ -344,11 +344,8 @@ impl Node {
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let streams = self.streams.poll_timeout();
-        [streams, self.datagrams.poll_timeout(), self.snip.poll_timeout(), self.memory.poll_timeout()]
-            .into_iter()
-            .flatten()
-            .min()
+        let services = earliest(self.datagrams.poll_timeout(), self.snip.poll_timeout());
+        earliest(earliest(self.streams.poll_timeout(), services), self.memory.poll_timeout())
     }
 
     // ----- inputs -----

@@ -64,3 +64,11 @@ pub(crate) trait Service<C> {
     /// The service's next deadline.
     fn poll_timeout(&self) -> Option<Instant>;
 }
+
+/// The earlier of two deadlines.
+pub(crate) fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    }
+}

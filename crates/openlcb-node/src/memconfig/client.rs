@@ -698,7 +698,9 @@ impl MemoryClient {
         }
         while let Some(index) = self.operations.iter().position(|o| change.loses(o.peer)) {
             let op = self.operations.swap_remove(index);
-            ended.extend(op.stream_handle());
+            if let Some(handle) = op.stream_handle() {
+                ended.push(handle);
+            }
             out.event(final_event(op, Outcome::Fail(MemoryError::PeerLost)));
         }
     }

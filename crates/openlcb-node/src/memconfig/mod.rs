@@ -36,7 +36,7 @@ use openlcb_stream::{
 use crate::Protocols;
 use crate::datagram::{DatagramId, DatagramOwner, DatagramService, OkFlags, Outcome, rejected};
 use crate::node::Outputs;
-use crate::service::{Lent, PeerChange, Service};
+use crate::service::{Lent, PeerChange, Service, earliest};
 pub(crate) use client::MemoryClient;
 pub use client::{MemoryOperation, MemoryRequestError, TransferPath};
 pub use server::{MemoryServer, MemoryServerStats};
@@ -456,6 +456,6 @@ impl Service<MemoryLent<'_>> for MemoryConfig {
     fn poll_timeout(&self) -> Option<Instant> {
         let server = self.server.as_ref().and_then(MemoryServer::poll_timeout);
         let client = self.client().and_then(MemoryClient::poll_timeout);
-        [server, client].into_iter().flatten().min()
+        earliest(server, client)
     }
 }

@@ -984,10 +984,11 @@ impl MemoryServer {
         self.forget_peer(lost);
         self.unfreeze_pending = self.unfreeze_pending.filter(|p| !change.loses(*p));
         while let Some(index) = self.transfers.iter().position(|t| change.loses(t.peer)) {
-            ended.extend(self.transfers.get(index).and_then(|t| match t.job {
-                Job::Read { handle, .. } => Some(handle),
-                Job::Write { handle, .. } => handle,
-            }));
+            if let Some(Transfer { job: Job::Read { handle, .. } | Job::Write { handle: Some(handle), .. }, .. }) =
+                self.transfers.get(index)
+            {
+                ended.push(*handle);
+            }
             self.end(index, false);
         }
     }
