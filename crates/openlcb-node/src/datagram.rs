@@ -9,7 +9,7 @@ use openlcb_stream::wire::{ErrorCode, ErrorReport};
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId, Queue};
 
 use crate::node::{NodeEvent, Outputs};
-use crate::service::{Lent, PeerChange, Service};
+use crate::service::{Lent, PeerChange, Service, earliest};
 
 /// The longest datagram (DG §4.1).
 pub const MAX_DATAGRAM_LEN: usize = 72;
@@ -534,12 +534,11 @@ impl Service<Lent<'_>> for DatagramService {
     }
 
     fn poll_timeout(&self) -> Option<Instant> {
-        let sends = self.outgoing.iter().filter_map(|o| match o.state {
-            SendState::InFlight { deadline } => Some(deadline),
-            SendState::Backoff { until } => Some(until),
-            SendState::Queued => None,
+        let sends = self.outgoing.iter().fold(None, |next, o| match o.state {
+            SendState::InFlight { deadline: at } | SendState::Backoff { until: at } => earliest(next, Some(at)),
+            SendState::Queued => next,
         });
-        sends.chain(self.awaiting.iter().map(|a| a.deadline)).min()
+        self.awaiting.iter().fold(sends, |next, a| earliest(next, Some(a.deadline)))
     }
 }
 

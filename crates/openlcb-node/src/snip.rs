@@ -9,7 +9,7 @@ use openlcb_stream::wire::ErrorReport;
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::node::{NodeEvent, Outputs};
-use crate::service::{Lent, PeerChange, Service};
+use crate::service::{Lent, PeerChange, Service, earliest};
 
 /// The most bytes a SNIP reply can carry (SNIP-TN §2.5.1).
 pub const MAX_REPLY_LEN: usize = 253;
@@ -377,7 +377,7 @@ impl Service<Lent<'_>> for SnipService {
     }
 
     fn poll_timeout(&self) -> Option<Instant> {
-        self.requests.iter().map(|p| p.deadline).min()
+        self.requests.iter().fold(None, |next, p| earliest(next, Some(p.deadline)))
     }
 }
 

@@ -13,7 +13,7 @@ use super::space::{MemorySpace, SpaceError, acdi_manufacturer_bytes, acdi_user_b
 use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceForm, SpaceInfoReply, codes};
 use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FIRMWARE};
 use super::{MemoryEvent, MemoryEvent as E};
-use crate::service::PeerChange;
+use crate::service::{PeerChange, earliest};
 use crate::{OkFlags, Protocols, SnipInfo};
 
 /// Bytes read from or written to a space at once on the stream paths.
@@ -921,14 +921,12 @@ impl MemoryServer {
     }
 
     pub(crate) fn poll_timeout(&self) -> Option<Instant> {
-        self.transfers
-            .iter()
-            .filter_map(|t| match t.job {
-                Job::Write { reply: WriteReply::Due(at), .. } => Some(at),
-                Job::Write { handle: None, deadline, .. } => Some(deadline),
-                _ => None,
-            })
-            .min()
+        self.transfers.iter().fold(None, |next, t| match t.job {
+            Job::Write { reply: WriteReply::Due(at), .. } | Job::Write { handle: None, deadline: at, .. } => {
+                earliest(next, Some(at))
+            }
+            _ => next,
+        })
     }
 
     /// Sends the Write Stream Replies that are due (their clients wait for them before the
