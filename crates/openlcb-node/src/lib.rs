@@ -18,10 +18,21 @@
 //! [`rename_peer`](Node::rename_peer), [`peer_lost`](Node::peer_lost),
 //! [`link_lost`](Node::link_lost)); commands ([`send_datagram`](Node::send_datagram),
 //! [`answer_datagram`](Node::answer_datagram), [`request_snip`](Node::request_snip), and the
-//! stream commands on [`streams_mut`](Node::streams_mut)); outputs
-//! ([`poll_transmit`](Node::poll_transmit), [`poll_event`](Node::poll_event),
-//! [`poll_timeout`](Node::poll_timeout)). After any input or command, drain `poll_transmit`
-//! and `poll_event` until `None`, then arm a timer for `poll_timeout`.
+//! stream commands of the [`Streams`] view that [`streams_mut`](Node::streams_mut) lends);
+//! outputs ([`poll_transmit`](Node::poll_transmit), [`poll_event`](Node::poll_event),
+//! [`poll_timeout`](Node::poll_timeout)). Each input and command does all the work it
+//! causes before it returns (Memory Configuration acts on its datagrams' outcomes and its
+//! streams' events there), so the outputs only pop: after any input or command, drain
+//! `poll_transmit` and `poll_event` in either order, then arm a timer for `poll_timeout`. A
+//! driver that takes only the transmits (a firmware's) loses nothing: the events wait.
+//!
+//! Inside, each service (the datagram service, SNIP, Memory Configuration, Event
+//! Transport) has the same few entry points: a message, an error report, a peer change, a
+//! timeout, its next deadline. The node answers the message-network basics itself, gives
+//! every other message to the first service that takes it, and offers an OIR or TDE to each
+//! service it may concern. A datagram carries its owner: its outcome (OK, Rejected, timed
+//! out) goes back to whoever sent it, the application (`DatagramDelivered`,
+//! `DatagramFailed`) or Memory Configuration.
 //!
 //! Two nodes back to back (a real program puts a transport in between): A asks B for its
 //! SNIP, sends it a datagram B's application claims, and B answers it.
