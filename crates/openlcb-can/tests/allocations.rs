@@ -12,6 +12,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use common::{A_ID, B_ID, Bus, Node, can_config};
 use openlcb_can::CanFrame;
+use openlcb_node::NodeEvent;
 use openlcb_stream::{Config, Event, Instant, Message, Mti, OpenOptions, StreamHandle};
 
 struct Counting;
@@ -73,7 +74,7 @@ struct Tally {
 fn deliver(now: Instant, from: &mut Node, to: &mut Node, tally: &mut Tally) {
     loop {
         let before = allocations();
-        let Some(msg) = from.endpoint().poll_transmit() else {
+        let Some(msg) = from.stack.poll_transmit() else {
             break;
         };
         tally.core += allocations() - before;
@@ -121,14 +122,14 @@ fn transfer(now: Instant, a: &mut Node, b: &mut Node, stream: StreamHandle, tota
         }
         deliver(now, a, b, tally);
         let before = allocations();
-        while let Some(event) = b.endpoint().poll_event() {
-            if let Event::Readable { handle } = event {
+        while let Some(event) = b.stack.poll_event() {
+            if let NodeEvent::Stream(Event::Readable { handle }) = event {
                 while let Ok(n @ 1..) = b.endpoint().read(now, handle, &mut buf) {
                     read += n;
                 }
             }
         }
-        while a.endpoint().poll_event().is_some() {}
+        while a.stack.poll_event().is_some() {}
         tally.core += allocations() - before;
         deliver(now, b, a, tally);
     }

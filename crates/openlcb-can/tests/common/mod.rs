@@ -7,7 +7,7 @@ pub mod published;
 
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
-use openlcb_stream::{Config, Duration, Event, Instant, Message, NodeId, StreamEndpoint};
+use openlcb_stream::{Config, Duration, Event, Instant, Message, NodeId};
 
 pub const A_ID: u64 = 0x0501_0101_2200;
 pub const B_ID: u64 = 0x0501_0101_2201;
@@ -137,8 +137,8 @@ impl Node {
         core::iter::from_fn(|| self.link.poll_transmit()).collect()
     }
 
-    /// The node's stream endpoint.
-    pub fn endpoint(&mut self) -> &mut StreamEndpoint {
+    /// The node's stream commands (and, through them, its endpoint's getters).
+    pub fn endpoint(&mut self) -> openlcb_node::Streams<'_> {
         self.stack.streams_mut()
     }
 
