@@ -206,12 +206,11 @@ pub struct Node {
     stats: NodeStats,
 }
 
-/// Lends the node's parts to its services: `$lent` is what every service gets, `$memory`
-/// what Memory Configuration gets (also the datagram service and the stream endpoint).
+/// Lends the node's parts for one call: `$lent` is what every service gets, `$parts` binds
+/// the services (streams, datagrams, SNIP, Memory Configuration, events).
 macro_rules! lend {
     ($node:expr, $now:expr, |$lent:ident, $parts:pat_param| $body:expr) => {{
         let Node { config, out, streams, datagrams, snip, memory, events, .. } = $node;
-        #[allow(unused_mut, unused_variables)]
         let mut $lent = Lent { now: $now, out, config };
         let $parts = (streams, datagrams, snip, memory, events);
         $body
