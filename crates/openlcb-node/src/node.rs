@@ -5,7 +5,8 @@ use alloc::vec::Vec;
 
 use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport};
 use openlcb_stream::{
-    AcceptPolicy, Event, EventId, Instant, Message, MessageRef, Mti, NodeId, Queue, StreamEndpoint, StreamHandle,
+    AcceptPolicy, Event, EventId, Instant, Message, MessageRef, Mti, NodeId, PeerChange, PeerChanges, Queue, Receiver,
+    StreamEndpoint, StreamHandle,
 };
 
 use crate::datagram::{
@@ -549,14 +550,28 @@ impl Node {
         }
     }
 
-    /// The transport now names a peer differently (on CAN: its Node ID was learnt, or its
-    /// mapping forgotten, and it is named by its alias). Everything open with `from` goes on
-    /// with `to`, queued messages included.
-    pub fn rename_peer(&mut self, from: NodeId, to: NodeId) {
+    /// The transport learnt a change of peer ([`PeerChange`]); a transport handed this node
+    /// as its [`Receiver`] (the CAN link) calls it as it learns it.
+    ///
+    /// - [`PeerChange::Lost`]: the peer's streams end, datagrams to it fail, SNIP and Memory
+    ///   Configuration requests to it fail.
+    /// - [`PeerChange::Renamed`] (on CAN: its Node ID was learnt, or its mapping forgotten and
+    ///   it is named by its alias): everything open with the old name goes on with the new
+    ///   one, queued messages included.
+    pub fn peer_changed(&mut self, change: PeerChange) {
+        self.streams.peer_changed(change);
+        match change {
+            PeerChange::Lost(peer) => self.peer_lost(peer),
+            PeerChange::Renamed { from, to } => self.rename_peer(from, to),
+            _ => {}
+        }
+    }
+
+    /// [`PeerChange::Renamed`] for all but the streams.
+    fn rename_peer(&mut self, from: NodeId, to: NodeId) {
         for message in self.out.transmits.iter_mut() {
             message.rename_peer(from, to);
         }
-        self.streams.rename_peer(from, to);
         self.datagrams.rename_peer(from, to);
         if let Some(client) = self.client_mut() {
             client.rename_peer(from, to);
@@ -569,10 +584,8 @@ impl Node {
         }
     }
 
-    /// The transport reports `peer` gone: its streams end, datagrams to it fail, SNIP requests
-    /// to it fail.
-    pub fn peer_lost(&mut self, peer: NodeId) {
-        self.streams.peer_lost(peer);
+    /// [`PeerChange::Lost`] for all but the streams.
+    fn peer_lost(&mut self, peer: NodeId) {
         self.datagrams.peer_lost(&mut self.out, Some(peer));
         self.fail_snip(Some(peer));
         self.forget_memory_peer(Some(peer));
@@ -896,6 +909,18 @@ impl Node {
                 break;
             }
         }
+    }
+}
+
+impl PeerChanges for Node {
+    fn peer_changed(&mut self, change: PeerChange) {
+        Node::peer_changed(self, change);
+    }
+}
+
+impl Receiver for Node {
+    fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
+        Node::handle_message(self, now, message);
     }
 }
 
