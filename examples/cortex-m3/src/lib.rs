@@ -184,6 +184,11 @@ pub mod exercise {
         Instant::from_micros(u64::from(input()))
     }
 
+    /// A peer change chosen by input: `peer` lost, or renamed to an opaque Node ID.
+    fn peer_change(peer: NodeId, word: u16) -> PeerChange {
+        if word & 1 == 0 { PeerChange::Lost(peer) } else { PeerChange::Renamed { from: peer, to: node_id() } }
+    }
+
     /// An endpoint for an opaque Node ID, with the accept policy chosen by input.
     pub fn endpoint() -> StreamEndpoint {
         let mut config = Config::default();
@@ -226,7 +231,7 @@ pub mod exercise {
             (8, Some(h)) => output(endpoint.read(now, h, &mut payload).unwrap_or(0) as u32),
             (9, Some(h)) => output(endpoint.abort(now, h, ErrorCode(word)).is_ok().into()),
             (10, Some(h)) => output(endpoint.credit(h).unwrap_or(0)),
-            (11, _) => endpoint.peer_changed(PeerChange::Lost(peer)),
+            (11, _) => endpoint.peer_changed(peer_change(peer, word)),
             (12, _) => endpoint.link_lost(),
             _ => {}
         }
@@ -323,7 +328,7 @@ pub mod exercise {
             3 => output(node.answer_datagram(peer, DatagramAnswer::Ok(OkFlags::default())).is_ok().into()),
             4 => output(node.answer_datagram(peer, DatagramAnswer::Rejected(ErrorCode(word))).is_ok().into()),
             5 => output(node.request_snip(now, peer).is_ok().into()),
-            6 => node.peer_changed(PeerChange::Lost(peer)),
+            6 => node.peer_changed(peer_change(peer, word)),
             7 => node.link_lost(),
             _ => endpoint_turn(node.streams_mut()),
         }
