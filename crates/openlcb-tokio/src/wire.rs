@@ -336,3 +336,32 @@ impl Wire {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use openlcb_can::NodeAlias;
+    use openlcb_node::NodeConfig;
+    use openlcb_stream::Mti;
+
+    use super::*;
+
+    fn waiting(wire: &mut Wire) -> &mut VecDeque<Message> {
+        let Wire::GridConnect { waiting, .. } = wire else { panic!("a CAN wire") };
+        waiting
+    }
+
+    #[test]
+    fn a_rename_reaches_the_messages_waiting_for_the_link() {
+        let me = NodeId::new(0x0501_0101_2200).unwrap();
+        let peer = NodeId::new(0x0501_0101_2201).unwrap();
+        let provisional = NodeAlias::new(0x456).unwrap().provisional_node_id();
+        let mut node = Node::new(me, NodeConfig::default());
+        let mut wire = Wire::new(Framing::GridConnect, Instant::ZERO, me, CanConfig::default());
+        let held = Message::addressed(Mti::VERIFY_NODE_ID_ADDRESSED, me, provisional, Vec::new());
+        waiting(&mut wire).push_back(held);
+        // The peer at alias 0x456 announces its Node ID.
+        let mut stats = WireStats::default();
+        wire.receive(Instant::ZERO, b":X19170456N050101012201;", &mut node, &mut stats).unwrap();
+        assert_eq!(waiting(&mut wire).front().and_then(|m| m.destination), Some(peer));
+    }
+}
