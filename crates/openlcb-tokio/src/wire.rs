@@ -338,6 +338,7 @@ impl Wire {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::panic)] // a test's assertions
 mod tests {
     use openlcb_can::NodeAlias;
     use openlcb_node::NodeConfig;
