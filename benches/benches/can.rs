@@ -96,7 +96,7 @@ impl Wire for CanWire {
             sender.send(now, msg).expect("queue");
         }
         while let Some(frame) = sender.poll_transmit() {
-            receiver.handle_frame(now, &frame, |msg| to.handle_message(now, msg));
+            receiver.handle_frame(now, &frame, to);
         }
     }
 }
@@ -113,8 +113,8 @@ fn transfer_over_can(bytes: usize, window: u16) -> usize {
     let mut wire = CanWire { a: link(NODE_A, 0x123), b: link(NODE_B, 0x456) };
     let login = Instant::from_millis(200);
     for now in [Instant::ZERO, login] {
-        wire.a.handle_timeout(now);
-        wire.b.handle_timeout(now);
+        wire.a.handle_timeout(now, &mut a);
+        wire.b.handle_timeout(now, &mut b);
         for _ in 0..4 {
             wire.carry(now, &mut a, &mut b, true);
             wire.carry(now, &mut b, &mut a, false);

@@ -71,16 +71,17 @@ impl CanNode {
         };
         let now = self.now();
         let CanNode { decoder, link, node, out, .. } = self;
-        link.handle_timeout(now);
+        // The link hands the node what it learns of its peers (gone, renamed) as it learns
+        // it, then the messages: the node is its `Receiver`.
+        link.handle_timeout(now, node);
         node.handle_timeout(now);
-        apply_link_events(link, node);
         decoder.decode_all(&buf[..len], |frame| {
             // Garbage between frames is skipped by the decoder; a bad frame is dropped here.
             if let Ok(frame) = frame {
-                link.handle_frame(now, &frame, |msg| node.handle_message(now, msg));
-                apply_link_events(link, node);
+                link.handle_frame(now, &frame, node);
             }
         });
+        apply_link_events(link, node);
         // Take from the node only what the link has room for: the rest waits there.
         while link.can_send() {
             let Some(msg) = node.poll_transmit() else { break };
@@ -95,13 +96,11 @@ impl CanNode {
     }
 }
 
-/// What the link learned that the node must know.
+/// The link's own status, for the node.
 fn apply_link_events(link: &mut CanLink, node: &mut Node) {
     while let Some(event) = link.poll_event() {
         match event {
             LinkEvent::AliasLost { .. } => node.link_lost(),
-            LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
-            LinkEvent::PeerRenamed { from, to, .. } => node.rename_peer(from, to),
             // Another node has our Node ID: say so; the one that came second leaves.
             LinkEvent::DuplicateNodeId { newcomer: false, .. } => node.report_duplicate_node_id(),
             LinkEvent::DuplicateNodeId { newcomer: true, .. } => {

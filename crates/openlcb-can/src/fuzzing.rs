@@ -6,13 +6,36 @@
 use alloc::vec::Vec;
 
 use embedded_can::{ExtendedId, Frame, Id, StandardId};
-use openlcb_stream::{Duration, Instant, Mti, NodeId};
+use openlcb_stream::{Duration, Instant, MessageRef, Mti, NodeId, PeerChange, PeerChanges, Receiver};
 
 use crate::gridconnect::{self, GridConnectDecoder, GridConnectError};
 use crate::{CanConfig, CanFrame, CanHeader, CanLink, MAX_DATAGRAM_LEN, NodeAlias};
 
 const LOCAL_NODE: u64 = 0x0501_0101_2200;
 const LOCAL_ALIAS: u16 = 0x123;
+
+/// The layer above for the targets: messages go to a closure, peer changes are checked.
+struct Above<F> {
+    deliver: F,
+}
+
+fn above<F: FnMut(MessageRef<'_>)>(deliver: F) -> Above<F> {
+    Above { deliver }
+}
+
+impl<F> PeerChanges for Above<F> {
+    fn peer_changed(&mut self, change: PeerChange) {
+        if let PeerChange::Renamed { from, to } = change {
+            assert_ne!(from, to, "a rename that changes nothing");
+        }
+    }
+}
+
+impl<F: FnMut(MessageRef<'_>)> Receiver for Above<F> {
+    fn handle_message(&mut self, _now: Instant, message: MessageRef<'_>) {
+        (self.deliver)(message);
+    }
+}
 
 /// A link for 05.01.01.01.22.00 with small bounds, already permitted as alias 0x123.
 fn permitted_link() -> CanLink {
@@ -27,7 +50,7 @@ fn permitted_link() -> CanLink {
         ..CanConfig::default()
     };
     let mut link = CanLink::new(Instant::ZERO, NodeId::new(LOCAL_NODE).unwrap(), config);
-    link.handle_timeout(Instant::from_millis(200));
+    link.handle_timeout(Instant::from_millis(200), &mut above(|_| {}));
     while link.poll_transmit().is_some() {}
     while link.poll_event().is_some() {}
     link
@@ -97,7 +120,7 @@ pub fn can_frame(data: &[u8]) {
     }
     let mut link = permitted_link();
     let max_len = link.config().max_message_len;
-    link.handle_frame(Instant::from_millis(300), &frame, check_delivery(max_len));
+    link.handle_frame(Instant::from_millis(300), &frame, &mut above(check_delivery(max_len)));
     drain_and_check(&mut link);
 }
 
@@ -112,7 +135,7 @@ pub fn can_reassembly(data: &[u8]) {
     // Two peers known, two not.
     for (alias, node) in [(0x456u32, 0x0501_0101_2201u64), (0x789, 0x0501_0101_2202)] {
         let amd = CanFrame::extended(0x1070_1000 | alias, &NodeId::new(node).unwrap().to_bytes()).unwrap();
-        link.handle_frame(now, &amd, check_delivery(max_len));
+        link.handle_frame(now, &amd, &mut above(check_delivery(max_len)));
     }
     for op in data.chunks(4) {
         let [selector, a, b, c] = [0, 1, 2, 3].map(|i| op.get(i).copied().unwrap_or(0));
@@ -138,18 +161,18 @@ pub fn can_reassembly(data: &[u8]) {
             }
             6 => {
                 now += Duration::from_millis(u64::from(b) * 20);
-                link.handle_timeout(now);
+                link.handle_timeout(now, &mut above(|_| {}));
                 None
             }
             _ => CanFrame::extended(0x1070_2000 | source, &[]),
         };
         if let Some(frame) = frame {
-            link.handle_frame(now, &frame, check_delivery(max_len));
+            link.handle_frame(now, &frame, &mut above(check_delivery(max_len)));
         }
         drain_and_check(&mut link);
     }
     if let Some(deadline) = link.poll_timeout() {
-        link.handle_timeout(deadline);
+        link.handle_timeout(deadline, &mut above(|_| {}));
         drain_and_check(&mut link);
     }
 }
@@ -168,7 +191,7 @@ pub fn can_datagram(data: &[u8]) {
     let mut now = Instant::from_millis(300);
     for (alias, node) in [(0x456u32, 0x0501_0101_2201u64), (0x789, 0x0501_0101_2202)] {
         let amd = CanFrame::extended(0x1070_1000 | alias, &NodeId::new(node).unwrap().to_bytes()).unwrap();
-        link.handle_frame(now, &amd, |_| {});
+        link.handle_frame(now, &amd, &mut above(|_| {}));
     }
     drain_and_check(&mut link);
     // Per source: the bytes of the open datagram and the time of its first frame.
@@ -192,7 +215,7 @@ pub fn can_datagram(data: &[u8]) {
             5 => 5,
             6 => {
                 now += Duration::from_millis(u64::from(b) * 40);
-                link.handle_timeout(now);
+                link.handle_timeout(now, &mut above(|_| {}));
                 for open in &mut model {
                     if open.as_ref().is_some_and(|(_, first)| *first + Duration::from_millis(TIMEOUT_MS) <= now) {
                         *open = None;
@@ -204,7 +227,7 @@ pub fn can_datagram(data: &[u8]) {
             }
             _ => {
                 let amr = CanFrame::extended(0x1070_3000 | u32::from(source), &[5, 1, 1, 1, 0x22, 0x77]).unwrap();
-                link.handle_frame(now, &amr, |_| {});
+                link.handle_frame(now, &amr, &mut above(|_| {}));
                 model[index] = None;
                 rejected[index] = 0;
                 drain_and_check(&mut link);
@@ -243,11 +266,15 @@ pub fn can_datagram(data: &[u8]) {
         let id = 0x1000_0000 | format << 24 | 0x0800_0000 | u32::from(LOCAL_ALIAS) << 12 | u32::from(source);
         let frame = CanFrame::extended(id, &payload).unwrap();
         let mut delivered = Vec::new();
-        link.handle_frame(now, &frame, |msg| {
-            assert_eq!(msg.mti, Mti::DATAGRAM);
-            assert_eq!(msg.destination, NodeId::new(LOCAL_NODE));
-            delivered.push(msg.payload.to_vec());
-        });
+        link.handle_frame(
+            now,
+            &frame,
+            &mut above(|msg| {
+                assert_eq!(msg.mti, Mti::DATAGRAM);
+                assert_eq!(msg.destination, NodeId::new(LOCAL_NODE));
+                delivered.push(msg.payload.to_vec());
+            }),
+        );
         assert_eq!(delivered, expected.into_iter().collect::<Vec<_>>(), "datagram bytes from {source:03X}");
         let held: usize = model.iter().flatten().map(|(bytes, _)| bytes.len()).sum();
         assert_eq!(link.reassembly_in_use(), held, "the link holds what the model holds");

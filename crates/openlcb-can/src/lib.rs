@@ -21,10 +21,16 @@
 //! the command [`send`](CanLink::send), outputs [`poll_transmit`](CanLink::poll_transmit),
 //! [`poll_event`](CanLink::poll_event) and [`poll_timeout`](CanLink::poll_timeout). After any
 //! input or command, drain the outputs, then arm a timer for the earliest `poll_timeout` of
-//! link and endpoint. Drain the link's events after **every** `handle_frame`, before the
-//! next frame, and apply each [`LinkEvent::PeerRenamed`] with `Node::rename_peer` (of
-//! `openlcb-node`, the node above the link). Received messages are handed to a closure,
-//! borrowing the frame (or the link's reassembly buffer), so the node takes them without a copy:
+//! link and endpoint.
+//!
+//! Each input is handed the layer above, a [`Receiver`](openlcb_stream::Receiver) (the
+//! `Node` of `openlcb-node`, a `StreamEndpoint`, or a driver's wrapper around one), as rustls
+//! hands its state machine the sink it writes into. The link gives it every
+//! [`PeerChange`](openlcb_stream::PeerChange) (a peer gone, renamed) the moment it learns it,
+//! and then the message the frame completed, borrowing the frame (or the link's reassembly
+//! buffer), so the node takes it without a copy. A rename is thus applied before the next
+//! message, whatever the driver does; [`poll_event`](CanLink::poll_event) only tells the
+//! link's own status ([`LinkEvent`]).
 //!
 //! ```
 //! use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent};
@@ -36,13 +42,18 @@
 //! let mut link = CanLink::new(Instant::ZERO, id, CanConfig::default());
 //! let mut bus: Vec<CanFrame> = Vec::new(); // stands in for the CAN driver
 //!
-//! // After every frame (the renames rule) and after the timers: the link's events.
-//! fn apply_link_events(link: &mut CanLink, node: &mut Node) {
+//! // One turn of the loop: at `now`, with whatever frames arrived.
+//! let mut turn = |now: Instant, received: &[CanFrame], bus: &mut Vec<CanFrame>| {
+//!     // Peer changes and messages go straight to the node.
+//!     link.handle_timeout(now, &mut node);
+//!     node.handle_timeout(now);
+//!     for frame in received {
+//!         link.handle_frame(now, frame, &mut node);
+//!     }
+//!     // The link's own status.
 //!     while let Some(event) = link.poll_event() {
 //!         match event {
 //!             LinkEvent::AliasLost { .. } => node.link_lost(),
-//!             LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
-//!             LinkEvent::PeerRenamed { from, to, .. } => node.rename_peer(from, to),
 //!             // Another node has our Node ID: say so; the one that came second leaves.
 //!             LinkEvent::DuplicateNodeId { newcomer: false, .. } => node.report_duplicate_node_id(),
 //!             LinkEvent::DuplicateNodeId { newcomer: true, .. } => {
@@ -51,17 +62,6 @@
 //!             }
 //!             _ => {}
 //!         }
-//!     }
-//! }
-//!
-//! // One turn of the loop: at `now`, with whatever frames arrived.
-//! let mut turn = |now: Instant, received: &[CanFrame], bus: &mut Vec<CanFrame>| {
-//!     link.handle_timeout(now);
-//!     node.handle_timeout(now);
-//!     apply_link_events(&mut link, &mut node);
-//!     for frame in received {
-//!         link.handle_frame(now, frame, |msg| node.handle_message(now, msg));
-//!         apply_link_events(&mut link, &mut node);
 //!     }
 //!     // Take from the node only what the link has room for: the rest waits there.
 //!     while link.can_send() {
@@ -84,6 +84,21 @@
 //! turn(Instant::from_millis(200), &[], &mut bus);
 //! let ids: Vec<u32> = bus[4..].iter().map(CanFrame::raw_id).collect();
 //! assert_eq!(ids, [0x1070_0343, 0x1070_1343, 0x1910_0343, 0x1949_0343]);
+//!
+//! // A peer at alias 0x456 opens a stream under its provisional name, then announces its
+//! // Node ID (Verified Node ID) and sends data, in one burst: the rename reaches the node
+//! // inside `handle_frame`, so the data finds the stream under the new name.
+//! let peer = NodeId::new(0x05_01_01_01_22_01).unwrap();
+//! let burst = [
+//!     CanFrame::extended(0x19CC_8456, &[0x03, 0x43, 0x00, 0x10, 0x00, 0x00, 0x04]).unwrap(),
+//!     CanFrame::extended(0x1917_0456, &peer.to_bytes()).unwrap(),
+//!     CanFrame::extended(0x1F34_3456, &[0x00, 0xAA, 0xBB]).unwrap(),
+//! ];
+//! turn(Instant::from_millis(300), &burst, &mut bus);
+//! let handle = node.streams_mut().handles().next().unwrap();
+//! assert_eq!(node.streams_mut().stream_info(handle).unwrap().peer, peer);
+//! let mut data = [0u8; 8];
+//! assert_eq!(node.streams_mut().read(Instant::from_millis(300), handle, &mut data), Ok(2));
 //! ```
 //!
 //! # Choices where the standards leave room
@@ -99,10 +114,12 @@
 //!   Node ID is learnt passively, from the AMD, Verified Node ID or Initialization Complete it
 //!   sends anyway: the link never sends a frame just to learn a name. When
 //!   the name of an alias changes (learnt, evicted from the cache, global AME) the link
-//!   raises [`LinkEvent::PeerRenamed`]; see [`CanLink`].
+//!   hands [`PeerChange::Renamed`](openlcb_stream::PeerChange::Renamed) to the layer above;
+//!   see [`CanLink`].
 //! - A message to a provisional name goes straight to its alias. A message for a node whose
 //!   alias is unknown waits while an AME for that Node ID is out; after
-//!   [`CanConfig::resolve_timeout`] it is dropped with [`LinkEvent::Unreachable`].
+//!   [`CanConfig::resolve_timeout`] it is dropped and the node is
+//!   [`PeerChange::Lost`](openlcb_stream::PeerChange::Lost) to the layer above.
 //! - A duplicate Node ID is found after the login, by the standard's means (CFT §6.2.5): an
 //!   AMD, Verified Node ID or Initialization Complete carrying this node's Node ID from
 //!   another alias. The login itself is CID 7..4, RID, AMD and nothing else (CFT §6.2.1).

@@ -14,18 +14,18 @@
 //!   what peers send anyway: AMD, Verified Node ID and Initialization Complete (a claimed
 //!   Node ID that is itself provisional-looking, 00.00.00.00.0x.xx, is never learnt), and the
 //!   AMDs a global AME provokes.
-//! - **Renames.** Whenever the name the link uses for an alias changes, it queues
-//!   [`LinkEvent::PeerRenamed`]: on learning (provisional -> Node ID), on eviction of the least
-//!   recently used entry from the full cache (Node ID -> provisional), and on a global AME for
-//!   every cached entry (Node ID -> provisional; the cache is then cleared, and the AMDs the
-//!   AME provokes rename the peers back). A mapping to a different Node ID than cached
-//!   reports [`LinkEvent::PeerLost`] for the old Node ID, then takes the new one. An AMR
-//!   reports `PeerLost` with the alias's current name, real or provisional. A Node ID that
+//! - **Renames.** Whenever the name the link uses for an alias changes, it hands
+//!   [`PeerChange::Renamed`] to the layer above: on learning (provisional -> Node ID), on
+//!   eviction of the least recently used entry from the full cache (Node ID -> provisional),
+//!   and on a global AME for every cached entry (Node ID -> provisional; the cache is then
+//!   cleared, and the AMDs the AME provokes rename the peers back). A mapping to a different
+//!   Node ID than cached is [`PeerChange::Lost`] for the old Node ID, then takes the new one.
+//!   An AMR is `Lost` with the alias's current name, real or provisional. A Node ID that
 //!   turns up on a new alias moves there silently: its old alias is forgotten (the streams
-//!   follow the Node ID, which did not change). The event queue has room for
-//!   [`CanConfig::alias_cache_size`] renames plus other events, so a global AME never drops
-//!   one. With renames applied above the link (the rule on [`CanLink::handle_frame`]),
-//!   evicting an entry loses no message and no stream.
+//!   follow the Node ID, which did not change). The changes of one input are handed up before
+//!   it returns and before the message it delivers (the layer above is an argument of
+//!   [`CanLink::handle_frame`] and [`CanLink::handle_timeout`]), so evicting an entry loses no
+//!   message and no stream, whatever the driver does.
 //! - **Duplicate Node ID.** An AMD, Verified Node ID or Initialization Complete carrying this
 //!   node's Node ID from another alias means another node holds it (CFT §6.2.5): the link
 //!   reports [`LinkEvent::DuplicateNodeId`], saying whether it came within
@@ -33,11 +33,11 @@
 //!   owner should send the well-known event and [`leave`](CanLink::leave)), and goes on.
 //! - **Outbound.** A message addressed to a provisional name goes straight to that alias: no
 //!   cache lookup, no AME. A message to a real Node ID goes to its cached alias, or waits for
-//!   an AME answer and is dropped with [`LinkEvent::Unreachable`] after `resolve_timeout`.
+//!   an AME answer and is dropped after `resolve_timeout`: the node is then
+//!   [`PeerChange::Lost`] to the layer above.
 //!
 //! A message that teaches a mapping (Verified Node ID, Initialization Complete) is delivered
-//! under the new name; its rename comes out of `poll_event` right after the `handle_frame`
-//! call.
+//! under the new name, after its rename.
 //!
 //! # Datagrams
 //!
@@ -55,7 +55,7 @@
 
 use alloc::vec::Vec;
 
-use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
+use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId, PeerChange, PeerChanges, Receiver};
 
 use crate::cache::AliasCache;
 use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition, event_report};
@@ -66,13 +66,9 @@ use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, Rea
 use crate::{NodeAlias, add, bump, earlier, node_bytes, push_bounded};
 use openlcb_stream::Queue;
 
-/// Where received messages go: the caller's closure.
-type Deliver<'d> = &'d mut dyn FnMut(MessageRef<'_>);
-
-/// Events other than renames the link can have queued at once. The queue holds
-/// [`CanConfig::alias_cache_size`] more, for the renames of a global AME; beyond that events
-/// are dropped and counted.
-const EVENT_BOUND: usize = 64;
+/// Events the link can have queued at once (its own status: permitted, alias lost, duplicate
+/// Node ID); beyond that they are dropped and counted.
+const EVENT_BOUND: usize = 16;
 
 /// Bounds and timers of a [`CanLink`]. Every table and buffer it keeps is sized from here.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -133,7 +129,15 @@ impl Default for CanConfig {
     }
 }
 
-/// Something the driver must know or act on.
+/// A change of the link's own status, for the driver to know or act on.
+///
+/// Changes of peer (a peer gone, renamed, unreachable) are not events: the link hands them to
+/// the layer above as it learns them ([`PeerChange`], through the [`Receiver`] passed to
+/// [`CanLink::handle_frame`] and [`CanLink::handle_timeout`]). These events are not ordering
+/// critical, so a queue is enough: an alias loss drops every queued and partial message with
+/// the alias, and no message for this node can arrive before the new login, which takes a
+/// [`handle_timeout`](CanLink::handle_timeout) after the reserve wait; a duplicate Node ID's
+/// message is not delivered. Drain them after each input all the same.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum LinkEvent {
@@ -159,40 +163,6 @@ pub enum LinkEvent {
         /// Found within [`CanConfig::newcomer_window`] of this node's login: this node came
         /// second.
         newcomer: bool,
-    },
-    /// A peer released its alias (AMR), or its alias now maps to another Node ID. Call
-    /// `StreamEndpoint::peer_lost(node)`.
-    PeerLost {
-        /// The peer: its Node ID, or its provisional name if the link never learnt it.
-        node: NodeId,
-        /// The alias it released.
-        alias: NodeAlias,
-    },
-    /// The name the link uses for `alias` changed from `from` to `to`: messages from the
-    /// alias carry `to` as their source from now on, and messages to `to` reach the alias.
-    /// Raised when a Node ID is learnt (provisional name -> Node ID), when a cache entry is
-    /// evicted and on a global AME (Node ID -> provisional name). See the module doc.
-    ///
-    /// The rule: drain `poll_event` after **every** [`CanLink::handle_frame`] call, before
-    /// the next frame is fed, and apply each rename to whatever is keyed by Node ID above the
-    /// link ([`StreamEndpoint::rename_peer`](openlcb_stream::StreamEndpoint::rename_peer)), so
-    /// that the next message from that alias finds its streams under the new name. Renames
-    /// applied this way lose no message and no stream when the cache evicts an entry.
-    PeerRenamed {
-        /// The name used until now.
-        from: NodeId,
-        /// The name used from now on.
-        to: NodeId,
-        /// The peer's alias.
-        alias: NodeAlias,
-    },
-    /// No alias could be found for `node` within the resolve timeout; messages to it were
-    /// dropped. Call `StreamEndpoint::peer_lost(node)`.
-    Unreachable {
-        /// The node asked for.
-        node: NodeId,
-        /// Messages dropped.
-        dropped: usize,
     },
 }
 
@@ -286,6 +256,13 @@ struct Received<'a> {
     payload: Payload<'a>,
 }
 
+/// A [`Received`] message with its sender's name, once the frame is handled: delivered after
+/// the peer changes the frame caused.
+struct Named<'a> {
+    received: Received<'a>,
+    source: NodeId,
+}
+
 /// Where the payload of a [`Received`] message is.
 enum Payload<'a> {
     /// In the frame.
@@ -302,12 +279,14 @@ enum Payload<'a> {
 /// A peer whose Node ID is not cached is served at once under its provisional name
 /// ([`NodeAlias::provisional_node_id`]); its Node ID is learnt from what it sends anyway
 /// (AMD, Verified Node ID, Initialization Complete), never asked for, and every change of the name of
-/// an alias is reported as [`LinkEvent::PeerRenamed`]: learnt (provisional -> Node ID),
+/// an alias is reported as [`PeerChange::Renamed`]: learnt (provisional -> Node ID),
 /// evicted from the full cache or a global AME (Node ID -> provisional). A mapping to another
-/// Node ID than cached reports [`LinkEvent::PeerLost`] for the old one; an AMR reports
-/// `PeerLost` under the current name. Messages to a provisional name go straight to its
-/// alias. The driver drains [`poll_event`](Self::poll_event) after every
-/// [`handle_frame`](Self::handle_frame) and applies each rename above the link.
+/// Node ID than cached reports [`PeerChange::Lost`] for the old one; an AMR reports
+/// `Lost` under the current name. Messages to a provisional name go straight to its
+/// alias. Every such change is handed to the layer above (the [`Receiver`] passed to
+/// [`handle_frame`](Self::handle_frame) and [`handle_timeout`](Self::handle_timeout)) before
+/// that call returns and before any later message is delivered: no driver can apply a rename
+/// late.
 #[derive(Debug)]
 #[repr(C)] // Fields in the order written: short Thumb loads reach the ones read first.
 pub struct CanLink {
@@ -330,6 +309,9 @@ pub struct CanLink {
     /// [`leave`](Self::leave) was called: AMR goes out once the queued messages have.
     leaving: bool,
     events: Queue<LinkEvent>,
+    /// Peer changes found while handling one input, handed to the layer above before the
+    /// input returns (always empty between calls).
+    changes: Queue<PeerChange>,
     stats: LinkStats,
 }
 
@@ -352,7 +334,8 @@ impl CanLink {
             permitted_at: now,
             last_duplicate: None,
             leaving: false,
-            events: Queue::with_capacity(event_bound(&config)),
+            events: Queue::with_capacity(EVENT_BOUND),
+            changes: Queue::with_capacity(change_bound(&config)),
             stats: LinkStats::default(),
             config,
         }
@@ -459,8 +442,8 @@ impl CanLink {
     /// Queues `message` for transmission. Addressed messages to a provisional name
     /// ([`NodeAlias::provisional_node_id`]) go straight to that alias; others go to the cached
     /// alias of their destination, and an unknown destination is resolved with an AME first
-    /// (messages wait, at most [`CanConfig::resolve_timeout`], then
-    /// [`LinkEvent::Unreachable`]). Messages wait until the alias is permitted. Takes no
+    /// (messages wait, at most [`CanConfig::resolve_timeout`], then they are dropped and the
+    /// destination is [`PeerChange::Lost`]). Messages wait until the alias is permitted. Takes no
     /// allocation.
     pub fn send(&mut self, now: Instant, message: Message) -> Result<(), SendError> {
         let result = self.enqueue(now, message);
@@ -577,7 +560,8 @@ impl CanLink {
         self.login.poll_transmit()
     }
 
-    /// The next event.
+    /// The next event of the link's own status (peer changes go to the layer above as they
+    /// happen).
     pub fn poll_event(&mut self) -> Option<LinkEvent> {
         self.events.pop_front()
     }
@@ -596,9 +580,18 @@ impl CanLink {
     // ----- inputs -----
 
     /// Runs every timer due at `now`: the login's reserve wait, reassembly timeouts (0x2011,
-    /// for messages and datagrams) and alias resolutions that ran out. Early or repeated
-    /// calls are harmless.
-    pub fn handle_timeout(&mut self, now: Instant) {
+    /// for messages and datagrams) and alias resolutions that ran out. A destination no alias
+    /// was found for is [`PeerChange::Lost`] to `above` (its messages are dropped) before this
+    /// returns. Early or repeated calls are harmless.
+    pub fn handle_timeout<A: PeerChanges + ?Sized>(&mut self, now: Instant, above: &mut A) {
+        self.run_timers(now);
+        self.hand_up_changes(above);
+    }
+
+    /// [`handle_timeout`](Self::handle_timeout) but for the peer changes: one copy whatever
+    /// the layer above.
+    #[inline(never)]
+    fn run_timers(&mut self, now: Instant) {
         let event = self.login.timeout(now);
         self.login_event(now, event);
         loop {
@@ -611,34 +604,51 @@ impl CanLink {
             let Some(node) = expired.and_then(|u| u.message.destination) else { break };
             let dropped = self.unresolved.retain(|u| !u.is_for(node));
             add(&mut self.stats.unresolved_dropped, dropped);
-            self.event(LinkEvent::Unreachable { node, dropped });
+            self.change(PeerChange::Lost(node));
         }
     }
 
-    /// Feeds one received frame. Every complete message for this node (or global) is handed
-    /// to `deliver` at once, borrowing its payload from `frame` (single frames, stream data)
-    /// or from the link's reassembly buffer: nothing is allocated. Usually
-    /// `|msg| endpoint.handle_message(now, msg)`. A message from an alias whose Node ID is not
-    /// cached carries the alias's provisional name as its source.
-    ///
-    /// The rule: drain [`poll_event`](Self::poll_event) after **every** call, before feeding
-    /// the next frame, and apply each [`LinkEvent::PeerRenamed`] to whatever is keyed by Node
-    /// ID above the link ([`StreamEndpoint::rename_peer`](openlcb_stream::StreamEndpoint::rename_peer)),
-    /// so that the next message from that alias finds its streams under the new name.
-    pub fn handle_frame(&mut self, now: Instant, frame: &CanFrame, mut deliver: impl FnMut(MessageRef<'_>)) {
-        self.receive(now, frame, &mut deliver);
+    /// Hands the peer changes found so far to `above`, in order.
+    fn hand_up_changes<A: PeerChanges + ?Sized>(&mut self, above: &mut A) {
+        while let Some(change) = self.changes.pop_front() {
+            above.peer_changed(change);
+        }
     }
 
-    /// [`handle_frame`](Self::handle_frame) through a `dyn` closure: one copy of the receive
-    /// path whatever the caller's closure type.
+    /// Feeds one received frame. Every peer change it reveals ([`PeerChange`]: a Node ID
+    /// learnt, a mapping forgotten or replaced, an alias released) is handed to `above` first,
+    /// then the complete message it ends, if any, for this node (or global), borrowing its
+    /// payload from `frame` (single frames, stream data) or from the link's reassembly
+    /// buffer: nothing is allocated. A message from an alias whose Node ID is not cached
+    /// carries the alias's provisional name as its source.
+    ///
+    /// So a rename is applied above the link before this call returns, and before the
+    /// message that taught it (a Verified Node ID, an Initialization Complete) arrives under
+    /// the new name: the next message from that alias finds its streams under that name. The
+    /// driver has nothing to apply between two frames.
+    pub fn handle_frame<A: Receiver + ?Sized>(&mut self, now: Instant, frame: &CanFrame, above: &mut A) {
+        let named = self.receive(now, frame);
+        self.hand_up_changes(above);
+        if let Some(Named { received: Received { mti, payload }, source }) = named {
+            let destination = mti.is_addressed().then_some(self.node);
+            let payload = match payload {
+                Payload::Frame(data) => data,
+                Payload::Reassembled(slot) => self.reassembler(mti).completed(slot),
+            };
+            above.handle_message(now, MessageRef { mti, source, destination, payload });
+        }
+    }
+
+    /// [`handle_frame`](Self::handle_frame) up to the delivery: one copy of the receive path
+    /// whatever the layer above. The peer changes wait in `changes`.
     #[inline(never)]
-    fn receive(&mut self, now: Instant, frame: &CanFrame, deliver: Deliver<'_>) {
+    fn receive<'a>(&mut self, now: Instant, frame: &'a CanFrame) -> Option<Named<'a>> {
         bump(&mut self.stats.frames_in);
         let header = match frame.header() {
             Ok(header) => header,
-            Err(FrameError::Standard) => return bump(&mut self.stats.standard_ignored),
-            Err(FrameError::Remote) => return bump(&mut self.stats.remote_ignored),
-            Err(_) => return bump(&mut self.stats.invalid_frames),
+            Err(FrameError::Standard) => return ignore(&mut self.stats.standard_ignored),
+            Err(FrameError::Remote) => return ignore(&mut self.stats.remote_ignored),
+            Err(_) => return ignore(&mut self.stats.invalid_frames),
         };
         let data = frame.payload();
         // Before the login sees the frame, which may move it to another alias.
@@ -646,7 +656,7 @@ impl CanLink {
         let event = self.login.header(now, &header, data);
         self.login_event(now, event);
         if from_our_alias {
-            return;
+            return None;
         }
         let source = header.source;
         let message = match header.kind {
@@ -674,16 +684,7 @@ impl CanLink {
             FrameKind::ReservedFormat { .. } => ignore(&mut self.stats.unsupported_ignored),
             _ => None,
         };
-        if let Some(Received { mti, payload }) = message {
-            let addressed = mti.is_addressed();
-            let name = self.name_sender(source);
-            let destination = addressed.then_some(self.node);
-            let payload = match payload {
-                Payload::Frame(data) => data,
-                Payload::Reassembled(slot) => self.reassembler(mti).completed(slot),
-            };
-            deliver(MessageRef { mti, source: name, destination, payload });
-        }
+        message.map(|received| Named { received, source: self.name_sender(source) })
     }
 
     // ----- received messages -----
@@ -812,13 +813,13 @@ impl CanLink {
         }
         let previous = self.cache.peek_node(alias);
         if let Some(old) = previous.filter(|old| *old != node) {
-            self.event(LinkEvent::PeerLost { node: old, alias });
+            self.change(PeerChange::Lost(old));
         }
         if let Some((evicted, evicted_node)) = self.cache.insert(alias, node) {
             self.unname(evicted, evicted_node);
         }
         if previous.is_none() {
-            self.event(LinkEvent::PeerRenamed { from: alias.provisional_node_id(), to: node, alias });
+            self.change(PeerChange::Renamed { from: alias.provisional_node_id(), to: node });
         }
         while let Some(index) = self.unresolved.iter().position(|waiting| waiting.is_for(node)) {
             if let Some(Outgoing { message, .. }) = self.unresolved.remove(index) {
@@ -837,12 +838,12 @@ impl CanLink {
         let dropped = self.messages.retain(|m| m.destination != Some(alias));
         add(&mut self.stats.messages_dropped, dropped);
         let node = self.cache.remove_alias(alias).unwrap_or(alias.provisional_node_id());
-        self.event(LinkEvent::PeerLost { node, alias });
+        self.change(PeerChange::Lost(node));
     }
 
     /// Reports that `alias`, known as `node` until now, goes back to its provisional name.
     fn unname(&mut self, alias: NodeAlias, node: NodeId) {
-        self.event(LinkEvent::PeerRenamed { from: node, to: alias.provisional_node_id(), alias });
+        self.change(PeerChange::Renamed { from: node, to: alias.provisional_node_id() });
     }
 
     /// A global AME (CFT §6.2.3): every cached peer goes back to its provisional name.
@@ -963,13 +964,19 @@ impl CanLink {
     }
 
     fn event(&mut self, event: LinkEvent) {
-        push_bounded(&mut self.events, event_bound(&self.config), event, &mut self.stats.queue_overflows);
+        push_bounded(&mut self.events, EVENT_BOUND, event, &mut self.stats.queue_overflows);
+    }
+
+    fn change(&mut self, change: PeerChange) {
+        push_bounded(&mut self.changes, change_bound(&self.config), change, &mut self.stats.queue_overflows);
     }
 }
 
-/// Room in the event queue: every cached peer's rename on a global AME, and other events.
-fn event_bound(config: &CanConfig) -> usize {
-    config.alias_cache_size.saturating_add(EVENT_BOUND)
+/// Room for the peer changes of one input, which are handed up before it returns: a global
+/// AME renames every cached peer, a timeout loses at most every waiting destination, any
+/// other frame causes at most three (a mapping replaced, an entry evicted, a Node ID learnt).
+fn change_bound(config: &CanConfig) -> usize {
+    config.alias_cache_size.max(config.transmit_queue_limit).saturating_add(3)
 }
 
 /// Counts a frame that delivers nothing.

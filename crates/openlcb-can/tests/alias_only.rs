@@ -4,9 +4,9 @@
 
 mod common;
 
-use common::{A_ID, Solo, alias, can_config, node_id};
-use openlcb_can::{LinkEvent, NodeAlias};
-use openlcb_stream::{Event, Message, Mti, NodeId, Role};
+use common::{A_ID, Node, Solo, alias, can_config, node_id};
+use openlcb_can::NodeAlias;
+use openlcb_stream::{Event, Instant, Message, MessageRef, Mti, NodeId, PeerChange, PeerChanges, Receiver, Role};
 
 /// The Node ID of the peer on alias 0x031 in the trace.
 const PEER_031: u64 = 0x0300_0000_0001;
@@ -21,11 +21,11 @@ fn delivered(solo: &Solo) -> Vec<(Mti, NodeId)> {
     solo.node.delivered.iter().map(|m| (m.mti, m.source)).collect()
 }
 
-fn renames(events: &[LinkEvent]) -> Vec<(NodeId, NodeId)> {
-    events
+fn renames(changes: &[PeerChange]) -> Vec<(NodeId, NodeId)> {
+    changes
         .iter()
-        .filter_map(|e| match e {
-            LinkEvent::PeerRenamed { from, to, .. } => Some((*from, *to)),
+        .filter_map(|c| match c {
+            PeerChange::Renamed { from, to } => Some((*from, *to)),
             _ => None,
         })
         .collect()
@@ -41,10 +41,10 @@ fn peer_after_global_ame_is_served_at_once_by_alias() {
     // The global AME: we answer with our AMD and forget the mapping (CFT §6.2.3).
     assert_eq!(solo.inject(&[":X10702031N;"]), [":X10701123N050101012200;"]);
     assert_eq!(
-        solo.node.link_events,
+        solo.node.peer_changes,
         [
-            LinkEvent::PeerRenamed { from: provisional(0x031), to: node_id(PEER_031), alias: alias(0x031) },
-            LinkEvent::PeerRenamed { from: node_id(PEER_031), to: provisional(0x031), alias: alias(0x031) },
+            PeerChange::Renamed { from: provisional(0x031), to: node_id(PEER_031) },
+            PeerChange::Renamed { from: node_id(PEER_031), to: provisional(0x031) },
         ]
     );
     assert_eq!(solo.node.link.node_of(alias(0x031)), None);
@@ -98,10 +98,7 @@ fn alias_first_seen_in_a_message_is_learnt_from_what_it_sends() {
     // It announces itself (here: answering someone else's Verify Node ID): renamed
     // provisional -> real, and the stream goes with it.
     assert_eq!(solo.inject(&[":X19170789N050101012202;"]), Vec::<String>::new());
-    assert_eq!(
-        solo.node.link_events,
-        [LinkEvent::PeerRenamed { from: provisional(0x789), to: node_id(C_ID), alias: alias(0x789) }]
-    );
+    assert_eq!(solo.node.peer_changes, [PeerChange::Renamed { from: provisional(0x789), to: node_id(C_ID) }]);
     let handle = solo.node.endpoint().handles().next().unwrap();
     assert_eq!(solo.node.endpoint().stream_info(handle).unwrap().peer, node_id(C_ID));
     // Later messages carry the real Node ID; the stream finds its data; nothing more is asked.
@@ -124,15 +121,71 @@ fn global_message_from_unknown_alias_draws_no_frame() {
 
 // ----- renames -----
 
+/// What reached the layer above, in order.
+#[derive(Debug, PartialEq)]
+enum Seen {
+    Change(PeerChange),
+    Message(Mti, NodeId),
+}
+
+/// A node above the link that logs what reaches it.
+struct Logging<'a> {
+    node: &'a mut openlcb_node::Node,
+    log: Vec<Seen>,
+}
+
+impl PeerChanges for Logging<'_> {
+    fn peer_changed(&mut self, change: PeerChange) {
+        self.log.push(Seen::Change(change));
+        self.node.peer_changed(change);
+    }
+}
+
+impl Receiver for Logging<'_> {
+    fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
+        self.log.push(Seen::Message(message.mti, message.source));
+        self.node.handle_message(now, message);
+    }
+}
+
+#[test]
+fn a_rename_reaches_the_layer_above_inside_handle_frame_before_the_next_message() {
+    let mut solo = Solo::permitted();
+    let now = solo.now;
+    let Node { link, stack, .. } = &mut solo.node;
+    let mut above = Logging { node: stack, log: Vec::new() };
+    // A stream opened under the provisional name; then, in one burst with nothing done
+    // between the frames, the peer's Verified Node ID and its data.
+    link.handle_frame(now, &common::frame(":X19CC8789N01230010000004;"), &mut above);
+    link.handle_frame(now, &common::frame(":X19170789N050101012202;"), &mut above);
+    let (p, c) = (provisional(0x789), node_id(C_ID));
+    assert_eq!(
+        above.log,
+        [
+            Seen::Message(Mti::STREAM_INITIATE_REQUEST, p),
+            Seen::Change(PeerChange::Renamed { from: p, to: c }),
+            Seen::Message(Mti::VERIFIED_NODE_ID, c),
+        ],
+        "the rename, before handle_frame returned and before the message that taught it"
+    );
+    link.handle_frame(now, &common::frame(":X1F123789N000102;"), &mut above);
+    assert_eq!(above.log.last(), Some(&Seen::Message(Mti::STREAM_DATA_SEND, c)));
+    let handle = solo.node.endpoint().handles().next().unwrap();
+    assert_eq!(solo.node.endpoint().stream_info(handle).unwrap().peer, c);
+    let mut buf = [0u8; 8];
+    assert_eq!(solo.node.endpoint().read(now, handle, &mut buf), Ok(2), "the data found its stream");
+    assert_eq!(buf[..2], [1, 2]);
+}
+
 #[test]
 fn amd_mapping_another_node_id_reports_the_old_one_lost() {
     let mut solo = Solo::permitted();
     solo.inject(&[":X10701456N050101012201;", ":X10701456N050101012202;"]);
     assert_eq!(
-        solo.node.link_events,
+        solo.node.peer_changes,
         [
-            LinkEvent::PeerRenamed { from: provisional(0x456), to: node_id(0x0501_0101_2201), alias: alias(0x456) },
-            LinkEvent::PeerLost { node: node_id(0x0501_0101_2201), alias: alias(0x456) },
+            PeerChange::Renamed { from: provisional(0x456), to: node_id(0x0501_0101_2201) },
+            PeerChange::Lost(node_id(0x0501_0101_2201)),
         ]
     );
     assert_eq!(solo.node.link.node_of(alias(0x456)), Some(node_id(C_ID)));
@@ -143,11 +196,8 @@ fn amr_reports_the_current_name_real_or_provisional() {
     let mut solo = Solo::permitted();
     solo.inject(&[":X10701456N050101012201;", ":X10703456N050101012201;", ":X10703789N050101012202;"]);
     assert_eq!(
-        solo.node.link_events[1..],
-        [
-            LinkEvent::PeerLost { node: node_id(0x0501_0101_2201), alias: alias(0x456) },
-            LinkEvent::PeerLost { node: provisional(0x789), alias: alias(0x789) },
-        ]
+        solo.node.peer_changes[1..],
+        [PeerChange::Lost(node_id(0x0501_0101_2201)), PeerChange::Lost(provisional(0x789)),]
     );
 }
 
@@ -157,9 +207,9 @@ fn global_ame_renames_every_cached_peer_and_amds_rename_back() {
     solo.inject(&[":X10701456N050101012201;", ":X10701789N050101012202;", ":X10701ABCN050101012203;"]);
     // A stream from 0x456, under its Node ID.
     solo.inject(&[":X19CC8456N01230010000004;"]);
-    solo.node.link_events.clear();
+    solo.node.peer_changes.clear();
     assert_eq!(solo.inject(&[":X10702777N;"]), [":X10701123N050101012200;"]);
-    let mut renamed = renames(&solo.node.link_events);
+    let mut renamed = renames(&solo.node.peer_changes);
     renamed.sort();
     let expected = [(0x456, 0x0501_0101_2201), (0x789, 0x0501_0101_2202), (0xABC, 0x0501_0101_2203)]
         .map(|(a, n)| (node_id(n), provisional(a)));
@@ -171,10 +221,10 @@ fn global_ame_renames_every_cached_peer_and_amds_rename_back() {
     solo.inject(&[":X1F123456N0011;"]);
     assert_eq!(solo.node.received, [0x11]);
     // The AMDs the AME provoked rename them back.
-    solo.node.link_events.clear();
+    solo.node.peer_changes.clear();
     solo.inject(&[":X10701456N050101012201;", ":X10701789N050101012202;"]);
     assert_eq!(
-        renames(&solo.node.link_events),
+        renames(&solo.node.peer_changes),
         [(provisional(0x456), node_id(0x0501_0101_2201)), (provisional(0x789), node_id(0x0501_0101_2202))]
     );
     let info = solo.node.endpoint().stream_info(handle).unwrap();
@@ -210,7 +260,7 @@ fn a_thousand_aliases_are_all_served_within_the_bounds() {
     }
     assert_eq!(solo.node.delivered.iter().filter(|m| m.mti == Mti::STREAM_INITIATE_REQUEST).count(), 1000);
     assert_eq!(replies, 1000, "every request answered");
-    let renamed = renames(&solo.node.link_events);
+    let renamed = renames(&solo.node.peer_changes);
     let learnt = renamed.iter().filter(|(from, _)| NodeAlias::from_provisional(*from).is_some()).count();
     let evicted = renamed.iter().filter(|(_, to)| NodeAlias::from_provisional(*to).is_some()).count();
     assert_eq!(learnt, 500, "the first 500 peers were learnt");
@@ -229,8 +279,8 @@ fn a_thousand_aliases_are_all_served_within_the_bounds() {
     }
 }
 
-/// The event queue is sized from the cache: a global AME with a full cache of 200 entries
-/// queues 200 renames, none dropped.
+/// The link's room for peer changes is sized from the cache: a global AME with a full cache
+/// of 200 entries hands up 200 renames, none dropped.
 #[test]
 fn global_ame_with_a_full_cache_drops_no_rename() {
     let mut can = can_config(0x123);
@@ -241,11 +291,10 @@ fn global_ame_with_a_full_cache_drops_no_rename() {
         solo.inject(&[&format!(":X10701{raw:03X}N{node:012X};")]);
     }
     assert_eq!(solo.node.link.cached_aliases(), 200);
-    solo.node.link_events.clear();
-    // One frame: all 200 renames are in the queue at once.
-    solo.node.link.handle_frame(solo.now, &common::frame(":X10702777N;"), |_| {});
-    solo.node.apply_link_events();
-    assert_eq!(renames(&solo.node.link_events).len(), 200);
+    solo.node.peer_changes.clear();
+    // One frame: all 200 renames at once.
+    solo.node.receive(solo.now, &common::frame(":X10702777N;"));
+    assert_eq!(renames(&solo.node.peer_changes).len(), 200);
     assert_eq!(solo.node.link.stats().queue_overflows, 0);
 }
 

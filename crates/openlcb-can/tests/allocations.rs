@@ -98,11 +98,12 @@ fn deliver(now: Instant, from: &mut Node, to: &mut Node, tally: &mut Tally) {
         let endpoint = &mut to.stack;
         let mut in_core = 0;
         let before = allocations();
-        to.link.handle_frame(now, &frame, |msg| {
+        let mut counted = common::messages(|msg| {
             let before_core = allocations();
             endpoint.handle_message(now, msg);
             in_core += allocations() - before_core;
         });
+        to.link.handle_frame(now, &frame, &mut counted);
         tally.link += allocations() - before - in_core;
         tally.core += in_core;
     }
@@ -184,9 +185,10 @@ fn no_allocation_per_stream_frame_in_the_links() {
         a.link.send(now, datagram).unwrap();
         while let Some(frame) = a.link.poll_transmit() {
             frames += 1;
-            b.link.handle_frame(now, &frame, |msg| {
+            let mut counted = common::messages(|msg| {
                 delivered += usize::from(msg.mti == Mti::DATAGRAM && msg.payload == DATAGRAM);
             });
+            b.link.handle_frame(now, &frame, &mut counted);
         }
         in_links += allocations() - before;
     }

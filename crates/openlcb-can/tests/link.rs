@@ -5,7 +5,7 @@ mod common;
 
 use common::{A_ID, B_ID, Bus, Node, Solo, alias, can_config, core_config, frame, node_id};
 use openlcb_can::{CanConfig, LinkEvent, LoginState, SendError};
-use openlcb_stream::{Duration, Event, Instant, Message, Mti, OpenOptions, Termination};
+use openlcb_stream::{Duration, Event, Instant, Message, Mti, OpenOptions, PeerChange, Termination};
 
 const C_ID: u64 = 0x0501_0101_2202;
 
@@ -150,9 +150,9 @@ fn unknown_destination_times_out_as_unreachable() {
     solo.sent();
     assert_eq!(solo.node.link.poll_timeout(), Some(solo.now + Duration::from_secs(1)));
     solo.advance_ms(999);
-    assert!(solo.node.link_events.is_empty());
+    assert!(solo.node.peer_changes.is_empty());
     solo.advance_ms(1);
-    assert_eq!(solo.node.link_events, [LinkEvent::Unreachable { node: node_id(C_ID), dropped: 1 }]);
+    assert_eq!(solo.node.peer_changes, [PeerChange::Lost(node_id(C_ID))]);
     assert_eq!(solo.node.link.stats().unresolved_dropped, 1);
     assert_eq!(solo.node.link.poll_timeout(), None);
 }
@@ -259,7 +259,7 @@ fn peer_amr_mid_stream_ends_the_stream_with_peer_lost() {
     // B's alias is released (as seen by A only: B itself is not told).
     bus.nodes[0].receive(bus.now, &frame(":X10703456N050101012201;"));
     bus.pump();
-    assert!(bus.nodes[0].link_events.contains(&LinkEvent::PeerLost { node: node_id(B_ID), alias: alias(0x456) }));
+    assert!(bus.nodes[0].peer_changes.contains(&PeerChange::Lost(node_id(B_ID))));
     assert_eq!(terminations(&bus.nodes[0]), [Termination::PeerLost]);
     assert_eq!(bus.nodes[0].endpoint().stream_count(), 0);
     assert_eq!(bus.nodes[0].link.alias_of(node_id(B_ID)), None);
@@ -273,7 +273,7 @@ fn alias_taken_mid_stream_ends_both_sides_without_a_hang() {
     bus.pump();
     assert!(bus.nodes[0].link_events.contains(&LinkEvent::AliasLost { alias: alias(0x123) }));
     assert_eq!(terminations(&bus.nodes[0]), [Termination::LinkLost]);
-    assert!(bus.nodes[1].link_events.contains(&LinkEvent::PeerLost { node: node_id(A_ID), alias: alias(0x123) }));
+    assert!(bus.nodes[1].peer_changes.contains(&PeerChange::Lost(node_id(A_ID))));
     assert_eq!(terminations(&bus.nodes[1]), [Termination::PeerLost]);
     // Time runs on: A comes back with a new alias and B learns it; nothing is left waiting.
     bus.run_until(Instant::from_millis(120_000));

@@ -90,8 +90,9 @@ impl Poll {
 /// [`poll`](Driver::poll), so that the application keeps using it between polls.
 ///
 /// A poll reads the clock once, runs due timers, takes received frames into the link (which
-/// hands messages to the upper layer), passes the link's events up after every frame (a
-/// peer's rename reaches the upper layer before the messages sent under its new name), moves the upper layer's
+/// hands the upper layer the peer changes it learns, as it learns them, then the messages: a
+/// peer's rename reaches the upper layer before the messages sent under its new name), acts
+/// on the link's own events (an alias lost, a duplicate Node ID), moves the upper layer's
 /// messages into the link while it has room, and hands frames to the peripheral until it
 /// refuses one. A refused frame is kept and offered first on the next poll; a frame the
 /// peripheral gives back in exchange for a higher-priority one (`Ok(Some(frame))`) is kept
@@ -179,7 +180,7 @@ impl<C: Can, K: Clock> Driver<C, K> {
     pub fn poll<U: Upper + ?Sized>(&mut self, upper: &mut U) -> Result<Poll, Error<C::Error>> {
         let now = self.clock.now();
         if self.deadline(upper).is_some_and(|at| at <= now) {
-            self.link.handle_timeout(now);
+            self.link.handle_timeout(now, upper);
             upper.handle_timeout(now);
         }
         let (received, receive_error) = self.receive(now, upper);
@@ -220,20 +221,14 @@ impl<C: Can, K: Clock> Driver<C, K> {
             received += 1;
             bump(&mut self.stats.frames_received);
             match convert::<_, CanFrame>(&frame) {
-                Some(frame) => {
-                    self.link.handle_frame(now, &frame, |message| upper.handle_message(now, message));
-                    // Before the next frame: a rename must be applied before the messages
-                    // that arrive under the new name.
-                    self.apply_link_events(now, upper);
-                }
+                Some(frame) => self.link.handle_frame(now, &frame, upper),
                 None => bump(&mut self.stats.unconvertible),
             }
         }
         (received, None)
     }
 
-    /// Link events up (those of the timers), upper-layer messages down while the link has
-    /// room.
+    /// The link's events acted on, upper-layer messages down while the link has room.
     fn pump<U: Upper + ?Sized>(&mut self, now: Instant, upper: &mut U) {
         self.apply_link_events(now, upper);
         while self.link.can_send() {
@@ -246,14 +241,26 @@ impl<C: Can, K: Clock> Driver<C, K> {
         }
     }
 
-    /// The link's events, up to the upper layer.
+    /// The link's own events: an alias lost ends everything open above; a duplicate Node ID
+    /// is reported (the upper layer's Duplicate Node ID Detected), and if another node had
+    /// this Node ID first the link leaves after the report and everything open ends.
     fn apply_link_events<U: Upper + ?Sized>(&mut self, now: Instant, upper: &mut U) {
         while let Some(event) = self.link.poll_event() {
-            if matches!(event, LinkEvent::DuplicateNodeId { newcomer: true, .. }) {
-                // Another node had this Node ID first: release the alias and go quiet.
-                self.link.leave(None);
+            match event {
+                LinkEvent::AliasLost { .. } => upper.link_lost(),
+                LinkEvent::DuplicateNodeId { newcomer: true, .. } => {
+                    self.link.leave(upper.duplicate_node_id_report());
+                    upper.link_lost();
+                }
+                LinkEvent::DuplicateNodeId { newcomer: false, .. } => {
+                    if let Some(report) = upper.duplicate_node_id_report()
+                        && self.link.send(now, report).is_err()
+                    {
+                        bump(&mut self.stats.send_refused);
+                    }
+                }
+                _ => {}
             }
-            upper.handle_link_event(now, event);
         }
     }
 

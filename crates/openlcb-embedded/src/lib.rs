@@ -10,7 +10,7 @@
 //! - and a [`Clock`] the caller supplies (any `FnMut() -> Instant`).
 //!
 //! Each [`Driver::poll`] runs due timers, takes received frames into the link (which hands
-//! messages up), moves the upper layer's messages into the link while it has room, and hands
+//! the upper layer each peer change as it learns it, then the messages), moves the upper layer's messages into the link while it has room, and hands
 //! frames to the peripheral until it answers `WouldBlock`; the refused frame is kept and
 //! offered first next time, never lost. Nothing is allocated per frame.
 //!

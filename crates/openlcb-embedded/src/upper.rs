@@ -1,23 +1,26 @@
 //! [`Upper`]: what the driver delivers messages to and takes messages from; [`Clock`]: where
 //! it reads the time.
 
-use openlcb_can::LinkEvent;
 use openlcb_node::Node;
-use openlcb_stream::{Instant, Message, MessageRef, StreamEndpoint};
+use openlcb_stream::{Instant, Message, Receiver, StreamEndpoint};
 
 /// The layer above the CAN link: a [`StreamEndpoint`], or a whole node that routes messages to
 /// its protocols. It has the sans-IO shape of the endpoint; the driver calls these in its
 /// drive loop and leaves the layer's own events (`poll_event`) to the application.
-pub trait Upper {
-    /// A message for this node (or a global one) arrived. Its payload borrows the received
-    /// frame or the link's reassembly buffer.
-    fn handle_message(&mut self, now: Instant, message: MessageRef<'_>);
+///
+/// As a [`Receiver`] it is handed to the link with every frame and timer: the link gives it
+/// each message and, the moment it learns them, the peer changes
+/// ([`PeerChange`](openlcb_stream::PeerChange): a peer gone, renamed), so that a rename is
+/// applied before the messages sent under the new name.
+pub trait Upper: Receiver {
+    /// The link lost this node's alias, or left the network after a duplicate Node ID:
+    /// everything open ends.
+    fn link_lost(&mut self);
 
-    /// The link reported something the layer must act on (alias lost, peer gone). The
-    /// default ignores it.
-    fn handle_link_event(&mut self, now: Instant, event: LinkEvent) {
-        let _ = (now, event);
-    }
+    /// The well-known event Duplicate Node ID Detected from this node, if the layer sends
+    /// it: when another node announces this node's Node ID, the driver sends it (and, when
+    /// this node came second, leaves the network after it).
+    fn duplicate_node_id_report(&self) -> Option<Message>;
 
     /// A deadline from [`poll_timeout`](Upper::poll_timeout) has passed. Early calls must be
     /// harmless.
@@ -31,30 +34,20 @@ pub trait Upper {
     fn poll_timeout(&self) -> Option<Instant>;
 }
 
-/// `Upper` for a layer with the endpoint's method names: a [`StreamEndpoint`], and a
-/// [`Node`] (what a firmware should drive: it routes each message to its streams, datagrams,
-/// SNIP and Memory Configuration, and sends Initialization Complete itself).
+/// `Upper` for a layer with the endpoint's method names: a [`StreamEndpoint`] (which sends
+/// no report of its own), and a [`Node`] (what a firmware should drive: it routes each
+/// message to its streams, datagrams, SNIP and Memory Configuration, sends Initialization
+/// Complete itself, and reports a duplicate Node ID).
 macro_rules! upper_by_name {
-    ($($layer:ty),*) => {$(
+    ($($layer:ty => $report:expr),*) => {$(
         impl Upper for $layer {
-            fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
-                <$layer>::handle_message(self, now, message);
+            fn link_lost(&mut self) {
+                <$layer>::link_lost(self);
             }
 
-            /// Alias lost, or Node ID taken by a node that was there first: everything open
-            /// ends (`link_lost`; the driver has the link leave); a peer
-            /// released its alias or could not be found: what is open with it ends
-            /// (`peer_lost`); a peer renamed: what is open with it goes on under the new
-            /// name (`rename_peer`).
-            fn handle_link_event(&mut self, _now: Instant, event: LinkEvent) {
-                match event {
-                    LinkEvent::AliasLost { .. } | LinkEvent::DuplicateNodeId { newcomer: true, .. } => {
-                        self.link_lost()
-                    }
-                    LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.peer_lost(node),
-                    LinkEvent::PeerRenamed { from, to, .. } => self.rename_peer(from, to),
-                    _ => {}
-                }
+            fn duplicate_node_id_report(&self) -> Option<Message> {
+                let report: fn(&$layer) -> Option<Message> = $report;
+                report(self)
             }
 
             fn handle_timeout(&mut self, now: Instant) {
@@ -72,15 +65,15 @@ macro_rules! upper_by_name {
     )*};
 }
 
-upper_by_name!(StreamEndpoint, Node);
+upper_by_name!(StreamEndpoint => |_| None, Node => |node| Some(node.duplicate_node_id_report()));
 
 impl<T: Upper + ?Sized> Upper for &mut T {
-    fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
-        (**self).handle_message(now, message);
+    fn link_lost(&mut self) {
+        (**self).link_lost();
     }
 
-    fn handle_link_event(&mut self, now: Instant, event: LinkEvent) {
-        (**self).handle_link_event(now, event);
+    fn duplicate_node_id_report(&self) -> Option<Message> {
+        (**self).duplicate_node_id_report()
     }
 
     fn handle_timeout(&mut self, now: Instant) {

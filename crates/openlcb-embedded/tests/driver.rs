@@ -11,7 +11,9 @@ use openlcb_can::{CanConfig, CanFrame, CanLink};
 use openlcb_embedded::memory_bus::MemoryBus;
 use openlcb_embedded::{Driver, Error, Poll, Upper};
 use openlcb_node::{MemoryEvent, MemoryServer, Node, NodeConfig, NodeEvent, RamSpace, SnipInfo, TransferPath};
-use openlcb_stream::{Config, Event, Instant, NodeId, OpenOptions, StreamEndpoint, StreamHandle};
+use openlcb_stream::{
+    Config, Event, Instant, NodeId, OpenOptions, PeerChange, PeerChanges, Receiver, StreamEndpoint, StreamHandle,
+};
 
 const A: u64 = 0x05_01_01_01_22_00;
 const B: u64 = 0x05_01_01_01_22_01;
@@ -476,9 +478,20 @@ struct Recorder {
     messages: usize,
 }
 
-impl Upper for Recorder {
+impl PeerChanges for Recorder {
+    fn peer_changed(&mut self, _change: PeerChange) {}
+}
+
+impl Receiver for Recorder {
     fn handle_message(&mut self, _now: Instant, _message: openlcb_stream::MessageRef<'_>) {
         self.messages += 1;
+    }
+}
+
+impl Upper for Recorder {
+    fn link_lost(&mut self) {}
+    fn duplicate_node_id_report(&self) -> Option<openlcb_stream::Message> {
+        None
     }
     fn handle_timeout(&mut self, _now: Instant) {}
     fn poll_transmit(&mut self) -> Option<openlcb_stream::Message> {
@@ -542,10 +555,10 @@ fn a_rename_in_a_burst_reaches_the_endpoint_before_the_data_behind_it() {
         driver.poll(destination).unwrap();
         driver.can_mut().drain();
         for frame in std::mem::take(&mut driver.can_mut().wire) {
-            a_link.handle_frame(now, &frame, |message| source.handle_message(now, message));
+            a_link.handle_frame(now, &frame, source);
         }
         while a_link.poll_event().is_some() {}
-        a_link.handle_timeout(now);
+        a_link.handle_timeout(now, source);
         source.handle_timeout(now);
         while let Some(message) = source.poll_transmit() {
             a_link.send(now, message).unwrap();
@@ -593,4 +606,63 @@ fn a_rename_in_a_burst_reaches_the_endpoint_before_the_data_behind_it() {
         }
     }
     assert_eq!(received, data, "the data arrived under A's new name, after the rename");
+}
+
+// ----- duplicate Node ID -----
+
+/// A node on the driver, logged in as alias 0x343 (the generator's first for A) at 200 ms, its
+/// login frames and announcements sent.
+fn logged_in_node(time: &Cell<Instant>) -> (Driver<Mailboxes, impl FnMut() -> Instant + '_>, Node) {
+    let link = CanLink::new(time.get(), node(A), CanConfig::default());
+    let mut driver = Driver::new(Mailboxes::new(usize::MAX), || time.get(), link);
+    let mut upper = Node::new(node(A), NodeConfig::default());
+    driver.poll(&mut upper).unwrap();
+    time.set(Instant::from_millis(200));
+    driver.poll(&mut upper).unwrap();
+    driver.poll(&mut upper).unwrap();
+    assert_eq!(driver.link().alias().map(|a| a.as_raw()), Some(0x343));
+    driver.can_mut().drain();
+    driver.can_mut().wire.clear();
+    (driver, upper)
+}
+
+/// The identifiers of what the driver sent since the last call.
+fn sent_ids(driver: &mut Driver<Mailboxes, impl FnMut() -> Instant>) -> Vec<u32> {
+    driver.can_mut().drain();
+    std::mem::take(&mut driver.can_mut().wire).iter().map(CanFrame::raw_id).collect()
+}
+
+/// Duplicate Node ID Detected (01.01.00.00.00.00.02.01), a Producer/Consumer Event Report.
+const DUPLICATE_REPORT: [u8; 8] = [1, 1, 0, 0, 0, 0, 2, 1];
+
+#[test]
+fn a_duplicate_node_id_after_the_newcomer_window_is_reported_and_the_node_stays() {
+    let time = Cell::new(Instant::ZERO);
+    let (mut driver, mut upper) = logged_in_node(&time);
+    time.set(Instant::from_millis(2000));
+    // Another alias announces A's Node ID.
+    let amd = CanFrame::extended(0x1070_1777, &A.to_be_bytes()[2..]).unwrap();
+    driver.can_mut().inbox.push_back(Ok(amd));
+    driver.poll(&mut upper).unwrap();
+    driver.can_mut().drain();
+    let wire = std::mem::take(&mut driver.can_mut().wire);
+    assert_eq!(wire.iter().map(CanFrame::raw_id).collect::<Vec<_>>(), [0x195B_4343]);
+    assert_eq!(wire[0].payload(), DUPLICATE_REPORT);
+    assert!(driver.link().can_send(), "the node that was there first stays");
+}
+
+#[test]
+fn a_duplicate_node_id_in_the_newcomer_window_is_reported_then_the_node_leaves() {
+    let time = Cell::new(Instant::ZERO);
+    let (mut driver, mut upper) = logged_in_node(&time);
+    // The node that was there first answers A's Verify Node ID at once.
+    let verified = CanFrame::extended(0x1917_0777, &A.to_be_bytes()[2..]).unwrap();
+    driver.can_mut().inbox.push_back(Ok(verified));
+    driver.poll(&mut upper).unwrap();
+    // The report, then AMR, then nothing.
+    assert_eq!(sent_ids(&mut driver), [0x195B_4343, 0x1070_3343]);
+    assert!(driver.link().has_left());
+    time.set(Instant::from_millis(10_000));
+    driver.poll(&mut upper).unwrap();
+    assert_eq!(sent_ids(&mut driver), Vec::<u32>::new());
 }

@@ -835,7 +835,7 @@ impl Network {
         }
         let SimNode { stack, port, inbox, gridconnect: gc, options, .. } = node;
         match port {
-            Port::Can { link, .. } => link.handle_timeout(now),
+            Port::Can { link, .. } => link.handle_timeout(now, stack),
             Port::Tcp { .. } => {}
         }
         stack.handle_timeout(now);
@@ -849,14 +849,11 @@ impl Network {
                         let mut decoded = None;
                         gc.decode_all(text.get(..n).unwrap_or_default(), |r| decoded = r.ok());
                         if let Some(frame) = decoded {
-                            link.handle_frame(now, &frame, |msg| stack.handle_message(now, msg));
+                            link.handle_frame(now, &frame, stack);
                         }
                     } else {
-                        link.handle_frame(now, &frame, |msg| stack.handle_message(now, msg));
+                        link.handle_frame(now, &frame, stack);
                     }
-                    // Renames must reach the node before the next frame (the rule of
-                    // `CanLink::handle_frame`).
-                    apply_link_events(link, stack);
                 }
                 (Inbound::Bytes(bytes), Port::Tcp { link, .. }) => {
                     let mut input = &bytes[..];
@@ -1188,15 +1185,14 @@ impl Network {
     }
 }
 
-/// Drains a CAN node's link events into its node; true if there was any.
+/// Acts on a CAN node's own link events (its peer changes reach the node inside
+/// `handle_frame` and `handle_timeout`); true if there was any.
 fn apply_link_events(link: &mut CanLink, node: &mut Node) -> bool {
     let mut any = false;
     while let Some(event) = link.poll_event() {
         any = true;
         match event {
             LinkEvent::AliasLost { .. } => node.link_lost(),
-            LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
-            LinkEvent::PeerRenamed { from, to, .. } => node.rename_peer(from, to),
             LinkEvent::DuplicateNodeId { newcomer: true, .. } => {
                 link.leave(Some(node.duplicate_node_id_report()));
                 node.link_lost();

@@ -9,7 +9,7 @@ use openlcb_stream::wire::{ErrorCode, ErrorReport};
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId, Queue};
 
 use crate::node::{NodeEvent, Outputs};
-use crate::service::{Lent, PeerChange, Service, earliest};
+use crate::service::{Lent, Service, ServiceChange, earliest};
 
 /// The longest datagram (DG §4.1).
 pub const MAX_DATAGRAM_LEN: usize = 72;
@@ -507,7 +507,7 @@ impl Service<Lent<'_>> for DatagramService {
     /// A lost peer: every datagram to it fails, and what it sent us is forgotten. Only the
     /// application hears of its own: the memory client and server end their work with the
     /// peer in their own hook.
-    fn peer_changed(&mut self, out: &mut Outputs, change: PeerChange) {
+    fn peer_changed(&mut self, out: &mut Outputs, change: ServiceChange) {
         let mut index = 0;
         while let Some(o) = self.outgoing.get_mut(index) {
             change.rename(&mut o.to);

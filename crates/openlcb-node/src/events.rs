@@ -20,7 +20,7 @@ use openlcb_stream::wire::ErrorReport;
 use openlcb_stream::{EventId, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::node::Outputs;
-use crate::service::{Lent, PeerChange, Service};
+use crate::service::{Lent, Service, ServiceChange};
 use crate::{Node, NodeEvent};
 
 /// What a producer or consumer knows of the state an event stands for (Event Transport
@@ -367,7 +367,7 @@ impl Service<Lent<'_>> for EventService {
 
     /// Nothing is open with a peer. (A lost link announces the node's events again: the
     /// node asks for that, as it has the declarations.)
-    fn peer_changed(&mut self, _: &mut Outputs, _: PeerChange) {}
+    fn peer_changed(&mut self, _: &mut Outputs, _: ServiceChange) {}
 
     /// No timers.
     fn handle_timeout(&mut self, _: &mut Lent<'_>) {}

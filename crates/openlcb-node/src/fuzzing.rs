@@ -3,7 +3,7 @@
 use alloc::vec::Vec;
 
 use arbitrary::{Arbitrary, Unstructured};
-use openlcb_stream::{Duration, Instant, MessageRef, Mti, NodeId};
+use openlcb_stream::{Duration, Instant, MessageRef, Mti, NodeId, PeerChange};
 
 use crate::{DatagramAnswer, Node, NodeConfig, NodeEvent, OkFlags, SnipInfo};
 
@@ -141,14 +141,14 @@ pub fn node_ops(data: &[u8]) {
                         *n += moved;
                     }
                 }
-                node.rename_peer(peer(from), peer(to));
+                node.peer_changed(PeerChange::Renamed { from: peer(from), to: peer(to) });
             }
             Op::PeerLost { peer: p } => {
                 // Nobody is left to answer.
                 if let Some(n) = unanswered.get_mut(index(p)) {
                     *n = 0;
                 }
-                node.peer_lost(peer(p));
+                node.peer_changed(PeerChange::Lost(peer(p)));
             }
             Op::LinkLost => {
                 unanswered = [0; PEERS.len()];
@@ -385,7 +385,7 @@ pub fn memconfig_server_ops(data: &[u8]) {
             ServerOp::PeerLost { peer: p } => {
                 owner = owner.map(|(o, gone)| (o, gone || o == peer(p)));
                 forget(&mut promised, peer(p));
-                node.peer_lost(peer(p));
+                node.peer_changed(PeerChange::Lost(peer(p)));
             }
             ServerOp::Advance { millis } => {
                 now += Duration::from_millis(u64::from(millis) * 16);

@@ -15,8 +15,7 @@
 //!
 //! The shape is the stream core's: inputs ([`handle_message`](Node::handle_message),
 //! [`handle_timeout`](Node::handle_timeout), and from the transport
-//! [`rename_peer`](Node::rename_peer), [`peer_lost`](Node::peer_lost),
-//! [`link_lost`](Node::link_lost)); commands ([`send_datagram`](Node::send_datagram),
+//! [`peer_changed`](Node::peer_changed) and [`link_lost`](Node::link_lost)); commands ([`send_datagram`](Node::send_datagram),
 //! [`answer_datagram`](Node::answer_datagram), [`request_snip`](Node::request_snip), and the
 //! stream commands of the [`Streams`] view that [`streams_mut`](Node::streams_mut) lends);
 //! outputs ([`poll_transmit`](Node::poll_transmit), [`poll_event`](Node::poll_event),
@@ -159,9 +158,10 @@
 //! # Peers known by their CAN alias
 //!
 //! On CAN a peer may be known only by its alias; the CAN link then names it with a
-//! provisional Node ID and tells the node when the name changes. [`Node::rename_peer`] moves
-//! everything open with the old name (streams, datagrams, SNIP requests) to the new one, so
-//! nothing is lost when a Node ID is learnt or a mapping forgotten.
+//! provisional Node ID and tells the node when the name changes, as it learns it (the node is
+//! the link's [`Receiver`](openlcb_stream::Receiver)). [`PeerChange::Renamed`](openlcb_stream::PeerChange::Renamed)
+//! moves everything open with the old name (streams, datagrams, SNIP requests) to the new one,
+//! so nothing is lost when a Node ID is learnt or a mapping forgotten.
 //!
 //! # Bounds
 //!

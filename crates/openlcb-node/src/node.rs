@@ -6,8 +6,8 @@ use alloc::vec::Vec;
 
 use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport, ReplyCode};
 use openlcb_stream::{
-    AcceptOptions, AcceptPolicy, Event, EventId, Instant, Message, MessageRef, Mti, NodeId, OpenOptions, Queue,
-    StreamEndpoint, StreamError, StreamHandle,
+    AcceptOptions, AcceptPolicy, Event, EventId, Instant, Message, MessageRef, Mti, NodeId, OpenOptions, PeerChange,
+    PeerChanges, Queue, Receiver, StreamEndpoint, StreamError, StreamHandle,
 };
 
 use crate::datagram::{
@@ -18,7 +18,7 @@ pub(crate) use crate::memconfig::Cx;
 use crate::memconfig::{MemoryConfig, MemoryEvent, MemoryLent, MemoryServer, acdi_user_strings};
 #[cfg(feature = "memory-client")]
 use crate::memconfig::{MemoryOperation, MemoryRequestError, TransferPath};
-use crate::service::{Lent, PeerChange, Service, earliest};
+use crate::service::{Lent, Service, ServiceChange, earliest};
 use crate::snip::{SnipFailure, SnipInfo, SnipRequestError, SnipService};
 use crate::{DatagramStats, NodeConfig, Protocols};
 
@@ -473,22 +473,24 @@ impl Node {
         self.settle(now);
     }
 
-    /// The transport now names a peer differently (on CAN: its Node ID was learnt, or its
-    /// mapping forgotten, and it is named by its alias). Everything open with `from` goes on
-    /// with `to`, queued messages included.
-    pub fn rename_peer(&mut self, from: NodeId, to: NodeId) {
-        for message in self.out.transmits.iter_mut() {
-            message.rename_peer(from, to);
+    /// The transport learnt a change of peer ([`PeerChange`]); a transport handed this node
+    /// as its [`Receiver`] (the CAN link) calls it as it learns it.
+    ///
+    /// - [`PeerChange::Lost`]: what is open with the peer ends (streams, datagrams, SNIP
+    ///   requests, Memory Configuration operations), and nothing more is sent to it.
+    /// - [`PeerChange::Renamed`] (on CAN: its Node ID was learnt, or its mapping forgotten and
+    ///   it is named by its alias): everything open with the old name goes on with the new
+    ///   one, queued messages included.
+    pub fn peer_changed(&mut self, change: PeerChange) {
+        if let PeerChange::Renamed { from, to } = change {
+            for message in self.out.transmits.iter_mut() {
+                message.rename_peer(from, to);
+            }
         }
-        self.streams.rename_peer(from, to);
-        self.peer_changed(PeerChange::Renamed { from, to });
-    }
-
-    /// The transport reports `peer` gone: what is open with it ends (streams, datagrams,
-    /// SNIP requests, Memory Configuration operations), and nothing is sent to it.
-    pub fn peer_lost(&mut self, peer: NodeId) {
-        self.streams.peer_lost(peer);
-        self.peer_changed(PeerChange::Lost(Some(peer)));
+        self.streams.peer_changed(change);
+        if let Some(change) = ServiceChange::of(change) {
+            self.tell_services(change);
+        }
     }
 
     /// The transport lost its link (e.g. this node's CAN alias): everything open ends.
@@ -496,12 +498,12 @@ impl Node {
         // The transport announces the node again once it is back; its events follow.
         self.events.announce(&self.config.events);
         self.streams.link_lost();
-        self.peer_changed(PeerChange::Lost(None));
+        self.tell_services(ServiceChange::Lost(None));
     }
 
     /// Tells every service of `change` (the endpoint has been told). A lost peer's streams
     /// end with it: the application hears of its own, Memory Configuration has let go of its.
-    fn peer_changed(&mut self, change: PeerChange) {
+    fn tell_services(&mut self, change: ServiceChange) {
         self.datagrams.peer_changed(&mut self.out, change);
         self.snip.peer_changed(&mut self.out, change);
         self.events.peer_changed(&mut self.out, change);
@@ -787,6 +789,18 @@ impl Node {
         self.config.snip.user_description = description;
         self.snip.set_info(&self.config.snip);
         self.out.event(NodeEvent::Memory(MemoryEvent::UserInfoChanged));
+    }
+}
+
+impl PeerChanges for Node {
+    fn peer_changed(&mut self, change: PeerChange) {
+        Node::peer_changed(self, change);
+    }
+}
+
+impl Receiver for Node {
+    fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
+        Node::handle_message(self, now, message);
     }
 }
 

@@ -3,31 +3,40 @@
 //! the node lends it for that call.
 
 use openlcb_stream::wire::ErrorReport;
-use openlcb_stream::{Instant, MessageRef, NodeId};
+use openlcb_stream::{Instant, MessageRef, NodeId, PeerChange};
 
 use crate::NodeConfig;
 use crate::node::Outputs;
 
-/// What the transport reports about a peer. Neither change reads the clock: a lost peer is
+/// A change of peer as the services take it: the transport's [`PeerChange`], or the loss of
+/// this node's own link (every peer lost). Neither change reads the clock: a lost peer is
 /// sent nothing, and a renamed one keeps every timer. (A restart is a message, Initialization
 /// Complete, offered through [`Service::handle_message`] to each service it concerns.)
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum PeerChange {
+pub(crate) enum ServiceChange {
     /// `Some(peer)`: that peer is gone; `None`: this node lost its link, every peer is gone.
     Lost(Option<NodeId>),
     /// The transport now names `from` as `to`: everything open goes on under the new name.
     Renamed { from: NodeId, to: NodeId },
 }
 
-impl PeerChange {
+impl ServiceChange {
+    /// The services' form of the transport's `change` (`None` for a kind they do not know).
+    pub(crate) fn of(change: PeerChange) -> Option<Self> {
+        match change {
+            PeerChange::Lost(peer) => Some(ServiceChange::Lost(Some(peer))),
+            PeerChange::Renamed { from, to } => Some(ServiceChange::Renamed { from, to }),
+            _ => None,
+        }
+    }
     /// Whether the change ends what is open with `peer`.
     pub(crate) fn loses(self, peer: NodeId) -> bool {
-        matches!(self, PeerChange::Lost(lost) if lost.is_none_or(|p| p == peer))
+        matches!(self, ServiceChange::Lost(lost) if lost.is_none_or(|p| p == peer))
     }
 
     /// The name `peer` has after the change.
     pub(crate) fn rename(self, peer: &mut NodeId) {
-        if let PeerChange::Renamed { from, to } = self
+        if let ServiceChange::Renamed { from, to } = self
             && *peer == from
         {
             *peer = to;
@@ -56,7 +65,7 @@ pub(crate) trait Service<C> {
     fn handle_error_report(&mut self, cx: &mut C, peer: NodeId, report: ErrorReport) -> bool;
 
     /// A peer was lost or renamed.
-    fn peer_changed(&mut self, out: &mut Outputs, change: PeerChange);
+    fn peer_changed(&mut self, out: &mut Outputs, change: ServiceChange);
 
     /// Runs the timers due at the lent time; early or repeated calls are harmless.
     fn handle_timeout(&mut self, cx: &mut C);

@@ -9,7 +9,7 @@ use openlcb_stream::wire::ErrorReport;
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::node::{NodeEvent, Outputs};
-use crate::service::{Lent, PeerChange, Service, earliest};
+use crate::service::{Lent, Service, ServiceChange, earliest};
 
 /// The most bytes a SNIP reply can carry (SNIP-TN §2.5.1).
 pub const MAX_REPLY_LEN: usize = 253;
@@ -361,7 +361,7 @@ impl Service<Lent<'_>> for SnipService {
         true
     }
 
-    fn peer_changed(&mut self, out: &mut Outputs, change: PeerChange) {
+    fn peer_changed(&mut self, out: &mut Outputs, change: ServiceChange) {
         for pending in self.requests.iter_mut() {
             change.rename(&mut pending.peer);
         }

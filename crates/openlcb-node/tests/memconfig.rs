@@ -6,7 +6,7 @@ use openlcb_node::{
     MemoryError, MemoryEvent, MemoryServer, Node, NodeConfig, NodeEvent, Protocols, RamSpace, ReadOnlySpace,
     TransferPath,
 };
-use openlcb_stream::{Duration, Instant, Message, Mti, NodeId, OpenOptions};
+use openlcb_stream::{Duration, Instant, Message, Mti, NodeId, OpenOptions, PeerChange};
 
 const CLIENT: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 1]);
 const SERVER: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 2]);
@@ -1030,7 +1030,7 @@ fn a_lost_server_is_sent_nothing_and_the_operation_fails() {
     }
     assert_eq!(pair.server.memory_server().map(|s| s.lock_owner()), Some(CLIENT.as_raw()));
     while pair.client.poll_transmit().is_some() {} // the next chunk, lost on the way
-    pair.client.peer_lost(SERVER);
+    pair.client.peer_changed(PeerChange::Lost(SERVER));
     let sent: Vec<Message> = std::iter::from_fn(|| pair.client.poll_transmit()).collect();
     assert!(sent.is_empty(), "sent to a lost peer: {sent:?}");
     let events: Vec<NodeEvent> = std::iter::from_fn(|| pair.client.poll_event()).collect();

@@ -5,7 +5,7 @@ use openlcb_node::{
     DatagramAnswer, DatagramFailure, Node, NodeConfig, NodeEvent, OkFlags, Protocols, SnipFailure, SnipInfo,
 };
 use openlcb_stream::wire::ErrorCode;
-use openlcb_stream::{Duration, Event, Instant, MessageRef, Mti, NodeId, Termination};
+use openlcb_stream::{Duration, Event, Instant, MessageRef, Mti, NodeId, PeerChange, Termination};
 
 const LOCAL: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x40, 0x02]);
 const PEER: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x40, 0x01]);
@@ -443,7 +443,7 @@ fn rename_moves_streams_and_datagrams_to_the_new_name() {
     b.events();
     let id = b.node.send_datagram(b.now, provisional, &[0x20, 1]).unwrap();
     b.sent();
-    b.node.rename_peer(provisional, PEER);
+    b.node.peer_changed(PeerChange::Renamed { from: provisional, to: PEER });
     b.peer(Mti::STREAM_DATA_SEND, &[did, 9]);
     b.peer(Mti::DATAGRAM_RECEIVED_OK, &[0]);
     let events = b.events();
@@ -457,7 +457,7 @@ fn peer_lost_fails_what_is_open_with_it() {
     b.open_destination();
     let id = b.node.send_datagram(b.now, PEER, &[0x20, 1]).unwrap();
     b.node.request_snip(b.now, PEER).unwrap();
-    b.node.peer_lost(PEER);
+    b.node.peer_changed(PeerChange::Lost(PEER));
     let events = b.events();
     assert!(events.contains(&NodeEvent::DatagramFailed { id, to: PEER, failure: DatagramFailure::PeerLost }));
     assert!(events.contains(&NodeEvent::SnipFailed { peer: PEER, failure: SnipFailure::PeerLost }));
@@ -474,7 +474,7 @@ fn rename_readdresses_messages_still_queued() {
     let mut b = Bench::new(config());
     b.from(provisional, Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 4]); // the endpoint's reply
     b.from(provisional, Mti::PROTOCOL_SUPPORT_INQUIRY, &[]); // the node's own answer
-    b.node.rename_peer(provisional, PEER);
+    b.node.peer_changed(PeerChange::Renamed { from: provisional, to: PEER });
     let sent = b.sent();
     let mtis: Vec<Mti> = sent.iter().map(|(mti, _, _)| *mti).collect();
     assert_eq!(mtis, [Mti::PROTOCOL_SUPPORT_REPLY, Mti::STREAM_INITIATE_REPLY]);

@@ -333,7 +333,7 @@ pub fn endpoint_ops(ops: &[Op]) {
                 let side = usize::from(*on_b);
                 let lost = if *whole_link { side } else { 1 - side };
                 pair[lost].link_lost();
-                pair[1 - lost].peer_lost(ids[lost]);
+                pair[1 - lost].peer_changed(crate::PeerChange::Lost(ids[lost]));
                 for endpoint in &mut pair {
                     while endpoint.poll_transmit().is_some() {}
                 }

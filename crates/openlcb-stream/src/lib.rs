@@ -14,6 +14,8 @@
 //!   [`flush`](StreamEndpoint::flush), [`finish`](StreamEndpoint::finish),
 //!   [`abort`](StreamEndpoint::abort), [`accept`](StreamEndpoint::accept),
 //!   [`reject`](StreamEndpoint::reject), [`read`](StreamEndpoint::read);
+//! - **peer changes** from the transport: [`peer_changed`](StreamEndpoint::peer_changed)
+//!   ([`PeerChange`]; a transport that learns them calls it itself, through [`Receiver`]);
 //! - **outputs**: [`poll_transmit`](StreamEndpoint::poll_transmit),
 //!   [`poll_event`](StreamEndpoint::poll_event), [`poll_timeout`](StreamEndpoint::poll_timeout);
 //! - **getters** such as [`credit`](StreamEndpoint::credit) and [`stats`](StreamEndpoint::stats).
@@ -103,6 +105,7 @@ mod event;
 mod ids;
 mod message;
 mod mti;
+mod peer;
 mod queue;
 mod time;
 pub mod wire;
@@ -117,5 +120,6 @@ pub use event::{Event, Role, StreamInfo, Termination, TimeoutKind};
 pub use ids::{ContentUid, EventId, NodeId, ParseEventIdError, ParseNodeIdError, StreamId};
 pub use message::{Message, MessageRef};
 pub use mti::Mti;
+pub use peer::{PeerChange, PeerChanges, Receiver};
 pub use queue::Queue;
 pub use time::{Duration, Instant};

@@ -56,7 +56,7 @@ impl Message {
         Message::global(Mti::VERIFIED_NODE_ID, node, node.to_bytes())
     }
 
-    /// The transport now names the peer `from` as `to` (see `StreamEndpoint::rename_peer`): a
+    /// The transport now names the peer `from` as `to` (see `PeerChange::Renamed`): a
     /// message queued for `from` goes to `to`.
     pub fn rename_peer(&mut self, from: NodeId, to: NodeId) {
         if self.destination == Some(from) {

@@ -5,7 +5,7 @@
 use openlcb_stream::wire::{CompleteCount, DataComplete, Emit, ErrorCode, ReplyClass, ReplyCode};
 use openlcb_stream::{
     AcceptOptions, AcceptPolicy, Config, Duration, Event, Instant, Message, MessageRef, Mti, NodeId, OpenOptions,
-    StreamEndpoint, StreamHandle, StreamId, Termination, TimeoutKind,
+    PeerChange, StreamEndpoint, StreamHandle, StreamId, Termination, TimeoutKind,
 };
 
 const LOCAL: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x00]);
@@ -913,9 +913,9 @@ fn closed_stream_with_unread_data_is_not_superseded_by_its_sid_again() {
 fn any_peer_lost_ends_its_streams() {
     let mut b = Bench::new(config());
     let s = b.open_source(16);
-    b.ep.peer_lost(OTHER);
+    b.ep.peer_changed(PeerChange::Lost(OTHER));
     assert!(b.events().is_empty());
-    b.ep.peer_lost(PEER);
+    b.ep.peer_changed(PeerChange::Lost(PEER));
     assert_eq!(b.events(), [Event::Terminated { handle: s, cause: Termination::PeerLost }]);
     assert!(b.sent().is_empty(), "nothing is sent to a node that is gone");
 }

@@ -223,7 +223,7 @@ impl Driver {
         let now = self.now();
         let deadline = [self.wire.poll_timeout(), self.stack.poll_timeout()].into_iter().flatten().min();
         if deadline.is_some_and(|at| at <= now) {
-            self.wire.handle_timeout(now);
+            self.wire.handle_timeout(now, &mut self.stack);
             self.stack.handle_timeout(now);
         }
         let mut busy = false;

@@ -6,7 +6,7 @@ use std::collections::VecDeque;
 
 use openlcb_can::{CanConfig, CanLink, GridConnectDecoder, LinkEvent, gridconnect};
 use openlcb_node::Node;
-use openlcb_stream::{Instant, Message, NodeId};
+use openlcb_stream::{Instant, Message, MessageRef, NodeId, PeerChange, PeerChanges, Receiver};
 use openlcb_tcp::TcpLink;
 
 use crate::Error;
@@ -43,9 +43,34 @@ pub struct WireStats {
 /// taking of more application data) until the socket has taken some.
 pub(crate) const HIGH_WATER: usize = 256 * 1024;
 
-/// Drains the CAN link's events into the node. Returns an error the node cannot recover
-/// from: a duplicate Node ID found as this node joined (it then leaves the network, the
-/// driver flushes its farewell).
+/// What the CAN link hands up: the node, and the node's messages the driver holds for the
+/// link, which a rename must reach too (they would go to a name the link forgot).
+struct Above<'a> {
+    node: &'a mut Node,
+    waiting: &'a mut VecDeque<Message>,
+}
+
+impl PeerChanges for Above<'_> {
+    fn peer_changed(&mut self, change: PeerChange) {
+        if let PeerChange::Renamed { from, to } = change {
+            for message in self.waiting.iter_mut() {
+                message.rename_peer(from, to);
+            }
+        }
+        self.node.peer_changed(change);
+    }
+}
+
+impl Receiver for Above<'_> {
+    fn handle_message(&mut self, now: Instant, msg: MessageRef<'_>) {
+        crate::trace::memory_step(false, msg.mti, msg.source, msg.destination, msg.payload);
+        self.node.handle_message(now, msg);
+    }
+}
+
+/// Acts on the CAN link's own events. Returns an error the node cannot recover from: a
+/// duplicate Node ID found as this node joined (it then leaves the network, the driver
+/// flushes its farewell).
 fn apply_link_events(
     now: Instant,
     link: &mut CanLink,
@@ -76,13 +101,6 @@ fn apply_link_events(
                     "duplicate Node ID: another node announced this node's Node ID; reporting it and staying"
                 );
                 node.report_duplicate_node_id();
-            }
-            LinkEvent::PeerLost { node: peer, .. } | LinkEvent::Unreachable { node: peer, .. } => node.peer_lost(peer),
-            LinkEvent::PeerRenamed { from, to, .. } => {
-                node.rename_peer(from, to);
-                for message in waiting.iter_mut() {
-                    message.rename_peer(from, to);
-                }
             }
             _ => {}
         }
@@ -168,24 +186,16 @@ impl Wire {
         stats.bytes_in += bytes.len() as u64;
         match self {
             Wire::GridConnect { link, decoder, joining, waiting, .. } => {
-                let mut result = Ok(());
+                // Peer changes reach the node (and the waiting messages) inside `handle_frame`.
+                let mut above = Above { node, waiting };
                 decoder.decode_all(bytes, |decoded| match decoded {
                     Ok(frame) => {
                         stats.frames_in += 1;
-                        link.handle_frame(now, &frame, |msg| {
-                            crate::trace::memory_step(false, msg.mti, msg.source, msg.destination, msg.payload);
-                            node.handle_message(now, msg)
-                        });
-                        // Renames must reach the node before the next frame (the rule of
-                        // `CanLink::handle_frame`).
-                        let applied = apply_link_events(now, link, joining, waiting, node);
-                        if result.is_ok() {
-                            result = applied;
-                        }
+                        link.handle_frame(now, &frame, &mut above);
                     }
                     Err(_) => stats.decode_errors += 1,
                 });
-                result
+                apply_link_events(now, link, joining, above.waiting, above.node)
             }
             Wire::Tcp { link } => {
                 let mut input = bytes;
@@ -214,10 +224,10 @@ impl Wire {
         }
     }
 
-    /// Runs the link's timers.
-    pub(crate) fn handle_timeout(&mut self, now: Instant) {
-        if let Wire::GridConnect { link, .. } = self {
-            link.handle_timeout(now);
+    /// Runs the link's timers (a destination never found is lost to `node`).
+    pub(crate) fn handle_timeout(&mut self, now: Instant, node: &mut Node) {
+        if let Wire::GridConnect { link, waiting, .. } = self {
+            link.handle_timeout(now, &mut Above { node, waiting });
         }
     }
 
@@ -324,5 +334,35 @@ impl Wire {
             }
             Wire::Tcp { link } => link.transmit_pending().is_empty(),
         }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::panic)] // a test's assertions
+mod tests {
+    use openlcb_can::NodeAlias;
+    use openlcb_node::NodeConfig;
+    use openlcb_stream::Mti;
+
+    use super::*;
+
+    fn waiting(wire: &mut Wire) -> &mut VecDeque<Message> {
+        let Wire::GridConnect { waiting, .. } = wire else { panic!("a CAN wire") };
+        waiting
+    }
+
+    #[test]
+    fn a_rename_reaches_the_messages_waiting_for_the_link() {
+        let me = NodeId::new(0x0501_0101_2200).unwrap();
+        let peer = NodeId::new(0x0501_0101_2201).unwrap();
+        let provisional = NodeAlias::new(0x456).unwrap().provisional_node_id();
+        let mut node = Node::new(me, NodeConfig::default());
+        let mut wire = Wire::new(Framing::GridConnect, Instant::ZERO, me, CanConfig::default());
+        let held = Message::addressed(Mti::VERIFY_NODE_ID_ADDRESSED, me, provisional, Vec::new());
+        waiting(&mut wire).push_back(held);
+        // The peer at alias 0x456 announces its Node ID.
+        let mut stats = WireStats::default();
+        wire.receive(Instant::ZERO, b":X19170456N050101012201;", &mut node, &mut stats).unwrap();
+        assert_eq!(waiting(&mut wire).front().and_then(|m| m.destination), Some(peer));
     }
 }

@@ -115,7 +115,9 @@ pub mod exercise {
     use embedded_can::nb::Can;
     use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent};
     use openlcb_stream::wire::{ErrorCode, ReplyCode};
-    use openlcb_stream::{AcceptPolicy, Config, Event, Instant, MessageRef, Mti, NodeId, OpenOptions, StreamEndpoint};
+    use openlcb_stream::{
+        AcceptPolicy, Config, Event, Instant, MessageRef, Mti, NodeId, OpenOptions, PeerChange, StreamEndpoint,
+    };
 
     use openlcb_node::{DatagramAnswer, MemoryServer, Node, NodeConfig, NodeEvent, OkFlags, RamSpace};
 
@@ -182,6 +184,11 @@ pub mod exercise {
         Instant::from_micros(u64::from(input()))
     }
 
+    /// A peer change chosen by input: `peer` lost, or renamed to an opaque Node ID.
+    fn peer_change(peer: NodeId, word: u16) -> PeerChange {
+        if word & 1 == 0 { PeerChange::Lost(peer) } else { PeerChange::Renamed { from: peer, to: node_id() } }
+    }
+
     /// An endpoint for an opaque Node ID, with the accept policy chosen by input.
     pub fn endpoint() -> StreamEndpoint {
         let mut config = Config::default();
@@ -235,7 +242,7 @@ pub mod exercise {
                 endpoint.handle_message(now, MessageRef { mti: Mti(word), source: peer, destination, payload: data });
             },
             (1, _) => endpoint.handle_timeout(now),
-            (11, _) => endpoint.peer_lost(peer),
+            (11, _) => endpoint.peer_changed(peer_change(peer, word)),
             (12, _) => endpoint.link_lost(),
         )
     }
@@ -273,22 +280,20 @@ pub mod exercise {
         CanFrame::extended(input(), data.get(..len).unwrap_or(&[]))
     }
 
-    /// One opaque frame or timeout into the link, whose messages go to the endpoint; the
-    /// link's events go to the endpoint, the endpoint's transmits to the link, the link's
-    /// frames to the output.
+    /// One opaque frame or timeout into the link, whose peer changes and messages go to the
+    /// endpoint; the link's events go to the endpoint, the endpoint's transmits to the link,
+    /// the link's frames to the output.
     pub fn link_turn(link: &mut CanLink, endpoint: &mut StreamEndpoint) {
         let now = now();
         if input() & 1 == 1 {
-            link.handle_timeout(now);
+            link.handle_timeout(now, endpoint);
             endpoint.handle_timeout(now);
         } else if let Some(frame) = opaque_frame() {
-            link.handle_frame(now, &frame, |message| endpoint.handle_message(now, message));
+            link.handle_frame(now, &frame, endpoint);
         }
         while let Some(event) = link.poll_event() {
-            match event {
-                LinkEvent::AliasLost { .. } => endpoint.link_lost(),
-                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => endpoint.peer_lost(node),
-                _ => {}
+            if let LinkEvent::AliasLost { .. } = event {
+                endpoint.link_lost();
             }
         }
         while link.can_send() {
@@ -333,7 +338,7 @@ pub mod exercise {
             3 => output(node.answer_datagram(peer, DatagramAnswer::Ok(OkFlags::default())).is_ok().into()),
             4 => output(node.answer_datagram(peer, DatagramAnswer::Rejected(ErrorCode(word))).is_ok().into()),
             5 => output(node.request_snip(now, peer).is_ok().into()),
-            6 => node.peer_lost(peer),
+            6 => node.peer_changed(peer_change(peer, word)),
             7 => node.link_lost(),
             _ => {
                 let mut streams = node.streams_mut();

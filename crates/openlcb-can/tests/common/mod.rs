@@ -7,7 +7,9 @@ pub mod published;
 
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
 use openlcb_can::{CanConfig, CanFrame, CanLink, LinkEvent, NodeAlias};
-use openlcb_stream::{Config, Duration, Event, Instant, Message, NodeId};
+use openlcb_stream::{
+    Config, Duration, Event, Instant, Message, MessageRef, NodeId, PeerChange, PeerChanges, Receiver,
+};
 
 pub const A_ID: u64 = 0x0501_0101_2200;
 pub const B_ID: u64 = 0x0501_0101_2201;
@@ -55,6 +57,8 @@ pub struct Node {
     /// The node above the link (it answers the message-network basics, SNIP, datagrams).
     pub stack: openlcb_node::Node,
     pub link_events: Vec<LinkEvent>,
+    /// Every peer change the link handed up, in order.
+    pub peer_changes: Vec<PeerChange>,
     pub events: Vec<Event>,
     /// The node's other events (datagrams, SNIP, ...).
     pub node_events: Vec<openlcb_node::NodeEvent>,
@@ -79,6 +83,7 @@ impl Node {
             link: CanLink::new(now, node_id(id), can),
             stack: openlcb_node::Node::new(node_id(id), config),
             link_events: Vec::new(),
+            peer_changes: Vec::new(),
             events: Vec::new(),
             node_events: Vec::new(),
             delivered: Vec::new(),
@@ -87,27 +92,28 @@ impl Node {
         }
     }
 
-    /// Feeds one frame from the bus, then the link's events to the node (the rule of
-    /// `CanLink::handle_frame`: renames before the next frame). Every delivered message is
-    /// recorded in `delivered`.
+    /// Feeds one frame from the bus (the link hands peer changes and messages to the node),
+    /// then the link's events to the node. Every delivered message is recorded in
+    /// `delivered`, every peer change in `peer_changes`.
     pub fn receive(&mut self, now: Instant, frame: &CanFrame) {
-        let stack = &mut self.stack;
-        let delivered = &mut self.delivered;
-        self.link.handle_frame(now, frame, |msg| {
-            delivered.push(msg.to_message());
-            stack.handle_message(now, msg)
-        });
+        let Node { link, stack, delivered, peer_changes, .. } = self;
+        link.handle_frame(now, frame, &mut Recording { stack, delivered, peer_changes });
         self.apply_link_events();
     }
 
-    /// Link events to the node, recorded in `link_events`.
+    /// Runs the timers of link and node.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        let Node { link, stack, delivered, peer_changes, .. } = self;
+        link.handle_timeout(now, &mut Recording { stack, delivered, peer_changes });
+        self.stack.handle_timeout(now);
+    }
+
+    /// Link events to the node, recorded in `link_events`. The rig applies no policy of its
+    /// own to a duplicate Node ID: the tests act on it, to see what the link does.
     pub fn apply_link_events(&mut self) {
         while let Some(event) = self.link.poll_event() {
-            match event {
-                LinkEvent::AliasLost { .. } => self.stack.link_lost(),
-                LinkEvent::PeerLost { node, .. } | LinkEvent::Unreachable { node, .. } => self.stack.peer_lost(node),
-                LinkEvent::PeerRenamed { from, to, .. } => self.stack.rename_peer(from, to),
-                _ => {}
+            if let LinkEvent::AliasLost { .. } = event {
+                self.stack.link_lost();
             }
             self.link_events.push(event);
         }
@@ -144,6 +150,45 @@ impl Node {
 
     pub fn poll_timeout(&self) -> Option<Instant> {
         [self.link.poll_timeout(), self.stack.poll_timeout()].into_iter().flatten().min()
+    }
+}
+
+/// The layer above the link in the rig: the node, with a record of what reaches it.
+struct Recording<'a> {
+    stack: &'a mut openlcb_node::Node,
+    delivered: &'a mut Vec<Message>,
+    peer_changes: &'a mut Vec<PeerChange>,
+}
+
+impl PeerChanges for Recording<'_> {
+    fn peer_changed(&mut self, change: PeerChange) {
+        self.peer_changes.push(change);
+        self.stack.peer_changed(change);
+    }
+}
+
+impl Receiver for Recording<'_> {
+    fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
+        self.delivered.push(message.to_message());
+        self.stack.handle_message(now, message);
+    }
+}
+
+/// A layer above that hands each message to a closure and takes no notice of peer changes:
+/// for tests of the link's framing alone.
+pub struct Messages<F>(F);
+
+pub fn messages<F: FnMut(MessageRef<'_>)>(deliver: F) -> Messages<F> {
+    Messages(deliver)
+}
+
+impl<F> PeerChanges for Messages<F> {
+    fn peer_changed(&mut self, _change: PeerChange) {}
+}
+
+impl<F: FnMut(MessageRef<'_>)> Receiver for Messages<F> {
+    fn handle_message(&mut self, _now: Instant, message: MessageRef<'_>) {
+        (self.0)(message);
     }
 }
 
@@ -193,8 +238,7 @@ impl Bus {
         assert!(t >= self.now);
         self.now = t;
         for node in &mut self.nodes {
-            node.link.handle_timeout(t);
-            node.stack.handle_timeout(t);
+            node.handle_timeout(t);
         }
         self.pump();
     }
@@ -272,6 +316,7 @@ impl Solo {
         solo.advance_ms(200);
         assert_eq!(solo.node.link.alias(), Some(alias(0x123)));
         solo.node.link_events.clear();
+        solo.node.peer_changes.clear();
         solo
     }
 
@@ -288,8 +333,7 @@ impl Solo {
 
     pub fn advance_ms(&mut self, ms: u64) -> Vec<String> {
         self.now += Duration::from_millis(ms);
-        self.node.link.handle_timeout(self.now);
-        self.node.stack.handle_timeout(self.now);
+        self.node.handle_timeout(self.now);
         self.sent()
     }
 }

@@ -13,7 +13,7 @@ use super::wire::{Command, FailedKind, MAX_DATA_LEN, Reply, SPACE_FIRMWARE, code
 use super::{MemoryError, MemoryEvent};
 use crate::node::Cx;
 use crate::node::Outputs;
-use crate::service::PeerChange;
+use crate::service::ServiceChange;
 use crate::{DatagramFailure, DatagramId, NodeEvent, OkFlags, Protocols};
 
 /// Names one client operation ([`Node::read_memory`](crate::Node::read_memory) and the
@@ -692,7 +692,7 @@ impl MemoryClient {
     /// A renamed peer's operations go on under its new name. A lost one's fail, nothing
     /// sent to it (its lock lapses by itself); their streams go to `ended` (the endpoint ends
     /// them itself).
-    pub(crate) fn peer_changed(&mut self, out: &mut Outputs, ended: &mut Vec<StreamHandle>, change: PeerChange) {
+    pub(crate) fn peer_changed(&mut self, out: &mut Outputs, ended: &mut Vec<StreamHandle>, change: ServiceChange) {
         for op in self.operations.iter_mut() {
             change.rename(&mut op.peer);
         }

@@ -36,7 +36,7 @@ use openlcb_stream::{
 use crate::Protocols;
 use crate::datagram::{DatagramId, DatagramOwner, DatagramService, OkFlags, Outcome, rejected};
 use crate::node::Outputs;
-use crate::service::{Lent, PeerChange, Service, earliest};
+use crate::service::{Lent, Service, ServiceChange, earliest};
 pub(crate) use client::MemoryClient;
 pub use client::{MemoryOperation, MemoryRequestError, TransferPath};
 pub use server::{MemoryServer, MemoryServerStats};
@@ -433,7 +433,7 @@ impl Service<MemoryLent<'_>> for MemoryConfig {
 
     /// A lost peer's transfers and operations end here, nothing sent (the peer is gone);
     /// their streams' last events stay inside.
-    fn peer_changed(&mut self, out: &mut Outputs, change: PeerChange) {
+    fn peer_changed(&mut self, out: &mut Outputs, change: ServiceChange) {
         if let Some(server) = &mut self.server {
             server.peer_changed(&mut self.ended, change);
         }

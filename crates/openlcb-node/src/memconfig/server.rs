@@ -13,7 +13,7 @@ use super::space::{MemorySpace, SpaceError, acdi_manufacturer_bytes, acdi_user_b
 use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceForm, SpaceInfoReply, codes};
 use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FIRMWARE};
 use super::{MemoryEvent, MemoryEvent as E};
-use crate::service::{PeerChange, earliest};
+use crate::service::{ServiceChange, earliest};
 use crate::{OkFlags, Protocols, SnipInfo};
 
 /// Bytes read from or written to a space at once on the stream paths.
@@ -971,14 +971,14 @@ impl MemoryServer {
 
     /// A renamed peer keeps what is open under its new name. A lost one's transfers end,
     /// nothing sent to it; their streams go to `ended` (the endpoint ends them itself).
-    pub(crate) fn peer_changed(&mut self, ended: &mut Vec<StreamHandle>, change: PeerChange) {
+    pub(crate) fn peer_changed(&mut self, ended: &mut Vec<StreamHandle>, change: ServiceChange) {
         for t in self.transfers.iter_mut() {
             change.rename(&mut t.peer);
         }
         for peer in [&mut self.firmware_owner, &mut self.unfreeze_pending].into_iter().flatten() {
             change.rename(peer);
         }
-        let PeerChange::Lost(lost) = change else { return };
+        let ServiceChange::Lost(lost) = change else { return };
         self.forget_peer(lost);
         self.unfreeze_pending = self.unfreeze_pending.filter(|p| !change.loses(*p));
         while let Some(index) = self.transfers.iter().position(|t| change.loses(t.peer)) {

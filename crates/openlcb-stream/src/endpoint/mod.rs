@@ -17,7 +17,9 @@ use crate::wire::{
     CompleteCount, DataComplete, DataProceed, DataSend, Emit, ErrorCode, ErrorReport, InitiateReply, InitiateRequest,
     ReplyClass, ReplyCode,
 };
-use crate::{ContentUid, Duration, Instant, Message, MessageRef, Mti, NodeId, Queue, StreamId};
+use crate::{
+    ContentUid, Duration, Instant, Message, MessageRef, Mti, NodeId, PeerChange, PeerChanges, Queue, Receiver, StreamId,
+};
 
 /// Names one stream of one endpoint. A handle outlives its stream safely: once the stream is
 /// gone, commands on it return [`StreamError::UnknownStream`], even if the slot is reused.
@@ -426,10 +428,19 @@ impl StreamEndpoint {
         }
     }
 
-    /// The transport reports `peer` gone (e.g. its CAN alias was released): every stream with
-    /// it ends with [`Termination::PeerLost`], without sending anything to it.
-    pub fn peer_lost(&mut self, peer: NodeId) {
-        self.end_all_with(peer, Termination::PeerLost);
+    /// The transport learnt a change of peer ([`PeerChange`]); a transport handed this
+    /// endpoint as its [`Receiver`] calls it as it learns it.
+    ///
+    /// - [`PeerChange::Lost`]: every stream with the peer ends with
+    ///   [`Termination::PeerLost`], without sending anything to it.
+    /// - [`PeerChange::Renamed`]: the streams and queued messages of the peer go on under its
+    ///   new name (see the `rename` module: a clash with a stream under the new name ends the
+    ///   old one with [`Termination::Superseded`]).
+    pub fn peer_changed(&mut self, change: PeerChange) {
+        match change {
+            PeerChange::Lost(peer) => self.end_all_with(peer, Termination::PeerLost),
+            PeerChange::Renamed { from, to } => self.rename_peer(from, to),
+        }
     }
 
     /// The transport lost its link (e.g. this node's CAN alias): every stream ends with
@@ -1207,4 +1218,16 @@ fn send_due_proceed(stream: &mut Stream, out: &mut Outputs) -> bool {
 /// (because our reader is slow) is not idle.
 fn restart_idle(stream: &mut Stream, idle_at: Instant) {
     stream.deadline = if stream.credit > 0 { idle_at } else { NEVER };
+}
+
+impl PeerChanges for StreamEndpoint {
+    fn peer_changed(&mut self, change: PeerChange) {
+        StreamEndpoint::peer_changed(self, change);
+    }
+}
+
+impl Receiver for StreamEndpoint {
+    fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
+        StreamEndpoint::handle_message(self, now, message);
+    }
 }

@@ -1,4 +1,5 @@
-//! [`StreamEndpoint::rename_peer`]: the transport changed the name it gives a peer.
+//! [`PeerChange::Renamed`](crate::PeerChange::Renamed): the transport changed the name it
+//! gives a peer.
 
 use super::StreamEndpoint;
 use crate::NodeId;
@@ -7,9 +8,9 @@ use crate::event::{Event, Role, Termination};
 impl StreamEndpoint {
     /// The transport now calls the peer `from` by the name `to`: every stream whose peer is
     /// `from` has peer `to` from now on, so that messages from `to` find it and its messages
-    /// go to `to`. On CAN this is `LinkEvent::PeerRenamed`: a Node ID learnt for an alias known
-    /// only by its provisional name, or forgotten again (cache eviction, global AME); apply it
-    /// before the next frame is fed.
+    /// go to `to`. On CAN: a Node ID learnt for an alias known only by its provisional name,
+    /// or forgotten again (cache eviction, global AME); the link applies it before the next
+    /// message is delivered.
     ///
     /// If `to` already has a stream with the same role and local stream ID (the SID this node
     /// assigned as source, the DID as destination), the two cannot share the index: the one
@@ -19,7 +20,7 @@ impl StreamEndpoint {
     ///
     /// Queued messages addressed to `from` are addressed to `to`. Renaming a peer to itself,
     /// or a peer without streams or queued messages, does nothing. Sends nothing.
-    pub fn rename_peer(&mut self, from: NodeId, to: NodeId) {
+    pub(super) fn rename_peer(&mut self, from: NodeId, to: NodeId) {
         if from == to {
             return;
         }
