@@ -239,8 +239,8 @@ fn hint(error: &Error) -> Option<String> {
         0x1083 => Some("the space is read-only on this node".into()),
         0x1041 => Some("the node does not implement this command".into()),
         0x1040 => Some(
-            "the node does not implement this for that space: a firmware space (0xEF) cannot be read back, only \
-             written by `lcc-stream firmware`"
+            "the node does not implement this for that space (a firmware space 0xEF cannot be read back; \
+             `lcc-stream firmware` writes it)"
                 .into(),
         ),
         0x2000..=0x2FFF => Some("a temporary error: trying again later may succeed".into()),

@@ -36,7 +36,7 @@ pub(crate) struct PaceArgs {
 
 fn grace(text: &str) -> Result<f64, String> {
     match text.parse::<f64>() {
-        Ok(secs) if secs.is_finite() && secs >= 0.0 && secs < 1e9 => Ok(secs),
+        Ok(secs) if (0.0..1e9).contains(&secs) => Ok(secs),
         _ => Err("a number of seconds, 0 or more".into()),
     }
 }

@@ -583,6 +583,6 @@ async fn a_stream_longer_than_the_space_reported_is_a_bad_answer() {
     let (status, json) = run(&addr, &["read", "--from", SERVER, "--out", path_arg(&out)]).await;
     assert_eq!((status, json["result"].as_str()), (11, Some("bad_answer")), "{json}");
     let error = json["error"].as_str().unwrap();
-    assert!(error.contains("more than the 600 bytes asked for"), "{error}");
+    assert!(error.contains("sent more than 600 bytes"), "{error}");
     assert!(!out.exists() && !dir.join("backup.bin.part").exists());
 }

@@ -208,7 +208,10 @@ pub(crate) fn memory_error_text(peer: NodeId, error: MemoryError) -> String {
              arrived (bytes lost on the way, or a wrong count); nothing read was kept"
         ),
         MemoryError::Overrun { expected } => {
-            format!("node {peer} sent more than the {expected} bytes asked for; nothing read was kept")
+            format!(
+                "node {peer} sent more than {expected} bytes, the most asked for (the length, or the size its space \
+                 has by its own report); nothing read was kept"
+            )
         }
         MemoryError::WrongSpace { asked, answered } => {
             format!("node {peer} answered for space 0x{answered:02X} where space 0x{asked:02X} was asked for")
@@ -238,7 +241,6 @@ pub fn memory_code_meaning(code: ErrorCode) -> &'static str {
         0x1081 => "address space unknown",
         0x1082 => "out of bounds: the space does not reach that address",
         0x1083 => "write to a read-only space",
-        0x1040 => "not implemented (a read of a space that cannot be read back, such as a firmware space)",
         0x1088 => "firmware incompatible with this hardware",
         0x1089 => "firmware invalid or corrupted",
         0x2088 => "firmware failed its checksum; send it again",
