@@ -47,7 +47,7 @@ pub(crate) async fn read_cdi(
     moved: &mut Moved,
 ) -> Result<Vec<u8>, Failure> {
     let transfer = node.read_memory(peer, SPACE_CDI, 0, None, client.path()).await?;
-    memory::follow(node, transfer, None, client.json, interrupt, moved).await.map(trim_cdi)
+    memory::follow(node, transfer, None, client.json, &client.pace, interrupt, moved).await.map(trim_cdi)
 }
 
 pub(crate) fn run(args: &CdiArgs) -> Result<ExitCode, String> {

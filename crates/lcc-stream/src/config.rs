@@ -122,8 +122,9 @@ fn after_help() -> String {
         Outcome::Terminated,
         Outcome::FileError,
         Outcome::VerifyFailed,
+        Outcome::BadAnswer,
     ];
-    format!("{}{}", config_json_help!(), net::network_help(&outcomes))
+    format!("{}{}{}", config_json_help!(), crate::pace::PACE_HELP, net::network_help(&outcomes))
 }
 
 /// Why a config command stopped.
@@ -316,7 +317,16 @@ impl<'a> Session<'a> {
         let transfer =
             self.node.read_memory(self.peer, space, address, Some(len), self.path(len)).await.map_err(Stop::Net)?;
         let moved = &mut Moved::default();
-        Ok(memory::follow(&self.node, transfer, Some(u64::from(len)), self.client.json, interrupt, moved).await?)
+        Ok(memory::follow(
+            &self.node,
+            transfer,
+            Some(u64::from(len)),
+            self.client.json,
+            &self.client.pace,
+            interrupt,
+            moved,
+        )
+        .await?)
     }
 
     /// Small transfers by datagrams (no Options round trip), the rest as the user asked.
@@ -354,7 +364,16 @@ impl<'a> Session<'a> {
             .await
             .map_err(Stop::Net)?;
         let moved = &mut Moved::default();
-        memory::follow(&self.node, transfer, Some(u64::from(len)), self.client.json, interrupt, moved).await?;
+        memory::follow(
+            &self.node,
+            transfer,
+            Some(u64::from(len)),
+            self.client.json,
+            &self.client.pace,
+            interrupt,
+            moved,
+        )
+        .await?;
         let back = self.read(space, address, len, interrupt).await?;
         if back != bytes {
             return Err(Failure::Verify(format!(
@@ -366,7 +385,7 @@ impl<'a> Session<'a> {
 
     async fn update_complete(&self, interrupt: &mut net::Interrupt) -> Result<(), Failure> {
         let transfer = self.node.update_complete(self.peer).await.map_err(Stop::Net)?;
-        memory::follow(&self.node, transfer, None, true, interrupt, &mut Moved::default()).await?;
+        memory::follow(&self.node, transfer, None, true, &self.client.pace, interrupt, &mut Moved::default()).await?;
         Ok(())
     }
 

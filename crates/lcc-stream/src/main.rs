@@ -13,6 +13,7 @@ mod monitor;
 mod net;
 mod nodes;
 mod outcome;
+mod pace;
 mod progress;
 mod read;
 mod recv;

@@ -14,6 +14,7 @@ use serde::Serialize;
 use crate::files;
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome};
+use crate::pace::{PACE_HELP, PaceArgs};
 use crate::progress::Progress;
 
 /// How long the target has to answer the Protocol Support Inquiry that finds it.
@@ -30,12 +31,19 @@ moved), file, elapsed_s (from the first command, once on the network), bytes_per
 
 /// The outcomes `read`, `write` and `firmware` can end with beside those of every command
 /// that joins the network.
-const OUTCOMES: &[Outcome] =
-    &[Outcome::Rejected, Outcome::TimedOut, Outcome::NotFound, Outcome::Terminated, Outcome::FileError];
+const OUTCOMES: &[Outcome] = &[
+    Outcome::Usage,
+    Outcome::Rejected,
+    Outcome::TimedOut,
+    Outcome::NotFound,
+    Outcome::Terminated,
+    Outcome::FileError,
+    Outcome::BadAnswer,
+];
 
 /// The after-help of `read`, `write` and `firmware`, with `extra` before the exit statuses.
 pub(crate) fn after_help(extra: &str) -> String {
-    format!("{JSON_HELP}{extra}{}", net::network_help(OUTCOMES))
+    format!("{JSON_HELP}{PACE_HELP}{extra}{}", net::network_help(OUTCOMES))
 }
 
 /// Options every client command takes.
@@ -49,6 +57,8 @@ pub(crate) struct ClientArgs {
     /// Print one JSON object (fields below) instead of text; no progress bar.
     #[arg(long)]
     pub(crate) json: bool,
+    #[command(flatten)]
+    pub(crate) pace: PaceArgs,
     #[command(flatten)]
     pub(crate) connect: ConnectArgs,
 }
@@ -132,20 +142,25 @@ pub(crate) async fn join(args: &ClientArgs, command: &str, peer: NodeId) -> Resu
 const NOT_IMPLEMENTED: openlcb_stream::wire::ErrorCode = openlcb_stream::wire::ErrorCode(0x1042);
 
 /// Waits for `transfer` (of `total` bytes, if known) to end, showing its progress unless
-/// `json`, or until interrupted; `moved` follows the bytes and the path.
+/// `json`, until interrupted, or until it falls behind `pace`; `moved` follows the bytes and
+/// the path.
 pub(crate) async fn follow<T>(
     node: &Node,
     transfer: MemoryTransfer<T>,
     total: Option<u64>,
     json: bool,
+    pace: &PaceArgs,
     interrupt: &mut net::Interrupt,
     moved: &mut Moved,
 ) -> Result<T, Failure> {
+    let started = Instant::now();
     let streams_before = stream_messages(node).await;
     let bar = Progress::start(total, json);
     let mut progress = transfer.watch_progress();
+    let watched = transfer.watch_progress();
+    let slow = pace.watch(started, total, || *watched.borrow());
     let end = transfer.finish();
-    tokio::pin!(end);
+    tokio::pin!(end, slow);
     let result = loop {
         tokio::select! {
             result = &mut end => break result.map_err(Failure::Net),
@@ -153,6 +168,7 @@ pub(crate) async fn follow<T>(
                 moved.bytes = *progress.borrow_and_update();
                 bar.set(moved.bytes);
             }
+            slow = &mut slow => break Err(Failure::TooSlow(slow)),
             () = interrupt.wait() => break Err(Failure::Interrupted),
         }
     };
@@ -206,7 +222,9 @@ pub(crate) async fn upload(
             Upload::Firmware => node.upgrade_firmware(peer, data, client.path()).await,
         };
         let written = match transfer {
-            Ok(transfer) => follow(&node, transfer, Some(total), client.json, &mut interrupt, &mut moved).await,
+            Ok(transfer) => {
+                follow(&node, transfer, Some(total), client.json, &client.pace, &mut interrupt, &mut moved).await
+            }
             Err(error) => Err(Failure::Net(error)),
         };
         node.close().await;

@@ -29,12 +29,13 @@ pub(crate) enum Outcome {
     FileError,
     VerifyFailed,
     DuplicateNodeId,
+    BadAnswer,
     Interrupted,
 }
 
 impl Outcome {
     /// Every outcome, in the order of their exit statuses.
-    pub(crate) const ALL: [Outcome; 13] = [
+    pub(crate) const ALL: [Outcome; 14] = [
         Outcome::Ok,
         Outcome::Error,
         Outcome::Usage,
@@ -47,6 +48,7 @@ impl Outcome {
         Outcome::FileError,
         Outcome::VerifyFailed,
         Outcome::DuplicateNodeId,
+        Outcome::BadAnswer,
         Outcome::Interrupted,
     ];
 
@@ -64,6 +66,7 @@ impl Outcome {
             Outcome::FileError => 8,
             Outcome::VerifyFailed => 9,
             Outcome::DuplicateNodeId => 10,
+            Outcome::BadAnswer => 11,
             Outcome::Interrupted => 130,
         }
     }
@@ -83,6 +86,7 @@ impl Outcome {
             Outcome::FileError => "file_error",
             Outcome::VerifyFailed => "verify_failed",
             Outcome::DuplicateNodeId => "duplicate_node_id",
+            Outcome::BadAnswer => "bad_answer",
             Outcome::Interrupted => "interrupted",
         }
     }
@@ -91,18 +95,25 @@ impl Outcome {
         match self {
             Outcome::Ok => "success",
             Outcome::Error => "another failure",
-            Outcome::Usage => "bad arguments, or a listener that cannot be opened",
+            Outcome::Usage => {
+                "bad arguments (also a read of a space larger than one read takes, without --length), or a \
+                 listener that cannot be opened"
+            }
             Outcome::UnreachableHub => {
                 "the hub, serial port or CAN interface cannot be reached, or it speaks another protocol"
             }
             Outcome::Rejected => "the other node refused",
-            Outcome::TimedOut => "the other node stopped answering",
+            Outcome::TimedOut => "the other node stopped answering, or moved the bytes slower than --min-rate",
             Outcome::NotFound => "no node with that Node ID answered",
             Outcome::ConnectionLost => "the connection to the hub was lost",
             Outcome::Terminated => "the transfer ended early or incomplete",
             Outcome::FileError => "a file cannot be read or written (named in the message)",
             Outcome::VerifyFailed => "the data did not verify",
             Outcome::DuplicateNodeId => "another node on the network has this Node ID (see --node-id)",
+            Outcome::BadAnswer => {
+                "the other node answered against the protocol (more data than asked for, another space; named \
+                 in the message)"
+            }
             Outcome::Interrupted => "Ctrl-C, SIGTERM or SIGHUP (open streams are terminated, partial files kept)",
         }
     }
@@ -126,6 +137,8 @@ pub(crate) enum Failure {
     File { path: PathBuf, error: std::io::Error },
     /// The hub's address answered with bytes of the other protocol.
     WrongProtocol(String),
+    /// The transfer fell behind `--min-rate`.
+    TooSlow(crate::pace::TooSlow),
     /// SIGINT, SIGTERM or SIGHUP.
     Interrupted,
 }
@@ -141,6 +154,7 @@ impl Failure {
             Failure::Net(error) => net_outcome(error),
             Failure::File { .. } => Outcome::FileError,
             Failure::WrongProtocol(_) => Outcome::UnreachableHub,
+            Failure::TooSlow(_) => Outcome::TimedOut,
             Failure::Interrupted => Outcome::Interrupted,
         }
     }
@@ -164,6 +178,7 @@ impl fmt::Display for Failure {
             }
             Failure::File { path, error } => write!(f, "{}: {}", path.display(), crate::files::reason(error)),
             Failure::WrongProtocol(text) => write!(f, "{text}"),
+            Failure::TooSlow(slow) => write!(f, "{slow}"),
             Failure::Interrupted => write!(f, "interrupted"),
         }
     }
@@ -186,9 +201,12 @@ pub(crate) fn net_outcome(error: &Error) -> Outcome {
             MemoryError::Rejected(_) | MemoryError::Failed(_) | MemoryError::StreamRejected(_) => Outcome::Rejected,
             MemoryError::NoStreams | MemoryError::Locked { .. } => Outcome::Rejected,
             MemoryError::TimedOut | MemoryError::StreamTimedOut(_) | MemoryError::PeerLost => Outcome::TimedOut,
-            MemoryError::StreamEnded(_) | MemoryError::WrongLength { .. } | MemoryError::PeerRestarted => {
-                Outcome::Terminated
-            }
+            MemoryError::StreamEnded(_)
+            | MemoryError::WrongLength { .. }
+            | MemoryError::CountMismatch { .. }
+            | MemoryError::PeerRestarted => Outcome::Terminated,
+            MemoryError::Overrun { .. } | MemoryError::WrongSpace { .. } | MemoryError::BadReply => Outcome::BadAnswer,
+            MemoryError::SpaceTooLarge { .. } => Outcome::Usage,
             _ => Outcome::Error,
         },
         _ => Outcome::Error,
@@ -204,6 +222,12 @@ fn hint(error: &Error) -> Option<String> {
         }
         Error::Memory { error: MemoryError::Rejected(code) | MemoryError::Failed(code), .. } => code.0,
         Error::Memory { error: MemoryError::NoStreams, .. } => return Some("try --no-stream (datagrams)".into()),
+        Error::Memory { error: MemoryError::SpaceTooLarge { limit, .. }, .. } => {
+            return Some(format!(
+                "read it in parts with --length (at most {limit} bytes each) and --address, e.g. --address 0 \
+                 --length {limit}, then --address {limit}"
+            ));
+        }
         Error::Rejected { code, .. } if code.0 & 0x1000 != 0 => return Some("the node takes no such stream".into()),
         _ => return None,
     };
@@ -214,6 +238,11 @@ fn hint(error: &Error) -> Option<String> {
         0x1082 => Some("the address or length lies outside the space; try a smaller --length or --address".into()),
         0x1083 => Some("the space is read-only on this node".into()),
         0x1041 => Some("the node does not implement this command".into()),
+        0x1040 => Some(
+            "the node does not implement this for that space (a firmware space 0xEF cannot be read back; \
+             `lcc-stream firmware` writes it)"
+                .into(),
+        ),
         0x2000..=0x2FFF => Some("a temporary error: trying again later may succeed".into()),
         _ => None,
     }

@@ -130,7 +130,16 @@ async fn transfer(args: &ReadArgs, interrupt: &mut net::Interrupt, moved: &mut M
     let transfer = node.read_memory(args.from, args.space, args.address, args.length, args.client.path()).await;
     let data = match transfer {
         Ok(transfer) => {
-            memory::follow(&node, transfer, args.length.map(u64::from), args.client.json, interrupt, moved).await
+            memory::follow(
+                &node,
+                transfer,
+                args.length.map(u64::from),
+                args.client.json,
+                &args.client.pace,
+                interrupt,
+                moved,
+            )
+            .await
         }
         Err(error) => Err(Failure::Net(error)),
     };

@@ -2,19 +2,21 @@
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicU16, AtomicU64, Ordering};
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicU16, Ordering};
 use std::time::{Duration, Instant};
 
 use bytes::BytesMut;
 use clap::Args;
 use openlcb_stream::{AcceptPolicy, ContentUid, NodeId, OpenOptions, wire::ReplyCode};
-use openlcb_tokio::{Node, NodeOptions};
+use openlcb_tokio::{Node, NodeOptions, SentBytes};
 use serde::Serialize;
 use tokio::io::AsyncReadExt as _;
 
 use crate::files;
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome};
+use crate::pace::{PACE_HELP, PaceArgs};
 use crate::progress::Progress;
 
 /// Bytes read from the file and handed to the stream at once.
@@ -36,7 +38,8 @@ once every stated byte has arrived.
 
 /// The fields of `send --json`.
 const SEND_JSON: &str = "\
---json prints one object on every exit path: file, to (Node ID), bytes (sent), elapsed_s,
+--json prints one object on every exit path: file, to (Node ID), bytes (handed to the bus in
+Data Send messages, also on failure: what the receiver can have got, never less), elapsed_s,
 bytes_per_s, window (negotiated once the stream opened, else the one proposed), result (the
 word of the exit status below), and frames_out and writes (on success) or error (a sentence).
 
@@ -48,7 +51,7 @@ const OUTCOMES: &[Outcome] =
 
 /// `send`'s after-help.
 fn after_help() -> String {
-    format!("{}{SEND_JSON}{}", send_promise!(), net::network_help(OUTCOMES))
+    format!("{}{SEND_JSON}{PACE_HELP}{}", send_promise!(), net::network_help(OUTCOMES))
 }
 
 /// Options of `lcc-stream send`.
@@ -76,6 +79,8 @@ pub(crate) struct SendArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    pace: PaceArgs,
     #[command(flatten)]
     connect: ConnectArgs,
 }
@@ -135,13 +140,13 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
     let started = Instant::now();
     let summary = Summary { window: args.window, ..Summary::default() };
-    let written = AtomicU64::new(0);
+    let sent = OnceLock::new();
     let window = AtomicU16::new(args.window);
-    let outcome = connect_and_send(args, &mut interrupt, &written, &window).await;
+    let outcome = connect_and_send(args, &mut interrupt, &sent, &window).await;
     let summary = match outcome {
         Ok(summary) => summary,
         Err(failure) => {
-            let bytes = written.load(Ordering::Relaxed);
+            let bytes = sent.get().map_or(0, SentBytes::get);
             let summary =
                 Summary { bytes, elapsed: started.elapsed(), window: window.load(Ordering::Relaxed), ..summary };
             if args.json {
@@ -149,8 +154,11 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
             }
             if let Failure::Interrupted = failure {
                 eprintln!(
-                    "lcc-stream send: interrupted after {bytes} bytes; an open stream was terminated (TDE 0x2000, temporary error)"
+                    "lcc-stream send: interrupted after {bytes} bytes handed to the bus (the receiver can have \
+                     got that many, no more); an open stream was terminated (TDE 0x2000, temporary error)"
                 );
+            } else if sent.get().is_some() {
+                eprintln!("lcc-stream send: {failure} ({bytes} bytes had been handed to the bus)");
             } else {
                 eprintln!("lcc-stream send: {failure}");
             }
@@ -178,7 +186,7 @@ async fn send(args: &SendArgs) -> Result<ExitCode, String> {
 async fn connect_and_send(
     args: &SendArgs,
     interrupt: &mut net::Interrupt,
-    written: &AtomicU64,
+    sent: &OnceLock<SentBytes>,
     window: &AtomicU16,
 ) -> Result<Summary, Failure> {
     let (mut input, size) = Input::open(&args.file).await?;
@@ -198,7 +206,7 @@ async fn connect_and_send(
     // On an interrupt the stream is dropped inside `transfer`, which queues its TDE: the
     // orderly close writes it before the connection goes.
     let outcome = tokio::select! {
-        outcome = transfer(args, &node, &mut input, size, written, window) => outcome,
+        outcome = transfer(args, &node, &mut input, size, sent, window) => outcome,
         () = interrupt.wait() => Err(Failure::Interrupted),
     };
     let stats = node.stats().await.map(|s| s.wire).unwrap_or_default();
@@ -239,23 +247,29 @@ impl Input {
     }
 }
 
-/// Opens the stream, sends the input and finishes; `written` and `window` follow the
-/// progress.
+/// Opens the stream, sends the input and finishes, unless it falls behind `--min-rate`;
+/// `sent` (the bytes handed to the bus, kept when the transfer is dropped) and `window`
+/// follow the progress.
 async fn transfer(
     args: &SendArgs,
     node: &Node,
     input: &mut Input,
     size: Option<u64>,
-    written: &AtomicU64,
+    sent: &OnceLock<SentBytes>,
     window: &AtomicU16,
 ) -> Result<Summary, Failure> {
     let mut open = OpenOptions::new(args.to, args.window);
     open.content_uid = args.content_uid;
+    let asked = Instant::now();
     let mut stream = node.open(open).await?;
+    let started = Instant::now();
+    let counter = stream.sent_bytes();
+    let _ = sent.set(counter.clone());
     window.store(stream.info().window, Ordering::Relaxed);
     let progress = Progress::start(size, args.json);
+    let slow = args.pace.watch(asked, size, || counter.get());
+    tokio::pin!(slow);
     // Read the next chunk while the previous one goes out.
-    let started = Instant::now();
     let mut next = input.chunk().await;
     let outcome = loop {
         let chunk = match next {
@@ -263,11 +277,13 @@ async fn transfer(
             Ok(chunk) => chunk.freeze(),
             Err(error) => break Err(Failure::file(&args.file, error)),
         };
-        let (sent, read) = tokio::join!(stream.write_all(chunk), input.chunk());
-        if let Err(error) = sent {
+        let (written, read) = tokio::select! {
+            both = async { tokio::join!(stream.write_all(chunk), input.chunk()) } => both,
+            slow = &mut slow => break Err(Failure::TooSlow(slow)),
+        };
+        if let Err(error) = written {
             break Err(Failure::Net(error));
         }
-        written.store(stream.written(), Ordering::Relaxed);
         next = read;
         progress.set(stream.written());
     };
@@ -275,6 +291,5 @@ async fn transfer(
     outcome?;
     let window = stream.info().window;
     let bytes = stream.finish().await?;
-    written.store(bytes, Ordering::Relaxed);
     Ok(Summary { bytes, elapsed: started.elapsed(), window, frames_out: 0, writes: 0 })
 }

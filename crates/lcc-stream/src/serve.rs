@@ -495,6 +495,11 @@ impl MemorySpace for Image {
     fn read_only(&self) -> bool {
         false
     }
+    /// The image goes to a file at Unfreeze: nothing can be read back over the network (a
+    /// read got zeros where no byte was written).
+    fn write_only(&self) -> bool {
+        true
+    }
     fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
         let state = self.state()?;
         let bytes = &state.bytes;

@@ -518,6 +518,43 @@ async fn sigterm_ends_the_send_stream_with_tde_and_exits_130() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_interrupted_send_reports_every_byte_it_handed_to_the_bus() {
+    let dir = scratch("interrupted-count");
+    let input = dir.join("input.bin");
+    std::fs::write(&input, data(4 * 1024 * 1024)).unwrap();
+    let hub = Hub::bind("127.0.0.1:0", None, HubOptions::default()).await.unwrap();
+    let addr = hub.local_addr().to_string();
+    let mut receiver =
+        bounded("join", Node::connect(&addr, Framing::GridConnect, NodeOptions::new(RECEIVER.parse().unwrap())))
+            .await
+            .unwrap();
+    let args = ["send", input.to_str().unwrap(), "--to", RECEIVER, "--connect", &addr, "--window", "2048", "--json"];
+    let send = spawn(&args);
+    let mut stream = bounded("accept", receiver.accept()).await.unwrap();
+    // Take a little, then stop reading: the sender stops in the middle of one of its chunks,
+    // waiting for credit, and is interrupted there.
+    let first = bounded("first data", stream.read()).await.unwrap().unwrap();
+    terminate(&send).await;
+    let (status, stdout, stderr) = finish(send).await;
+    assert_eq!(status.code(), Some(130), "{stderr}");
+    let reported: u64 = field(&stdout, "bytes").parse().unwrap();
+    let mut kept = first.len() as u64;
+    let end = bounded("the TDE", async {
+        loop {
+            match stream.read().await {
+                Ok(Some(bytes)) => kept += bytes.len() as u64,
+                other => return other,
+            }
+        }
+    })
+    .await;
+    assert!(matches!(end, Err(openlcb_tokio::Error::Terminated { .. })), "{end:?}");
+    assert_eq!(reported, kept, "what send reports is what the receiver got");
+    assert!(stderr.contains(&format!("interrupted after {kept} bytes handed to the bus")), "{stderr}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_second_hub_names_the_listener_it_cannot_open_and_exits_2() {
     let (_hub, _, tcp) = start_hub_binary().await;
     let second = spawn(&["hub", "--listen", "127.0.0.1:0", "--tcp-listen", &tcp]);

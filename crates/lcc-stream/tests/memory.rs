@@ -8,7 +8,8 @@ use std::path::Path;
 use std::process::Stdio;
 
 use common::{BIN, bounded, scratch};
-use openlcb_tokio::{Hub, HubOptions};
+use openlcb_tokio::openlcb_node::{MemoryServer, MemorySpace, SpaceError};
+use openlcb_tokio::{Framing, Hub, HubOptions, Node, NodeOptions};
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 use tokio::sync::mpsc;
@@ -456,4 +457,132 @@ async fn a_stream_sent_to_serve_is_refused_not_swallowed() {
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert_eq!(output.status.code(), Some(4), "{stderr}");
     assert!(stderr.contains("0x1010") && stderr.contains("streams not supported"), "{stderr}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_read_of_the_firmware_space_is_refused_and_says_so() {
+    let dir = scratch("read-firmware");
+    let (_hub, addr) = hub().await;
+    let _server = Server::start(&dir, &addr, SERVER, &[]).await;
+    for extra in [None, Some("--no-stream")] {
+        let out = dir.join("firmware.bin");
+        let mut args = vec!["read", "--from", SERVER, "--space", "0xEF", "--out", path_arg(&out)];
+        args.extend(extra);
+        let (status, json) = run(&addr, &args).await;
+        assert_eq!(status, 4, "{extra:?}: {json}");
+        assert_eq!(json["result"], "rejected");
+        let error = json["error"].as_str().unwrap();
+        assert!(error.contains("0x1040") && error.contains("cannot be read back"), "{error}");
+        assert!(!out.exists() && !dir.join("firmware.bin.part").exists());
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_whole_read_of_a_space_larger_than_a_read_takes_fails_at_once_pointing_to_length() {
+    let dir = scratch("read-too-large");
+    let (_hub, addr) = hub().await;
+    let config = dir.join("big.cfg");
+    let limit = 16 * 1024 * 1024;
+    std::fs::File::create(&config).unwrap().set_len(limit + 1).unwrap();
+    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    for extra in [None, Some("--no-stream")] {
+        let out = dir.join("backup.bin");
+        let mut args = vec!["read", "--from", SERVER, "--out", path_arg(&out)];
+        args.extend(extra);
+        let (status, json) = run(&addr, &args).await;
+        assert_eq!(status, 2, "{extra:?}: {json}");
+        assert_eq!((json["result"].as_str(), json["bytes"].as_u64()), (Some("usage"), Some(0)), "{json}");
+        let error = json["error"].as_str().unwrap();
+        let (size, limit) = ((limit + 1).to_string(), limit.to_string());
+        assert!(error.contains(&size) && error.contains(&limit) && error.contains("--length"), "{error}");
+    }
+    // A part of it is read.
+    let out = dir.join("part.bin");
+    let args = ["read", "--from", SERVER, "--address", "0x1000000", "--length", "1", "--out", path_arg(&out)];
+    assert_eq!(run(&addr, &args).await.0, 0);
+    assert_eq!(std::fs::read(&out).unwrap(), [0]);
+}
+
+/// Space 0xFD of an in-process node: `len` bytes of `data(len, 9)`, each read taking `delay`
+/// (it blocks the node's own thread: a node that trickles), and, after the first time its
+/// size is asked, `grown` bytes long (a node whose stream goes on past the size it reported).
+struct OddSpace {
+    bytes: Vec<u8>,
+    delay: std::time::Duration,
+    grown: u32,
+    asked: std::sync::atomic::AtomicBool,
+}
+
+impl MemorySpace for OddSpace {
+    fn len(&self) -> u32 {
+        let again = self.asked.swap(true, std::sync::atomic::Ordering::Relaxed);
+        if again { self.grown } else { self.bytes.len() as u32 }
+    }
+    fn read_only(&self) -> bool {
+        true
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        std::thread::sleep(self.delay);
+        let at = (address as usize).min(self.bytes.len());
+        let n = buf.len().min(self.grown as usize - address as usize);
+        let held = self.bytes.get(at..).unwrap_or_default();
+        for (i, b) in buf.iter_mut().take(n).enumerate() {
+            *b = held.get(i).copied().unwrap_or(0);
+        }
+        Ok(n)
+    }
+    fn write(&mut self, _address: u32, _data: &[u8]) -> Result<(), SpaceError> {
+        Err(SpaceError::ReadOnly)
+    }
+}
+
+/// Serves `space` as 0xFD from a node on `hub` on a thread and runtime of its own; it runs
+/// until the test's process ends.
+async fn serve_in_process(hub: &str, space: OddSpace) {
+    let (ready, is_ready) = tokio::sync::oneshot::channel();
+    let hub = hub.to_string();
+    std::thread::spawn(move || {
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        runtime.block_on(async move {
+            let options = NodeOptions::new(SERVER.parse().unwrap());
+            let node = Node::connect(&hub, Framing::GridConnect, options).await.unwrap();
+            let _events = node.serve_memory(MemoryServer::new().with_space(0xFD, space)).await.unwrap();
+            let _ = ready.send(());
+            std::future::pending::<()>().await;
+        });
+    });
+    bounded("the in-process server", is_ready).await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_read_from_a_node_that_trickles_ends_below_the_minimum_rate() {
+    let (_hub, addr) = hub().await;
+    let len = 1024 * 1024;
+    let delay = std::time::Duration::from_millis(50);
+    serve_in_process(&addr, OddSpace { bytes: data(len, 9), delay, grown: len as u32, asked: false.into() }).await;
+    let dir = scratch("trickle");
+    for extra in [None, Some("--no-stream")] {
+        let out = dir.join("slow.bin");
+        let mut args = vec!["read", "--from", SERVER, "--out", path_arg(&out), "--min-rate", "100000", "--grace", "1"];
+        args.extend(extra);
+        let (status, json) = run(&addr, &args).await;
+        assert_eq!((status, json["result"].as_str()), (5, Some("timed_out")), "{extra:?}: {json}");
+        let error = json["error"].as_str().unwrap();
+        assert!(error.contains("--min-rate 100000") && error.contains("--grace of 1 s"), "{error}");
+        assert!(!out.exists() && !dir.join("slow.bin.part").exists());
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stream_longer_than_the_space_reported_is_a_bad_answer() {
+    let (_hub, addr) = hub().await;
+    let space = OddSpace { bytes: data(600, 9), delay: std::time::Duration::ZERO, grown: 1024, asked: false.into() };
+    serve_in_process(&addr, space).await;
+    let dir = scratch("overrun");
+    let out = dir.join("backup.bin");
+    let (status, json) = run(&addr, &["read", "--from", SERVER, "--out", path_arg(&out)]).await;
+    assert_eq!((status, json["result"].as_str()), (11, Some("bad_answer")), "{json}");
+    let error = json["error"].as_str().unwrap();
+    assert!(error.contains("sent more than 600 bytes"), "{error}");
+    assert!(!out.exists() && !dir.join("backup.bin.part").exists());
 }

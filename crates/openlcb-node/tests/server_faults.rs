@@ -267,3 +267,43 @@ fn a_peer_that_never_acknowledges_its_replies_does_not_starve_the_others() {
     }
     assert!(replies >= promised - 1, "{replies} of {promised} replies sent after the first");
 }
+
+/// A firmware space whose image cannot be read back.
+struct WriteOnlyFlash(RamSpace);
+
+impl MemorySpace for WriteOnlyFlash {
+    fn len(&self) -> u32 {
+        self.0.len()
+    }
+    fn read_only(&self) -> bool {
+        false
+    }
+    fn write_only(&self) -> bool {
+        true
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        self.0.read(address, buf)
+    }
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        self.0.write(address, data)
+    }
+}
+
+#[test]
+fn a_read_of_a_write_only_space_is_refused_with_not_implemented_by_datagram_and_by_stream() {
+    let memory = MemoryServer::new().with_space(0xEF, WriteOnlyFlash(RamSpace::new(4096)));
+    let mut server = Node::new(SERVER, NodeConfig::default()).with_memory_server(memory);
+    let _ = std::iter::from_fn(|| server.poll_transmit()).count();
+    let read = Command::Read { space: 0xEF, address: 0, count: 64 };
+    let answers = command(&mut server, PEER, &read);
+    assert_eq!(answer(&answers), Err(0x1040), "{answers:?}");
+    assert!(!answers.iter().any(|m| m.mti == Mti::DATAGRAM), "no Read Reply follows a rejection: {answers:?}");
+    let stream = Command::ReadStream { space: 0xEF, address: 0, destination_stream: 0x20, count: u32::MAX };
+    let answers = command(&mut server, PEER, &stream);
+    assert_eq!(answer(&answers), Err(0x1040), "{answers:?}");
+    assert!(!answers.iter().any(|m| m.mti == Mti::STREAM_INITIATE_REQUEST), "no stream: {answers:?}");
+    // Writing it still works (while frozen), and the space is still reported as present.
+    assert!(answer(&command(&mut server, PEER, &Command::Freeze { space: 0xEF })).is_ok());
+    let write = Command::Write { space: 0xEF, address: 0, data: vec![9; 64] };
+    assert!(answer(&command(&mut server, PEER, &write)).is_ok());
+}

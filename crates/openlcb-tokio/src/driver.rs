@@ -14,7 +14,7 @@ use tokio::sync::{mpsc, oneshot};
 use crate::events::EventDriver;
 use crate::io::{ByteReader, ByteWriter, try_write};
 use crate::memory::MemoryDriver;
-use crate::node::{Command, Control, NodeStats, Shared};
+use crate::node::{Command, Control, NodeStats, SentBytes, Shared};
 use crate::requests::Requests;
 use crate::wire::{Wire, WireStats};
 use crate::{Error, Framing, NodeOptions, RecvStream};
@@ -42,6 +42,8 @@ struct Sending {
     write: Option<(Bytes, DoneReply)>,
     /// The stream ended early; the next command on it gets this.
     failed: Option<Error>,
+    /// Bytes the endpoint took, shared with the handle.
+    sent: SentBytes,
 }
 
 /// A stream another node opened to this one.
@@ -326,10 +328,10 @@ impl Driver {
     fn command(&mut self, command: Command) {
         let now = self.now();
         match command {
-            Command::Open { options, reply } => match self.stack.streams_mut().open(now, options) {
+            Command::Open { options, sent, reply } => match self.stack.streams_mut().open(now, options) {
                 Ok(handle) => {
                     let sending =
-                        Sending { peer: options.destination, opening: Some(reply), write: None, failed: None };
+                        Sending { peer: options.destination, opening: Some(reply), write: None, failed: None, sent };
                     self.sends.insert(handle, sending);
                 }
                 Err(error) => {
@@ -517,6 +519,7 @@ impl Driver {
             match self.stack.streams_mut().write(now, handle, data) {
                 Ok(n) => {
                     taken += n;
+                    sending.sent.add(n as u64);
                     bytes::Buf::advance(data, n);
                     if data.is_empty()
                         && let Some((_, reply)) = sending.write.take()

@@ -100,7 +100,7 @@ pub use events::EventNotices;
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};
 pub use io::ByteStream;
 pub use memory::{MemoryTransfer, ServerEvents};
-pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStream};
+pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStream, SentBytes};
 
 // What a user of this crate needs from the ones below it, so that sending a stream takes
 // this crate alone.

@@ -203,11 +203,29 @@ pub(crate) fn memory_error_text(peer: NodeId, error: MemoryError) -> String {
         MemoryError::WrongLength { expected, received } => {
             format!("node {peer} sent {received} bytes where {expected} were expected")
         }
+        MemoryError::CountMismatch { stated, received } => format!(
+            "the stream from node {peer} ended with a Data Complete stating {stated} bytes after {received} had \
+             arrived (bytes lost on the way, or a wrong count); nothing read was kept"
+        ),
+        MemoryError::Overrun { expected } => {
+            format!(
+                "node {peer} sent more than {expected} bytes, the most asked for (the length, or the size its space \
+                 has by its own report); nothing read was kept"
+            )
+        }
+        MemoryError::WrongSpace { asked, answered } => {
+            format!("node {peer} answered for space 0x{answered:02X} where space 0x{asked:02X} was asked for")
+        }
+        MemoryError::SpaceTooLarge { size: Some(size), limit } => format!(
+            "the space of node {peer} holds {size} bytes from that address, more than the {limit} one read takes"
+        ),
+        MemoryError::SpaceTooLarge { size: None, limit } => {
+            format!("the space of node {peer} holds more than the {limit} bytes one read takes (its stream went on)")
+        }
         MemoryError::PeerRestarted => format!("node {peer} restarted in the middle of the operation"),
         MemoryError::PeerLost => format!("node {peer} left the network"),
         MemoryError::BadReply => format!("node {peer} answered with a reply that does not fit the command"),
         MemoryError::NoStreams => format!("node {peer} does not support streams"),
-        MemoryError::TooLong => format!("the space of node {peer} is larger than a read may take, or empty"),
         MemoryError::Locked { owner } => {
             let owner = NodeId::new(owner).map_or_else(|| format!("{owner:012X}"), |id| id.to_string());
             format!("node {peer} is locked by {owner}, which is writing it")

@@ -1,5 +1,6 @@
 //! [`Node`]: one OpenLCB node on a hub, with [`SendStream`]s and [`RecvStream`]s.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -80,6 +81,7 @@ pub const DISCOVER_LIMIT: Duration = Duration::from_secs(30);
 pub(crate) enum Command {
     Open {
         options: OpenOptions,
+        sent: SentBytes,
         reply: oneshot::Sender<Result<(StreamHandle, StreamInfo), Error>>,
     },
     Write {
@@ -298,8 +300,10 @@ impl Node {
     /// [`Error::Rejected`] with the code (and its meaning), [`Error::Unreachable`],
     /// [`Error::TimedOut`].
     pub async fn open(&self, options: OpenOptions) -> Result<SendStream, Error> {
-        let (handle, info) = self.control.call(|reply| Command::Open { options, reply }).await??;
-        Ok(SendStream { handle, info, control: self.control.clone(), written: 0, done: false })
+        let sent = SentBytes::default();
+        let counter = sent.clone();
+        let (handle, info) = self.control.call(|reply| Command::Open { options, sent: counter, reply }).await??;
+        Ok(SendStream { handle, info, control: self.control.clone(), written: 0, sent, done: false })
     }
 
     /// The next stream another node opened to this one. Fails once the connection is gone
@@ -514,7 +518,26 @@ pub struct SendStream {
     info: StreamInfo,
     control: Control,
     written: u64,
+    sent: SentBytes,
     done: bool,
+}
+
+/// The payload bytes of one [`SendStream`] handed to the transport in Data Send messages,
+/// readable from anywhere, also once the stream is gone ([`SendStream::sent_bytes`]): after
+/// an interruption or a failure, what the receiver can have got (never more; less if the
+/// link lost some). The driver writes every message it has handed over before it closes.
+#[derive(Debug, Clone, Default)]
+pub struct SentBytes(Arc<AtomicU64>);
+
+impl SentBytes {
+    /// The count now.
+    pub fn get(&self) -> u64 {
+        self.0.load(Ordering::Relaxed)
+    }
+
+    pub(crate) fn add(&self, n: u64) {
+        self.0.fetch_add(n, Ordering::Relaxed);
+    }
 }
 
 impl SendStream {
@@ -523,9 +546,15 @@ impl SendStream {
         &self.info
     }
 
-    /// Bytes written so far.
+    /// Bytes written so far: taken by [`write_all`](Self::write_all) calls that returned.
     pub fn written(&self) -> u64 {
         self.written
+    }
+
+    /// The bytes handed to the transport so far (also by a `write_all` still running), as a
+    /// counter that outlives the stream.
+    pub fn sent_bytes(&self) -> SentBytes {
+        self.sent.clone()
     }
 
     /// Sends `data`, waiting while the window is used up or the socket is busy (so a slow

@@ -82,8 +82,10 @@ enum Kind {
 enum Step {
     /// Get Configuration Options sent; its reply decides the path.
     Options,
-    /// Get Address Space Information sent: a datagram read to the end needs the size.
-    SpaceInfo,
+    /// Get Address Space Information sent: a read to the end needs the size (a datagram
+    /// read to know where to stop; any read to refuse a space larger than it may take
+    /// before a byte moves), and a stream write to refuse what does not fit.
+    SpaceInfo { by_stream: bool },
     /// One datagram Read or Write of `len` bytes at offset `at` of the operation.
     Chunk { at: u32, len: u32 },
     /// Read Stream sent with `did` armed.
@@ -334,29 +336,38 @@ impl MemoryClient {
             op.lock_asked = true;
             return self.send(cx, index, Step::Lock { by_stream }, &Command::Lock { node });
         }
-        let (peer, space, address) = (op.peer, op.space, op.address);
+        let space = op.space;
         let read_len = match &op.kind {
             Kind::Read { len, .. } => Some(*len),
             _ => None,
         };
         match (read_len, by_stream) {
-            (Some(len), true) => {
-                let did = self.free_stream_id(cx, peer, Role::Destination)?;
-                let count = len.unwrap_or(u32::MAX);
-                let command = Command::ReadStream { space, address, destination_stream: did.as_raw(), count };
-                self.send(cx, index, Step::ReadStream { did, handle: None }, &command)
-            }
-            (Some(None), false) => self.send(cx, index, Step::SpaceInfo, &Command::GetSpaceInfo { space }),
+            (Some(None), _) => self.send(cx, index, Step::SpaceInfo { by_stream }, &Command::GetSpaceInfo { space }),
+            (Some(Some(_)), true) => self.read_stream(cx, index),
             (Some(Some(_)), false) => self.next_chunk(cx, index, 0),
             // A stream cannot say that its end fell outside the space (the Write Stream Reply
             // comes first): the space's size is asked for, and a write that does not fit is
             // refused before a byte goes out.
             (_, true) if matches!(op.kind, Kind::Write { .. }) => {
-                self.send(cx, index, Step::SpaceInfo, &Command::GetSpaceInfo { space })
+                self.send(cx, index, Step::SpaceInfo { by_stream: true }, &Command::GetSpaceInfo { space })
             }
             (_, true) => self.write_stream(cx, index),
             (_, false) => self.next_chunk(cx, index, 0),
         }
+    }
+
+    /// Sends Read Stream with a DID armed: the read's length, or to the end of the space
+    /// (0xFFFFFFFF, C-6) when it has none of its own.
+    fn read_stream(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
+        let op = self.operations.get(index)?;
+        let (peer, space, address) = (op.peer, op.space, op.address);
+        let count = match &op.kind {
+            Kind::Read { len: Some(len), reported: false, .. } => *len,
+            _ => u32::MAX,
+        };
+        let did = self.free_stream_id(cx, peer, Role::Destination)?;
+        let command = Command::ReadStream { space, address, destination_stream: did.as_raw(), count };
+        self.send(cx, index, Step::ReadStream { did, handle: None }, &command)
     }
 
     /// Sends Write Stream; the stream opens after its Datagram OK.
@@ -509,9 +520,12 @@ impl MemoryClient {
             }
             // A node without Get Address Space Information: the stream write goes ahead, and
             // a space error ends it with TDE.
-            (Step::SpaceInfo, Err(DatagramFailure::Rejected(_))) if matches!(op.kind, Kind::Write { .. }) => {
+            (Step::SpaceInfo { .. }, Err(DatagramFailure::Rejected(_))) if matches!(op.kind, Kind::Write { .. }) => {
                 self.write_stream(cx, index)
             }
+            // The same for a stream read to the end: the stream runs to the end of the space,
+            // and past the read limit it is given up.
+            (Step::SpaceInfo { by_stream: true }, Err(DatagramFailure::Rejected(_))) => self.read_stream(cx, index),
             // A node without Lock/Reserve (OpenMRN answers 0x1041): written without it.
             (Step::Lock { by_stream }, Err(DatagramFailure::Rejected(_))) => self.begin_transfer(cx, index, by_stream),
             (_, Err(DatagramFailure::TimedOut)) => self.retry(cx, index),
@@ -542,9 +556,9 @@ impl MemoryClient {
         op.retries += 1;
         match op.step {
             Step::Options => self.send(cx, index, Step::Options, &Command::GetOptions),
-            Step::SpaceInfo => {
+            Step::SpaceInfo { by_stream } => {
                 let space = op.space;
-                self.send(cx, index, Step::SpaceInfo, &Command::GetSpaceInfo { space })
+                self.send(cx, index, Step::SpaceInfo { by_stream }, &Command::GetSpaceInfo { space })
             }
             Step::Chunk { at, .. } => self.next_chunk(cx, index, at),
             Step::Protocols => self.ask_protocols(cx, index),
@@ -581,29 +595,41 @@ impl MemoryClient {
                 let by_stream = options.streams() && cx.streams_enabled;
                 self.begin_transfer(cx, index, by_stream)
             }
-            (Step::SpaceInfo, Reply::SpaceInfo(info)) if info.space == op.space => {
+            (Step::SpaceInfo { .. }, Reply::SpaceInfo(info)) if info.space != op.space => {
+                Some(Outcome::Fail(MemoryError::WrongSpace { asked: op.space, answered: info.space }))
+            }
+            (Step::SpaceInfo { by_stream }, Reply::SpaceInfo(info)) => {
                 let highest = info.highest_address.filter(|_| info.present);
                 let Some(highest) = highest else {
                     return Some(Outcome::Fail(MemoryError::Failed(codes::UNKNOWN_SPACE)));
                 };
-                let len = highest.checked_sub(op.address).and_then(|n| n.checked_add(1));
+                // Bytes from the address to the end (up to 4 GiB: counted in 64 bits).
+                let room = (u64::from(highest) + 1).checked_sub(u64::from(op.address)).filter(|&n| n > 0);
                 if let Kind::Write { data } = &op.kind {
-                    let fits = len.is_some_and(|room| data.len() as u64 <= u64::from(room));
+                    let fits = room.is_some_and(|room| data.len() as u64 <= room);
                     return if fits {
                         self.write_stream(cx, index)
                     } else {
                         Some(Outcome::Fail(MemoryError::Failed(codes::OUT_OF_BOUNDS)))
                     };
                 }
-                match (len, &mut op.kind) {
-                    (Some(len), Kind::Read { len: want, reported, .. }) if len <= max_read => {
-                        *want = Some(len);
-                        *reported = true;
-                        self.next_chunk(cx, index, 0)
-                    }
-                    (None, _) => Some(Outcome::Fail(MemoryError::Failed(codes::OUT_OF_BOUNDS))),
-                    _ => Some(Outcome::Fail(MemoryError::TooLong)),
+                let Some(room) = room else {
+                    return Some(Outcome::Fail(MemoryError::Failed(codes::OUT_OF_BOUNDS)));
+                };
+                // Refused before a byte moves: a whole read of a space larger than the limit.
+                let Some(len) = u32::try_from(room).ok().filter(|&n| n <= max_read) else {
+                    return Some(Outcome::Fail(MemoryError::SpaceTooLarge { size: Some(room), limit: max_read }));
+                };
+                if let Kind::Read { len: want, reported, .. } = &mut op.kind {
+                    *want = Some(len);
+                    *reported = true;
                 }
+                if by_stream { self.read_stream(cx, index) } else { self.next_chunk(cx, index, 0) }
+            }
+            (Step::Chunk { at, .. }, Reply::ReadOk { space, address, .. })
+                if space != op.space && address == op.address.saturating_add(at) =>
+            {
+                Some(Outcome::Fail(MemoryError::WrongSpace { asked: op.space, answered: space }))
             }
             (Step::Chunk { at, len }, Reply::ReadOk { address, data, .. })
                 if address == op.address.saturating_add(at) =>
@@ -795,11 +821,11 @@ impl MemoryClient {
     }
 
     fn drain_read(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
-        let max_read = cx.options.max_read_len as usize;
+        let max_read = cx.options.max_read_len;
         let op = self.operations.get_mut(index)?;
         let handle = op.stream_handle()?;
         let Kind::Read { data, len, .. } = &mut op.kind else { return None };
-        let limit = len.map_or(max_read, |n| n as usize);
+        let limit = len.unwrap_or(max_read) as usize;
         let mut buf = [0u8; 512];
         loop {
             let n = cx.streams.read(cx.now, handle, &mut buf).unwrap_or(0);
@@ -807,7 +833,12 @@ impl MemoryClient {
                 break;
             }
             if data.len().saturating_add(n) > limit {
-                return Some(Outcome::Fail(MemoryError::TooLong));
+                // More than asked for, or than the space holds by the node's own report; a
+                // read of unknown size (no Get Address Space Information) ran past the limit.
+                return Some(Outcome::Fail(match len {
+                    Some(len) => MemoryError::Overrun { expected: u64::from(*len) },
+                    None => MemoryError::SpaceTooLarge { size: None, limit: max_read },
+                }));
             }
             data.extend_from_slice(buf.get(..n).unwrap_or_default());
         }
@@ -816,15 +847,19 @@ impl MemoryClient {
     }
 
     /// The stream of a read ended with `total` bytes; `mismatch`: the count its Complete
-    /// stated, when that differs.
+    /// stated, when that differs. A read to the end of the space may end before the end the
+    /// node reported (a node whose last reported address is not served, as by datagrams).
     fn read_finished(&mut self, index: usize, total: u64, mismatch: Option<u64>) -> Option<Outcome> {
         let op = self.operations.get(index)?;
-        let Kind::Read { data, len, .. } = &op.kind else { return None };
+        let Kind::Read { data, len, reported } = &op.kind else { return None };
         let received = data.len() as u64;
-        if let Some(expected) = mismatch {
-            return Some(Outcome::Fail(MemoryError::WrongLength { expected, received }));
+        if let Some(stated) = mismatch {
+            return Some(Outcome::Fail(MemoryError::CountMismatch { stated, received }));
         }
         match len {
+            Some(want) if *reported && received <= u64::from(*want) && received == total && received > 0 => {
+                Some(Outcome::Done)
+            }
             Some(want) if u64::from(*want) != received || received != total => {
                 Some(Outcome::Fail(MemoryError::WrongLength { expected: u64::from(*want), received }))
             }

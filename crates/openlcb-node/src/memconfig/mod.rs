@@ -120,12 +120,45 @@ pub enum MemoryError {
     StreamEnded(ErrorCode),
     /// A stream wait ran out.
     StreamTimedOut(TimeoutKind),
-    /// The stream delivered another count than asked for.
+    /// The stream delivered fewer bytes than asked for (or none).
     WrongLength {
         /// Bytes asked for.
         expected: u64,
         /// Bytes received.
         received: u64,
+    },
+    /// The stream's Data Complete stated another count than the bytes that arrived: bytes
+    /// were lost on the way, or the node counts otherwise. Nothing read is handed over.
+    CountMismatch {
+        /// The count the Complete stated.
+        stated: u64,
+        /// Bytes that arrived.
+        received: u64,
+    },
+    /// The node sent more than was asked for: more than the length of the read, or more
+    /// than its space holds by its own Get Address Space Information reply.
+    Overrun {
+        /// The most bytes the read could take.
+        expected: u64,
+    },
+    /// A reply named another space than the command (Get Address Space Information, Read
+    /// Reply).
+    WrongSpace {
+        /// The space the command named.
+        asked: u8,
+        /// The space the reply named.
+        answered: u8,
+    },
+    /// A read to the end of a space larger than
+    /// [`MemoryConfigOptions::max_read_len`]: refused before a byte is read, once Get
+    /// Address Space Information gave the size. Read the space in parts, each with a length.
+    SpaceTooLarge {
+        /// Bytes from the read's address to the end of the space, as the node reported them
+        /// (`None`: the node does not answer Get Address Space Information, and its stream
+        /// went past the limit).
+        size: Option<u64>,
+        /// The most one read takes.
+        limit: u32,
     },
     /// The node restarted (Initialization Complete) in the middle of the operation.
     PeerRestarted,
@@ -135,8 +168,6 @@ pub enum MemoryError {
     BadReply,
     /// The node has no stream support (only when streams were required).
     NoStreams,
-    /// The node's space is smaller than what a read asked for (or a space of 0 bytes).
-    TooLong,
     /// Another node holds the node's Lock/Reserve (MC §4.17): it is writing; nothing was
     /// written.
     Locked {

@@ -272,6 +272,12 @@ impl MemoryServer {
         }
     }
 
+    /// Reads of `space` are refused: its bytes cannot be read back
+    /// ([`MemorySpace::write_only`]).
+    fn write_only(&self, space: u8) -> bool {
+        !self.is_acdi(space) && self.space(space).is_some_and(|s| s.write_only())
+    }
+
     fn read_space(&mut self, space: u8, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
         let len = self.space_len(space).ok_or(SpaceError::OutOfBounds)?;
         if address >= len {
@@ -404,6 +410,9 @@ impl MemoryServer {
             Command::Read { space, address, count } => {
                 if self.space_len(space).is_none() {
                     return self.reject(cx, peer, codes::UNKNOWN_SPACE);
+                }
+                if self.write_only(space) {
+                    return self.reject(cx, peer, codes::NOT_READABLE);
                 }
                 let mut buf = [0u8; MAX_DATA_LEN];
                 let want = usize::from(count).clamp(1, MAX_DATA_LEN);
@@ -568,12 +577,16 @@ impl MemoryServer {
     }
 
     /// The checks a stream command passes before its OK: space known, address inside,
-    /// writable for a Write Stream, streams on, room for one more transfer.
+    /// readable for a Read Stream, writable for a Write Stream, streams on, room for one
+    /// more transfer.
     fn check_stream(&self, cx: &Cx<'_>, peer: NodeId, space: u8, address: u32, write: bool) -> Result<(), ErrorCode> {
         if !cx.streams_enabled {
             return Err(codes::UNKNOWN_COMMAND);
         }
         let len = self.space_len(space).ok_or(codes::UNKNOWN_SPACE)?;
+        if !write && self.write_only(space) {
+            return Err(codes::NOT_READABLE);
+        }
         if write && self.read_only(space) {
             return Err(codes::READ_ONLY);
         }

@@ -53,6 +53,13 @@ pub trait MemorySpace {
     /// Writes are refused with 0x1083 (a space is wholly read-only or not, MC §4.1).
     fn read_only(&self) -> bool;
 
+    /// Reads are refused with 0x1040 (not implemented, node-protocols.md §2.3): a firmware
+    /// space (0xEF) whose image cannot be read back. Get Address Space Information still
+    /// reports the space; it has no flag for write-only.
+    fn write_only(&self) -> bool {
+        false
+    }
+
     /// Fills `buf` from `address` and returns how many bytes it filled (fewer only at the
     /// end of the space). The server calls it with `address < len`.
     fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError>;

@@ -38,6 +38,10 @@ pub mod codes {
     pub const OUT_OF_BOUNDS: ErrorCode = ErrorCode(0x1082);
     /// A write to a read-only space.
     pub const READ_ONLY: ErrorCode = ErrorCode(0x1083);
+    /// A read of a space whose bytes cannot be read back (a firmware space): the Message
+    /// Network's "not implemented" (node-protocols.md §2.3; MC §4.3 has no code of its own
+    /// for a write-only space, and the space is known, so not 0x1081).
+    pub const NOT_READABLE: ErrorCode = ErrorCode(0x1040);
     /// Temporary: busy (no room for another stream transfer).
     pub const BUSY: ErrorCode = ErrorCode(0x2020);
     /// Temporary: the firmware failed its checksum.
