@@ -71,6 +71,15 @@ pub enum GatewayEvent {
         /// The CAN alias that announced the same Node ID.
         other: NodeAlias,
     },
+    /// A full-format node left ([`handle_full_node_left`](crate::Gateway::handle_full_node_left)):
+    /// its proxy is forgotten, its streams are over.
+    ProxyReleased {
+        /// The full-format node.
+        node: NodeId,
+        /// The alias released with an AMR; `None` if its login had not finished (nothing was
+        /// announced, so nothing is sent).
+        alias: Option<NodeAlias>,
+    },
     /// No CAN alias was found for `node` within the resolve timeout; messages to it dropped.
     Unreachable {
         /// The destination asked for.

@@ -191,3 +191,51 @@ fn full_proxy_table_releases_the_least_recently_used_idle_alias() {
     assert_eq!(sent[4..], [(0x1070_3000, old.as_raw())], "AMR for the evicted node");
     assert_eq!(net.gateway.proxy_alias(node_id(FULL_NODE)), None);
 }
+
+#[test]
+fn a_full_node_that_left_releases_its_alias_and_its_node_id_may_join_on_can() {
+    let mut net = started();
+    let alias = proxy_alias(&net);
+    let before = net.from_gateway.len();
+    net.gateway.handle_full_node_left(net.now, node_id(FULL_NODE));
+    net.settle();
+    assert_eq!(sent_since(&net, before), [(0x1070_3000, alias.as_raw())], "one AMR for the proxy's alias");
+    assert_eq!(net.from_gateway[before].payload(), node_id(FULL_NODE).to_bytes(), "AMR carries the Node ID");
+    assert_eq!(net.gateway.proxy_alias(node_id(FULL_NODE)), None);
+    assert!(net.gateway_events.contains(&GatewayEvent::ProxyReleased { node: node_id(FULL_NODE), alias: Some(alias) }));
+    // The same Node ID logs in on CAN under another alias: learned as a CAN node, no duplicate.
+    let newcomer = NodeAlias::new(0x777).unwrap();
+    let after = net.from_gateway.len();
+    net.gateway.handle_can_frame(net.now, &frame(0x1070_1777, &node_id(FULL_NODE).to_bytes()));
+    net.settle();
+    assert_eq!(net.gateway.can_node(newcomer), Some(node_id(FULL_NODE)));
+    assert!(!net.gateway_events.iter().any(|e| matches!(e, GatewayEvent::DuplicateNodeId { .. })));
+    assert_eq!(sent_since(&net, after), [], "nothing more for the departed node");
+    // Forgetting a node twice, or one never seen, is harmless.
+    net.gateway.handle_full_node_left(net.now, node_id(FULL_NODE));
+    net.gateway.handle_full_node_left(net.now, node_id(STRANGER));
+    net.settle();
+    assert_eq!(sent_since(&net, after), []);
+}
+
+#[test]
+fn a_message_held_for_a_node_that_turns_up_on_the_full_side_is_dropped() {
+    let mut net = started();
+    let stranger = node_id(STRANGER);
+    // A message for a node the gateway does not know yet: held while an AME asks CAN for it.
+    let verify = Message::addressed(Mti::VERIFY_NODE_ID_ADDRESSED, node_id(FULL_NODE), stranger, &[][..]);
+    net.gateway.handle_message(net.now, verify.as_ref());
+    net.settle();
+    // The node turns out to be on the full-format side (it reached it there), then leaves.
+    let hello = Message::global(Mti::INITIALIZATION_COMPLETE, stranger, stranger.to_bytes().to_vec());
+    net.gateway.handle_message(net.now, hello.as_ref());
+    net.settle();
+    net.gateway.handle_full_node_left(net.now, stranger);
+    net.settle();
+    // Its Node ID logs in on CAN: the old message is not delivered to it.
+    let before = net.from_gateway.len();
+    net.gateway.handle_can_frame(net.now, &frame(0x1070_1777, &stranger.to_bytes()));
+    net.settle();
+    assert_eq!(sent_since(&net, before), [], "nothing held for the node went out");
+    assert_eq!(net.gateway.stats().stayed_local, 1);
+}

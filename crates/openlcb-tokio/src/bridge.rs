@@ -5,15 +5,16 @@
 //! clients send (as the hub relays them), feeds them to the gateway, and relays what the
 //! gateway hands out to the other group: CAN frames as GridConnect text, messages in the
 //! OpenLCB-TCP framing with the gateway's Node ID as originating node. Full-format nodes get
-//! proxy aliases on the CAN side; streams crossing are tracked by the gateway's rules. The
-//! gateway's clock is microseconds since the bridge started.
+//! proxy aliases on the CAN side; streams crossing are tracked by the gateway's rules. When an
+//! OpenLCB-TCP client leaves, the hub sends the Node IDs it carried, and the gateway releases
+//! their proxy aliases. The gateway's clock is microseconds since the bridge started.
 
 use std::sync::Arc;
 
 use bytes::{Bytes, BytesMut};
 use openlcb_can::{GridConnectDecoder, gridconnect};
 use openlcb_gateway::{Gateway, GatewayConfig};
-use openlcb_stream::Instant;
+use openlcb_stream::{Instant, NodeId};
 use openlcb_tcp::{CaptureTime, Decoder, LinkPrefix, TcpFrame};
 use tokio::sync::mpsc;
 
@@ -23,7 +24,7 @@ use crate::hub::{ClientId, HubEvent, State};
 /// One side of the bridge: its client id in the hub and the chunks relayed to it.
 type Side = (ClientId, mpsc::UnboundedReceiver<Bytes>);
 
-pub(crate) async fn run(can: Side, tcp: Side, state: Arc<State>) {
+pub(crate) async fn run(can: Side, tcp: Side, mut departed: mpsc::UnboundedReceiver<NodeId>, state: Arc<State>) {
     let (can_id, mut can_rx) = can;
     let (tcp_id, mut tcp_rx) = tcp;
     let start = tokio::time::Instant::now();
@@ -46,7 +47,9 @@ pub(crate) async fn run(can: Side, tcp: Side, state: Arc<State>) {
             // CAN side first when both have input: the hub's own AMRs for a client that left
             // are queued here before anything a client connecting after that can send, and
             // the gateway must forget the old node before it sees a new one with its Node ID.
+            // Departures first of all, for the same reason (from the OpenLCB-TCP side).
             biased;
+            Some(node) = departed.recv() => gateway.handle_full_node_left(now(), node),
             chunk = can_rx.recv() => {
                 let Some(chunk) = chunk else { return };
                 let now = now();

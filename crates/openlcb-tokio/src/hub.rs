@@ -208,11 +208,18 @@ pub(crate) struct Client {
     /// Aliases the client announced (AMD) and has not released (AMR), at most
     /// [`ALIASES_PER_CLIENT`]: when it leaves, the hub releases them for it.
     aliases: Vec<(NodeAlias, NodeId)>,
+    /// Node IDs the OpenLCB-TCP client carried (sources of its messages), at most
+    /// [`NODES_PER_CLIENT`]: when it leaves, the bridge releases their CAN aliases.
+    nodes: Vec<NodeId>,
 }
 
 /// Aliases remembered per GridConnect client (a gateway or a host of many virtual nodes has
 /// several; beyond this many the oldest is forgotten).
 const ALIASES_PER_CLIENT: usize = 32;
+
+/// Node IDs remembered per OpenLCB-TCP client (a hub or a gateway upstream carries several;
+/// beyond this many the oldest is forgotten).
+const NODES_PER_CLIENT: usize = 32;
 
 pub(crate) struct State {
     options: HubOptions,
@@ -225,6 +232,8 @@ pub(crate) struct State {
     slow_clients: AtomicU64,
     events_dropped: AtomicU64,
     refused: AtomicU64,
+    /// With a bridge: where the Node IDs of OpenLCB-TCP clients that left go.
+    departed: Option<mpsc::UnboundedSender<NodeId>>,
 }
 
 impl State {
@@ -247,8 +256,15 @@ impl State {
             Framing::Tcp => BRIDGE_TCP,
         };
         let (queue, rx) = mpsc::unbounded_channel();
-        let client =
-            Client { protocol, bridge: true, queue, queued: Arc::default(), tasks: Vec::new(), aliases: Vec::new() };
+        let client = Client {
+            protocol,
+            bridge: true,
+            queue,
+            queued: Arc::default(),
+            tasks: Vec::new(),
+            aliases: Vec::new(),
+            nodes: Vec::new(),
+        };
         if let Ok(mut clients) = self.clients.lock() {
             clients.insert(id, client);
         }
@@ -261,8 +277,15 @@ impl State {
         self.accepted.fetch_add(1, Ordering::Relaxed);
         let (queue, rx) = mpsc::unbounded_channel();
         let queued = Arc::new(AtomicUsize::new(0));
-        let client =
-            Client { protocol, bridge: false, queue, queued: queued.clone(), tasks: Vec::new(), aliases: Vec::new() };
+        let client = Client {
+            protocol,
+            bridge: false,
+            queue,
+            queued: queued.clone(),
+            tasks: Vec::new(),
+            aliases: Vec::new(),
+            nodes: Vec::new(),
+        };
         if let Ok(mut clients) = self.clients.lock() {
             clients.insert(id, client);
         }
@@ -281,19 +304,36 @@ impl State {
 
     /// Removes a client and stops its tasks; `true` if it was still there. The bridge forgets
     /// the aliases it still held: a node that left without a word is forgotten, and its Node
-    /// ID may join again, on either side. Nothing goes on the wire for it: a GridConnect hub
-    /// is a wire, it relays and never originates a frame.
+    /// ID may join again, on either side. Nothing goes on the wire for a GridConnect client:
+    /// a GridConnect hub is a wire, it relays and never originates a frame. For the Node IDs
+    /// an OpenLCB-TCP client carried (and no other client still does), the bridge's gateway
+    /// releases the CAN aliases it held for them, with an AMR each.
     fn remove(&self, client: ClientId) -> bool {
-        let removed = self.clients.lock().ok().and_then(|mut clients| clients.remove(&client));
-        match removed {
-            Some(entry) => {
-                entry.tasks.iter().for_each(AbortHandle::abort);
-                // Its queue goes with it: nothing it held counts any more.
-                entry.queued.store(0, Ordering::Relaxed);
-                self.bridge_forgets(&entry.aliases);
-                true
+        let Ok(mut clients) = self.clients.lock() else { return false };
+        let Some(entry) = clients.remove(&client) else { return false };
+        let departed: Vec<NodeId> =
+            entry.nodes.iter().copied().filter(|node| !clients.values().any(|c| c.nodes.contains(node))).collect();
+        drop(clients);
+        entry.tasks.iter().for_each(AbortHandle::abort);
+        // Its queue goes with it: nothing it held counts any more.
+        entry.queued.store(0, Ordering::Relaxed);
+        self.bridge_forgets(&entry.aliases);
+        if let Some(bridge) = &self.departed {
+            for node in departed {
+                let _ = bridge.send(node);
             }
-            None => false,
+        }
+        true
+    }
+
+    /// Records `node` as carried by the OpenLCB-TCP `client`, in its entry and in `seen` (the
+    /// reader's copy, so that the lock is taken only for a Node ID not seen before).
+    fn track_node(&self, client: ClientId, node: NodeId, seen: &mut Vec<NodeId>) {
+        remember_node(seen, node);
+        if let Ok(mut clients) = self.clients.lock()
+            && let Some(entry) = clients.get_mut(&client)
+        {
+            remember_node(&mut entry.nodes, node);
         }
     }
 
@@ -402,6 +442,13 @@ impl Hub {
             _ => None,
         };
         let (events_tx, events) = mpsc::channel(options.event_capacity.max(1));
+        let bridged = options.bridge && tcp_listener.is_some();
+        let (departed_tx, departed_rx) = if bridged {
+            let (tx, rx) = mpsc::unbounded_channel();
+            (Some(tx), Some(rx))
+        } else {
+            (None, None)
+        };
         let state = Arc::new(State {
             options,
             clients: Mutex::new(HashMap::new()),
@@ -413,14 +460,15 @@ impl Hub {
             slow_clients: AtomicU64::new(0),
             events_dropped: AtomicU64::new(0),
             refused: AtomicU64::new(0),
+            departed: departed_tx,
         });
         let mut listeners = JoinSet::new();
         listeners.spawn(accept_loop(listener, Framing::GridConnect, state.clone()));
         if let Some(listener) = tcp_listener {
             listeners.spawn(accept_loop(listener, Framing::Tcp, state.clone()));
-            if state.options.bridge {
+            if let Some(departed) = departed_rx {
                 let [can, tcp] = [Framing::GridConnect, Framing::Tcp].map(|protocol| state.add_bridge_client(protocol));
-                listeners.spawn(crate::bridge::run(can, tcp, state.clone()));
+                listeners.spawn(crate::bridge::run(can, tcp, departed, state.clone()));
             }
         }
         Ok(Hub { addr, tcp_addr, state, events, _listeners: listeners })
@@ -655,6 +703,7 @@ async fn read_client(
     let mut buf = vec![0u8; 16 * 1024];
     let mut gridconnect_decoder = GridConnectDecoder::default();
     let mut tcp_decoder = Decoder::default();
+    let mut nodes = Vec::new();
     let mut chunk = BytesMut::new();
     let mut garbage = GarbageReport::default();
     // A complete frame heard (partial frames and garbage are not a word), and any input.
@@ -687,7 +736,7 @@ async fn read_client(
             Framing::GridConnect => {
                 relay_gridconnect(id, input, &mut gridconnect_decoder, &mut chunk, &state, &mut garbage)
             }
-            Framing::Tcp => relay_tcp(id, input, &mut tcp_decoder, &mut chunk, &state, &mut garbage),
+            Framing::Tcp => relay_tcp(id, input, &mut tcp_decoder, &mut nodes, &mut chunk, &state, &mut garbage),
         };
         heard |= frames > 0;
         garbage.flush(id, &state, false);
@@ -744,15 +793,26 @@ fn relay_gridconnect(
     (frames, errors)
 }
 
+/// Adds `node` to `nodes`, forgetting the oldest beyond [`NODES_PER_CLIENT`].
+fn remember_node(nodes: &mut Vec<NodeId>, node: NodeId) {
+    if nodes.len() >= NODES_PER_CLIENT {
+        nodes.remove(0);
+    }
+    nodes.push(node);
+}
+
 /// An AMD or AMR: the frames that bind and release aliases.
 fn is_alias_map_frame(frame: &CanFrame) -> bool {
     frame.header().is_ok_and(|h| matches!(h.kind, FrameKind::AliasMapDefinition | FrameKind::AliasMapReset))
 }
 
+/// Relays an OpenLCB-TCP client's messages; with a bridge, notes the Node IDs it carries
+/// (`nodes`, the reader's copy of its entry's list).
 fn relay_tcp(
     id: ClientId,
     mut input: &[u8],
     decoder: &mut Decoder,
+    nodes: &mut Vec<NodeId>,
     chunk: &mut BytesMut,
     state: &State,
     garbage: &mut GarbageReport,
@@ -761,6 +821,10 @@ fn relay_tcp(
     while let Some(decoded) = decoder.decode(&mut input) {
         match decoded {
             Ok(frame) => {
+                let source = frame.message.source;
+                if state.departed.is_some() && !nodes.contains(&source) {
+                    state.track_node(id, source, nodes);
+                }
                 if frame.encode_to(chunk).is_ok() {
                     frames += 1;
                     if state.options.trace {

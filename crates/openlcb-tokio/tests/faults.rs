@@ -368,6 +368,35 @@ async fn a_node_id_that_left_the_gridconnect_side_can_join_over_openlcb_tcp() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_id_that_left_the_openlcb_tcp_side_can_join_over_gridconnect() {
+    let mut options = HubOptions::default();
+    options.trace = true;
+    let mut hub = start_hub(options).await;
+    let gridconnect = hub.local_addr().to_string();
+    let tcp = hub.tcp_local_addr().unwrap().to_string();
+    let roaming = id(0x24);
+    let sender = bounded("joining", Node::connect(&tcp, Framing::Tcp, NodeOptions::new(id(0x25)))).await.unwrap();
+    let mut was_here = bounded("joining", Node::connect(&tcp, Framing::Tcp, NodeOptions::new(roaming))).await.unwrap();
+    // The gateway gives every OpenLCB-TCP node a proxy alias on the CAN side.
+    transfer(&sender, &mut was_here, 1000, 2048).await;
+    // It leaves without a word, like a program that was killed.
+    was_here.abort();
+    bounded("the hub noticing", async {
+        while !matches!(hub.next_event().await, Some(HubEvent::InputClosed { .. }) | None) {}
+    })
+    .await;
+    // The gateway released the CAN alias it held for the node: the Node ID is free there.
+    let mut back = bounded(
+        "joining over GridConnect",
+        Node::connect(&gridconnect, Framing::GridConnect, NodeOptions::new(roaming)),
+    )
+    .await
+    .unwrap();
+    // Through the gateway, which must know the node as a CAN node now.
+    transfer(&sender, &mut back, 10_000, 2048).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_hub_refuses_a_client_over_its_cap_and_says_so() {
     let mut options = HubOptions::default();
     options.max_clients = 2;

@@ -35,19 +35,50 @@ impl Gateway {
                 .min_by_key(|(_, p)| p.last_used)
                 .map(|(index, _)| index);
             let Some(index) = idle else { return false };
-            let evicted = self.proxies.swap_remove(index);
-            if let Some(alias) = evicted.permitted_alias() {
-                let amr = CanFrame::from_header(
-                    &CanHeader::control(FrameKind::AliasMapReset, alias),
-                    &evicted.node.to_bytes(),
-                );
-                self.queue_raw(amr);
-            }
+            self.release_proxy(index);
         }
+        // Held messages for it were for a full-format node: they reached it on its own side.
+        let local = self.drop_waiting(|message| message.destination == Some(node));
+        self.stats.stayed_local = self.stats.stayed_local.saturating_add(local as u64);
         self.proxies.push(Proxy::new(now, node, self.config.reserve_wait));
         let index = self.proxies.len() - 1;
         self.avoid_taken_alias(index);
         true
+    }
+
+    /// Forgets the proxy at `index`, with an AMR for the alias it held (CFT §6.2.5). Its
+    /// Node ID may then log in from the CAN side.
+    fn release_proxy(&mut self, index: usize) -> Option<NodeAlias> {
+        let proxy = self.proxies.swap_remove(index);
+        let alias = proxy.permitted_alias()?;
+        let amr = CanFrame::from_header(&CanHeader::control(FrameKind::AliasMapReset, alias), &proxy.node.to_bytes());
+        self.queue_raw(amr);
+        Some(alias)
+    }
+
+    /// A full-format node is gone: its streams end, what it had queued or held for CAN is
+    /// dropped, and its proxy alias is released.
+    pub(super) fn full_node_left(&mut self, node: NodeId) {
+        let Some(index) = self.proxies.iter().position(|p| p.node == node) else { return };
+        self.end_streams_of(node, StreamEnd::NodeGone);
+        if let Some(alias) = self.proxies.get(index).and_then(Proxy::any_alias) {
+            self.drop_ready(|source, _| source == alias);
+        }
+        let dropped = self.drop_waiting(|message| message.source == node);
+        self.count_lost(dropped);
+        let alias = self.release_proxy(index);
+        self.event(GatewayEvent::ProxyReleased { node, alias });
+    }
+
+    /// Drops the held messages that `matches`; returns how many.
+    fn drop_waiting(&mut self, matches: impl Fn(&Message) -> bool) -> usize {
+        let (held, kept): (VecDeque<_>, _) =
+            core::mem::take(&mut self.waiting).into_iter().partition(|w| matches(&w.item.message));
+        self.waiting = kept;
+        for waiting in &held {
+            self.discard(&waiting.item);
+        }
+        held.len()
     }
 
     /// No stream and nothing queued involves the proxy's node or alias.

@@ -339,6 +339,15 @@ impl Gateway {
         self.forward(now, Side::Full, msg.to_message());
     }
 
+    /// A full-format node left the full-format link without a word (the connection that
+    /// carried it closed). Its streams end, what it had queued or held for CAN is dropped,
+    /// and the CAN alias held for it is released with an AMR, so that its Node ID may log in
+    /// on the CAN side. Unknown nodes are ignored.
+    pub fn handle_full_node_left(&mut self, now: Instant, node: NodeId) {
+        self.now = now;
+        self.full_node_left(node);
+    }
+
     // ----- CAN side in -----
 
     fn can_message(&mut self, now: Instant, source: NodeAlias, mti: Mti, data: &[u8]) {
