@@ -25,7 +25,7 @@ pub(crate) enum Topology {
 #[derive(Debug, Args)]
 #[command(after_help = "\
 --json prints one object: the options (topology, bitrate, window, early_proceed, latency_ms,
-streams, seed), payload_bytes (asked for), delivered_bytes (arrived and verified), elapsed_s
+streams, nodes, seed), payload_bytes (asked for), delivered_bytes (arrived and verified), elapsed_s
 (virtual), goodput_bytes_per_s (delivered_bytes / elapsed), ceiling_bytes_per_s (back-to-back
 full frames without stuff bits), efficiency (delivered_bytes at the ceiling / elapsed, at most
 1), bus_utilisation (0..1), tcp_bytes, frames (total and per kind: stream_data, proceed,
@@ -51,9 +51,14 @@ pub(crate) struct SimArgs {
     /// Per-node processing latency, milliseconds (fractions allowed).
     #[arg(long, default_value_t = 1.0, value_parser = parse_latency)]
     latency: f64,
-    /// Concurrent transfers between the two nodes.
+    /// Concurrent transfers from each sending node to its destination.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=255))]
     streams: u16,
+    /// Nodes on the bus (can topology). With 2, the first sends to the second; with more,
+    /// every node sends `--streams` transfers to the next one round a ring, so each node
+    /// both sends and receives.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u16).range(2..=1000))]
+    nodes: u16,
     /// Network layout.
     #[arg(long, value_enum, default_value_t = Topology::Can)]
     topology: Topology,
@@ -93,7 +98,8 @@ struct Report {
     real_time_s: f64,
 }
 
-/// Node IDs of the simulated pair.
+/// Node IDs of the simulated pair (the nodes of a ring count on from `SOURCE`) and of the
+/// gateway (only in a pair).
 const SOURCE: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x00]);
 const DESTINATION: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x01]);
 const GATEWAY: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x10]);
@@ -102,6 +108,9 @@ const GATEWAY: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x22, 0x10])
 const START: Instant = Instant::from_millis(300);
 
 pub(crate) fn run(args: &SimArgs) -> Result<ExitCode, String> {
+    if args.nodes > 2 && args.topology != Topology::Can {
+        return Err("--nodes above 2 needs --topology can (one bus)".to_string());
+    }
     let report = simulate(args)?;
     if args.json {
         crate::net::print_json(&json(args, &report));
@@ -115,8 +124,10 @@ fn node_options(args: &SimArgs) -> NodeOptions {
     let mut options = NodeOptions::default();
     options.node.stream.max_window = args.window;
     options.node.stream.early_proceed = args.early_proceed;
-    options.node.stream.max_streams = usize::from(args.streams).max(1);
-    options.node.stream.max_streams_per_peer = usize::from(args.streams).max(1);
+    // A node of a ring receives as many streams as it sends.
+    let roles = if args.nodes > 2 { 2 } else { 1 };
+    options.node.stream.max_streams = usize::from(args.streams) * roles;
+    options.node.stream.max_streams_per_peer = usize::from(args.streams);
     options.can.transmit_queue_limit = options.can.transmit_queue_limit.max(usize::from(args.streams) * 4);
     options.latency = Duration::from_micros((args.latency * 1000.0).round() as u64);
     options
@@ -126,17 +137,23 @@ fn simulate(args: &SimArgs) -> Result<Report, String> {
     let wall = std::time::Instant::now();
     let mut net = Network::new(args.seed);
     let options = node_options(args);
-    let (from, to) = match args.topology {
+    let pairs = match args.topology {
         Topology::Can => {
             let bus = net.add_bus(args.bitrate, 16);
-            let a = net.add_can_node(SOURCE, bus, options.clone());
-            (a, net.add_can_node(DESTINATION, bus, options))
+            let nodes: Vec<_> = (0..u64::from(args.nodes))
+                .map(|i| {
+                    let id = NodeId::new(SOURCE.as_raw() + i).expect("a Node ID below 2^48");
+                    net.add_can_node(id, bus, options.clone())
+                })
+                .collect();
+            let senders = if args.nodes > 2 { nodes.len() } else { 1 };
+            (0..senders).map(|i| (nodes[i], nodes[(i + 1) % nodes.len()])).collect()
         }
         Topology::Tcp => {
             let link_latency = options.latency;
             let [a, b] =
                 net.add_tcp_pair([SOURCE, DESTINATION], [options.clone(), options], link_latency, args.bandwidth);
-            (a, b)
+            vec![(a, b)]
         }
         Topology::CanGatewayTcp => {
             let bus = net.add_bus(args.bitrate, 16);
@@ -146,15 +163,17 @@ fn simulate(args: &SimArgs) -> Result<Report, String> {
             let gateway = net.add_gateway(GATEWAY, bus, config, options.latency);
             let a = net.add_can_node(SOURCE, bus, options.clone());
             let link_latency = options.latency;
-            (a, net.add_node_behind(gateway, DESTINATION, options, link_latency, args.bandwidth))
+            vec![(a, net.add_node_behind(gateway, DESTINATION, options, link_latency, args.bandwidth))]
         }
     };
-    let transfers: Vec<usize> = (0..args.streams)
-        .map(|_| net.add_transfer(TransferSpec::new(from, to, args.bytes, args.window).at(START)))
+    let transfers: Vec<usize> = pairs
+        .iter()
+        .flat_map(|&(from, to)| std::iter::repeat_n((from, to), usize::from(args.streams)))
+        .map(|(from, to)| net.add_transfer(TransferSpec::new(from, to, args.bytes, args.window).at(START)))
         .collect();
     net.run_until(START, 10_000_000).map_err(|e| e.to_string())?;
     let before = net.stats();
-    let payload_bytes = args.bytes * u64::from(args.streams);
+    let payload_bytes = args.bytes * transfers.len() as u64;
     // A generous bound: every payload byte may cost a driver step or two.
     let max_steps = 1_000_000 + 8 * payload_bytes;
     net.run(Instant::from_micros(u64::MAX / 2), max_steps).map_err(|e| e.to_string())?;
@@ -231,6 +250,7 @@ struct SimReport {
     early_proceed: bool,
     latency_ms: f64,
     streams: u16,
+    nodes: u16,
     seed: u64,
     payload_bytes: u64,
     delivered_bytes: u64,
@@ -256,6 +276,7 @@ fn json(args: &SimArgs, r: &Report) -> SimReport {
         early_proceed: args.early_proceed,
         latency_ms: args.latency,
         streams: args.streams,
+        nodes: args.nodes,
         seed: args.seed,
         payload_bytes: r.payload_bytes,
         delivered_bytes: r.delivered_bytes,
@@ -281,9 +302,10 @@ fn text(args: &SimArgs, r: &Report) -> String {
             format!("CAN at {} bit/s, a gateway, OpenLCB-TCP at {} B/s", args.bitrate, args.bandwidth)
         }
     };
+    let senders = if args.nodes > 2 { format!(" from each of {} nodes to the next", args.nodes) } else { String::new() };
     let _ = writeln!(
         out,
-        "{} stream(s) of {} bytes over {medium}, window {}, early Proceed {}, latency {} ms, seed {}",
+        "{} stream(s){senders} of {} bytes over {medium}, window {}, early Proceed {}, latency {} ms, seed {}",
         args.streams,
         args.bytes,
         args.window,

@@ -242,6 +242,11 @@ impl Outgoing {
         Outgoing { message, destination, deadline: None }
     }
 
+    /// Stream data and the Complete behind it: the lane that yields to every other message.
+    fn is_stream_data(&self) -> bool {
+        matches!(self.message.mti, Mti::STREAM_DATA_SEND | Mti::STREAM_DATA_COMPLETE)
+    }
+
     /// The message waits for (or was sent to) the alias of `node`.
     fn is_for(&self, node: NodeId) -> bool {
         self.message.destination == Some(node)
@@ -298,8 +303,16 @@ pub struct CanLink {
     reassembly: Reassembler,
     datagrams: Reassembler,
     frames: Queue<CanFrame>,
+    /// Messages ready to send, but stream data: they go first.
     messages: Queue<Outgoing>,
+    /// Stream data (and Completes, which stay behind their data), ready to send: it yields
+    /// to every other message, as its frames do on the bus. Its frames stand alone (each
+    /// names its stream), so a Data Send may pause between two frames.
+    stream_data: Queue<Outgoing>,
+    /// The message being framed.
     current: Option<Fragments<Vec<u8>>>,
+    /// The stream data message being framed, paused while other messages go.
+    current_data: Option<Fragments<Vec<u8>>>,
     /// Messages waiting for their destination's alias (an AME answer).
     unresolved: Queue<Outgoing>,
     /// When the alias was last permitted (for [`CanConfig::newcomer_window`]).
@@ -308,6 +321,9 @@ pub struct CanLink {
     last_duplicate: Option<(NodeAlias, Instant)>,
     /// [`leave`](Self::leave) was called: AMR goes out once the queued messages have.
     leaving: bool,
+    /// The frame in hand was another node's stream data: the layer above hears that the bus
+    /// carries streams ([`Receiver::medium_busy`]).
+    streams_on_bus: bool,
     events: Queue<LinkEvent>,
     /// Peer changes found while handling one input, handed to the layer above before the
     /// input returns (always empty between calls).
@@ -329,11 +345,14 @@ impl CanLink {
             datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
             frames: Queue::with_capacity(config.frame_queue_limit),
             messages: Queue::with_capacity(config.transmit_queue_limit),
+            stream_data: Queue::new(),
             current: None,
+            current_data: None,
             unresolved: Queue::with_capacity(config.transmit_queue_limit),
             permitted_at: now,
             last_duplicate: None,
             leaving: false,
+            streams_on_bus: false,
             events: Queue::with_capacity(EVENT_BOUND),
             changes: Queue::with_capacity(change_bound(&config)),
             stats: LinkStats::default(),
@@ -410,8 +429,10 @@ impl CanLink {
     /// Messages accepted by `send` and not yet fully framed.
     pub fn queued_messages(&self) -> usize {
         self.messages.len()
+            + self.stream_data.len()
             + self.unresolved.len()
             + usize::from(self.current.as_ref().is_some_and(Fragments::has_more))
+            + usize::from(self.current_data.as_ref().is_some_and(Fragments::has_more))
     }
 
     /// `send` has room for another message. A driver that must not lose stream data polls
@@ -434,7 +455,7 @@ impl CanLink {
     /// [`CanConfig::transmit_queue_limit`] messages are queued (ready or waiting for an alias).
     #[inline(always)]
     fn queue_full(&self) -> bool {
-        self.messages.len() + self.unresolved.len() >= self.config.transmit_queue_limit
+        self.messages.len() + self.stream_data.len() + self.unresolved.len() >= self.config.transmit_queue_limit
     }
 
     // ----- commands -----
@@ -467,22 +488,32 @@ impl CanLink {
         }
         let resolved = destination.map(|node| self.alias_for(node)).transpose();
         let mut outgoing = Outgoing::new(message, None);
-        let queue = match resolved {
+        match resolved {
             Ok(alias) => {
                 outgoing.destination = alias;
-                &mut self.messages
+                self.ready(outgoing);
             }
             Err(deadline) => {
                 outgoing.deadline = deadline;
-                &mut self.unresolved
+                // Never refused: `can_send` found the queues together below the limit.
+                self.unresolved.push_within(self.config.transmit_queue_limit, outgoing);
             }
-        };
-        // Never refused: `can_send` found both queues together below the limit.
-        queue.push_within(self.config.transmit_queue_limit, outgoing);
+        }
         if resolved.is_err() {
             self.send_enquiries(now);
         }
         Ok(())
+    }
+
+    /// Queues a message whose destination alias is known in its lane. Never refused: the
+    /// queues together hold at most the limit (the callers checked), and stream data takes
+    /// memory only while some is queued.
+    fn ready(&mut self, outgoing: Outgoing) {
+        if outgoing.is_stream_data() {
+            self.stream_data.push_back(outgoing);
+        } else {
+            self.messages.push_within(self.config.transmit_queue_limit, outgoing);
+        }
     }
 
     /// The alias to send to `node`: its provisional alias, or its cached one unless messages
@@ -539,14 +570,28 @@ impl CanLink {
                 return Some(frame);
             }
             self.current = None;
-            let Some(Outgoing { message, destination, .. }) = self.messages.pop_front() else {
-                return self.leave_now();
-            };
-            match Fragments::new(message.mti, alias, destination, message.payload) {
-                Ok(fragments) => self.current = Some(fragments),
-                Err(_) => bump(&mut self.stats.send_refused),
+            // Every other message before the next frame of stream data.
+            if let Some(outgoing) = self.messages.pop_front() {
+                self.current = self.fragments(alias, outgoing);
+                continue;
             }
+            if let Some(frame) = self.current_data.as_mut().and_then(Iterator::next) {
+                return Some(frame);
+            }
+            self.current_data = None;
+            let Some(outgoing) = self.stream_data.pop_front() else { return self.leave_now() };
+            self.current_data = self.fragments(alias, outgoing);
         }
+    }
+
+    /// The frames of `outgoing`, sent from `alias` (`None`, counted, if it has no CAN form).
+    fn fragments(&mut self, alias: NodeAlias, outgoing: Outgoing) -> Option<Fragments<Vec<u8>>> {
+        let Outgoing { message, destination, .. } = outgoing;
+        let fragments = Fragments::new(message.mti, alias, destination, message.payload);
+        if fragments.is_err() {
+            bump(&mut self.stats.send_refused);
+        }
+        fragments.ok()
     }
 
     /// Once leaving and nothing is left to send but frames of the link's own: the AMR.
@@ -629,6 +674,9 @@ impl CanLink {
     pub fn handle_frame<A: Receiver + ?Sized>(&mut self, now: Instant, frame: &CanFrame, above: &mut A) {
         let named = self.receive(now, frame);
         self.hand_up_changes(above);
+        if core::mem::take(&mut self.streams_on_bus) {
+            above.medium_busy(now);
+        }
         if let Some(Named { received: Received { mti, payload }, source }) = named {
             let destination = mti.is_addressed().then_some(self.node);
             let payload = match payload {
@@ -726,6 +774,7 @@ impl CanLink {
 
     /// A format 7 frame: stream data to us.
     fn on_stream_data<'a>(&mut self, destination: NodeAlias, data: &'a [u8]) -> Option<Received<'a>> {
+        self.streams_on_bus = true;
         if Some(destination) != self.login.alias() {
             return ignore(&mut self.stats.not_for_us);
         }
@@ -823,9 +872,7 @@ impl CanLink {
         }
         while let Some(index) = self.unresolved.iter().position(|waiting| waiting.is_for(node)) {
             if let Some(Outgoing { message, .. }) = self.unresolved.remove(index) {
-                // Never refused: the two queues together hold at most the limit.
-                let outgoing = Outgoing::new(message, Some(alias));
-                self.messages.push_within(self.config.transmit_queue_limit, outgoing);
+                self.ready(Outgoing::new(message, Some(alias)));
             }
         }
     }
@@ -835,7 +882,8 @@ impl CanLink {
     fn forget(&mut self, alias: NodeAlias) {
         self.reassembly.forget_source(alias);
         self.datagrams.forget_source(alias);
-        let dropped = self.messages.retain(|m| m.destination != Some(alias));
+        let dropped = self.messages.retain(|m| m.destination != Some(alias))
+            + self.stream_data.retain(|m| m.destination != Some(alias));
         add(&mut self.stats.messages_dropped, dropped);
         let node = self.cache.remove_alias(alias).unwrap_or(alias.provisional_node_id());
         self.change(PeerChange::Lost(node));
@@ -927,11 +975,13 @@ impl CanLink {
     /// Everything tied to the old alias goes: queued messages, partial messages and
     /// datagrams, frames of the link's own.
     fn drop_traffic(&mut self) {
-        let queued = self.messages.len() + self.unresolved.len() + usize::from(self.current.is_some());
+        let queued = self.queued_messages();
         add(&mut self.stats.messages_dropped, queued);
         self.messages.clear();
+        self.stream_data.clear();
         self.unresolved.clear();
         self.current = None;
+        self.current_data = None;
         self.frames.clear();
         self.reassembly.clear();
         self.datagrams.clear();

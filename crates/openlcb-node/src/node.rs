@@ -493,6 +493,12 @@ impl Node {
         }
     }
 
+    /// The transport saw another node's stream data on a shared medium (a CAN bus): the
+    /// stream waits of this node run from `now` ([`StreamEndpoint::medium_busy`]).
+    pub fn medium_busy(&mut self, now: Instant) {
+        self.streams.medium_busy(now);
+    }
+
     /// The transport lost its link (e.g. this node's CAN alias): everything open ends.
     pub fn link_lost(&mut self) {
         // The transport announces the node again once it is back; its events follow.
@@ -801,6 +807,10 @@ impl PeerChanges for Node {
 impl Receiver for Node {
     fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
         Node::handle_message(self, now, message);
+    }
+
+    fn medium_busy(&mut self, now: Instant) {
+        Node::medium_busy(self, now);
     }
 }
 

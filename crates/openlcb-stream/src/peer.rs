@@ -51,6 +51,15 @@ pub trait Receiver: PeerChanges {
     /// A message for this node (or a global one) arrived. Its payload borrows the transport's
     /// buffer.
     fn handle_message(&mut self, now: Instant, message: MessageRef<'_>);
+
+    /// The transport saw another node's stream data go by on a shared medium (on CAN: a
+    /// stream data frame, to this node or another) at `now`: the medium is busy with streams,
+    /// so a peer may be waiting for its turn rather than silent (see
+    /// [`StreamEndpoint::medium_busy`](crate::StreamEndpoint::medium_busy)). By default,
+    /// nothing.
+    fn medium_busy(&mut self, now: Instant) {
+        let _ = now;
+    }
 }
 
 impl<T: PeerChanges + ?Sized> PeerChanges for &mut T {
@@ -62,5 +71,9 @@ impl<T: PeerChanges + ?Sized> PeerChanges for &mut T {
 impl<T: Receiver + ?Sized> Receiver for &mut T {
     fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
         (**self).handle_message(now, message);
+    }
+
+    fn medium_busy(&mut self, now: Instant) {
+        (**self).medium_busy(now);
     }
 }

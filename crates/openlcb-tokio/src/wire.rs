@@ -66,6 +66,10 @@ impl Receiver for Above<'_> {
         crate::trace::memory_step(false, msg.mti, msg.source, msg.destination, msg.payload);
         self.node.handle_message(now, msg);
     }
+
+    fn medium_busy(&mut self, now: Instant) {
+        self.node.medium_busy(now);
+    }
 }
 
 /// Acts on the CAN link's own events. Returns an error the node cannot recover from: a

@@ -265,6 +265,8 @@ pub struct StreamEndpoint {
     slots: Vec<Stream>,
     next_source_id: StreamId,
     next_destination_id: StreamId,
+    /// When the medium last carried another node's stream data ([`Self::medium_busy`]).
+    medium_busy: Instant,
     out: Outputs,
     config: Config,
 }
@@ -279,6 +281,7 @@ impl StreamEndpoint {
             slots: Vec::new(),
             next_source_id: StreamId::MIN,
             next_destination_id: StreamId::MIN,
+            medium_busy: Instant::ZERO,
             out,
         }
     }
@@ -394,7 +397,7 @@ impl StreamEndpoint {
             Mti::STREAM_INITIATE_REQUEST => self.on_request(now, peer, msg.payload),
             Mti::STREAM_INITIATE_REPLY => self.on_reply(now, peer, msg.payload),
             Mti::STREAM_DATA_SEND => self.on_data(now, peer, msg.payload),
-            Mti::STREAM_DATA_PROCEED => self.on_proceed(peer, msg.payload),
+            Mti::STREAM_DATA_PROCEED => self.on_proceed(now, peer, msg.payload),
             Mti::STREAM_DATA_COMPLETE => self.on_complete(now, peer, msg.payload),
             Mti::OPTIONAL_INTERACTION_REJECTED | Mti::TERMINATE_DUE_TO_ERROR => {
                 self.on_error_report(msg.mti, peer, ErrorReport::parse(msg.payload));
@@ -441,6 +444,16 @@ impl StreamEndpoint {
             PeerChange::Lost(peer) => self.end_all_with(peer, Termination::PeerLost),
             PeerChange::Renamed { from, to } => self.rename_peer(from, to),
         }
+    }
+
+    /// The transport saw another node's stream data go by on a shared medium (a CAN bus, where
+    /// stream data has the lowest priority) at `now`, to this node or another. Streams on the
+    /// medium may hold back this node's peers, whose frames lose arbitration (or wait behind
+    /// their own data): until it falls quiet, the Reply, Proceed, first-data and idle waits
+    /// run from the last such frame, so a peer waiting for its turn is not taken for a silent
+    /// one. Once no stream moves, every wait runs out as configured.
+    pub fn medium_busy(&mut self, now: Instant) {
+        self.medium_busy = now;
     }
 
     /// The transport lost its link (e.g. this node's CAN alias): every stream ends with
@@ -763,8 +776,13 @@ impl StreamEndpoint {
         }
     }
 
-    fn on_proceed(&mut self, peer: NodeId, payload: &[u8]) {
+    fn on_proceed(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(proceed) = DataProceed::parse(payload) else { return self.count_malformed() };
+        // Any Proceed from the peer, even one for a stream that has ended here, shows that it
+        // takes in this node's data: the streams still waiting their turn are not ignored.
+        for stream in self.slots.iter_mut().filter(|s| s.is_with(peer, Role::Source)) {
+            stream.heard = now;
+        }
         let found = self.lookup(peer, Role::Source, proceed.source_stream).filter(|(_, stream, _)| {
             stream.state == State::Sending && stream.destination_stream == Some(proceed.destination_stream)
         });
@@ -838,8 +856,7 @@ impl StreamEndpoint {
 
     /// The wait of the stream in `slot` ran out; what that means follows from its state.
     fn on_deadline(&mut self, now: Instant, slot: usize) {
-        let receiving = self.slots.get(slot).is_some_and(|s| s.state == State::Receiving);
-        if receiving && self.peer_progress(now, slot) {
+        if self.peer_progress(now, slot) {
             return;
         }
         let Some(stream) = self.slots.get(slot) else { return };
@@ -894,16 +911,22 @@ impl StreamEndpoint {
         }
     }
 
-    /// The first-data or idle wait of the receiving stream in `slot` ran out: if its peer sent
-    /// data on another stream within that wait, the peer is busy, not silent (a sender serves
-    /// its streams in turn), so the wait starts again from that data and this returns true.
+    /// A wait for the peer of the stream in `slot` ran out (its Reply, a Proceed, the first
+    /// data, more data): if the peer made progress on another stream in the same role within
+    /// that wait (a Proceed, data), it is busy, not silent (streams take turns), and if the
+    /// medium carried others' streams, the peer may be waiting for its turn on it. Then the
+    /// wait starts again from the later of the two and this returns true.
     fn peer_progress(&mut self, now: Instant, slot: usize) -> bool {
         let Some(stream) = self.slots.get(slot) else { return false };
-        let peer = stream.peer;
-        let heard =
-            self.slots.iter().filter(|s| s.is_with(peer, Role::Destination) && s.heard != NEVER).map(|s| s.heard).max();
-        let Some(heard) = heard else { return false };
-        let resume_at = later(heard, self.receive_wait(stream.count));
+        let wait = match stream.state {
+            State::AwaitingReply => Some(self.config.reply_timeout),
+            State::Sending => Some(self.config.proceed_timeout),
+            State::Receiving => self.receive_wait(stream.count),
+            _ => return false,
+        };
+        let (peer, role) = (stream.peer, stream.role());
+        let heard = self.slots.iter().filter(|s| s.is_with(peer, role)).fold(self.medium_busy, |t, s| t.max(s.heard));
+        let resume_at = later(heard, wait);
         let Some(stream) = self.slots.get_mut(slot) else { return false };
         if resume_at <= now {
             return false;
@@ -1227,6 +1250,10 @@ impl PeerChanges for StreamEndpoint {
 }
 
 impl Receiver for StreamEndpoint {
+    fn medium_busy(&mut self, now: Instant) {
+        StreamEndpoint::medium_busy(self, now);
+    }
+
     fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
         StreamEndpoint::handle_message(self, now, message);
     }

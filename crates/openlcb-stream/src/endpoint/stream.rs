@@ -95,8 +95,9 @@ pub(crate) struct Stream {
     pub(crate) deadline: Instant,
     /// Source: when to send the next keep-alive.
     pub(crate) keepalive: Instant,
-    /// Destination: when data last arrived on this stream (`NEVER`: none yet). The peer's
-    /// data on any of its streams keeps the first-data and idle waits of the others going.
+    /// When the peer last showed progress on this stream: data arrived (destination) or a
+    /// Proceed did (source); `Instant::ZERO` until then. The peer's progress on any of its
+    /// streams in a role keeps the waits of the others in that role going.
     pub(crate) heard: Instant,
     /// Payload bytes sent (source) or received (destination) so far. 64 bits cannot
     /// overflow, so it adds without saturating.
@@ -118,7 +119,7 @@ impl Stream {
             content_uid: None,
             deadline: NEVER,
             keepalive: NEVER,
-            heard: NEVER,
+            heard: Instant::ZERO,
             credit: 0,
             count: 0,
             window_sent: 0,
