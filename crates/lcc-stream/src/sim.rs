@@ -302,7 +302,8 @@ fn text(args: &SimArgs, r: &Report) -> String {
             format!("CAN at {} bit/s, a gateway, OpenLCB-TCP at {} B/s", args.bitrate, args.bandwidth)
         }
     };
-    let senders = if args.nodes > 2 { format!(" from each of {} nodes to the next", args.nodes) } else { String::new() };
+    let senders =
+        if args.nodes > 2 { format!(" from each of {} nodes to the next", args.nodes) } else { String::new() };
     let _ = writeln!(
         out,
         "{} stream(s){senders} of {} bytes over {medium}, window {}, early Proceed {}, latency {} ms, seed {}",

@@ -35,6 +35,8 @@ impl<F: FnMut(MessageRef<'_>)> Receiver for Above<F> {
     fn handle_message(&mut self, _now: Instant, message: MessageRef<'_>) {
         (self.deliver)(message);
     }
+
+    fn medium_busy(&mut self, _now: Instant) {}
 }
 
 /// A link for 05.01.01.01.22.00 with small bounds, already permitted as alias 0x123.

@@ -146,6 +146,10 @@ impl Receiver for Logging<'_> {
         self.log.push(Seen::Message(message.mti, message.source));
         self.node.handle_message(now, message);
     }
+
+    fn medium_busy(&mut self, now: Instant) {
+        self.node.medium_busy(now);
+    }
 }
 
 #[test]

@@ -302,3 +302,36 @@ fn send_refuses_messages_without_a_can_form_and_beyond_the_queue_bound() {
     assert_eq!(solo.node.link.stats().send_refused, 2);
     assert_eq!(solo.node.link.queued_messages(), 2);
 }
+
+// ----- transmit order -----
+
+#[test]
+fn other_messages_go_between_the_frames_of_stream_data_and_a_complete_stays_behind_its_data() {
+    let mut solo = Solo::permitted();
+    solo.inject(&[":X10701789N050101012202;"]);
+    let to_c = |mti: Mti, payload: &[u8]| Message::addressed(mti, node_id(A_ID), node_id(C_ID), payload.to_vec());
+    let link = &mut solo.node.link;
+    // A DID and 21 bytes: three frames.
+    link.send(solo.now, to_c(Mti::STREAM_DATA_SEND, &[7; 22])).unwrap();
+    link.send(solo.now, to_c(Mti::STREAM_DATA_COMPLETE, &[4, 7, 0, 0, 0, 21])).unwrap();
+    let first = link.poll_transmit().map(|f| common::text(&f));
+    let data = ":X1F789123N0707070707070707;";
+    assert_eq!(first.as_deref(), Some(data));
+    // A Proceed and an Initiate Reply queued behind the data go before its next frame.
+    link.send(solo.now, to_c(Mti::STREAM_DATA_PROCEED, &[5, 8])).unwrap();
+    link.send(solo.now, to_c(Mti::STREAM_INITIATE_REPLY, &[0, 16, 0x80, 0, 6, 9])).unwrap();
+    assert_eq!(
+        solo.sent(),
+        [":X19888123N07890508;", ":X19868123N0789001080000609;", data, data, ":X198A8123N0789040700000015;"]
+    );
+}
+
+#[test]
+fn stream_data_on_the_bus_tells_the_layer_above_that_the_medium_is_busy() {
+    let mut solo = Solo::permitted();
+    solo.inject(&[":X10701789N050101012202;", ":X19100789N050101012202;"]);
+    assert!(solo.node.medium_busy.is_empty(), "no stream data yet");
+    // Stream data to another node, then to this one (for no stream it has open).
+    solo.inject(&[":X1F456789N0700;", ":X1F123789N0700;"]);
+    assert_eq!(solo.node.medium_busy, [solo.now, solo.now]);
+}

@@ -486,6 +486,8 @@ impl Receiver for Recorder {
     fn handle_message(&mut self, _now: Instant, _message: openlcb_stream::MessageRef<'_>) {
         self.messages += 1;
     }
+
+    fn medium_busy(&mut self, _now: Instant) {}
 }
 
 impl Upper for Recorder {

@@ -106,6 +106,53 @@ fn fifty_nodes_each_sending_to_another_on_one_bus() {
     assert!(net.stats().frames.stream_data >= 50 * 1024 / 7);
 }
 
+/// Every transfer of `net` completed and delivered what was sent; the latest end.
+fn all_completed(net: &Network) -> Instant {
+    let reports = net.transfers();
+    for report in &reports {
+        assert_eq!(report.outcome, Outcome::Completed, "{report:?}");
+        assert_eq!(report.verified_prefix, report.delivered, "{report:?}");
+    }
+    reports.iter().filter_map(|r| r.ended_at).max().unwrap()
+}
+
+#[test]
+fn two_hundred_fifty_five_streams_at_the_default_window_wait_their_turn() {
+    // 255 windows of 2048 bytes take 77 s to cross a 125 kbit/s bus: each stream waits far
+    // longer than the Proceed (30 s) and first-data (15 s) waits for its next turn.
+    let mut o = NodeOptions::default();
+    o.node.stream.max_streams = 255;
+    o.node.stream.max_streams_per_peer = 255;
+    let (mut net, a, b) = can_pair(11, o.clone(), o);
+    for _ in 0..255 {
+        net.add_transfer(TransferSpec::new(a, b, 4096, 2048));
+    }
+    net.run(Instant::from_millis(3_600_000), 20_000_000).unwrap();
+    let ended = all_completed(&net);
+    // The sender shared the bus window by window: the first stream to finish still waited
+    // for a turn after every other stream's first window (one stream after another would
+    // finish the first at 1/255 of the run).
+    let first = net.transfers().iter().filter_map(|r| r.ended_at).min().unwrap();
+    assert!(first.as_millis() * 10 > ended.as_millis() * 4, "first done at {first:?}, last at {ended:?}");
+}
+
+#[test]
+fn fifty_nodes_each_with_four_streams_to_the_next_on_one_bus() {
+    // CAN arbitration serves the pair with the lowest destination alias first: the others
+    // wait, longer than every default wait, until the streams ahead of them are done.
+    let mut net = Network::new(12);
+    let bus = net.add_bus(125_000, 16);
+    let nodes: Vec<NodeIndex> = (0..50).map(|i| net.add_can_node(node(i), bus, NodeOptions::default())).collect();
+    for (i, from) in nodes.iter().enumerate() {
+        for _ in 0..4 {
+            net.add_transfer(TransferSpec::new(*from, nodes[(i + 1) % 50], 2048, 2048));
+        }
+    }
+    net.run(Instant::from_millis(3_600_000), 20_000_000).unwrap();
+    let ended = all_completed(&net);
+    assert!(ended > Instant::from_millis(60_000), "the bus was busy longer than the idle wait: {ended:?}");
+}
+
 #[test]
 fn transfer_over_an_openlcb_tcp_pipe() {
     let mut net = Network::new(5);

@@ -39,6 +39,14 @@ pub struct Config {
     pub accept_policy: AcceptPolicy,
     /// As source, how long to wait for the Initiate Reply. The message network standard wants
     /// at least 3 s; OpenMRN waits 20 s, and so does this crate by default.
+    ///
+    /// This wait and the Proceed, first-data and idle waits below are waits for the peer.
+    /// Each runs again from the peer's latest progress on another stream in the same role (a
+    /// Proceed from it, even for a stream that has ended; data from it), and from the latest
+    /// stream data the transport saw on a shared medium
+    /// ([`StreamEndpoint::medium_busy`](crate::StreamEndpoint::medium_busy)): streams take
+    /// turns, on one node and on a CAN bus, and a peer waiting for its turn is not silent.
+    /// Once the peer and the medium are quiet, each runs out as configured.
     pub reply_timeout: Duration,
     /// As source, how long to wait for a Proceed when out of credit before terminating with
     /// TDE 0x2010. Default 30 s: bootloaders writing flash between windows needed that long.
@@ -52,13 +60,12 @@ pub struct Config {
     pub idle_timeout: Option<Duration>,
     /// As destination, terminate (TDE 0x2010) an accepted stream that has brought no payload
     /// byte for this long (never longer than `idle_timeout`). `None` leaves only the idle
-    /// timeout. Default 15 s: a source sends its first data right after the Reply, but on a
-    /// busy slow bus the frames queue behind everyone else's (50 nodes each sending to another
-    /// on one 125 kbit/s bus, in the harness, took up to 5.5 s to deliver a stream's first
-    /// byte), so 15 s is about three times that; a peer that opens streams and sends nothing
-    /// then holds receive slots for 15 s instead of the whole idle timeout (60 s).
-    /// Keep-alives are not data: they keep a stream that has started alive, not one that
-    /// never did.
+    /// timeout. Default 15 s: a source sends its first data right after the Reply, or, with
+    /// many streams, in its turn (which other streams' data and a busy bus prolong, see
+    /// [`reply_timeout`](Self::reply_timeout)); a peer that opens streams and sends nothing
+    /// on a quiet bus then holds receive slots for 15 s instead of the whole idle timeout
+    /// (60 s). Keep-alives are not data: they keep a stream that has started alive, not one
+    /// that never did.
     pub first_data_timeout: Option<Duration>,
     /// As destination, how long a Complete that states more bytes than have arrived waits
     /// for data still in flight before the stream ends with a count mismatch. In-flight data

@@ -93,6 +93,8 @@ pub enum Op {
     Advance { millis: u16 },
     /// A node loses its link: A (or B) itself with `whole_link`, else its peer.
     Lost { on_b: bool, whole_link: bool },
+    /// A (or B) sees other nodes' stream data on its bus: its waits run from now.
+    MediumBusy { on_b: bool },
 }
 
 const A: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x22, 0]);
@@ -324,6 +326,7 @@ pub fn endpoint_ops(ops: &[Op]) {
                     endpoint.handle_timeout(now);
                 }
             }
+            Op::MediumBusy { on_b } => pair[usize::from(*on_b)].medium_busy(now),
             Op::Lost { on_b, whole_link } => {
                 // One node lost its link (its CAN alias): it ends every stream, its peer hears
                 // it go (AMR) and ends its streams with it, and the transport drops what was

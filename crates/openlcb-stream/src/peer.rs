@@ -55,11 +55,9 @@ pub trait Receiver: PeerChanges {
     /// The transport saw another node's stream data go by on a shared medium (on CAN: a
     /// stream data frame, to this node or another) at `now`: the medium is busy with streams,
     /// so a peer may be waiting for its turn rather than silent (see
-    /// [`StreamEndpoint::medium_busy`](crate::StreamEndpoint::medium_busy)). By default,
-    /// nothing.
-    fn medium_busy(&mut self, now: Instant) {
-        let _ = now;
-    }
+    /// [`StreamEndpoint::medium_busy`](crate::StreamEndpoint::medium_busy)). A wrapper
+    /// passes it on to what it wraps: it has no default, so that none drops it unawares.
+    fn medium_busy(&mut self, now: Instant);
 }
 
 impl<T: PeerChanges + ?Sized> PeerChanges for &mut T {

@@ -988,3 +988,59 @@ fn open_data_on_a_sibling_keeps_the_first_data_wait_going() {
     b.advance(Duration::from_secs(60));
     assert_eq!(b.events().len(), 2, "both idle once the peer falls silent");
 }
+
+#[test]
+fn open_a_proceed_from_the_peer_on_any_stream_keeps_the_proceed_wait_going() {
+    let mut b = Bench::new(config());
+    let waiting = b.open_source(16);
+    b.ep.write(b.now, waiting, &[0; 16]).unwrap();
+    // A second stream to the same peer, SID 5, DID 8, that ends after its one window.
+    let other = b.ep.open(b.now, OpenOptions::new(PEER, 16).source_stream(sid(5))).unwrap();
+    b.peer(Mti::STREAM_INITIATE_REPLY, &[0, 16, 0x80, 0x00, 5, 8]);
+    b.ep.write(b.now, other, &[1; 16]).unwrap();
+    b.ep.finish(b.now, other).unwrap();
+    b.sent();
+    b.events();
+    // 25 s on, the peer proceeds the stream that has ended here: it is taking this node's
+    // data, so the stream still waiting its turn is not given up 30 s after its window.
+    b.advance(Duration::from_secs(25));
+    b.peer(Mti::STREAM_DATA_PROCEED, &[5, 8]);
+    assert_eq!(b.ep.stats().stray_proceeds, 1);
+    b.advance(Duration::from_secs(10));
+    assert!(b.events().is_empty(), "the peer proceeded 10 s ago");
+    assert!(!b.sent().iter().any(|(mti, _)| *mti == Mti::TERMINATE_DUE_TO_ERROR));
+    // Once the peer falls silent the wait runs out, 30 s after its last Proceed.
+    b.advance(Duration::from_secs(19));
+    assert!(b.events().is_empty());
+    b.advance(Duration::from_secs(1));
+    assert_eq!(b.events(), [Event::TimedOut { handle: waiting, kind: TimeoutKind::Proceed }]);
+    assert_eq!(b.sent().last(), Some(&(Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x10, 0x08, 0x88])));
+}
+
+#[test]
+fn every_wait_for_the_peer_runs_from_the_last_stream_data_on_a_busy_medium() {
+    let mut b = Bench::new(config());
+    let sending = b.open_source(16);
+    b.ep.write(b.now, sending, &[0; 16]).unwrap();
+    b.sent();
+    let (receiving, _) = b.open_destination();
+    let requested = b.ep.open(b.now, OpenOptions::new(OTHER, 16).source_stream(sid(9))).unwrap();
+    b.sent();
+    b.events();
+    // Others' streams keep the bus busy for ten minutes, a frame every second: the peers'
+    // frames lose arbitration, so no wait for them (Reply, Proceed, first data) runs out.
+    for _ in 0..600 {
+        b.advance(Duration::from_secs(1));
+        b.ep.medium_busy(b.now);
+    }
+    assert!(b.events().is_empty(), "a peer waiting for its turn on the bus is not silent");
+    assert!(!b.sent().iter().any(|(mti, _)| *mti == Mti::TERMINATE_DUE_TO_ERROR));
+    // The bus falls quiet: each wait runs out as configured, from the last frame.
+    b.advance(Duration::from_secs(15));
+    assert_eq!(b.events(), [Event::TimedOut { handle: receiving, kind: TimeoutKind::FirstData }]);
+    b.advance(Duration::from_secs(5));
+    assert_eq!(b.events(), [Event::TimedOut { handle: requested, kind: TimeoutKind::Reply }]);
+    b.advance(Duration::from_secs(10));
+    assert_eq!(b.events(), [Event::TimedOut { handle: sending, kind: TimeoutKind::Proceed }]);
+    assert_eq!(b.ep.stream_count(), 0);
+}

@@ -59,6 +59,8 @@ pub struct Node {
     pub link_events: Vec<LinkEvent>,
     /// Every peer change the link handed up, in order.
     pub peer_changes: Vec<PeerChange>,
+    /// Every time the link said the bus carries another node's stream data.
+    pub medium_busy: Vec<Instant>,
     pub events: Vec<Event>,
     /// The node's other events (datagrams, SNIP, ...).
     pub node_events: Vec<openlcb_node::NodeEvent>,
@@ -84,6 +86,7 @@ impl Node {
             stack: openlcb_node::Node::new(node_id(id), config),
             link_events: Vec::new(),
             peer_changes: Vec::new(),
+            medium_busy: Vec::new(),
             events: Vec::new(),
             node_events: Vec::new(),
             delivered: Vec::new(),
@@ -96,15 +99,15 @@ impl Node {
     /// then the link's events to the node. Every delivered message is recorded in
     /// `delivered`, every peer change in `peer_changes`.
     pub fn receive(&mut self, now: Instant, frame: &CanFrame) {
-        let Node { link, stack, delivered, peer_changes, .. } = self;
-        link.handle_frame(now, frame, &mut Recording { stack, delivered, peer_changes });
+        let Node { link, stack, delivered, peer_changes, medium_busy, .. } = self;
+        link.handle_frame(now, frame, &mut Recording { stack, delivered, peer_changes, medium_busy });
         self.apply_link_events();
     }
 
     /// Runs the timers of link and node.
     pub fn handle_timeout(&mut self, now: Instant) {
-        let Node { link, stack, delivered, peer_changes, .. } = self;
-        link.handle_timeout(now, &mut Recording { stack, delivered, peer_changes });
+        let Node { link, stack, delivered, peer_changes, medium_busy, .. } = self;
+        link.handle_timeout(now, &mut Recording { stack, delivered, peer_changes, medium_busy });
         self.stack.handle_timeout(now);
     }
 
@@ -158,6 +161,7 @@ struct Recording<'a> {
     stack: &'a mut openlcb_node::Node,
     delivered: &'a mut Vec<Message>,
     peer_changes: &'a mut Vec<PeerChange>,
+    medium_busy: &'a mut Vec<Instant>,
 }
 
 impl PeerChanges for Recording<'_> {
@@ -171,6 +175,11 @@ impl Receiver for Recording<'_> {
     fn handle_message(&mut self, now: Instant, message: MessageRef<'_>) {
         self.delivered.push(message.to_message());
         self.stack.handle_message(now, message);
+    }
+
+    fn medium_busy(&mut self, now: Instant) {
+        self.medium_busy.push(now);
+        self.stack.medium_busy(now);
     }
 }
 
@@ -190,6 +199,8 @@ impl<F: FnMut(MessageRef<'_>)> Receiver for Messages<F> {
     fn handle_message(&mut self, _now: Instant, message: MessageRef<'_>) {
         (self.0)(message);
     }
+
+    fn medium_busy(&mut self, _now: Instant) {}
 }
 
 pub struct Bus {

@@ -40,6 +40,10 @@ impl Receiver for Recording<'_> {
         self.delivered.push(message.to_message());
         self.endpoint.handle_message(now, message);
     }
+
+    fn medium_busy(&mut self, now: Instant) {
+        self.endpoint.medium_busy(now);
+    }
 }
 
 /// One stream endpoint and what it saw.
