@@ -53,6 +53,9 @@ pub struct GatewayConfig {
     /// A tracked stream with no traffic for this long is forgotten (its source or destination
     /// went away without a word). Keep it above the endpoints' keep-alive interval.
     pub stream_idle_timeout: Duration,
+    /// How long what a full-format node sent before it left may take to reach CAN (its last
+    /// data and Complete); then the rest is dropped and counted, and its alias released.
+    pub departed_grace: Duration,
 }
 
 impl Default for GatewayConfig {
@@ -74,6 +77,7 @@ impl Default for GatewayConfig {
             merge_delay: Duration::from_millis(50),
             complete_wait: Duration::from_secs(1),
             stream_idle_timeout: Duration::from_secs(120),
+            departed_grace: Duration::from_secs(5),
         }
     }
 }

@@ -71,8 +71,9 @@ pub enum GatewayEvent {
         /// The CAN alias that announced the same Node ID.
         other: NodeAlias,
     },
-    /// A full-format node left ([`handle_full_node_left`](crate::Gateway::handle_full_node_left)):
-    /// its proxy is forgotten, its streams are over.
+    /// A full-format node left ([`handle_full_node_left`](crate::Gateway::handle_full_node_left))
+    /// and what it sent has gone out (or its grace ran out): its proxy is forgotten, its
+    /// streams are over.
     ProxyReleased {
         /// The full-format node.
         node: NodeId,

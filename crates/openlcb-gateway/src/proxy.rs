@@ -13,12 +13,21 @@ pub(crate) struct Proxy {
     /// The alias last announced (AMD) for the node: messages queued with it must be dropped
     /// if the login stops.
     pub(crate) announced: Option<NodeAlias>,
+    /// The node left the full-format link at this time: what it sent still goes out, then
+    /// its alias is released.
+    pub(crate) left_at: Option<Instant>,
 }
 
 impl Proxy {
     /// Starts the login of `node` at `now`; its CID frames are queued in the login.
     pub(crate) fn new(now: Instant, node: NodeId, reserve_wait: Duration) -> Self {
-        Proxy { node, login: AliasLogin::new(now, node, None, reserve_wait), last_used: now, announced: None }
+        Proxy {
+            node,
+            login: AliasLogin::new(now, node, None, reserve_wait),
+            last_used: now,
+            announced: None,
+            left_at: None,
+        }
     }
 
     /// The alias messages from this node may be sent with.

@@ -243,3 +243,36 @@ fn source_overrunning_its_window_is_terminated_at_both_ends() {
         net.gateway_events.iter().any(|e| matches!(e, GatewayEvent::StreamEnded { cause: StreamEnd::Overrun, .. }))
     );
 }
+
+#[test]
+fn a_full_node_that_leaves_right_after_its_complete_still_delivers_every_byte() {
+    let mut net = Net::started(gateway_config(256), core_config(256), core_config(2048));
+    net.can_frames_per_turn = 1;
+    let data = pattern(2000);
+    net.start_transfer(Side::Full, data.clone(), 4096);
+    // The full-format node sends its last window and its Complete, then its connection
+    // closes while the gateway still has data of it for the slow bus.
+    for _ in 0..100_000 {
+        if net.from_full.iter().any(|m| m.mti == Mti::STREAM_DATA_COMPLETE) {
+            break;
+        }
+        if !net.turn() {
+            let next = net.next_deadline().expect("a transfer under way");
+            net.advance_to(next);
+        }
+    }
+    assert!(net.can.received.len() < data.len(), "data still on its way to CAN: {}", net.can.received.len());
+    let now = net.now;
+    net.gateway.handle_full_node_left(now, Net::node(Side::Full));
+    net.run_until(|n| n.can.finished.is_some());
+    assert_eq!(net.can.finished, Some((2000, true)));
+    assert_eq!(net.can.received, data);
+    net.settle();
+    // The proxy's alias goes once its traffic has: the AMR follows the Complete.
+    let kind = |f: &CanFrame| f.header().unwrap().kind;
+    let complete = net.from_gateway.iter().position(|f| kind(f) == FrameKind::Message { can_mti: 0x8A8 });
+    let amr = net.from_gateway.iter().position(|f| kind(f) == FrameKind::AliasMapReset);
+    assert!(complete.is_some() && amr > complete, "Complete at {complete:?}, AMR at {amr:?}");
+    assert!(net.gateway_events.iter().any(|e| matches!(e, GatewayEvent::ProxyReleased { .. })));
+    assert_eq!(net.gateway.stats().data_bytes_dropped, 0);
+}

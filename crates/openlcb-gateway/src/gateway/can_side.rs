@@ -23,7 +23,9 @@ impl Gateway {
     /// table is full. False if no entry could be had.
     pub(super) fn ensure_proxy(&mut self, now: Instant, node: NodeId) -> bool {
         if let Some(proxy) = self.proxies.iter_mut().find(|p| p.node == node) {
+            // A node that left and speaks again is back (its proxy was not released yet).
             proxy.last_used = now;
+            proxy.left_at = None;
             return true;
         }
         if self.proxies.len() >= self.config.max_proxied_nodes {
@@ -56,18 +58,52 @@ impl Gateway {
         Some(alias)
     }
 
-    /// A full-format node is gone: its streams end, what it had queued or held for CAN is
-    /// dropped, and its proxy alias is released.
-    pub(super) fn full_node_left(&mut self, node: NodeId) {
-        let Some(index) = self.proxies.iter().position(|p| p.node == node) else { return };
-        self.end_streams_of(node, StreamEnd::NodeGone);
-        if let Some(alias) = self.proxies.get(index).and_then(Proxy::any_alias) {
-            self.drop_ready(|source, _| source == alias);
+    /// A full-format node is gone. Its streams as destination end; what it sent still goes to
+    /// CAN (its streams as source go on to their Complete), for at most
+    /// [`GatewayConfig::departed_grace`](crate::GatewayConfig::departed_grace). Then its proxy
+    /// alias is released ([`release_departed`](Self::release_departed)).
+    pub(super) fn full_node_left(&mut self, now: Instant, node: NodeId) {
+        let Some(proxy) = self.proxies.iter_mut().find(|p| p.node == node) else { return };
+        proxy.left_at.get_or_insert(now);
+        let mut index = 0;
+        while let Some(stream) = self.streams.get(index) {
+            if stream.key.destination == node {
+                self.end_stream(index, StreamEnd::NodeGone);
+            } else {
+                index += 1;
+            }
         }
-        let dropped = self.drop_waiting(|message| message.source == node);
-        self.count_lost(dropped);
-        let alias = self.release_proxy(index);
-        self.event(GatewayEvent::ProxyReleased { node, alias });
+        self.release_departed(now);
+    }
+
+    /// Releases the proxies of departed nodes whose traffic has all gone out, or whose grace
+    /// ran out at `now`: their streams end, what is left of theirs is dropped (and counted),
+    /// and an AMR releases the alias, so that the Node ID may log in on the CAN side.
+    pub(super) fn release_departed(&mut self, now: Instant) {
+        let grace = self.config.departed_grace;
+        let mut index = 0;
+        while let Some(proxy) = self.proxies.get(index) {
+            let due = proxy.left_at.is_some_and(|left| left + grace <= now || self.proxy_is_idle(proxy));
+            if !due {
+                index += 1;
+                continue;
+            }
+            let node = proxy.node;
+            let alias = proxy.any_alias();
+            self.end_streams_of(node, StreamEnd::NodeGone);
+            if let Some(alias) = alias {
+                self.drop_ready(|source, _| source == alias);
+            }
+            let dropped = self.drop_waiting(|message| message.source == node);
+            self.count_lost(dropped);
+            let alias = self.release_proxy(index);
+            self.event(GatewayEvent::ProxyReleased { node, alias });
+        }
+    }
+
+    /// When the grace of a departed node runs out, if one is waiting.
+    pub(super) fn departed_deadline(&self) -> Option<Instant> {
+        self.proxies.iter().filter_map(|p| p.left_at).min().map(|left| left + self.config.departed_grace)
     }
 
     /// Drops the held messages that `matches`; returns how many.
@@ -405,7 +441,11 @@ impl Gateway {
                 return Some(frame);
             }
             self.current_data = None;
-            let ready = self.data.pop_front()?;
+            let Some(ready) = self.data.pop_front() else {
+                // Everything is out: the AMR of a departed node whose traffic went with it.
+                self.release_departed(self.now);
+                return self.raw_frames.pop_front();
+            };
             let item_len = ready.item.data_len();
             let stream = ready.item.data_of.flatten();
             match InFlight::start(ready) {

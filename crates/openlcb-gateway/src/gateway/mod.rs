@@ -224,8 +224,8 @@ impl Gateway {
             let complete = s.complete.as_ref().filter(|_| s.awaits_overtaken_data(self.now)).map(|c| c.deadline);
             [s.merge_deadline, complete, Some(s.last_activity + self.config.stream_idle_timeout)]
         });
-        let reassembly = [self.reassembly.poll_timeout(), self.datagrams.poll_timeout()];
-        logins.chain(waiting).chain(streams.flatten()).chain(reassembly.into_iter().flatten()).min()
+        let others = [self.reassembly.poll_timeout(), self.datagrams.poll_timeout(), self.departed_deadline()];
+        logins.chain(waiting).chain(streams.flatten()).chain(others.into_iter().flatten()).min()
     }
 
     // ----- inputs -----
@@ -247,6 +247,7 @@ impl Gateway {
             self.datagram_failed(key, ReassemblyError::Timeout);
         }
         self.expire_resolutions(now);
+        self.release_departed(now);
         let mut index = 0;
         while let Some(stream) = self.streams.get(index) {
             if stream.last_activity + self.config.stream_idle_timeout <= now {
@@ -339,13 +340,14 @@ impl Gateway {
         self.forward(now, Side::Full, msg.to_message());
     }
 
-    /// A full-format node left the full-format link without a word (the connection that
-    /// carried it closed). Its streams end, what it had queued or held for CAN is dropped,
-    /// and the CAN alias held for it is released with an AMR, so that its Node ID may log in
-    /// on the CAN side. Unknown nodes are ignored.
+    /// A full-format node left the full-format link (the connection that carried it closed).
+    /// What it sent before it left still goes to CAN: its streams as source go on to their
+    /// Complete, for at most [`GatewayConfig::departed_grace`]; its streams as destination
+    /// end. Then the rest is dropped and counted, and the CAN alias held for it is released
+    /// with an AMR, so that its Node ID may log in on the CAN side. Unknown nodes are ignored.
     pub fn handle_full_node_left(&mut self, now: Instant, node: NodeId) {
         self.now = now;
-        self.full_node_left(node);
+        self.full_node_left(now, node);
     }
 
     // ----- CAN side in -----
