@@ -1,8 +1,9 @@
 //! The Memory Configuration client against a server scripted message by message, when what
 //! arrives is not what was asked: the client reports it and never hands over a short result.
 
-use openlcb_node::memconfig::wire::{Command, Reply, SpaceInfoReply};
+use openlcb_node::memconfig::wire::{Command, FailedKind, OptionsReply, Reply, SpaceInfoReply};
 use openlcb_node::{MemoryError, MemoryEvent, Node, NodeConfig, NodeEvent, TransferPath};
+use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Duration, Instant, Message, Mti, NodeId};
 
 const CLIENT: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 1]);
@@ -179,4 +180,60 @@ fn a_space_information_reply_for_another_space_fails_at_once() {
         "{end:?}"
     );
     assert_eq!(commands.len(), 1, "asked once, not retried until a timeout: {commands:?}");
+}
+
+#[test]
+fn a_read_whose_stream_the_server_has_no_room_for_goes_by_datagrams() {
+    // The server takes streams (its options say so) but has no stream transfer free: its
+    // Read Stream Reply fails with 0x2020. The client reads the same bytes by datagrams.
+    let data = (0..200u32).map(|i| (i * 7) as u8).collect::<Vec<u8>>();
+    let mut client = Node::new(CLIENT, NodeConfig::default());
+    let _ = std::iter::from_fn(|| client.poll_transmit()).count();
+    client.read_memory(Instant::ZERO, SERVER, 0xFD, 0, Some(200), TransferPath::Auto).unwrap();
+    let mut commands = Vec::new();
+    for _ in 0..100 {
+        let mut answers = Vec::new();
+        while let Some(m) = client.poll_transmit() {
+            let Ok(command) = Command::parse(&m.payload) else { continue };
+            let reply = match command {
+                Command::GetOptions => Reply::Options(OptionsReply {
+                    commands: 0,
+                    write_lengths: 0xE2 | OptionsReply::STREAMS,
+                    highest_space: 0xFF,
+                    lowest_space: None,
+                    name: Vec::new(),
+                }),
+                Command::ReadStream { space, address, .. } => {
+                    Reply::Failed { kind: FailedKind::ReadStream, space: Some(space), address, code: ErrorCode(0x2020) }
+                }
+                Command::Read { space, address, count } => {
+                    let at = address as usize;
+                    Reply::ReadOk { space, address, data: data[at..at + usize::from(count)].to_vec() }
+                }
+                _ => continue,
+            };
+            commands.push(command);
+            answers.push(Message::addressed(Mti::DATAGRAM_RECEIVED_OK, SERVER, CLIENT, vec![0x80]));
+            answers.push(Message::addressed(Mti::DATAGRAM, SERVER, CLIENT, reply.to_bytes()));
+        }
+        for a in &answers {
+            client.handle_message(Instant::ZERO, a.as_ref());
+        }
+        if let Some(NodeEvent::Memory(event)) = std::iter::from_fn(|| client.poll_event()).last() {
+            match event {
+                MemoryEvent::ReadDone { data: read, .. } => assert_eq!(read, data),
+                other => panic!("{other:?}"),
+            }
+            assert!(matches!(commands[1], Command::ReadStream { .. }), "{commands:?}");
+            assert!(
+                matches!(
+                    commands[2..],
+                    [Command::Read { .. }, Command::Read { .. }, Command::Read { .. }, Command::Read { .. }]
+                ),
+                "{commands:?}"
+            );
+            return;
+        }
+    }
+    panic!("no end: {commands:?}");
 }

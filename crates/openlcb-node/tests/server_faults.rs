@@ -307,3 +307,17 @@ fn a_read_of_a_write_only_space_is_refused_with_not_implemented_by_datagram_and_
     let write = Command::Write { space: 0xEF, address: 0, data: vec![9; 64] };
     assert!(answer(&command(&mut server, PEER, &write)).is_ok());
 }
+
+#[test]
+fn one_peer_takes_at_most_half_of_the_stream_transfers() {
+    // Eight stream transfers (the default); a peer that asks for more than four is refused
+    // with 0x2020, and another peer still gets one.
+    let mut server = server();
+    let read = |did: u8| Command::ReadStream { space: 0xFD, address: 0, destination_stream: did, count: 0 };
+    for did in 0..4 {
+        assert!(answer(&command(&mut server, PEER, &read(did))).is_ok(), "read stream {did}");
+    }
+    assert_eq!(answer(&command(&mut server, PEER, &read(4))), Err(0x2020), "a fifth for the same peer");
+    const OTHER: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 3]);
+    assert!(answer(&command(&mut server, OTHER, &read(0))).is_ok(), "room left for another peer");
+}

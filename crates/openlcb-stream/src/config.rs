@@ -58,6 +58,13 @@ pub struct Config {
     /// while it held credit (a source that reset or went silent). `None` disables it.
     /// Default 60 s, four keep-alive intervals.
     pub idle_timeout: Option<Duration>,
+    /// As destination, the payload bytes a stream must bring (at most its window, or its
+    /// whole credit) to count as progress. Progress starts the idle wait again, and keeps
+    /// the waits of the peer's other streams going. Keep-alives and smaller trickles of data
+    /// start it again too, except within `idle_timeout` of a request refused because every
+    /// slot was taken: then a stream that brings less than this in `idle_timeout` is
+    /// terminated, and its slot goes to whoever is waiting. Default 256 bytes.
+    pub min_idle_progress: u16,
     /// As destination, terminate (TDE 0x2010) an accepted stream that has brought no payload
     /// byte for this long (never longer than `idle_timeout`). `None` leaves only the idle
     /// timeout. Default 15 s: a source sends its first data right after the Reply, or, with
@@ -90,6 +97,7 @@ impl Default for Config {
             proceed_timeout: Duration::from_secs(30),
             keepalive_interval: Some(Duration::from_secs(15)),
             idle_timeout: Some(Duration::from_secs(60)),
+            min_idle_progress: 256,
             first_data_timeout: Some(Duration::from_secs(15)),
             complete_grace: Duration::from_secs(2),
             decision_timeout: Duration::from_millis(500),

@@ -975,9 +975,11 @@ fn open_data_on_a_sibling_keeps_the_first_data_wait_going() {
     let waiting_did = b.sent()[0].1[5];
     let Event::Opened { handle: waiting, .. } = b.events()[0] else { panic!("not opened") };
     b.advance(Duration::from_secs(10));
-    b.peer(Mti::STREAM_DATA_SEND, &data(busy_did, b"a"));
-    assert_eq!(read_all(&mut b, busy), b"a");
+    // A window's worth: progress (a byte alone is not, see min_idle_progress).
+    b.peer(Mti::STREAM_DATA_SEND, &data(busy_did, &[b'a'; 16]));
+    assert_eq!(read_all(&mut b, busy), [b'a'; 16]);
     b.events();
+    b.sent();
     b.advance(Duration::from_secs(5));
     assert!(b.events().is_empty(), "the peer is busy sending on its other stream");
     assert!(b.sent().is_empty());
@@ -1043,4 +1045,44 @@ fn every_wait_for_the_peer_runs_from_the_last_stream_data_on_a_busy_medium() {
     b.advance(Duration::from_secs(10));
     assert_eq!(b.events(), [Event::TimedOut { handle: sending, kind: TimeoutKind::Proceed }]);
     assert_eq!(b.ep.stream_count(), 0);
+}
+
+#[test]
+fn open_a_trickle_keeps_a_slot_only_until_someone_else_wants_it() {
+    let mut c = config();
+    c.max_streams = 2;
+    c.max_window = 2048;
+    let mut b = Bench::new(c);
+    b.peer(Mti::STREAM_INITIATE_REQUEST, &[0x08, 0, 0, 0, 4]);
+    let did1 = b.sent()[0].1[5];
+    b.peer(Mti::STREAM_INITIATE_REQUEST, &[0x08, 0, 0, 0, 5]);
+    let did2 = b.sent()[0].1[5];
+    let Event::Opened { handle: first, .. } = b.events()[0] else { panic!("not opened") };
+    let trickle = |b: &mut Bench| {
+        for did in [did1, did2] {
+            b.peer(Mti::STREAM_DATA_SEND, &data(did, b"x"));
+        }
+        for h in b.ep.handles().collect::<Vec<_>>() {
+            read_all(b, h);
+        }
+        b.events();
+        b.sent();
+    };
+    // A byte every 10 s on each stream keeps both open while nobody else asks.
+    for _ in 0..12 {
+        b.advance(Duration::from_secs(10));
+        trickle(&mut b);
+    }
+    assert_eq!(b.ep.stream_count(), 2);
+    // Another node is turned away: from now on the trickle is not progress.
+    b.from(OTHER, Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 9]);
+    assert_eq!(b.sent()[0].1[2..4], [0x20, 0x20], "refused: every slot is taken");
+    for _ in 0..6 {
+        b.advance(Duration::from_secs(10));
+        trickle(&mut b);
+    }
+    assert_eq!(b.ep.stream_count(), 0, "both trickling streams gave up their slots within the idle wait");
+    assert!(b.ep.stream_info(first).is_none());
+    b.from(OTHER, Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 9]);
+    assert_eq!(b.sent()[0].1[2], 0x80, "the next request is accepted");
 }

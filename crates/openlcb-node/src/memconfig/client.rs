@@ -155,6 +155,16 @@ impl Operation {
         }
     }
 
+    /// The server refused this operation's stream command for now (`code` temporary: no
+    /// room for another stream transfer) before a byte moved, and the path is the client's
+    /// choice ([`TransferPath::Auto`]): the same bytes can go by datagrams, which take no
+    /// stream slot.
+    fn may_go_by_datagrams(&self, code: ErrorCode) -> bool {
+        let no_stream =
+            matches!(self.step, Step::ReadStream { handle: None, .. } | Step::WriteStream { handle: None, .. });
+        self.path == TransferPath::Auto && code.is_temporary() && no_stream && self.progress == 0 && self.total() > 0
+    }
+
     fn stream_handle(&self) -> Option<StreamHandle> {
         match self.step {
             Step::ReadStream { handle, .. } | Step::WriteStream { handle, .. } => handle,
@@ -356,6 +366,14 @@ impl MemoryClient {
         }
     }
 
+    /// Moves the operation's bytes by datagrams after all, from its first byte.
+    fn by_datagrams(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
+        let op = self.operations.get_mut(index)?;
+        op.awaiting_reply = false;
+        op.retries = 0;
+        self.next_chunk(cx, index, 0)
+    }
+
     /// Sends Read Stream with a DID armed: the read's length, or to the end of the space
     /// (0xFFFFFFFF, C-6) when it has none of its own.
     fn read_stream(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
@@ -528,6 +546,7 @@ impl MemoryClient {
             (Step::SpaceInfo { by_stream: true }, Err(DatagramFailure::Rejected(_))) => self.read_stream(cx, index),
             // A node without Lock/Reserve (OpenMRN answers 0x1041): written without it.
             (Step::Lock { by_stream }, Err(DatagramFailure::Rejected(_))) => self.begin_transfer(cx, index, by_stream),
+            (_, Err(DatagramFailure::Rejected(code))) if op.may_go_by_datagrams(code) => self.by_datagrams(cx, index),
             (_, Err(DatagramFailure::TimedOut)) => self.retry(cx, index),
             (_, Err(DatagramFailure::Rejected(code))) => Some(Outcome::Fail(MemoryError::Rejected(code))),
             (_, Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Fail(MemoryError::PeerRestarted)),
@@ -663,6 +682,11 @@ impl MemoryClient {
                     *want = Some(at);
                 }
                 Some(Outcome::Done)
+            }
+            (Step::ReadStream { .. } | Step::WriteStream { .. }, Reply::Failed { code, .. })
+                if op.may_go_by_datagrams(code) =>
+            {
+                self.by_datagrams(cx, index)
             }
             (Step::Chunk { .. }, Reply::Failed { kind: FailedKind::Read | FailedKind::Write, code, .. })
             | (Step::ReadStream { .. }, Reply::Failed { kind: FailedKind::ReadStream, code, .. })

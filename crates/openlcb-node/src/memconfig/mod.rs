@@ -74,7 +74,9 @@ pub struct MemoryConfigOptions {
     /// Complete). A client that waits for the reply before it initiates (OpenMRN's
     /// `bootloader_client`) gets it after this long. Default 250 ms.
     pub write_stream_reply_delay: Duration,
-    /// Stream transfers the server runs at once; one more is refused with 0x2020.
+    /// Stream transfers the server runs at once; one more is refused with 0x2020. Any one
+    /// peer runs at most half of them (at least one), so that one node cannot take them all;
+    /// a client refused so falls back to datagrams ([`TransferPath::Auto`]).
     pub max_server_streams: usize,
     /// Operations the client runs at once (one per peer).
     pub max_operations: usize,

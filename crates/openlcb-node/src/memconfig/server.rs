@@ -578,7 +578,7 @@ impl MemoryServer {
 
     /// The checks a stream command passes before its OK: space known, address inside,
     /// readable for a Read Stream, writable for a Write Stream, streams on, room for one
-    /// more transfer.
+    /// more transfer, and for one more of this peer's.
     fn check_stream(&self, cx: &Cx<'_>, peer: NodeId, space: u8, address: u32, write: bool) -> Result<(), ErrorCode> {
         if !cx.streams_enabled {
             return Err(codes::UNKNOWN_COMMAND);
@@ -599,7 +599,9 @@ impl MemoryServer {
         if address >= len {
             return Err(codes::OUT_OF_BOUNDS);
         }
-        if self.transfers.len() >= cx.options.max_server_streams {
+        let per_peer = (cx.options.max_server_streams / 2).max(1);
+        let peers = self.transfers.iter().filter(|t| t.peer == peer).count();
+        if self.transfers.len() >= cx.options.max_server_streams || peers >= per_peer {
             return Err(codes::BUSY);
         }
         Ok(())

@@ -267,6 +267,9 @@ pub struct StreamEndpoint {
     next_destination_id: StreamId,
     /// When the medium last carried another node's stream data ([`Self::medium_busy`]).
     medium_busy: Instant,
+    /// When a request was last refused because every slot was taken: for an idle wait after
+    /// that, only [`Config::min_idle_progress`] keeps a stream's slot.
+    turned_away: Instant,
     out: Outputs,
     config: Config,
 }
@@ -282,6 +285,7 @@ impl StreamEndpoint {
             next_source_id: StreamId::MIN,
             next_destination_id: StreamId::MIN,
             medium_busy: Instant::ZERO,
+            turned_away: Instant::ZERO,
             out,
         }
     }
@@ -610,6 +614,8 @@ impl StreamEndpoint {
         if stream.is_closed() && stream.buffer.is_empty() {
             stream.release();
         } else if send_due_proceed(stream, out) {
+            // A new window: its bytes count as progress from here.
+            stream.marked = stream.count;
             restart_idle(stream, idle_at);
         }
         Ok(n)
@@ -684,9 +690,17 @@ impl StreamEndpoint {
         }
         let ask = self.config.accept_policy == AcceptPolicy::Ask;
         let decision_at = later(now, Some(self.config.decision_timeout));
-        let (handle, stream, did) = self
-            .add_stream(State::AwaitingDecision, peer, request.proposed_destination, request.max_buffer_size)
-            .map_err(|_| ReplyCode::BUFFER_UNAVAILABLE)?;
+        let added =
+            self.add_stream(State::AwaitingDecision, peer, request.proposed_destination, request.max_buffer_size);
+        let (handle, stream, did) = match added {
+            Ok(added) => added,
+            Err(error) => {
+                if error == StreamError::TableFull {
+                    self.turned_away = now;
+                }
+                return Err(ReplyCode::BUFFER_UNAVAILABLE);
+            }
+        };
         stream.source_stream = request.source_stream;
         stream.destination_stream = Some(did);
         stream.content_uid = request.content_uid;
@@ -739,6 +753,8 @@ impl StreamEndpoint {
     fn on_data(&mut self, now: Instant, peer: NodeId, payload: &[u8]) {
         let Ok(data) = DataSend::parse(payload) else { return self.count_malformed() };
         let idle_at = later(now, self.config.idle_timeout);
+        let min_progress = self.config.min_idle_progress;
+        let pressed = self.turned_away > Instant::ZERO && later(self.turned_away, self.config.idle_timeout) > now;
         let Some((handle, stream, out)) = self.lookup(peer, Role::Destination, data.destination_stream) else {
             return bump(&mut self.out.stats.unknown_stream_data);
         };
@@ -762,16 +778,22 @@ impl StreamEndpoint {
         }
         stream.buffer.push(bytes);
         stream.count += u64::from(len);
-        if len > 0 {
-            stream.heard = now;
-        }
         if stream.state == State::Draining && stream.count >= stream.expected {
             let (total, expected) = (stream.count, stream.expected);
             return self.end(finished(handle, total, Some(expected)));
         }
+        // Progress: `min_idle_progress` bytes since the wait last started (at most a window),
+        // or the whole credit used (the source then waits for this node's Proceed).
+        let wanted = u64::from(min_progress.min(stream.window).max(1));
+        let progressed = stream.count >= stream.marked + wanted || stream.credit == 0;
+        if progressed {
+            stream.marked = stream.count;
+            stream.heard = now;
+        }
         send_due_proceed(stream, out);
-        // A keep-alive before any data does not lift the first-data wait.
-        if stream.count > 0 {
+        // A keep-alive before any data does not lift the first-data wait; once every slot
+        // was wanted, neither keep-alives nor a trickle of data keep a slot, only progress.
+        if stream.count > 0 && (progressed || !pressed) {
             restart_idle(stream, idle_at);
         }
     }

@@ -104,6 +104,8 @@ pub(crate) struct Stream {
     pub(crate) count: u64,
     /// Destination, draining: the byte count the Complete stated.
     pub(crate) expected: u64,
+    /// Destination: `count` when the idle wait last started for progress.
+    pub(crate) marked: u64,
 }
 
 impl Stream {
@@ -124,6 +126,7 @@ impl Stream {
             count: 0,
             window_sent: 0,
             expected: 0,
+            marked: 0,
             write_blocked: false,
             early_proceed: false,
             buffer: ByteRing::new(0),
