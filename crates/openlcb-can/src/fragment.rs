@@ -180,6 +180,12 @@ impl<P: AsRef<[u8]>> Fragments<P> {
     pub(crate) fn has_more(&self) -> bool {
         !self.cursor.finished
     }
+
+    /// Stream data: each frame stands alone (it names its stream), so other frames may go
+    /// between two of them.
+    pub(crate) fn is_stream_data(&self) -> bool {
+        matches!(self.cursor.layout, Layout::StreamData)
+    }
 }
 
 impl<P: AsRef<[u8]>> Iterator for Fragments<P> {

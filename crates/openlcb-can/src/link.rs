@@ -242,9 +242,10 @@ impl Outgoing {
         Outgoing { message, destination, deadline: None }
     }
 
-    /// Stream data and the Complete behind it: the lane that yields to every other message.
-    fn is_stream_data(&self) -> bool {
-        matches!(self.message.mti, Mti::STREAM_DATA_SEND | Mti::STREAM_DATA_COMPLETE)
+    /// A stream's setup and flow control (Initiate Request and Reply, Proceed): the lane
+    /// that goes between two frames of stream data.
+    fn is_stream_control(&self) -> bool {
+        matches!(self.message.mti, Mti::STREAM_INITIATE_REQUEST | Mti::STREAM_INITIATE_REPLY | Mti::STREAM_DATA_PROCEED)
     }
 
     /// The message waits for (or was sent to) the alias of `node`.
@@ -303,16 +304,18 @@ pub struct CanLink {
     reassembly: Reassembler,
     datagrams: Reassembler,
     frames: Queue<CanFrame>,
-    /// Messages ready to send, but stream data: they go first.
+    /// Messages ready to send, in the order they came (stream data, a stream's Complete
+    /// behind its data, a datagram such as an Unfreeze behind the stream before it).
     messages: Queue<Outgoing>,
-    /// Stream data (and Completes, which stay behind their data), ready to send: it yields
-    /// to every other message, as its frames do on the bus. Its frames stand alone (each
-    /// names its stream), so a Data Send may pause between two frames.
-    stream_data: Queue<Outgoing>,
-    /// The message being framed.
+    /// Stream control ready to send ([`Outgoing::is_stream_control`]): it goes before the
+    /// next frame of stream data, as a Reply or a Proceed must not wait behind this node's
+    /// own data to others (which loses arbitration on a busy bus, as all stream data does).
+    stream_control: Queue<Outgoing>,
+    /// The message being framed, from `messages`; other frames go between its frames only
+    /// if it is stream data.
     current: Option<Fragments<Vec<u8>>>,
-    /// The stream data message being framed, paused while other messages go.
-    current_data: Option<Fragments<Vec<u8>>>,
+    /// The stream control message being framed.
+    current_control: Option<Fragments<Vec<u8>>>,
     /// Messages waiting for their destination's alias (an AME answer).
     unresolved: Queue<Outgoing>,
     /// When the alias was last permitted (for [`CanConfig::newcomer_window`]).
@@ -345,9 +348,9 @@ impl CanLink {
             datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
             frames: Queue::with_capacity(config.frame_queue_limit),
             messages: Queue::with_capacity(config.transmit_queue_limit),
-            stream_data: Queue::new(),
+            stream_control: Queue::new(),
             current: None,
-            current_data: None,
+            current_control: None,
             unresolved: Queue::with_capacity(config.transmit_queue_limit),
             permitted_at: now,
             last_duplicate: None,
@@ -429,10 +432,10 @@ impl CanLink {
     /// Messages accepted by `send` and not yet fully framed.
     pub fn queued_messages(&self) -> usize {
         self.messages.len()
-            + self.stream_data.len()
+            + self.stream_control.len()
             + self.unresolved.len()
             + usize::from(self.current.as_ref().is_some_and(Fragments::has_more))
-            + usize::from(self.current_data.as_ref().is_some_and(Fragments::has_more))
+            + usize::from(self.current_control.as_ref().is_some_and(Fragments::has_more))
     }
 
     /// `send` has room for another message. A driver that must not lose stream data polls
@@ -455,7 +458,7 @@ impl CanLink {
     /// [`CanConfig::transmit_queue_limit`] messages are queued (ready or waiting for an alias).
     #[inline(always)]
     fn queue_full(&self) -> bool {
-        self.messages.len() + self.stream_data.len() + self.unresolved.len() >= self.config.transmit_queue_limit
+        self.messages.len() + self.stream_control.len() + self.unresolved.len() >= self.config.transmit_queue_limit
     }
 
     // ----- commands -----
@@ -506,11 +509,11 @@ impl CanLink {
     }
 
     /// Queues a message whose destination alias is known in its lane. Never refused: the
-    /// queues together hold at most the limit (the callers checked), and stream data takes
-    /// memory only while some is queued.
+    /// queues together hold at most the limit (the callers checked), and stream control
+    /// takes memory only while some is queued.
     fn ready(&mut self, outgoing: Outgoing) {
-        if outgoing.is_stream_data() {
-            self.stream_data.push_back(outgoing);
+        if outgoing.is_stream_control() {
+            self.stream_control.push_back(outgoing);
         } else {
             self.messages.push_within(self.config.transmit_queue_limit, outgoing);
         }
@@ -559,28 +562,33 @@ impl CanLink {
             return Some(frame);
         }
         let alias = self.login.alias()?;
-        let mid_message = self.current.as_ref().is_some_and(Fragments::has_more);
+        let inside = |current: &Option<Fragments<Vec<u8>>>| {
+            current.as_ref().is_some_and(|f| f.has_more() && !f.is_stream_data())
+        };
+        let mid_message = inside(&self.current) || inside(&self.current_control);
         if let Some(front) = self.frames.front()
             && (!mid_message || !header::is_message_id(front.raw_id()))
         {
             return self.frames.pop_front();
         }
         loop {
+            if let Some(frame) = self.current_control.as_mut().and_then(Iterator::next) {
+                return Some(frame);
+            }
+            self.current_control = None;
+            // Stream control between two frames of stream data, never inside another message.
+            if !inside(&self.current)
+                && let Some(outgoing) = self.stream_control.pop_front()
+            {
+                self.current_control = self.fragments(alias, outgoing);
+                continue;
+            }
             if let Some(frame) = self.current.as_mut().and_then(Iterator::next) {
                 return Some(frame);
             }
             self.current = None;
-            // Every other message before the next frame of stream data.
-            if let Some(outgoing) = self.messages.pop_front() {
-                self.current = self.fragments(alias, outgoing);
-                continue;
-            }
-            if let Some(frame) = self.current_data.as_mut().and_then(Iterator::next) {
-                return Some(frame);
-            }
-            self.current_data = None;
-            let Some(outgoing) = self.stream_data.pop_front() else { return self.leave_now() };
-            self.current_data = self.fragments(alias, outgoing);
+            let Some(outgoing) = self.messages.pop_front() else { return self.leave_now() };
+            self.current = self.fragments(alias, outgoing);
         }
     }
 
@@ -883,7 +891,7 @@ impl CanLink {
         self.reassembly.forget_source(alias);
         self.datagrams.forget_source(alias);
         let dropped = self.messages.retain(|m| m.destination != Some(alias))
-            + self.stream_data.retain(|m| m.destination != Some(alias));
+            + self.stream_control.retain(|m| m.destination != Some(alias));
         add(&mut self.stats.messages_dropped, dropped);
         let node = self.cache.remove_alias(alias).unwrap_or(alias.provisional_node_id());
         self.change(PeerChange::Lost(node));
@@ -978,10 +986,10 @@ impl CanLink {
         let queued = self.queued_messages();
         add(&mut self.stats.messages_dropped, queued);
         self.messages.clear();
-        self.stream_data.clear();
+        self.stream_control.clear();
         self.unresolved.clear();
         self.current = None;
-        self.current_data = None;
+        self.current_control = None;
         self.frames.clear();
         self.reassembly.clear();
         self.datagrams.clear();

@@ -306,7 +306,7 @@ fn send_refuses_messages_without_a_can_form_and_beyond_the_queue_bound() {
 // ----- transmit order -----
 
 #[test]
-fn other_messages_go_between_the_frames_of_stream_data_and_a_complete_stays_behind_its_data() {
+fn stream_control_goes_between_the_frames_of_stream_data_and_everything_else_keeps_its_place() {
     let mut solo = Solo::permitted();
     solo.inject(&[":X10701789N050101012202;"]);
     let to_c = |mti: Mti, payload: &[u8]| Message::addressed(mti, node_id(A_ID), node_id(C_ID), payload.to_vec());
@@ -320,9 +320,18 @@ fn other_messages_go_between_the_frames_of_stream_data_and_a_complete_stays_behi
     // A Proceed and an Initiate Reply queued behind the data go before its next frame.
     link.send(solo.now, to_c(Mti::STREAM_DATA_PROCEED, &[5, 8])).unwrap();
     link.send(solo.now, to_c(Mti::STREAM_INITIATE_REPLY, &[0, 16, 0x80, 0, 6, 9])).unwrap();
+    // Anything else keeps its place: an Unfreeze never overtakes the end of the stream.
+    link.send(solo.now, to_c(Mti::DATAGRAM, &[0x20, 0xA0, 0xEF])).unwrap();
     assert_eq!(
         solo.sent(),
-        [":X19888123N07890508;", ":X19868123N0789001080000609;", data, data, ":X198A8123N0789040700000015;"]
+        [
+            ":X19888123N07890508;",
+            ":X19868123N0789001080000609;",
+            data,
+            data,
+            ":X198A8123N0789040700000015;",
+            ":X1A789123N20A0EF;"
+        ]
     );
 }
 

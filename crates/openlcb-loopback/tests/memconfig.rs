@@ -383,3 +383,29 @@ fn worked_examples_9_1_9_2_and_9_6_frame_by_frame() {
         [":X1A456123N2084FD;", ":X19A28456N012380;", ":X1A123456N2087FD000001FF00;", ":X19A28123N045600;"]
     );
 }
+
+#[test]
+fn the_unfreeze_after_a_firmware_stream_goes_after_its_last_data_and_complete() {
+    // A firmware target that acts on the Unfreeze at once (OpenMRN's Bootloader) would keep
+    // an image without the bytes an early Unfreeze overtook. Like that Bootloader, the
+    // server sends its Write Stream Reply before the stream, so nothing holds the client
+    // back once its last data is queued.
+    let mut server = NodeOptions::default();
+    server.node.memory.write_stream_reply_delay = Duration::ZERO;
+    let (mut net, client, _) = network(Link::Can, small_server, server);
+    net.record_frames();
+    let now = net.now();
+    let image = pattern(10_000, 5);
+    net.node(client).unwrap().upgrade_firmware(now, node(2), image, TransferPath::Stream).unwrap();
+    assert!(matches!(finish(&mut net, client, Duration::from_secs(60)), MemoryEvent::WriteDone { .. }));
+    let frames: Vec<u32> = net.recorded_frames().iter().map(|(_, f)| f.raw_id()).collect();
+    let payloads: Vec<&[u8]> = net.recorded_frames().iter().map(|(_, f)| f.payload()).collect();
+    let last_data = frames.iter().rposition(|id| id >> 24 == 0x1F).unwrap();
+    let complete = frames.iter().position(|id| id >> 12 == 0x198A8).expect("a Data Complete");
+    let unfreeze = (0..frames.len()).find(|&i| frames[i] >> 24 == 0x1A && payloads[i].starts_with(&[0x20, 0xA0, 0xEF]));
+    let unfreeze = unfreeze.expect("an Unfreeze went out");
+    assert!(
+        unfreeze > last_data && unfreeze > complete,
+        "Unfreeze at {unfreeze}, data until {last_data}, Complete at {complete}"
+    );
+}

@@ -237,3 +237,49 @@ fn a_read_whose_stream_the_server_has_no_room_for_goes_by_datagrams() {
     }
     panic!("no end: {commands:?}");
 }
+
+#[test]
+fn the_unfreeze_after_a_firmware_stream_leaves_after_the_streams_last_data_and_complete() {
+    // A target like OpenMRN's Bootloader: its Write Stream Reply comes before the stream, so
+    // the client's Unfreeze is due the moment its last data and Complete are queued. Sent
+    // before them, it ends the upgrade with the image short of those bytes.
+    let mut client = Node::new(CLIENT, NodeConfig::default());
+    let _ = std::iter::from_fn(|| client.poll_transmit()).count();
+    client.upgrade_firmware(Instant::ZERO, SERVER, vec![0x5A; 300], TransferPath::Auto).unwrap();
+    let mut order = Vec::new();
+    let mut now = Instant::ZERO;
+    for _ in 0..20 {
+        let mut answers = Vec::new();
+        let mut answer = |mti, payload: Vec<u8>| answers.push(Message::addressed(mti, SERVER, CLIENT, payload));
+        while let Some(m) = client.poll_transmit() {
+            order.push((m.mti, m.payload.get(..2).map(<[u8]>::to_vec)));
+            match m.mti {
+                Mti::PROTOCOL_SUPPORT_INQUIRY => answer(Mti::PROTOCOL_SUPPORT_REPLY, vec![0x70, 0, 0x10, 0, 0, 0]),
+                Mti::DATAGRAM => match Command::parse(&m.payload) {
+                    Ok(Command::WriteStream { space, address, .. }) => {
+                        answer(Mti::DATAGRAM_RECEIVED_OK, vec![0x80]);
+                        let reply = Reply::WriteStreamOk { space: Some(space), address, streams: None };
+                        answer(Mti::DATAGRAM, reply.to_bytes());
+                    }
+                    _ => answer(Mti::DATAGRAM_RECEIVED_OK, vec![]),
+                },
+                Mti::STREAM_INITIATE_REQUEST => {
+                    answer(Mti::STREAM_INITIATE_REPLY, vec![0x04, 0x00, 0x80, 0x00, m.payload[4], 0x5A]);
+                }
+                _ => {}
+            }
+        }
+        // A drive loop runs the timers after the input, then sends what both queued.
+        now += Duration::from_millis(1);
+        for a in &answers {
+            client.handle_message(now, a.as_ref());
+        }
+        client.handle_timeout(now);
+        let _ = std::iter::from_fn(|| client.poll_event()).count();
+    }
+    let unfreeze = order.iter().position(|(mti, head)| *mti == Mti::DATAGRAM && head.as_deref() == Some(&[0x20, 0xA0]));
+    let complete = order.iter().position(|(mti, _)| *mti == Mti::STREAM_DATA_COMPLETE);
+    let last_data = order.iter().rposition(|(mti, _)| *mti == Mti::STREAM_DATA_SEND);
+    assert!(complete.is_some() && last_data.is_some(), "{order:?}");
+    assert!(unfreeze > complete && complete > last_data, "{order:?}");
+}

@@ -23,9 +23,9 @@ impl Gateway {
     /// table is full. False if no entry could be had.
     pub(super) fn ensure_proxy(&mut self, now: Instant, node: NodeId) -> bool {
         if let Some(proxy) = self.proxies.iter_mut().find(|p| p.node == node) {
-            // A node that left and speaks again is back (its proxy was not released yet).
+            // Messages of a node that left may still come in after its departure (they were
+            // on their way): they go out with the rest of its traffic, the proxy stays leaving.
             proxy.last_used = now;
-            proxy.left_at = None;
             return true;
         }
         if self.proxies.len() >= self.config.max_proxied_nodes {

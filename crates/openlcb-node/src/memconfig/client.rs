@@ -7,7 +7,9 @@
 use alloc::vec::Vec;
 
 use openlcb_stream::wire::ErrorCode;
-use openlcb_stream::{Event, Instant, Message, Mti, NodeId, OpenOptions, Role, StreamHandle, StreamId, Termination};
+use openlcb_stream::{
+    Duration, Event, Instant, Message, Mti, NodeId, OpenOptions, Role, StreamHandle, StreamId, Termination,
+};
 
 use super::wire::{Command, FailedKind, MAX_DATA_LEN, Reply, SPACE_FIRMWARE, codes};
 use super::{MemoryError, MemoryEvent};
@@ -20,6 +22,10 @@ use crate::{DatagramFailure, DatagramId, NodeEvent, OkFlags, Protocols};
 /// others); its final [`MemoryEvent`] carries it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct MemoryOperation(pub u32);
+
+/// How often a finished stream transfer looks whether its last messages have left the
+/// endpoint's queue, before the next step goes out behind them.
+const STREAM_DRAIN_POLL: Duration = Duration::from_millis(1);
 
 /// How a client operation moves its bytes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -762,6 +768,12 @@ impl MemoryClient {
                     op.deadline = None;
                     match op.step {
                         Step::Freeze | Step::Unfreeze => Some(Outcome::Fail(MemoryError::TimedOut)),
+                        Step::WriteStream { finished: true, replied: true, .. }
+                            if cx.streams.sends_to_peer(op.peer) =>
+                        {
+                            op.deadline = Some(cx.now + STREAM_DRAIN_POLL);
+                            None
+                        }
                         Step::WriteStream { finished: true, replied: true, .. } => self.transfer_done(cx, index),
                         Step::ReadStream { .. } | Step::WriteStream { .. } => {
                             Some(Outcome::Fail(MemoryError::TimedOut))
@@ -924,9 +936,9 @@ impl MemoryClient {
             return None;
         }
         if replied {
-            // The Complete is queued in the endpoint, behind the node's own messages: the
-            // next step (Unfreeze) waits for the next turn of the drive loop, so that it
-            // never overtakes the end of the stream.
+            // The next step (Unfreeze) waits until the Complete has left the endpoint's queue
+            // (`handle_timeout`): the node's own messages go before the streams', and an
+            // Unfreeze ahead of the last data would end the upgrade without it.
             op.deadline = Some(cx.now);
             return None;
         }

@@ -357,6 +357,12 @@ impl StreamEndpoint {
 
     // ----- outputs -----
 
+    /// A message to `peer` waits to be sent (the layer above keeps its own messages to
+    /// `peer` behind it).
+    pub fn sends_to_peer(&self, peer: NodeId) -> bool {
+        self.out.transmits.iter().any(|m| m.destination == Some(peer))
+    }
+
     /// The next message to send.
     pub fn poll_transmit(&mut self) -> Option<Message> {
         self.out.transmits.pop_front()
