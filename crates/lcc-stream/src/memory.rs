@@ -179,10 +179,11 @@ pub(crate) async fn follow<T>(
     result
 }
 
-/// Stream messages this node has sent and handled: more after an operation than before
-/// means that it went by stream.
+/// Stream messages this node has sent (a request or a reply, Proceeds, data): more after an
+/// operation than before means that it went by stream. (Messages in would not tell: the
+/// endpoint sees every message the node handles.)
 async fn stream_messages(node: &Node) -> u64 {
-    node.stats().await.map_or(0, |s| u64::from(s.endpoint.messages_in) + u64::from(s.endpoint.messages_out))
+    node.stats().await.map_or(0, |s| u64::from(s.endpoint.messages_out))
 }
 
 /// What `write` and `firmware` put into a node.
