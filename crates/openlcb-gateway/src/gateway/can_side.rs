@@ -77,13 +77,14 @@ impl Gateway {
     }
 
     /// Releases the proxies of departed nodes whose traffic has all gone out, or whose grace
-    /// ran out at `now`: their streams end, what is left of theirs is dropped (and counted),
+    /// ran out at `now`: their streams end, what is left of theirs (and held for an alias)
+    /// is dropped (and counted),
     /// and an AMR releases the alias, so that the Node ID may log in on the CAN side.
     pub(super) fn release_departed(&mut self, now: Instant) {
         let grace = self.config.departed_grace;
         let mut index = 0;
         while let Some(proxy) = self.proxies.get(index) {
-            let due = proxy.left_at.is_some_and(|left| left + grace <= now || self.proxy_is_idle(proxy));
+            let due = proxy.left_at.is_some_and(|left| left + grace <= now || !self.still_sending(proxy));
             if !due {
                 index += 1;
                 continue;
@@ -126,6 +127,18 @@ impl Gateway {
         let queued = self.control.iter().chain(self.data.iter()).any(|r| Some(r.source) == alias);
         let sending = self.current_control.iter().chain(self.current_data.iter()).any(|c| Some(c.source) == alias);
         !(in_stream || waiting || queued || sending)
+    }
+
+    /// A departed node's traffic is still going out to CAN: a stream of which it is the
+    /// source, or messages of it ready or being framed. (Messages still held for an alias
+    /// are not: they may wait a whole resolve timeout, and its Node ID may be back on CAN
+    /// before that.)
+    fn still_sending(&self, proxy: &Proxy) -> bool {
+        let alias = proxy.any_alias();
+        let source = self.streams.iter().any(|s| s.key.source == proxy.node);
+        let queued = self.control.iter().chain(self.data.iter()).any(|r| Some(r.source) == alias);
+        let sending = self.current_control.iter().chain(self.current_data.iter()).any(|c| Some(c.source) == alias);
+        source || queued || sending
     }
 
     /// While the proxy's tentative alias is known to be taken (by another proxy or a CAN

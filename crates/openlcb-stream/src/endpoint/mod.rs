@@ -760,7 +760,7 @@ impl StreamEndpoint {
         let Ok(data) = DataSend::parse(payload) else { return self.count_malformed() };
         let idle_at = later(now, self.config.idle_timeout);
         let min_progress = self.config.min_idle_progress;
-        let pressed = self.turned_away > Instant::ZERO && later(self.turned_away, self.config.idle_timeout) > now;
+        let pressed = self.pressed(now);
         let Some((handle, stream, out)) = self.lookup(peer, Role::Destination, data.destination_stream) else {
             return bump(&mut self.out.stats.unknown_stream_data);
         };
@@ -953,7 +953,10 @@ impl StreamEndpoint {
             _ => return false,
         };
         let (peer, role) = (stream.peer, stream.role());
-        let heard = self.slots.iter().filter(|s| s.is_with(peer, role)).fold(self.medium_busy, |t, s| t.max(s.heard));
+        // A busy medium does not keep a receive slot that someone was refused: a trickle's
+        // own frames keep the bus busy too.
+        let busy = if role == Role::Destination && self.pressed(now) { Instant::ZERO } else { self.medium_busy };
+        let heard = self.slots.iter().filter(|s| s.is_with(peer, role)).fold(busy, |t, s| t.max(s.heard));
         let resume_at = later(heard, wait);
         let Some(stream) = self.slots.get_mut(slot) else { return false };
         if resume_at <= now {
@@ -961,6 +964,12 @@ impl StreamEndpoint {
         }
         stream.deadline = resume_at;
         true
+    }
+
+    /// A request was refused within the idle wait because every slot was taken: receive
+    /// slots are wanted, and only progress keeps one.
+    fn pressed(&self, now: Instant) -> bool {
+        self.turned_away > Instant::ZERO && later(self.turned_away, self.config.idle_timeout) >= now
     }
 
     /// The peer and SID of the pending request `handle`, or why it is not one.
