@@ -169,7 +169,7 @@ impl SnipInfo {
                 if index < section_len
                     && let Some(field) = fields.next()
                 {
-                    *info.get_mut(*field) = String::from_utf8_lossy(value).into_owned();
+                    *info.get_mut(*field) = lossy_string(value);
                 }
             }
         }
@@ -214,6 +214,44 @@ fn truncate(value: &str, max: usize) -> &str {
         end -= 1;
     }
     value.get(..end).unwrap_or("")
+}
+
+/// `String::from_utf8_lossy(bytes).into_owned()`: the same text, with one U+FFFD for each
+/// longest prefix of a valid sequence that breaks off (Unicode §3.9, as core replaces), decoded
+/// here in far less flash than core's chunk iterator.
+pub(crate) fn lossy_string(bytes: &[u8]) -> String {
+    let mut text = String::with_capacity(bytes.len());
+    let mut rest = bytes;
+    while let Some((&first, tail)) = rest.split_first() {
+        rest = tail;
+        if first.is_ascii() {
+            text.push(char::from(first));
+            continue;
+        }
+        // The sequence's length, and the range its second byte must be in (Unicode table 3-7).
+        let (len, low, high) = match first {
+            0xC2..=0xDF => (2, 0x80, 0xBF),
+            0xE0 => (3, 0xA0, 0xBF),
+            0xED => (3, 0x80, 0x9F),
+            0xE1..=0xEF => (3, 0x80, 0xBF),
+            0xF0 => (4, 0x90, 0xBF),
+            0xF1..=0xF3 => (4, 0x80, 0xBF),
+            0xF4 => (4, 0x80, 0x8F),
+            _ => (0, 0, 0),
+        };
+        let mut code = u32::from(first) & (0x7F >> len);
+        let (mut taken, mut range) = (1, low..=high);
+        while taken < len {
+            let Some((&next, tail)) = rest.split_first().filter(|(b, _)| range.contains(*b)) else { break };
+            rest = tail;
+            code = code << 6 | u32::from(next & 0x3F);
+            taken += 1;
+            range = 0x80..=0xBF;
+        }
+        let whole = if taken == len { char::from_u32(code) } else { None };
+        text.push(whole.unwrap_or(char::REPLACEMENT_CHARACTER));
+    }
+    text
 }
 
 /// The bytes up to the next NUL (or the end), and what follows the NUL.

@@ -217,7 +217,7 @@ fn put_slot(bytes: &mut [u8], (at, size): (usize, usize), value: &str) {
 fn get_slot(bytes: &[u8], (at, size): (usize, usize)) -> alloc::string::String {
     let slot = bytes.get(at..at + size).unwrap_or_default();
     let text: Vec<u8> = slot.iter().take_while(|b| **b != 0).copied().collect();
-    alloc::string::String::from_utf8_lossy(&text).into_owned()
+    crate::snip::lossy_string(&text)
 }
 
 /// Space 0xFC as SNIP's manufacturer strings fill it: version 4, then manufacturer, model,
