@@ -20,7 +20,7 @@ use crate::wire::{Wire, WireStats};
 use crate::{Error, Framing, NodeOptions, RecvStream};
 
 /// Bytes read from the socket at once.
-const READ_CHUNK: usize = 64 * 1024;
+pub(crate) const READ_CHUNK: usize = 64 * 1024;
 /// Received stream data the driver holds per stream for a reader that has not asked yet.
 /// Taking data out of the endpoint frees its buffer, which sends the next Proceed; past this
 /// bound the driver stops taking, and a slow reader slows the source.

@@ -35,7 +35,9 @@ pub struct NodeOptions {
     /// global Verify Node ID naming itself and joins only once
     /// [`CanConfig::newcomer_window`] has passed without an answer: a second node with a
     /// running node's ID then fails with [`Error::DuplicateNodeId`], and the running node
-    /// keeps running.
+    /// keeps running. By default the link's own frame queue has room for one frame per frame
+    /// of a whole read (`frame_queue_limit` 5041), so that a burst of datagrams from many
+    /// nodes gets every answer.
     pub can: CanConfig,
     /// How long to wait for the TCP connection and the alias login.
     pub connect_timeout: Duration,
@@ -45,13 +47,24 @@ pub struct NodeOptions {
     pub write_timeout: Duration,
 }
 
+/// The link's defaults, but room for one frame of its own (a Datagram Rejected, an AMD, an
+/// OIR) for every frame of one read from the socket, however short: a burst of datagrams
+/// from many nodes is answered in full before the driver sends (each frame causes at most
+/// one).
+fn can_config() -> CanConfig {
+    const SHORTEST_FRAME: usize = ":X00000000N;".len();
+    let mut can = CanConfig::default();
+    can.frame_queue_limit = crate::driver::READ_CHUNK / SHORTEST_FRAME;
+    can
+}
+
 impl NodeOptions {
     /// Defaults for the node `node_id`.
     pub fn new(node_id: NodeId) -> Self {
         NodeOptions {
             node_id,
             node: NodeConfig::default(),
-            can: CanConfig::default(),
+            can: can_config(),
             connect_timeout: Duration::from_secs(5),
             write_timeout: Duration::from_secs(30),
         }

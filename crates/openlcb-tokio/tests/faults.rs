@@ -529,3 +529,46 @@ async fn clients_that_never_read_leave_no_queued_bytes_behind() {
     until_clients(&hub, 1).await;
     assert_eq!(hub.stats().queued_bytes, 0, "nothing is held for clients that are gone");
 }
+
+/// Reads GridConnect text from `socket` for `time`; returns the frames, as text.
+async fn frames_for(socket: &mut TcpStream, time: Duration) -> Vec<String> {
+    let mut text = String::new();
+    let mut buf = vec![0u8; 65536];
+    let end = tokio::time::Instant::now() + time;
+    while let Ok(Ok(n @ 1..)) = tokio::time::timeout_at(end, socket.read(&mut buf)).await {
+        text.push_str(&String::from_utf8_lossy(&buf[..n]));
+    }
+    text.split(';').filter_map(|f| f.trim().strip_prefix(":X")).map(str::to_string).collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_of_datagrams_from_many_nodes_gets_one_answer_each() {
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let node =
+        tokio::spawn(async move { Node::connect(&addr, Framing::GridConnect, NodeOptions::new(id(0x30))).await });
+    let (mut socket, _) = listener.accept().await.unwrap();
+    // The node's login; its alias is in its AMD (`10701AAA`).
+    let login = frames_for(&mut socket, Duration::from_millis(900)).await;
+    let amd = login.iter().find(|f| f.starts_with("10701")).expect("an AMD");
+    let alias = &amd[5..8];
+    let node = bounded("joining", node).await.unwrap().unwrap();
+    // 60 nodes each send one two-frame datagram, all at once: the link has 4 reassembly
+    // slots, so most are refused for now (0x2020) by the link itself.
+    let senders: Vec<u16> = (0..60).map(|i| 0x600 + i).collect();
+    let mut burst = String::new();
+    for (kind, data) in [("1B", "2040000000000040"), ("1D", "FD")] {
+        for s in &senders {
+            burst.push_str(&format!(":X{kind}{alias}{s:03X}N{data};\n"));
+        }
+    }
+    socket.write_all(burst.as_bytes()).await.unwrap();
+    let answers = frames_for(&mut socket, Duration::from_millis(1500)).await;
+    for s in &senders {
+        let to_it = |f: &&String| {
+            (f.starts_with("19A28") || f.starts_with("19A48")) && f.get(9..13) == Some(&format!("{s:04X}")[..])
+        };
+        assert_eq!(answers.iter().filter(to_it).count(), 1, "answers to {s:03X} in {answers:?}");
+    }
+    drop(node);
+}
