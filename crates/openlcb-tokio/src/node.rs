@@ -36,7 +36,7 @@ pub struct NodeOptions {
     /// [`CanConfig::newcomer_window`] has passed without an answer: a second node with a
     /// running node's ID then fails with [`Error::DuplicateNodeId`], and the running node
     /// keeps running. By default the link's own frame queue has room for one frame per frame
-    /// of a whole read (`frame_queue_limit` 5041), so that a burst of datagrams from many
+    /// of a whole read (`frame_queue_limit` 5461), so that a burst of datagrams from many
     /// nodes gets every answer.
     pub can: CanConfig,
     /// How long to wait for the TCP connection and the alias login.
