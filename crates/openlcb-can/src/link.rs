@@ -242,10 +242,15 @@ impl Outgoing {
         Outgoing { message, destination, deadline: None }
     }
 
-    /// A stream's setup and flow control (Initiate Request and Reply, Proceed): the lane
-    /// that goes between two frames of stream data.
+    /// A destination's answers (Initiate Reply, Proceed): the lane that goes between two
+    /// frames of stream data.
     fn is_stream_control(&self) -> bool {
-        matches!(self.message.mti, Mti::STREAM_INITIATE_REQUEST | Mti::STREAM_INITIATE_REPLY | Mti::STREAM_DATA_PROCEED)
+        matches!(self.message.mti, Mti::STREAM_INITIATE_REPLY | Mti::STREAM_DATA_PROCEED)
+    }
+
+    /// Stream data or the Complete behind it: what stream control may overtake.
+    fn is_stream_data(&self) -> bool {
+        matches!(self.message.mti, Mti::STREAM_DATA_SEND | Mti::STREAM_DATA_COMPLETE)
     }
 
     /// The message waits for (or was sent to) the alias of `node`.
@@ -307,9 +312,10 @@ pub struct CanLink {
     /// Messages ready to send, in the order they came (stream data, a stream's Complete
     /// behind its data, a datagram such as an Unfreeze behind the stream before it).
     messages: Queue<Outgoing>,
-    /// Stream control ready to send ([`Outgoing::is_stream_control`]): it goes before the
-    /// next frame of stream data, as a Reply or a Proceed must not wait behind this node's
-    /// own data to others (which loses arbitration on a busy bus, as all stream data does).
+    /// Stream control ready to send ([`Outgoing::is_stream_control`]) that came when only
+    /// stream data waited: it goes before the next frame of stream data, as a Reply or a
+    /// Proceed must not wait behind this node's own data to others (which loses arbitration
+    /// on a busy bus, as all stream data does).
     stream_control: Queue<Outgoing>,
     /// The message being framed, from `messages`; other frames go between its frames only
     /// if it is stream data.
@@ -512,7 +518,9 @@ impl CanLink {
     /// queues together hold at most the limit (the callers checked), and stream control
     /// takes memory only while some is queued.
     fn ready(&mut self, outgoing: Outgoing) {
-        if outgoing.is_stream_control() {
+        // Ahead of stream data only, never of another message queued before it.
+        let only_data_ahead = self.messages.iter().all(Outgoing::is_stream_data);
+        if outgoing.is_stream_control() && only_data_ahead {
             self.stream_control.push_back(outgoing);
         } else {
             self.messages.push_within(self.config.transmit_queue_limit, outgoing);

@@ -317,7 +317,8 @@ fn stream_control_goes_between_the_frames_of_stream_data_and_everything_else_kee
     let first = link.poll_transmit().map(|f| common::text(&f));
     let data = ":X1F789123N0707070707070707;";
     assert_eq!(first.as_deref(), Some(data));
-    // A Proceed and an Initiate Reply queued behind the data go before its next frame.
+    // A Proceed and an Initiate Reply queued behind the data and its Complete go before
+    // the data's next frame.
     link.send(solo.now, to_c(Mti::STREAM_DATA_PROCEED, &[5, 8])).unwrap();
     link.send(solo.now, to_c(Mti::STREAM_INITIATE_REPLY, &[0, 16, 0x80, 0, 6, 9])).unwrap();
     // Anything else keeps its place: an Unfreeze never overtakes the end of the stream.
@@ -343,4 +344,23 @@ fn stream_data_on_the_bus_tells_the_layer_above_that_the_medium_is_busy() {
     // Stream data to another node, then to this one (for no stream it has open).
     solo.inject(&[":X1F456789N0700;", ":X1F123789N0700;"]);
     assert_eq!(solo.node.medium_busy, [solo.now, solo.now]);
+}
+
+#[test]
+fn stream_control_never_overtakes_a_message_queued_before_it() {
+    // MC C-4: a server's Datagram OK goes before the Initiate Request of the Read Stream it
+    // accepts (OlcbChecker waits for the OK, then for the request); an Initiate Reply keeps
+    // its place behind a datagram too.
+    let mut solo = Solo::permitted();
+    solo.inject(&[":X10701789N050101012202;"]);
+    let to_c = |mti: Mti, payload: &[u8]| Message::addressed(mti, node_id(A_ID), node_id(C_ID), payload.to_vec());
+    let link = &mut solo.node.link;
+    link.send(solo.now, to_c(Mti::DATAGRAM_RECEIVED_OK, &[0x80])).unwrap();
+    link.send(solo.now, to_c(Mti::STREAM_INITIATE_REQUEST, &[0, 16, 0, 0, 4])).unwrap();
+    link.send(solo.now, to_c(Mti::DATAGRAM, &[0x20, 0x30])).unwrap();
+    link.send(solo.now, to_c(Mti::STREAM_INITIATE_REPLY, &[0, 16, 0x80, 0, 6, 9])).unwrap();
+    assert_eq!(
+        solo.sent(),
+        [":X19A28123N078980;", ":X19CC8123N07890010000004;", ":X1A789123N2030;", ":X19868123N0789001080000609;"]
+    );
 }
