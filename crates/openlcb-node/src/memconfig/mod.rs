@@ -303,6 +303,13 @@ impl Cx<'_> {
         self.datagrams.send_promised(self.now, self.out, to, payload);
     }
 
+    /// Sends the server's reply datagram `reply` to `to`, naming its space in `form`. Out of
+    /// line, taking the reply by value: one copy of its encoding and its drop (flash).
+    #[inline(never)]
+    pub(crate) fn send_server_reply(&mut self, to: NodeId, reply: Reply, form: SpaceForm) {
+        self.send_reply(to, &reply.to_bytes_in(form));
+    }
+
     /// A reply to `to` could be queued now.
     pub(crate) fn has_reply_room(&self, to: NodeId) -> bool {
         self.datagrams.has_room(to)

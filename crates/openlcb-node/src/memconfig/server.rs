@@ -422,7 +422,7 @@ impl MemoryServer {
                     Err(e) => failed(FailedKind::Read, space, address, e.code()),
                 };
                 cx.ok(peer, pending);
-                cx.send_reply(peer, &reply.to_bytes_in(form));
+                cx.send_server_reply(peer, reply, form);
             }
             Command::Write { space, address, data } => self.write(cx, peer, (space, form), address, &data, None),
             Command::WriteUnderMask { space, address, mask, data } => {
@@ -436,11 +436,11 @@ impl MemoryServer {
             }
             Command::GetOptions => {
                 cx.ok(peer, pending);
-                cx.send_reply(peer, &Reply::Options(self.options(cx.streams_enabled)).to_bytes());
+                cx.send_server_reply(peer, Reply::Options(self.options(cx.streams_enabled)), SpaceForm::Short);
             }
             Command::GetSpaceInfo { space } => {
                 cx.ok(peer, pending);
-                cx.send_reply(peer, &Reply::SpaceInfo(self.space_info(space)).to_bytes());
+                cx.send_server_reply(peer, Reply::SpaceInfo(self.space_info(space)), SpaceForm::Short);
             }
             Command::Lock { node } => {
                 // MC §4.17: test-and-set; a Node ID of 0 releases. A lapsed lock is free.
@@ -449,7 +449,7 @@ impl MemoryServer {
                 }
                 self.lock_deadline = cx.now + cx.options.lock_timeout;
                 cx.ok(peer, pending);
-                cx.send_reply(peer, &Reply::Lock { owner: self.lock }.to_bytes());
+                cx.send_server_reply(peer, Reply::Lock { owner: self.lock }, SpaceForm::Short);
             }
             Command::GetUniqueId { count } => {
                 if self.unique_ids.is_empty() {
@@ -458,7 +458,7 @@ impl MemoryServer {
                 let n = usize::from(count.max(1)).min(self.unique_ids.len());
                 let ids = self.unique_ids.drain(..n).collect();
                 cx.ok(peer, pending);
-                cx.send_reply(peer, &Reply::UniqueIds { ids }.to_bytes());
+                cx.send_server_reply(peer, Reply::UniqueIds { ids }, SpaceForm::Short);
             }
             Command::Freeze { space } => {
                 if space != SPACE_FIRMWARE || !self.has_firmware() {
@@ -567,11 +567,11 @@ impl MemoryServer {
             Ok(()) if space == SPACE_FIRMWARE => cx.ok(peer, OkFlags::default()),
             Ok(()) => {
                 cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
-                cx.send_reply(peer, &Reply::WriteOk { space, address }.to_bytes_in(form));
+                cx.send_server_reply(peer, Reply::WriteOk { space, address }, form);
             }
             Err(e) => {
                 cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
-                cx.send_reply(peer, &failed(FailedKind::Write, space, address, e.code()).to_bytes_in(form));
+                cx.send_server_reply(peer, failed(FailedKind::Write, space, address, e.code()), form);
             }
         }
     }
@@ -647,7 +647,7 @@ impl MemoryServer {
             }),
             Err(_) => {
                 self.stats.streams_failed += 1;
-                cx.send_reply(peer, &failed(FailedKind::ReadStream, space, address, codes::BUSY).to_bytes_in(form));
+                cx.send_server_reply(peer, failed(FailedKind::ReadStream, space, address, codes::BUSY), form);
             }
         }
     }
@@ -692,13 +692,12 @@ impl MemoryServer {
             return;
         };
         *reply = WriteReply::Sent;
-        let bytes = match error {
+        let reply = match error {
             None => Reply::WriteStreamOk { space: Some(*space), address: *address, streams: Some((*sid, *did)) },
             Some(code) => failed(FailedKind::WriteStream, *space, *address, code),
-        }
-        .to_bytes_in(*form);
-        let peer = *peer;
-        cx.send_reply(peer, &bytes);
+        };
+        let (peer, form) = (*peer, *form);
+        cx.send_server_reply(peer, reply, form);
     }
 
     // ----- streams -----
@@ -793,8 +792,8 @@ impl MemoryServer {
                         destination_stream: info.destination_stream.map_or(0xFF, StreamId::as_raw),
                         count: Some(*count),
                     };
-                    let (peer, bytes) = (*peer, reply.to_bytes_in(*form));
-                    cx.send_reply(peer, &bytes);
+                    let (peer, form) = (*peer, *form);
+                    cx.send_server_reply(peer, reply, form);
                 }
                 self.pump_read(cx, index);
             }
@@ -805,8 +804,8 @@ impl MemoryServer {
                 if let Some(Transfer { peer, form, job: Job::Read { space, address, .. } }) = self.transfers.get(index)
                 {
                     let reply = failed(FailedKind::ReadStream, *space, *address, ErrorCode(code.0));
-                    let (peer, bytes) = (*peer, reply.to_bytes_in(*form));
-                    cx.send_reply(peer, &bytes);
+                    let (peer, form) = (*peer, *form);
+                    cx.send_server_reply(peer, reply, form);
                 }
                 self.end(index, false);
             }
@@ -816,8 +815,8 @@ impl MemoryServer {
                     self.transfers.get(index)
                 {
                     let reply = failed(FailedKind::ReadStream, *space, *address, ErrorCode::TIMEOUT);
-                    let (peer, bytes) = (*peer, reply.to_bytes_in(*form));
-                    cx.send_reply(peer, &bytes);
+                    let (peer, form) = (*peer, *form);
+                    cx.send_server_reply(peer, reply, form);
                 }
                 // So does a Write Stream whose reply waited for a Complete that never came.
                 if self.write_reply(index) == Some(WriteReply::AfterComplete) {
