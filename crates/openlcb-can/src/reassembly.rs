@@ -251,7 +251,10 @@ impl Reassembler {
         let first = position == FramePosition::First;
         if first {
             // A new datagram: whatever was answered before is over.
-            self.answered.retain(|k| *k != key);
+            // By position, with the `remove` `mute` has: smaller than `retain` (flash).
+            while let Some(index) = self.answered.iter().position(|k| *k == key) {
+                self.answered.remove(index);
+            }
         }
         let open = self.slots.iter().position(|s| s.key.is_some_and(|k| k == key));
         let index = match open {
