@@ -34,6 +34,7 @@ mod control {
 }
 
 /// Which of the four datagram frame formats (wire-spec §7.6).
+// In the order of their formats: `CanHeader::to_id` counts on it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum DatagramFrame {
     /// Format 2: a whole datagram of at most 8 bytes.
@@ -170,10 +171,16 @@ impl CanHeader {
         let kind = if id & field::MESSAGE_BIT != 0 {
             match format {
                 1 => FrameKind::Message { can_mti: variable },
-                2 => FrameKind::Datagram { frame: DatagramFrame::Only, destination: destination()? },
-                3 => FrameKind::Datagram { frame: DatagramFrame::First, destination: destination()? },
-                4 => FrameKind::Datagram { frame: DatagramFrame::Middle, destination: destination()? },
-                5 => FrameKind::Datagram { frame: DatagramFrame::Final, destination: destination()? },
+                // One arm for the four datagram formats: one destination check (flash).
+                2..=5 => {
+                    let frame = match format {
+                        2 => DatagramFrame::Only,
+                        3 => DatagramFrame::First,
+                        4 => DatagramFrame::Middle,
+                        _ => DatagramFrame::Final,
+                    };
+                    FrameKind::Datagram { frame, destination: destination()? }
+                }
                 7 => FrameKind::StreamData { destination: destination()? },
                 format => FrameKind::ReservedFormat { format, field: variable },
             }
@@ -197,15 +204,8 @@ impl CanHeader {
     pub fn to_id(&self) -> u32 {
         let (message, format, variable) = match self.kind {
             FrameKind::Message { can_mti } => (true, 1, can_mti),
-            FrameKind::Datagram { frame, destination } => {
-                let format = match frame {
-                    DatagramFrame::Only => 2,
-                    DatagramFrame::First => 3,
-                    DatagramFrame::Middle => 4,
-                    DatagramFrame::Final => 5,
-                };
-                (true, format, destination.as_raw())
-            }
+            // Formats 2 to 5, in the order of the variants.
+            FrameKind::Datagram { frame, destination } => (true, 2 + frame as u8, destination.as_raw()),
             FrameKind::StreamData { destination } => (true, 7, destination.as_raw()),
             FrameKind::ReservedFormat { format, field } => (true, format, field),
             FrameKind::CheckId { sequence, node_id_bits } => (false, sequence, node_id_bits),
