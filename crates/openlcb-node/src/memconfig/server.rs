@@ -351,14 +351,22 @@ impl MemoryServer {
             commands |=
                 OptionsReply::ACDI_MANUFACTURER_READ | OptionsReply::ACDI_USER_READ | OptionsReply::ACDI_USER_WRITE;
         }
-        let numbers = self.spaces.iter().map(|(n, _)| *n);
         let acdi: &[u8] = if self.acdi { &[SPACE_ACDI_USER, SPACE_ACDI_MANUFACTURER] } else { &[] };
-        let all = || numbers.clone().chain(acdi.iter().copied());
+        // The lowest and highest space served, in plain loops (no iterator chain: flash).
+        let mut bounds: Option<(u8, u8)> = None;
+        let mut take = |n: u8| bounds = Some(bounds.map_or((n, n), |(low, high)| (low.min(n), high.max(n))));
+        for (n, _) in &self.spaces {
+            take(*n);
+        }
+        for n in acdi {
+            take(*n);
+        }
+        let (lowest, highest) = bounds.unwrap_or((0xFD, 0xFF));
         OptionsReply {
             commands,
             write_lengths: OptionsReply::BASE_WRITE_LENGTHS | if streams { OptionsReply::STREAMS } else { 0 },
-            highest_space: all().max().unwrap_or(0xFF),
-            lowest_space: Some(all().min().unwrap_or(0xFD)),
+            highest_space: highest,
+            lowest_space: Some(lowest),
             name: Vec::new(),
         }
     }
