@@ -216,8 +216,9 @@ fn put_slot(bytes: &mut [u8], (at, size): (usize, usize), value: &str) {
 
 fn get_slot(bytes: &[u8], (at, size): (usize, usize)) -> alloc::string::String {
     let slot = bytes.get(at..at + size).unwrap_or_default();
-    let text: Vec<u8> = slot.iter().take_while(|b| **b != 0).copied().collect();
-    crate::snip::lossy_string(&text)
+    // Up to the first NUL, borrowed: no copy to collect (flash).
+    let len = slot.iter().position(|b| *b == 0).unwrap_or(slot.len());
+    crate::snip::lossy_string(slot.get(..len).unwrap_or_default())
 }
 
 /// Space 0xFC as SNIP's manufacturer strings fill it: version 4, then manufacturer, model,
