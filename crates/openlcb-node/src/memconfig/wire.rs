@@ -151,7 +151,8 @@ fn put_u48(out: &mut Vec<u8>, value: u64) {
 
 /// A zero-terminated string field: the bytes up to the NUL (or the end).
 fn text(bytes: &[u8]) -> Vec<u8> {
-    bytes.iter().take_while(|b| **b != 0).copied().collect()
+    let len = bytes.iter().position(|b| *b == 0).unwrap_or(bytes.len());
+    bytes.get(..len).unwrap_or_default().to_vec()
 }
 
 /// A command a configuration tool sends to a node (node-protocols.md §3.3).
@@ -265,8 +266,14 @@ impl Command {
                 if pairs.len() < 2 || pairs.len() > MAX_DATA_LEN || pairs.len() % 2 != 0 {
                     return Err(DecodeError::BadLength);
                 }
-                let mask = pairs.iter().step_by(2).copied().collect();
-                let data = pairs.iter().skip(1).step_by(2).copied().collect();
+                // Mask and data bytes alternate; split in one plain loop (flash).
+                let (mut mask, mut data) = (Vec::with_capacity(pairs.len() / 2), Vec::with_capacity(pairs.len() / 2));
+                for pair in pairs.chunks_exact(2) {
+                    if let [m, d] = pair {
+                        mask.push(*m);
+                        data.push(*d);
+                    }
+                }
                 Ok(Command::WriteUnderMask { space, address, mask, data })
             }
             0x20..=0x23 => {
