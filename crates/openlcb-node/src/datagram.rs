@@ -411,7 +411,10 @@ impl DatagramService {
         if let Some(index) = self.active(peer) {
             self.finish(now, out, index, Err(DatagramFailure::PeerRestarted));
         }
-        self.awaiting.retain(|a| a.from != peer);
+        // By position and an ordered remove, as below: no `retain` (flash).
+        while let Some(index) = self.awaiting.iter().position(|a| a.from == peer) {
+            self.awaiting.remove(index);
+        }
     }
 
     fn timeout(&mut self, now: Instant, out: &mut Outputs) {
@@ -526,7 +529,9 @@ impl Service<Lent<'_>> for DatagramService {
         for a in self.awaiting.iter_mut() {
             change.rename(&mut a.from);
         }
-        self.awaiting.retain(|a| !change.loses(a.from));
+        while let Some(index) = self.awaiting.iter().position(|a| change.loses(a.from)) {
+            self.awaiting.remove(index);
+        }
     }
 
     fn handle_timeout(&mut self, cx: &mut Lent<'_>) {
