@@ -983,8 +983,14 @@ impl MemoryServer {
     /// `peer` restarted or is gone: its transfers waiting for a stream are dropped (open
     /// streams end through the endpoint's events).
     pub(crate) fn forget_peer(&mut self, peer: Option<NodeId>) {
-        self.transfers
-            .retain(|t| !(peer.is_none_or(|p| p == t.peer) && matches!(t.job, Job::Write { handle: None, .. })));
+        // By position and an ordered remove: no `retain` (flash).
+        while let Some(index) = self
+            .transfers
+            .iter()
+            .position(|t| peer.is_none_or(|p| p == t.peer) && matches!(t.job, Job::Write { handle: None, .. }))
+        {
+            self.transfers.remove(index);
+        }
         // An upgrade whose owner is gone may be taken over by the next Freeze.
         if self.firmware_owner.is_some_and(|owner| peer.is_none_or(|p| p == owner)) {
             self.firmware_owner = None;
