@@ -518,9 +518,9 @@ impl CanLink {
     /// queues together hold at most the limit (the callers checked), and stream control
     /// takes memory only while some is queued.
     fn ready(&mut self, outgoing: Outgoing) {
-        // Ahead of stream data only, never of another message queued before it.
-        let only_data_ahead = self.messages.iter().all(Outgoing::is_stream_data);
-        if outgoing.is_stream_control() && only_data_ahead {
+        // Ahead of stream data only, never of another message queued before it (the scan
+        // runs for stream control only: once per window).
+        if outgoing.is_stream_control() && self.messages.iter().all(Outgoing::is_stream_data) {
             self.stream_control.push_back(outgoing);
         } else {
             self.messages.push_within(self.config.transmit_queue_limit, outgoing);

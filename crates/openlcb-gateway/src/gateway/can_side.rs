@@ -78,8 +78,8 @@ impl Gateway {
 
     /// Releases the proxies of departed nodes whose traffic has all gone out, or whose grace
     /// ran out at `now`: their streams end, what is left of theirs (and held for an alias)
-    /// is dropped (and counted),
-    /// and an AMR releases the alias, so that the Node ID may log in on the CAN side.
+    /// is dropped (and counted), and an AMR releases the alias, so that the Node ID may log
+    /// in on the CAN side.
     pub(super) fn release_departed(&mut self, now: Instant) {
         let grace = self.config.departed_grace;
         let mut index = 0;
@@ -121,18 +121,15 @@ impl Gateway {
     /// No stream and nothing queued involves the proxy's node or alias.
     pub(super) fn proxy_is_idle(&self, proxy: &Proxy) -> bool {
         let node = proxy.node;
-        let alias = proxy.any_alias();
-        let in_stream = self.streams.iter().any(|s| s.key.source == node || s.key.destination == node);
+        let to_it = self.streams.iter().any(|s| s.key.destination == node);
         let waiting = self.waiting.iter().any(|w| w.item.message.source == node);
-        let queued = self.control.iter().chain(self.data.iter()).any(|r| Some(r.source) == alias);
-        let sending = self.current_control.iter().chain(self.current_data.iter()).any(|c| Some(c.source) == alias);
-        !(in_stream || waiting || queued || sending)
+        !(to_it || waiting || self.still_sending(proxy))
     }
 
-    /// A departed node's traffic is still going out to CAN: a stream of which it is the
-    /// source, or messages of it ready or being framed. (Messages still held for an alias
-    /// are not: they may wait a whole resolve timeout, and its Node ID may be back on CAN
-    /// before that.)
+    /// The proxy's node still has traffic going out to CAN: a stream of which it is the
+    /// source, or messages of it ready or being framed. (For a departed node, messages still
+    /// held for an alias do not count: they may wait a whole resolve timeout, and its Node ID
+    /// may be back on CAN before that.)
     fn still_sending(&self, proxy: &Proxy) -> bool {
         let alias = proxy.any_alias();
         let source = self.streams.iter().any(|s| s.key.source == proxy.node);
