@@ -267,13 +267,6 @@ struct Received<'a> {
     payload: Payload<'a>,
 }
 
-/// A [`Received`] message with its sender's name, once the frame is handled: delivered after
-/// the peer changes the frame caused.
-struct Named<'a> {
-    received: Received<'a>,
-    source: NodeId,
-}
-
 /// Where the payload of a [`Received`] message is.
 enum Payload<'a> {
     /// In the frame.
@@ -330,13 +323,7 @@ pub struct CanLink {
     last_duplicate: Option<(NodeAlias, Instant)>,
     /// [`leave`](Self::leave) was called: AMR goes out once the queued messages have.
     leaving: bool,
-    /// The frame in hand was another node's stream data: the layer above hears that the bus
-    /// carries streams ([`Receiver::medium_busy`]).
-    streams_on_bus: bool,
     events: Queue<LinkEvent>,
-    /// Peer changes found while handling one input, handed to the layer above before the
-    /// input returns (always empty between calls).
-    changes: Queue<PeerChange>,
     stats: LinkStats,
 }
 
@@ -361,9 +348,7 @@ impl CanLink {
             permitted_at: now,
             last_duplicate: None,
             leaving: false,
-            streams_on_bus: false,
             events: Queue::with_capacity(EVENT_BOUND),
-            changes: Queue::with_capacity(change_bound(&config)),
             stats: LinkStats::default(),
             config,
         }
@@ -570,24 +555,25 @@ impl CanLink {
             return Some(frame);
         }
         let alias = self.login.alias()?;
+        // Inside a message that is not stream data no other message's frame goes between.
         let inside = |current: &Option<Fragments<Vec<u8>>>| {
             current.as_ref().is_some_and(|f| f.has_more() && !f.is_stream_data())
         };
-        let mid_message = inside(&self.current) || inside(&self.current_control);
+        let mut inside_current = inside(&self.current);
         if let Some(front) = self.frames.front()
-            && (!mid_message || !header::is_message_id(front.raw_id()))
+            && (!(inside_current || inside(&self.current_control)) || !header::is_message_id(front.raw_id()))
         {
             return self.frames.pop_front();
         }
         loop {
-            if let Some(frame) = self.current_control.as_mut().and_then(Iterator::next) {
-                return Some(frame);
+            if let Some(control) = self.current_control.as_mut() {
+                if let Some(frame) = control.next() {
+                    return Some(frame);
+                }
+                self.current_control = None;
             }
-            self.current_control = None;
             // Stream control between two frames of stream data, never inside another message.
-            if !inside(&self.current)
-                && let Some(outgoing) = self.stream_control.pop_front()
-            {
+            if !inside_current && let Some(outgoing) = self.stream_control.pop_front() {
                 self.current_control = self.fragments(alias, outgoing);
                 continue;
             }
@@ -597,6 +583,7 @@ impl CanLink {
             self.current = None;
             let Some(outgoing) = self.messages.pop_front() else { return self.leave_now() };
             self.current = self.fragments(alias, outgoing);
+            inside_current = inside(&self.current);
         }
     }
 
@@ -644,15 +631,14 @@ impl CanLink {
     /// for messages and datagrams) and alias resolutions that ran out. A destination no alias
     /// was found for is [`PeerChange::Lost`] to `above` (its messages are dropped) before this
     /// returns. Early or repeated calls are harmless.
-    pub fn handle_timeout<A: PeerChanges + ?Sized>(&mut self, now: Instant, above: &mut A) {
-        self.run_timers(now);
-        self.hand_up_changes(above);
+    pub fn handle_timeout<A: PeerChanges + ?Sized>(&mut self, now: Instant, mut above: &mut A) {
+        self.run_timers(now, &mut above);
     }
 
-    /// [`handle_timeout`](Self::handle_timeout) but for the peer changes: one copy whatever
-    /// the layer above.
+    /// [`handle_timeout`](Self::handle_timeout) through `dyn`: one copy whatever the layer
+    /// above.
     #[inline(never)]
-    fn run_timers(&mut self, now: Instant) {
+    fn run_timers(&mut self, now: Instant, above: Above<'_>) {
         let event = self.login.timeout(now);
         self.login_event(now, event);
         loop {
@@ -665,14 +651,7 @@ impl CanLink {
             let Some(node) = expired.and_then(|u| u.message.destination) else { break };
             let dropped = self.unresolved.retain(|u| !u.is_for(node));
             add(&mut self.stats.unresolved_dropped, dropped);
-            self.change(PeerChange::Lost(node));
-        }
-    }
-
-    /// Hands the peer changes found so far to `above`, in order.
-    fn hand_up_changes<A: PeerChanges + ?Sized>(&mut self, above: &mut A) {
-        while let Some(change) = self.changes.pop_front() {
-            above.peer_changed(change);
+            above.peer_changed(PeerChange::Lost(node));
         }
     }
 
@@ -687,13 +666,60 @@ impl CanLink {
     /// message that taught it (a Verified Node ID, an Initialization Complete) arrives under
     /// the new name: the next message from that alias finds its streams under that name. The
     /// driver has nothing to apply between two frames.
-    pub fn handle_frame<A: Receiver + ?Sized>(&mut self, now: Instant, frame: &CanFrame, above: &mut A) {
-        let named = self.receive(now, frame);
-        self.hand_up_changes(above);
-        if core::mem::take(&mut self.streams_on_bus) {
-            above.medium_busy(now);
+    pub fn handle_frame<A: Receiver + ?Sized>(&mut self, now: Instant, frame: &CanFrame, mut above: &mut A) {
+        self.receive(now, frame, &mut above);
+    }
+
+    /// [`handle_frame`](Self::handle_frame) through `dyn`: one copy of the receive path
+    /// whatever the layer above.
+    #[inline(never)]
+    fn receive(&mut self, now: Instant, frame: &CanFrame, above: &mut dyn Receiver) {
+        bump(&mut self.stats.frames_in);
+        let header = match frame.header() {
+            Ok(header) => header,
+            Err(FrameError::Standard) => return bump(&mut self.stats.standard_ignored),
+            Err(FrameError::Remote) => return bump(&mut self.stats.remote_ignored),
+            Err(_) => return bump(&mut self.stats.invalid_frames),
+        };
+        let data = frame.payload();
+        // Before the login sees the frame, which may move it to another alias.
+        let from_our_alias = self.login.holds(header.source);
+        let event = self.login.header(now, &header, data);
+        self.login_event(now, event);
+        if from_our_alias {
+            return;
         }
-        if let Some(Named { received: Received { mti, payload }, source }) = named {
+        let source = header.source;
+        let message = match header.kind {
+            FrameKind::AliasMapDefinition => {
+                // One with our Node ID is the login's to report.
+                if let Some(node) = NodeId::from_slice(data) {
+                    self.learn(source, node, above);
+                }
+                None
+            }
+            FrameKind::AliasMapReset => {
+                self.forget(source, above);
+                None
+            }
+            // CFT §6.2.3: a global AME drops every cached mapping; the AMDs it causes refill it.
+            FrameKind::AliasMapEnquiry if data.is_empty() => {
+                self.forget_all_mappings(above);
+                None
+            }
+            FrameKind::Message { can_mti } => self.on_message(now, source, Mti(can_mti), data, above),
+            FrameKind::StreamData { destination } => {
+                above.medium_busy(now);
+                self.on_stream_data(destination, data)
+            }
+            FrameKind::Datagram { frame: part, destination } => {
+                self.on_datagram_frame(now, source, part, destination, data)
+            }
+            FrameKind::ReservedFormat { .. } => ignore(&mut self.stats.unsupported_ignored),
+            _ => None,
+        };
+        if let Some(Received { mti, payload }) = message {
+            let source = self.name_sender(source);
             let destination = mti.is_addressed().then_some(self.node);
             let payload = match payload {
                 Payload::Frame(data) => data,
@@ -703,58 +729,17 @@ impl CanLink {
         }
     }
 
-    /// [`handle_frame`](Self::handle_frame) up to the delivery: one copy of the receive path
-    /// whatever the layer above. The peer changes wait in `changes`.
-    #[inline(never)]
-    fn receive<'a>(&mut self, now: Instant, frame: &'a CanFrame) -> Option<Named<'a>> {
-        bump(&mut self.stats.frames_in);
-        let header = match frame.header() {
-            Ok(header) => header,
-            Err(FrameError::Standard) => return ignore(&mut self.stats.standard_ignored),
-            Err(FrameError::Remote) => return ignore(&mut self.stats.remote_ignored),
-            Err(_) => return ignore(&mut self.stats.invalid_frames),
-        };
-        let data = frame.payload();
-        // Before the login sees the frame, which may move it to another alias.
-        let from_our_alias = self.login.holds(header.source);
-        let event = self.login.header(now, &header, data);
-        self.login_event(now, event);
-        if from_our_alias {
-            return None;
-        }
-        let source = header.source;
-        let message = match header.kind {
-            FrameKind::AliasMapDefinition => {
-                // One with our Node ID is the login's to report.
-                if let Some(node) = NodeId::from_slice(data) {
-                    self.learn(source, node);
-                }
-                None
-            }
-            FrameKind::AliasMapReset => {
-                self.forget(source);
-                None
-            }
-            // CFT §6.2.3: a global AME drops every cached mapping; the AMDs it causes refill it.
-            FrameKind::AliasMapEnquiry if data.is_empty() => {
-                self.forget_all_mappings();
-                None
-            }
-            FrameKind::Message { can_mti } => self.on_message(now, source, Mti(can_mti), data),
-            FrameKind::StreamData { destination } => self.on_stream_data(destination, data),
-            FrameKind::Datagram { frame: part, destination } => {
-                self.on_datagram_frame(now, source, part, destination, data)
-            }
-            FrameKind::ReservedFormat { .. } => ignore(&mut self.stats.unsupported_ignored),
-            _ => None,
-        };
-        message.map(|received| Named { received, source: self.name_sender(source) })
-    }
-
     // ----- received messages -----
 
     /// A format 1 frame: a global or addressed message whole, or once its last frame came.
-    fn on_message<'a>(&mut self, now: Instant, source: NodeAlias, mti: Mti, data: &'a [u8]) -> Option<Received<'a>> {
+    fn on_message<'a>(
+        &mut self,
+        now: Instant,
+        source: NodeAlias,
+        mti: Mti,
+        data: &'a [u8],
+        above: Above<'_>,
+    ) -> Option<Received<'a>> {
         if let Some(position) = event_report::position(mti.0) {
             // A report with payload: global, so keyed by its source alone.
             let key = ReassemblyKey { source, destination: source, mti: Mti::PRODUCER_CONSUMER_EVENT_REPORT };
@@ -767,7 +752,7 @@ impl CanLink {
                         self.duplicate(now, source);
                         return None;
                     }
-                    Some(node) => self.learn(source, node),
+                    Some(node) => self.learn(source, node, above),
                     None => {}
                 }
             }
@@ -790,7 +775,6 @@ impl CanLink {
 
     /// A format 7 frame: stream data to us.
     fn on_stream_data<'a>(&mut self, destination: NodeAlias, data: &'a [u8]) -> Option<Received<'a>> {
-        self.streams_on_bus = true;
         if Some(destination) != self.login.alias() {
             return ignore(&mut self.stats.not_for_us);
         }
@@ -872,19 +856,19 @@ impl CanLink {
 
     /// Records `alias` <-> `node`, reports the renames it causes, and releases messages
     /// waiting for `node`'s alias.
-    fn learn(&mut self, alias: NodeAlias, node: NodeId) {
+    fn learn(&mut self, alias: NodeAlias, node: NodeId, above: Above<'_>) {
         if node == self.node || NodeAlias::from_provisional(node).is_some() {
             return;
         }
         let previous = self.cache.peek_node(alias);
         if let Some(old) = previous.filter(|old| *old != node) {
-            self.change(PeerChange::Lost(old));
+            above.peer_changed(PeerChange::Lost(old));
         }
         if let Some((evicted, evicted_node)) = self.cache.insert(alias, node) {
-            self.unname(evicted, evicted_node);
+            unname(evicted, evicted_node, above);
         }
         if previous.is_none() {
-            self.change(PeerChange::Renamed { from: alias.provisional_node_id(), to: node });
+            above.peer_changed(PeerChange::Renamed { from: alias.provisional_node_id(), to: node });
         }
         while let Some(index) = self.unresolved.iter().position(|waiting| waiting.is_for(node)) {
             if let Some(Outgoing { message, .. }) = self.unresolved.remove(index) {
@@ -895,25 +879,20 @@ impl CanLink {
 
     /// A peer released `alias` (AMR): forget it, drop what was queued for it or from it, and
     /// report it lost under its current name.
-    fn forget(&mut self, alias: NodeAlias) {
+    fn forget(&mut self, alias: NodeAlias, above: Above<'_>) {
         self.reassembly.forget_source(alias);
         self.datagrams.forget_source(alias);
         let dropped = self.messages.retain(|m| m.destination != Some(alias))
             + self.stream_control.retain(|m| m.destination != Some(alias));
         add(&mut self.stats.messages_dropped, dropped);
         let node = self.cache.remove_alias(alias).unwrap_or(alias.provisional_node_id());
-        self.change(PeerChange::Lost(node));
-    }
-
-    /// Reports that `alias`, known as `node` until now, goes back to its provisional name.
-    fn unname(&mut self, alias: NodeAlias, node: NodeId) {
-        self.change(PeerChange::Renamed { from: node, to: alias.provisional_node_id() });
+        above.peer_changed(PeerChange::Lost(node));
     }
 
     /// A global AME (CFT §6.2.3): every cached peer goes back to its provisional name.
-    fn forget_all_mappings(&mut self) {
+    fn forget_all_mappings(&mut self, above: Above<'_>) {
         while let Some((alias, node)) = self.cache.pop() {
-            self.unname(alias, node);
+            unname(alias, node, above);
         }
     }
 
@@ -1032,17 +1011,14 @@ impl CanLink {
     fn event(&mut self, event: LinkEvent) {
         push_bounded(&mut self.events, EVENT_BOUND, event, &mut self.stats.queue_overflows);
     }
-
-    fn change(&mut self, change: PeerChange) {
-        push_bounded(&mut self.changes, change_bound(&self.config), change, &mut self.stats.queue_overflows);
-    }
 }
 
-/// Room for the peer changes of one input, which are handed up before it returns: a global
-/// AME renames every cached peer, a timeout loses at most every waiting destination, any
-/// other frame causes at most three (a mapping replaced, an entry evicted, a Node ID learnt).
-fn change_bound(config: &CanConfig) -> usize {
-    config.alias_cache_size.max(config.transmit_queue_limit).saturating_add(3)
+/// The layer above, as the link's one copy of its receive and timer paths takes it.
+type Above<'a> = &'a mut dyn PeerChanges;
+
+/// Tells `above` that `alias`, known as `node` until now, goes back to its provisional name.
+fn unname(alias: NodeAlias, node: NodeId, above: Above<'_>) {
+    above.peer_changed(PeerChange::Renamed { from: node, to: alias.provisional_node_id() });
 }
 
 /// Counts a frame that delivers nothing.

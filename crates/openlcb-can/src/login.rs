@@ -223,12 +223,13 @@ impl AliasLogin {
         if self.state == LoginState::Stopped {
             return None;
         }
-        let claimed = NodeId::from_slice(data);
+        // Only alias frames name a Node ID: parsed for them alone (every frame comes here).
+        let claimed = || NodeId::from_slice(data);
         match header.kind {
             FrameKind::AliasMapEnquiry => {
                 if let LoginState::Permitted { alias } = self.state {
                     // CFT §6.2.3: answer a global AME, or one naming our Node ID.
-                    if (data.is_empty() || claimed == Some(self.node))
+                    if (data.is_empty() || claimed() == Some(self.node))
                         && !self.has_queued(FrameKind::AliasMapDefinition)
                     {
                         bump(&mut self.stats.enquiry_answers);
@@ -236,7 +237,7 @@ impl AliasLogin {
                     }
                 }
             }
-            FrameKind::AliasMapDefinition if claimed == Some(self.node) && !self.holds(header.source) => {
+            FrameKind::AliasMapDefinition if claimed() == Some(self.node) && !self.holds(header.source) => {
                 // CFT §6.2.5: another node announced our Node ID.
                 return Some(LoginEvent::DuplicateNodeId { other: header.source });
             }

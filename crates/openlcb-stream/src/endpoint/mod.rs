@@ -610,6 +610,7 @@ impl StreamEndpoint {
     /// Proceed. Once a closed stream has been read empty its handle is released.
     pub fn read(&mut self, now: Instant, handle: StreamHandle, buf: &mut [u8]) -> Result<usize, StreamError> {
         let idle_at = later(now, self.config.idle_timeout);
+        let min_progress = self.config.min_idle_progress;
         let (stream, out) = self.parts(handle)?;
         match stream.state {
             State::AwaitingReply | State::Sending => return Err(StreamError::WrongRole),
@@ -621,7 +622,7 @@ impl StreamEndpoint {
             stream.release();
         } else if send_due_proceed(stream, out) {
             // A new window: its bytes count as progress from here.
-            stream.marked = stream.count;
+            stream.mark_progress(min_progress);
             restart_idle(stream, idle_at);
         }
         Ok(n)
@@ -790,10 +791,9 @@ impl StreamEndpoint {
         }
         // Progress: `min_idle_progress` bytes since the wait last started (at most a window),
         // or the whole credit used (the source then waits for this node's Proceed).
-        let wanted = u64::from(min_progress.min(stream.window).max(1));
-        let progressed = stream.count >= stream.marked + wanted || stream.credit == 0;
+        let progressed = stream.count >= stream.progress_at || stream.credit == 0;
         if progressed {
-            stream.marked = stream.count;
+            stream.mark_progress(min_progress);
             stream.heard = now;
         }
         send_due_proceed(stream, out);
@@ -918,8 +918,10 @@ impl StreamEndpoint {
     /// Opens the pending destination stream `handle` with at most `local_window`.
     fn accept_stream(&mut self, now: Instant, handle: StreamHandle, local_window: u16, early: bool) {
         let first_data_at = later(now, self.receive_wait(0));
+        let min_progress = self.config.min_idle_progress;
         let Ok((stream, out)) = self.parts(handle) else { return };
         stream.open_destination(stream.window.min(local_window).max(1), early);
+        stream.mark_progress(min_progress);
         stream.deadline = first_data_at;
         send_accept(stream, out);
         let info = stream.info();

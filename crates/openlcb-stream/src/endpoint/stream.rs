@@ -104,8 +104,9 @@ pub(crate) struct Stream {
     pub(crate) count: u64,
     /// Destination, draining: the byte count the Complete stated.
     pub(crate) expected: u64,
-    /// Destination: `count` when the idle wait last started for progress.
-    pub(crate) marked: u64,
+    /// Destination: the `count` that will be progress for the idle wait (see
+    /// [`Stream::mark_progress`]).
+    pub(crate) progress_at: u64,
 }
 
 impl Stream {
@@ -126,7 +127,7 @@ impl Stream {
             count: 0,
             window_sent: 0,
             expected: 0,
-            marked: 0,
+            progress_at: 0,
             write_blocked: false,
             early_proceed: false,
             buffer: ByteRing::new(0),
@@ -200,6 +201,13 @@ impl Stream {
     }
 
     /// Destination: accepted with `window`; the receive buffer is allocated here.
+    /// Destination: the idle wait starts again for progress here: `min_progress` more bytes
+    /// (at most a window) are progress.
+    #[inline(never)]
+    pub(crate) fn mark_progress(&mut self, min_progress: u16) {
+        self.progress_at = self.count + u64::from(min_progress.min(self.window).max(1));
+    }
+
     pub(crate) fn open_destination(&mut self, window: u16, early_proceed: bool) {
         let capacity = usize::from(window) * if early_proceed { 2 } else { 1 };
         self.state = State::Receiving;
