@@ -639,8 +639,9 @@ impl CanLink {
     /// above.
     #[inline(never)]
     fn run_timers(&mut self, now: Instant, above: Above<'_>) {
-        let event = self.login.timeout(now);
-        self.login_event(now, event);
+        if let Some(event) = self.login.timeout(now) {
+            self.login_event(now, event);
+        }
         loop {
             let expired = self.reassembly.take_expired(now).or_else(|| self.datagrams.take_expired(now));
             let Some(key) = expired else { break };
@@ -684,8 +685,9 @@ impl CanLink {
         let data = frame.payload();
         // Before the login sees the frame, which may move it to another alias.
         let from_our_alias = self.login.holds(header.source);
-        let event = self.login.header(now, &header, data);
-        self.login_event(now, event);
+        if let Some(event) = self.login.header(now, &header, data) {
+            self.login_event(now, event);
+        }
         if from_our_alias {
             return;
         }
@@ -943,27 +945,25 @@ impl CanLink {
     // ----- login and alias resolution -----
 
     /// Acts on what the login reported, if anything.
-    fn login_event(&mut self, now: Instant, event: Option<LoginEvent>) {
-        if let Some(event) = event {
-            match event {
-                LoginEvent::Permitted { alias } => {
-                    self.permitted_at = now;
-                    if self.announced {
-                        // After a re-login the endpoint will not announce the node again: the
-                        // link does, first of all (its frame queue was emptied with the alias).
-                        self.queue_message(Mti::INITIALIZATION_COMPLETE, &node_bytes(self.node), &[]);
-                    }
-                    self.announced = true;
-                    self.send_enquiries(now);
-                    self.event(LinkEvent::Permitted { alias });
+    fn login_event(&mut self, now: Instant, event: LoginEvent) {
+        match event {
+            LoginEvent::Permitted { alias } => {
+                self.permitted_at = now;
+                if self.announced {
+                    // After a re-login the endpoint will not announce the node again: the
+                    // link does, first of all (its frame queue was emptied with the alias).
+                    self.queue_message(Mti::INITIALIZATION_COMPLETE, &node_bytes(self.node), &[]);
                 }
-                LoginEvent::Lost { alias } => {
-                    self.drop_traffic();
-                    self.event(LinkEvent::AliasLost { alias });
-                }
-                LoginEvent::DuplicateNodeId { other } => self.duplicate(now, other),
-                _ => {}
+                self.announced = true;
+                self.send_enquiries(now);
+                self.event(LinkEvent::Permitted { alias });
             }
+            LoginEvent::Lost { alias } => {
+                self.drop_traffic();
+                self.event(LinkEvent::AliasLost { alias });
+            }
+            LoginEvent::DuplicateNodeId { other } => self.duplicate(now, other),
+            _ => {}
         }
     }
 
