@@ -200,7 +200,6 @@ impl Stream {
         }
     }
 
-    /// Destination: accepted with `window`; the receive buffer is allocated here.
     /// Destination: the idle wait starts again for progress here: `min_progress` more bytes
     /// (at most a window) are progress.
     #[inline(never)]
@@ -208,6 +207,7 @@ impl Stream {
         self.progress_at = self.count + u64::from(min_progress.min(self.window).max(1));
     }
 
+    /// Destination: accepted with `window`; the receive buffer is allocated here.
     pub(crate) fn open_destination(&mut self, window: u16, early_proceed: bool) {
         let capacity = usize::from(window) * if early_proceed { 2 } else { 1 };
         self.state = State::Receiving;
