@@ -5,10 +5,10 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use openlcb_benches::{NODE_A, NODE_B, Wire, endpoints};
+use openlcb_benches::transfer_over_can;
 use openlcb_can::gridconnect::{self, GridConnectDecoder};
-use openlcb_can::{CanConfig, CanFrame, CanHeader, CanLink, Fragments, NodeAlias};
-use openlcb_stream::{Instant, Mti, StreamEndpoint};
+use openlcb_can::{CanFrame, CanHeader, Fragments, NodeAlias};
+use openlcb_stream::Mti;
 
 const FRAMES: usize = 1024;
 
@@ -81,46 +81,6 @@ fn frames(c: &mut Criterion) {
         b.iter(|| black_box(&sample).iter().filter(|f| CanHeader::parse(f.raw_id()).is_ok()).count())
     });
     group.finish();
-}
-
-/// Two CAN links, one per endpoint, on a bus that delivers every frame at once.
-struct CanWire {
-    a: CanLink,
-    b: CanLink,
-}
-
-impl Wire for CanWire {
-    fn carry(&mut self, now: Instant, from: &mut StreamEndpoint, to: &mut StreamEndpoint, a_to_b: bool) {
-        let (sender, receiver) = if a_to_b { (&mut self.a, &mut self.b) } else { (&mut self.b, &mut self.a) };
-        while let Some(msg) = from.poll_transmit() {
-            sender.send(now, msg).expect("queue");
-        }
-        while let Some(frame) = sender.poll_transmit() {
-            receiver.handle_frame(now, &frame, to);
-        }
-    }
-}
-
-fn link(id: openlcb_stream::NodeId, first_alias: u16) -> CanLink {
-    let mut can = CanConfig::default();
-    can.first_alias = Some(alias(first_alias));
-    CanLink::new(Instant::ZERO, id, can)
-}
-
-/// Logs in two nodes and moves `bytes` from A to B through their links.
-fn transfer_over_can(bytes: usize, window: u16) -> usize {
-    let (mut a, mut b) = endpoints(window);
-    let mut wire = CanWire { a: link(NODE_A, 0x123), b: link(NODE_B, 0x456) };
-    let login = Instant::from_millis(200);
-    for now in [Instant::ZERO, login] {
-        wire.a.handle_timeout(now, &mut a);
-        wire.b.handle_timeout(now, &mut b);
-        for _ in 0..4 {
-            wire.carry(now, &mut a, &mut b, true);
-            wire.carry(now, &mut b, &mut a, false);
-        }
-    }
-    openlcb_benches::transfer(login, (&mut a, &mut b), &mut wire, bytes, window)
 }
 
 fn transfer(c: &mut Criterion) {

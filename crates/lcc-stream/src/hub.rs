@@ -54,7 +54,9 @@ pub(crate) struct HubArgs {
     gateway_node_id: NodeId,
     /// Print every frame as it passes, raw (GridConnect text). For a decoded view (messages
     /// by name, datagrams, streams, events) run `lcc-stream monitor` beside the hub, or on
-    /// this output saved to a file (`monitor --from FILE`).
+    /// this output saved to a file (`monitor --from FILE`). The trace never slows the bus:
+    /// frames it cannot print in time (a slow terminal) are relayed all the same, and a line
+    /// of the trace says how many it left out.
     #[arg(long)]
     trace: bool,
     /// Bytes queued for one client before it is disconnected as too slow.
@@ -123,14 +125,17 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
     loop {
         tokio::select! {
             event = hub.next_event() => match event {
-                Some(event) => names.print(&event),
+                Some(event) => {
+                    names.print_left_out(hub.events_dropped());
+                    names.print(&event);
+                }
                 None => return Ok(ExitCode::SUCCESS),
             },
             () = interrupt.wait() => {
                 let stats = hub.stats();
                 eprintln!(
-                    "lcc-stream hub: interrupted; {} clients served, {} frames relayed, {} decode errors, {} slow clients dropped",
-                    stats.clients_accepted, stats.frames, stats.decode_errors, stats.slow_clients
+                    "lcc-stream hub: interrupted; {} clients served, {} frames relayed, {} decode errors, {} slow clients dropped, {} events not shown",
+                    stats.clients_accepted, stats.frames, stats.decode_errors, stats.slow_clients, stats.events_dropped
                 );
                 return Ok(ExitCode::from(Outcome::Interrupted.status()));
             }
@@ -156,16 +161,18 @@ fn bind_failed(args: &HubArgs, addr: &str, source: &std::io::Error) -> ExitCode 
     ExitCode::from(Outcome::Usage.status())
 }
 
-/// What the hub prints about its clients: their names, and the time since the hub started.
+/// What the hub prints about its clients: their names, the time since the hub started, and
+/// how many events it has said it left out.
 struct ClientNames {
     start: std::time::Instant,
     names: HashMap<ClientId, String>,
+    left_out: u64,
 }
 
 impl Default for ClientNames {
     fn default() -> Self {
         let names = HashMap::from([(BRIDGE_GRIDCONNECT, "bridge".to_string()), (BRIDGE_TCP, "bridge".to_string())]);
-        ClientNames { start: std::time::Instant::now(), names }
+        ClientNames { start: std::time::Instant::now(), names, left_out: 0 }
     }
 }
 
@@ -174,6 +181,21 @@ impl ClientNames {
         match self.names.get(&client) {
             Some(name) => name.as_str().into(),
             None => format!("client {client}").into(),
+        }
+    }
+
+    /// Says in the trace, where it notices, that events were dropped since it last said so
+    /// (`dropped` is the hub's count so far). The line holds no frame, so `monitor --from`
+    /// passes over it.
+    fn print_left_out(&mut self, dropped: u64) {
+        if dropped > self.left_out {
+            let at = self.start.elapsed().as_secs_f64();
+            let hub = "(hub)";
+            println!(
+                "{at:>10.3} {hub:<24} {} events not shown here: the trace fell behind (the frames were relayed)",
+                dropped - self.left_out
+            );
+            self.left_out = dropped;
         }
     }
 

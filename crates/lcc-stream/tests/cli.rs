@@ -823,3 +823,50 @@ async fn send_and_recv_on_two_hubs_chained_with_upstream() {
     assert!(std::fs::read(&output).unwrap() == payload, "the received file differs");
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// `hub --trace` never slows the bus: while nobody reads the trace (a stalled terminal, here
+/// a pipe not read), the frames are relayed all the same, and once the trace is read again a
+/// line of it says how many events it left out.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_trace_that_falls_behind_relays_every_frame_and_says_how_many_it_left_out() {
+    use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
+    // Far more trace lines than the pipe (64 KiB) and the hub's event queue (4096) hold.
+    const FRAMES: usize = 20_000;
+    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0", "--no-tcp", "--trace"]);
+    let line = wait_for_line(&mut hub, "GridConnect on").await;
+    let addr = line.split_whitespace().nth(4).unwrap().to_string();
+    let mut sender = bounded("connect", tokio::net::TcpStream::connect(&addr)).await.unwrap();
+    let mut listener = bounded("connect", tokio::net::TcpStream::connect(&addr)).await.unwrap();
+    let frames: String = (0..FRAMES).map(|i| format!(":X19490{:03X}N;\n", 0x100 + i % 0x600)).collect();
+    let writing = tokio::spawn(async move { sender.write_all(frames.as_bytes()).await.map(|()| sender) });
+    // The other client gets every frame while the trace is not read.
+    let mut received = 0usize;
+    let mut buf = vec![0u8; 64 * 1024];
+    bounded("every frame relayed", async {
+        while received < FRAMES {
+            let n = listener.read(&mut buf).await.unwrap();
+            assert!(n > 0, "the hub closed the connection after {received} frames");
+            received += buf[..n].iter().filter(|b| **b == b';').count();
+        }
+    })
+    .await;
+    assert_eq!(received, FRAMES);
+    let _sender = bounded("writing", writing).await.unwrap().unwrap();
+    // Now the trace is read: it holds fewer frame lines than frames, and says so.
+    let stdout = hub.stdout.take().unwrap();
+    let mut lines = BufReader::new(stdout).lines();
+    let (traced, note) = bounded("the note of what the trace left out", async {
+        let mut traced = 0usize;
+        while let Some(line) = lines.next_line().await.unwrap() {
+            if line.contains(":X19490") {
+                traced += 1;
+            } else if line.contains("events not shown here") {
+                return (traced, line);
+            }
+        }
+        panic!("the trace ended without saying what it left out");
+    })
+    .await;
+    let left_out: usize = note.split_whitespace().nth(2).unwrap().parse().unwrap();
+    assert!(left_out > 0 && traced + left_out <= FRAMES, "{traced} traced, {note}");
+}

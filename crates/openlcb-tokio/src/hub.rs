@@ -484,6 +484,13 @@ impl Hub {
         self.tcp_addr
     }
 
+    /// Events dropped so far because they were not read in time
+    /// ([`HubStats::events_dropped`]), read without the locks that [`Hub::stats`] takes: cheap
+    /// enough to ask for every event.
+    pub fn events_dropped(&self) -> u64 {
+        self.state.events_dropped.load(Ordering::Relaxed)
+    }
+
     /// The counters now.
     pub fn stats(&self) -> HubStats {
         let state = &self.state;
