@@ -609,8 +609,7 @@ impl StreamEndpoint {
     /// buffered now (wait for `Readable`). Reading frees buffer space, which may send a
     /// Proceed. Once a closed stream has been read empty its handle is released.
     pub fn read(&mut self, now: Instant, handle: StreamHandle, buf: &mut [u8]) -> Result<usize, StreamError> {
-        let idle_at = later(now, self.config.idle_timeout);
-        let min_progress = self.config.min_idle_progress;
+        let (idle, min_progress) = (self.config.idle_timeout, self.config.min_idle_progress);
         let (stream, out) = self.parts(handle)?;
         match stream.state {
             State::AwaitingReply | State::Sending => return Err(StreamError::WrongRole),
@@ -623,7 +622,7 @@ impl StreamEndpoint {
         } else if send_due_proceed(stream, out) {
             // A new window: its bytes count as progress from here.
             stream.mark_progress(min_progress);
-            restart_idle(stream, idle_at);
+            restart_idle(stream, later(now, idle));
         }
         Ok(n)
     }
