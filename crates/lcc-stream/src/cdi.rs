@@ -70,9 +70,8 @@ async fn cdi(args: &CdiArgs) -> Result<ExitCode, String> {
         match &args.out {
             Some(out) => memory::save_new(out, &xml).await?,
             None if !args.client.json => {
-                use std::io::Write as _;
                 let stdout = std::path::Path::new("-");
-                std::io::stdout().write_all(&xml).map_err(|e| Failure::file(stdout, e))?;
+                crate::stdout::write_bytes(&xml).map_err(|e| Failure::file(stdout, e))?;
             }
             None => {}
         }

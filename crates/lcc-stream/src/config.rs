@@ -205,8 +205,8 @@ fn finish(node: NodeId, command: &str, json: bool, outcome: Result<Done, Failure
         Ok(done) => {
             if !json {
                 match action {
-                    Action::Backup { out: Some(out), .. } => println!("backed up {} into {}", node, out.display()),
-                    _ => print!("{}", done.text),
+                    Action::Backup { out: Some(out), .. } => outln!("backed up {} into {}", node, out.display()),
+                    _ => out!("{}", done.text),
                 }
             }
             merge(&mut object, done.fields);

@@ -62,7 +62,7 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
         _ => hub.local_addr(),
     }
     .to_string();
-    println!("hub listening on {addr} ({protocol:?})");
+    outln!("hub listening on {addr} ({protocol:?})");
 
     let receiver_id: NodeId = DEFAULT_RECEIVER.parse().map_err(|e| format!("{e}"))?;
     let sender_id: NodeId = DEMO_SENDER.parse().map_err(|e| format!("{e}"))?;
@@ -75,7 +75,7 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
         Ok(node) => node,
         Err(error) => return Ok(net::fail("demo receiver", &Failure::Net(error))),
     };
-    println!("receiver {receiver_id} joined");
+    outln!("receiver {receiver_id} joined");
     let receiving = tokio::spawn(async move {
         let mut stream = receiver.accept().await?;
         let mut received = Vec::new();
@@ -90,7 +90,7 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
         Ok(node) => node,
         Err(error) => return Ok(net::fail("demo sender", &Failure::Net(error))),
     };
-    println!("sender {sender_id} joined; sending {} bytes, window {}", args.bytes, args.window);
+    outln!("sender {sender_id} joined; sending {} bytes, window {}", args.bytes, args.window);
     let started = Instant::now();
     let sending = async {
         let mut stream = sender.open(OpenOptions::new(receiver_id, args.window)).await?;
@@ -115,13 +115,13 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
     let hub_stats = hub.stats();
 
     let verified = received == data;
-    println!(
+    outln!(
         "moved {} bytes in {elapsed:.3} s: {} (window {window}, early Proceed {})",
         received.len(),
         net::rate_text(net::rate(received.len() as u64, elapsed)),
         if args.early_proceed { "on" } else { "off" }
     );
-    println!(
+    outln!(
         "sender: {} frames out in {} writes; receiver: {} frames in, {} out; hub: {} frames relayed",
         sender_stats.frames_out,
         sender_stats.writes,
@@ -130,7 +130,7 @@ async fn demo(args: &DemoArgs) -> Result<ExitCode, String> {
         hub_stats.frames
     );
     if verified && sent == data.len() as u64 {
-        println!("verified: every byte arrived, in order");
+        outln!("verified: every byte arrived, in order");
         Ok(ExitCode::SUCCESS)
     } else {
         eprintln!("lcc-stream demo: data did NOT verify ({} bytes sent, {} received)", sent, received.len());

@@ -246,7 +246,7 @@ async fn watch(node: &Node, json: bool) -> Result<ExitCode, String> {
         } else {
             let who = line.from_name.as_ref().map_or(line.from.clone(), |name| format!("{} \"{name}\"", line.from));
             let payload = if line.payload.is_empty() { String::new() } else { format!(" payload {}", line.payload) };
-            println!("{:9.3}  {}  from {who}{payload}", line.time, event_text(event));
+            outln!("{:9.3}  {}  from {who}{payload}", line.time, event_text(event));
         }
     }
     Err("the connection ended".into())
@@ -328,9 +328,9 @@ async fn identify(node: &Node, event: Option<EventId>, wait: f64, json: bool) ->
     if json {
         lines.iter().for_each(net::print_json);
     } else {
-        println!("{:17}  {:8}  {:48}  STATE", "NODE", "ROLE", "EVENT");
+        outln!("{:17}  {:8}  {:48}  STATE", "NODE", "ROLE", "EVENT");
         for line in &lines {
-            println!("{}", line.text());
+            outln!("{}", line.text());
         }
         eprintln!("{} answer(s)", lines.len());
     }

@@ -29,6 +29,22 @@ pub(crate) fn reason(error: &io::Error) -> String {
     }
 }
 
+/// `true` when `path` names something that is neither a regular file nor a directory (a FIFO,
+/// a character device such as /dev/null, a socket), after following links. Data for such a
+/// file is written through to it: it is never replaced by a file of the same name.
+pub(crate) async fn is_special(path: &Path) -> bool {
+    tokio::fs::metadata(path).await.is_ok_and(|meta| !meta.is_file() && !meta.is_dir())
+}
+
+/// Writes `data` through to the special file `path` (see [`is_special`]): opened only once the
+/// data is here, so that a FIFO's reader is not held waiting for the network.
+pub(crate) async fn write_through(path: &Path, data: &[u8]) -> Result<(), Failure> {
+    use tokio::io::AsyncWriteExt as _;
+    let mut file = tokio::fs::OpenOptions::new().write(true).open(path).await.map_err(|e| Failure::file(path, e))?;
+    file.write_all(data).await.map_err(|e| Failure::file(path, e))?;
+    file.flush().await.map_err(|e| Failure::file(path, e))
+}
+
 /// The whole of `path` (stdin for `-`); a directory is refused as such.
 pub(crate) async fn read_all(path: &Path) -> Result<Vec<u8>, Failure> {
     if is_std(path) {

@@ -191,7 +191,7 @@ impl ClientNames {
         if dropped > self.left_out {
             let at = self.start.elapsed().as_secs_f64();
             let hub = "(hub)";
-            println!(
+            outln!(
                 "{at:>10.3} {hub:<24} {} events not shown here: the trace fell behind (the frames were relayed)",
                 dropped - self.left_out
             );
@@ -231,7 +231,7 @@ impl ClientNames {
             }
             HubEvent::Frame { client, text } => {
                 let at = self.start.elapsed().as_secs_f64();
-                println!("{at:>10.3} {:<24} {text}", self.name(*client))
+                outln!("{at:>10.3} {:<24} {text}", self.name(*client))
             }
             _ => {}
         }

@@ -1,5 +1,9 @@
 //! `lcc-stream`: OpenLCB streams from the command line.
 
+// First, so that its macros are seen by every module after it.
+#[macro_use]
+mod stdout;
+
 mod args;
 mod cdi;
 mod config;
@@ -128,8 +132,11 @@ fn main() -> ExitCode {
         Command::Monitor(args) => monitor::run(&args),
         Command::Demo(args) => demo::run(&args),
         Command::Completions { shell } => {
-            clap_complete::generate(shell, &mut Cli::command(), "lcc-stream", &mut std::io::stdout());
-            Ok(ExitCode::SUCCESS)
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "lcc-stream", &mut script);
+            stdout::write_bytes(&script)
+                .map(|()| ExitCode::SUCCESS)
+                .map_err(|e| format!("cannot write the completion script: {e}"))
         }
         Command::Man => man(),
     };
@@ -145,6 +152,8 @@ fn main() -> ExitCode {
 /// Writes the manual page (the tool, its options and its commands) to stdout.
 fn man() -> Result<ExitCode, String> {
     let page = clap_mangen::Man::new(Cli::command());
-    page.render(&mut std::io::stdout().lock()).map_err(|e| format!("cannot write the manual page: {e}"))?;
+    let mut roff = Vec::new();
+    page.render(&mut roff).map_err(|e| format!("cannot render the manual page: {e}"))?;
+    stdout::write_bytes(&roff).map_err(|e| format!("cannot write the manual page: {e}"))?;
     Ok(ExitCode::SUCCESS)
 }

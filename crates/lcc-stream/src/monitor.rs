@@ -69,7 +69,7 @@ destination_alias and destination (null for global messages), message (its name)
 
 ", net::network_help(&[])))]
 pub(crate) struct MonitorArgs {
-    /// Decode a saved trace instead of listening live.
+    /// Decode a saved trace instead of listening live (`-`: standard input).
     #[arg(long, value_name = "FILE", conflicts_with_all = ["connect", "serial"])]
     from: Option<PathBuf>,
     /// Only messages from or to this node: a Node ID, or a CAN alias in hex (e.g. 3B2);
@@ -709,22 +709,83 @@ fn decode_text(monitor: &mut Monitor, decoder: &mut GridConnectDecoder, time: f6
     }
 }
 
-/// Decodes a saved trace: every line's frames, timed by the line's leading time if it has
-/// one (else by its line number, in milliseconds, to keep the order).
-pub(crate) fn decode_trace(text: &str) -> Vec<Line> {
+/// The longest trace line decoded: a time, a client's name and a few GridConnect frames (one
+/// is at most 30 characters). A longer line is no trace line: it is skipped to its end,
+/// never held whole, and shown as one undecoded line.
+const MAX_TRACE_LINE: usize = 1024;
+
+/// Decodes a saved trace as it is read, a line at a time: every line's frames, timed by the
+/// line's leading time if it has one (else by its line number, in milliseconds, to keep the
+/// order). `print` is handed the decoded lines after each trace line; memory stays bounded
+/// by [`MAX_TRACE_LINE`] whatever the input (a file with no newline, /dev/zero).
+pub(crate) fn decode_trace(
+    mut input: impl std::io::BufRead,
+    mut print: impl FnMut(&mut Vec<Line>),
+) -> std::io::Result<()> {
     let mut monitor = Monitor::default();
     let mut decoder = GridConnectDecoder::new();
     let mut out = Vec::new();
-    for (number, line) in text.lines().enumerate() {
-        let time = leading_time(line).unwrap_or(number as f64 / 1000.0);
-        // The frames start at the first `:X` or `:S` (a client's name before them may hold
-        // a `:` too).
-        let start = line.find(":X").into_iter().chain(line.find(":S")).chain(line.find(":x")).min();
-        let frames = start.map_or("", |start| line.get(start..).unwrap_or_default());
-        decode_text(&mut monitor, &mut decoder, time, frames.as_bytes(), &mut out);
+    let mut line = Vec::with_capacity(MAX_TRACE_LINE);
+    let mut skipped = 0usize;
+    let mut number = 0usize;
+    loop {
+        let available = input.fill_buf()?;
+        let at_end = available.is_empty();
+        let newline = available.iter().position(|&b| b == b'\n');
+        let piece = available.get(..newline.unwrap_or(available.len())).unwrap_or_default();
+        let room = MAX_TRACE_LINE.saturating_sub(line.len());
+        line.extend_from_slice(piece.get(..piece.len().min(room)).unwrap_or_default());
+        skipped = skipped.saturating_add(piece.len().saturating_sub(room));
+        let used = newline.map_or(available.len(), |end| end + 1);
+        input.consume(used);
+        if newline.is_none() && !at_end {
+            continue;
+        }
+        if !at_end || !line.is_empty() || skipped > 0 {
+            trace_line(&mut monitor, &mut decoder, number, &line, skipped, &mut out);
+            print(&mut out);
+            number += 1;
+            line.clear();
+            skipped = 0;
+        }
+        if at_end {
+            break;
+        }
     }
     monitor.flush(&mut out);
-    out
+    print(&mut out);
+    Ok(())
+}
+
+/// Decodes one trace line, or reports it as undecoded when it was longer than
+/// [`MAX_TRACE_LINE`] (`skipped` bytes past the bound were dropped).
+fn trace_line(
+    monitor: &mut Monitor,
+    decoder: &mut GridConnectDecoder,
+    number: usize,
+    line: &[u8],
+    skipped: usize,
+    out: &mut Vec<Line>,
+) {
+    // Bytes that are not text (a binary log) become replacement characters, not an error.
+    let text = String::from_utf8_lossy(line);
+    let line = text.trim_end_matches('\r');
+    let time = leading_time(line).unwrap_or(number as f64 / 1000.0);
+    if skipped > 0 {
+        monitor.flush(out);
+        let total = MAX_TRACE_LINE.saturating_add(skipped);
+        out.push(undecodable(
+            time,
+            format!("{} bytes", total),
+            &format!("line {} longer than {MAX_TRACE_LINE} bytes", number + 1),
+        ));
+        return;
+    }
+    // The frames start at the first `:X` or `:S` (a client's name before them may hold
+    // a `:` too).
+    let start = line.find(":X").into_iter().chain(line.find(":S")).chain(line.find(":x")).min();
+    let frames = start.map_or("", |start| line.get(start..).unwrap_or_default());
+    decode_text(monitor, decoder, time, frames.as_bytes(), out);
 }
 
 pub(crate) fn run(args: &MonitorArgs) -> Result<ExitCode, String> {
@@ -742,15 +803,18 @@ pub(crate) fn run(args: &MonitorArgs) -> Result<ExitCode, String> {
             if args.json {
                 net::print_json(&line);
             } else {
-                println!("{}", line.text());
+                outln!("{}", line.text());
             }
         }
     };
     if let Some(path) = &args.from {
-        let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        // Bytes that are not text (a binary log) become replacement characters, not an error.
-        let text = String::from_utf8_lossy(&bytes);
-        print(&mut decode_trace(&text));
+        let read = if path.as_os_str() == "-" {
+            decode_trace(std::io::stdin().lock(), print)
+        } else {
+            let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
+            decode_trace(std::io::BufReader::new(file), print)
+        };
+        read.map_err(|e| format!("{}: {e}", path.display()))?;
         return Ok(ExitCode::SUCCESS);
     }
     net::runtime()?.block_on(live(args, print))

@@ -40,7 +40,7 @@ pub(crate) fn say(text: &str) {
     if DATA_ON_STDOUT.load(Ordering::Relaxed) {
         eprintln!("{text}");
     } else {
-        println!("{text}");
+        outln!("{text}");
     }
 }
 
@@ -376,7 +376,7 @@ pub(crate) fn rate(bytes: u64, seconds: f64) -> f64 {
 /// Prints `report` as one line of JSON on stdout.
 pub(crate) fn print_json(report: &impl serde::Serialize) {
     match serde_json::to_string(report) {
-        Ok(line) => println!("{line}"),
+        Ok(line) => outln!("{line}"),
         // Only a map with non-string keys fails, and no report has one.
         Err(error) => eprintln!("lcc-stream: cannot write JSON: {error}"),
     }

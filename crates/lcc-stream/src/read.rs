@@ -2,7 +2,8 @@
 //!
 //! The bytes go to `FILE.part`, claimed before the transfer starts, and it is renamed to
 //! `FILE` only once every byte has arrived; an existing file is kept unless `--force`. With
-//! `--out -` the bytes go to stdout.
+//! `--out -` the bytes go to stdout; into a FIFO or a device (`/dev/null`) they are written
+//! through once they have all arrived, with no `.part`, no rename and no need of `--force`.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -37,7 +38,7 @@ pub(crate) struct ReadArgs {
     #[arg(long, value_parser = memory::parse_number::<u32>)]
     length: Option<u32>,
     /// The file written, or `-` for stdout (then the report goes to stderr, and --json is
-    /// refused). An existing file is kept unless --force.
+    /// refused). An existing file is kept unless --force; a FIFO or a device is written into.
     #[arg(long, value_name = "FILE")]
     out: PathBuf,
     /// Replace an existing --out file (once every byte has arrived).
@@ -65,12 +66,13 @@ async fn read(args: &ReadArgs) -> Result<ExitCode, String> {
     let outcome = async {
         if files::is_std(&args.out) {
             let data = transfer(args, &mut interrupt, &mut moved).await?;
-            let mut stdout = tokio::io::stdout();
-            let written = async {
-                stdout.write_all(&data).await?;
-                stdout.flush().await
-            };
-            written.await.map_err(|e| Failure::file(&args.out, e))?;
+            crate::stdout::write_bytes(&data).map_err(|e| Failure::file(&args.out, e))?;
+            return Ok(data.len() as u64);
+        }
+        if files::is_special(&args.out).await {
+            // A FIFO or a device: the data goes into it, with no `.part` and no rename.
+            let data = transfer(args, &mut interrupt, &mut moved).await?;
+            files::write_through(&args.out, &data).await?;
             return Ok(data.len() as u64);
         }
         // Checked before the network is touched: the name is free (or --force), and a file

@@ -199,7 +199,7 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
     }
     node.close().await;
     if args.json {
-        println!("{}", serde_json::to_string(&report).map_err(|e| e.to_string())?);
+        outln!("{}", serde_json::to_string(&report).map_err(|e| e.to_string())?);
     } else if let Some(error) = &report.error {
         eprintln!("lcc-stream serve: {error}");
     } else {

@@ -115,7 +115,7 @@ pub(crate) fn run(args: &SimArgs) -> Result<ExitCode, String> {
     if args.json {
         crate::net::print_json(&json(args, &report));
     } else {
-        print!("{}", text(args, &report));
+        out!("{}", text(args, &report));
     }
     Ok(if report.verified { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }

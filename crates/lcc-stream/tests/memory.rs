@@ -199,6 +199,32 @@ async fn nothing_is_written_over_an_existing_file() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn read_writes_through_a_fifo_and_never_replaces_it() {
+    use std::os::unix::fs::FileTypeExt as _;
+    let dir = scratch("fifo");
+    let (_hub, addr) = hub().await;
+    let _server = Server::start(&dir, &addr, SERVER, &[]).await;
+    let fifo = dir.join("fifo");
+    assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let reader = {
+        let fifo = fifo.clone();
+        tokio::task::spawn_blocking(move || std::fs::read(fifo).unwrap())
+    };
+    let (status, json) =
+        run(&addr, &["read", "--from", SERVER, "--length", "100", "--force", "--out", path_arg(&fifo)]).await;
+    assert_eq!(status, 0, "{json}");
+    let through = bounded("the FIFO's reader", reader).await.unwrap();
+    assert_eq!(through.len(), 100);
+    assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo(), "the FIFO was replaced by a file");
+    assert!(!dir.join("fifo.part").exists());
+    // Into /dev/null (a device) too, with --force: it stays a device.
+    let (status, json) =
+        run(&addr, &["read", "--from", SERVER, "--length", "16", "--force", "--out", "/dev/null"]).await;
+    assert_eq!(status, 0, "{json}");
+    assert!(std::fs::metadata("/dev/null").unwrap().file_type().is_char_device());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_unknown_node_exits_5() {
     let dir = scratch("unknown");
     let (_hub, addr) = hub().await;
