@@ -409,10 +409,22 @@ impl<'a> Session<'a> {
         dry_run: bool,
         interrupt: &mut net::Interrupt,
     ) -> Result<Done, Failure> {
-        let text = tokio::fs::read_to_string(file).await.map_err(|e| Failure::Stop(Stop::file(file, e)))?;
+        let text = read_backup(file, backup::max_backup_bytes(&self.layout)).await?;
         let lines = backup::parse(&text).map_err(|e| Failure::Invalid(format!("{}: {e}", file.display())))?;
         let snapshot = self.read_spans(interrupt).await?;
         let plan = backup::plan(&self.layout, &snapshot, &lines).map_err(Failure::Cdi)?;
+        if !plan.duplicates.is_empty() {
+            let lines: Vec<String> = plan
+                .duplicates
+                .iter()
+                .map(|d| format!("{} on line {} and again on line {}", d.key, d.first_line, d.line))
+                .collect();
+            return Err(Failure::Invalid(format!(
+                "nothing written; {}: a setting given twice: {}",
+                file.display(),
+                lines.join("; ")
+            )));
+        }
         if !plan.invalid.is_empty() {
             let reasons: Vec<String> = plan.invalid.iter().map(|(key, e)| format!("{key}: {e}")).collect();
             return Err(Failure::Invalid(format!("nothing written; the backup does not fit: {}", reasons.join("; "))));
@@ -451,6 +463,23 @@ impl<'a> Session<'a> {
             }),
         })
     }
+}
+
+/// The text of a backup file, refused unread past `max_bytes` (more than the node's CDI can
+/// hold: not a backup of this node).
+async fn read_backup(file: &std::path::Path, max_bytes: usize) -> Result<String, Failure> {
+    use tokio::io::AsyncReadExt as _;
+    let opened = tokio::fs::File::open(file).await.map_err(|e| Failure::Stop(Stop::file(file, e)))?;
+    let mut bytes = Vec::new();
+    let limit = u64::try_from(max_bytes).unwrap_or(u64::MAX).saturating_add(1);
+    opened.take(limit).read_to_end(&mut bytes).await.map_err(|e| Failure::Stop(Stop::file(file, e)))?;
+    if bytes.len() > max_bytes {
+        return Err(Failure::Invalid(format!(
+            "nothing written; {} is larger than a backup of this node's CDI can be ({max_bytes} bytes)",
+            file.display()
+        )));
+    }
+    String::from_utf8(bytes).map_err(|e| Failure::Invalid(format!("{}: not UTF-8 text ({e})", file.display())))
 }
 
 fn value_json(value: &Value) -> Json {

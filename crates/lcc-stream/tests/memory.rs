@@ -370,6 +370,32 @@ async fn config_refuses_what_the_cdi_does_not_allow_and_writes_nothing() {
     assert_eq!(&std::fs::read(&config).unwrap()[33..35], [0, 250], "big-endian");
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restore_refuses_duplicates_reads_past_a_byte_order_mark_and_bounds_its_input() {
+    let dir = scratch("config-duplicates");
+    let (_hub, addr) = hub().await;
+    let config = dir.join("config.bin");
+    std::fs::write(&config, vec![0; 256]).unwrap();
+    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    let twice = dir.join("twice.txt");
+    std::fs::write(&twice, "Configuration.Mode=1\nConfiguration.Label=x\nConfiguration.Mode=2\n").unwrap();
+    let (status, json) = run(&addr, &["config", "restore", SERVER, path_arg(&twice)]).await;
+    assert_eq!((status, json["result"].as_str()), (2, Some("usage")), "{json}");
+    let error = json["error"].as_str().unwrap();
+    assert!(error.contains("Configuration.Mode on line 1 and again on line 3"), "{error}");
+    assert_eq!(std::fs::read(&config).unwrap(), vec![0; 256], "nothing written");
+    let marked = dir.join("marked.txt");
+    std::fs::write(&marked, "\u{feff}Configuration.Mode=1\n").unwrap();
+    let (status, json) = run(&addr, &["config", "restore", SERVER, path_arg(&marked)]).await;
+    assert_eq!(status, 0, "{json}");
+    assert_eq!(json["written"], serde_json::json!(["Configuration.Mode"]));
+    let huge = dir.join("huge.txt");
+    std::fs::write(&huge, "Unknown.Key=1\n".repeat(1 << 20)).unwrap();
+    let (status, json) = run(&addr, &["config", "restore", SERVER, path_arg(&huge)]).await;
+    assert_eq!((status, json["result"].as_str()), (2, Some("usage")), "{json}");
+    assert!(json["error"].as_str().unwrap().contains("larger than a backup of this node's CDI can be"), "{json}");
+}
+
 /// A CDI of our own shaped like a 16-line I/O board, served by `serve --cdi`: `show` gives
 /// the tree with values and labels, and `backup` one line per int, string and event.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

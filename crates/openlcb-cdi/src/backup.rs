@@ -4,7 +4,11 @@
 //! private-use and unassigned code points) are written `\xHHHH` (`cdi/cmd/Util.java`).
 //!
 //! Reading follows `RestoreConfig`: lines starting with `#` and empty lines are skipped,
-//! the key ends at the first `=`.
+//! the key ends at the first `=`. A leading byte-order mark (Windows editors write one) is
+//! no part of the first key. A key has as many lines as the CDI has entries of that key; a
+//! line past those is a duplicate, and [`plan`] lists it with both line numbers so that a
+//! restore writes nothing rather than guess which value was meant. How large a backup of a
+//! layout can be is [`max_backup_bytes`].
 
 use alloc::format;
 use alloc::string::String;
@@ -79,6 +83,7 @@ pub struct Line {
 /// it with a warning; a restore should not go on from a file it half understands).
 pub fn parse(text: &str) -> Result<Vec<Line>, Error> {
     let mut lines = Vec::new();
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     for (index, line) in text.lines().enumerate() {
         if line.is_empty() || line.starts_with('#') {
             continue;
@@ -148,6 +153,31 @@ pub struct Plan {
     pub unknown_keys: Vec<String>,
     /// Lines whose value the entry cannot take.
     pub invalid: Vec<(String, ValueError)>,
+    /// Lines for a key past the entries the CDI has of it.
+    pub duplicates: Vec<Duplicate>,
+}
+
+/// A backup line for a key whose every entry had a line already.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Duplicate {
+    /// The key.
+    pub key: String,
+    /// The line that gave the key's first value, from 1.
+    pub first_line: usize,
+    /// The line past the key's entries, from 1.
+    pub line: usize,
+}
+
+/// The most bytes a backup of `layout` can take, with room to spare: every entry's key and
+/// its value with each byte escaped (`\xHHHH`), twice over (keys a firmware upgrade renamed),
+/// and 64 KiB of comments. A larger file is not a backup of this node.
+pub fn max_backup_bytes(layout: &Layout) -> usize {
+    let entries: usize = layout
+        .entries()
+        .filter(|e| e.kind.in_backup())
+        .map(|e| e.key.len().saturating_add((e.size as usize).saturating_mul(6)).saturating_add(32))
+        .fold(0, usize::saturating_add);
+    entries.saturating_mul(2).saturating_add(64 * 1024)
 }
 
 /// One entry a restore writes.
@@ -167,20 +197,25 @@ pub struct Change {
 /// for it in order: the first line the first entry, and so on.
 pub fn plan(layout: &Layout, snapshot: &Snapshot, lines: &[Line]) -> Result<Plan, Error> {
     let mut plan = Plan::default();
-    let mut used: Vec<(&str, usize)> = Vec::new();
+    // Each key seen: how many lines it had, and the first one's number.
+    let mut used: Vec<(&str, usize, usize)> = Vec::new();
     for line in lines {
-        let seen = match used.iter_mut().find(|(k, _)| *k == line.key) {
-            Some((_, n)) => {
+        let (seen, first_line) = match used.iter_mut().find(|(k, _, _)| *k == line.key) {
+            Some((_, n, first)) => {
                 *n += 1;
-                *n - 1
+                (*n - 1, *first)
             }
             None => {
-                used.push((&line.key, 1));
-                0
+                used.push((&line.key, 1, line.number));
+                (0, line.number)
             }
         };
         let Some(entry) = layout.find(&line.key).filter(|e| e.kind.in_backup()).nth(seen) else {
-            plan.unknown_keys.push(line.key.clone());
+            if seen == 0 || layout.find(&line.key).next().is_none() {
+                plan.unknown_keys.push(line.key.clone());
+            } else {
+                plan.duplicates.push(Duplicate { key: line.key.clone(), first_line, line: line.number });
+            }
             continue;
         };
         // What the node holds already is no change, even where it could not be written as

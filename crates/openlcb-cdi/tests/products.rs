@@ -190,6 +190,27 @@ fn backup_lines_escape_and_restore_plans_only_differences() {
 }
 
 #[test]
+fn a_duplicate_line_is_named_with_both_line_numbers_and_a_byte_order_mark_is_no_part_of_a_key() {
+    let layout = Layout::parse(IO16).unwrap();
+    let snap = snapshot(&layout, |_| 0);
+    let text =
+        "\u{feff}Settings.Debounce (ms)=20\n# a comment\nSettings.Line(2).Function=1\nSettings.Debounce (ms)=30\n";
+    let lines = backup::parse(text).unwrap();
+    assert_eq!(lines[0].key, "Settings.Debounce (ms)");
+    let plan = backup::plan(&layout, &snap, &lines).unwrap();
+    assert!(plan.unknown_keys.is_empty(), "{:?}", plan.unknown_keys);
+    let duplicate = backup::Duplicate { key: "Settings.Debounce (ms)".into(), first_line: 1, line: 4 };
+    assert_eq!(plan.duplicates, [duplicate]);
+    // A key the CDI has twice takes two lines, and neither is a duplicate.
+    let twice = "Node ID.Node Name=a\nSettings.Line(0).Label=x\nSettings.Line(1).Label=y\n";
+    let plan = backup::plan(&layout, &snap, &backup::parse(twice).unwrap()).unwrap();
+    assert!(plan.duplicates.is_empty());
+    // A whole backup fits in the bound, with room for as much again.
+    let whole = backup::write(&layout, &snapshot(&layout, |_| 0xFF)).unwrap();
+    assert!(whole.len() * 2 < backup::max_backup_bytes(&layout));
+}
+
+#[test]
 fn neighbouring_writes_are_joined() {
     let layout = Layout::parse(IO16).unwrap();
     let snap = snapshot(&layout, |_| 0);
