@@ -4,12 +4,12 @@
 
 use std::io::Write as _;
 
-/// Prints a line on stdout (see [`write`]).
+/// Prints a line on stdout (see [`write()`]).
 macro_rules! outln {
     ($($arg:tt)*) => { $crate::stdout::write(format_args!("{}\n", format_args!($($arg)*))) };
 }
 
-/// Prints on stdout without a newline (see [`write`]).
+/// Prints on stdout without a newline (see [`write()`]).
 macro_rules! out {
     ($($arg:tt)*) => { $crate::stdout::write(format_args!($($arg)*)) };
 }
@@ -23,7 +23,7 @@ pub(crate) fn write(text: std::fmt::Arguments<'_>) {
     exit_if_closed(written);
 }
 
-/// Writes `bytes` on stdout, as [`write`] does; other errors are returned.
+/// Writes `bytes` on stdout, as [`write()`] does; other errors are returned.
 pub(crate) fn write_bytes(bytes: &[u8]) -> std::io::Result<()> {
     let mut stdout = std::io::stdout().lock();
     let written = stdout.write_all(bytes).and_then(|()| stdout.flush());

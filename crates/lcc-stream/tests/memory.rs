@@ -493,6 +493,27 @@ async fn the_config_file_is_replaced_whole_never_written_in_place() {
     assert_eq!(seen, data(1000, 4), "the file was written in place");
 }
 
+/// A write longer than the space is refused before a byte moves, by datagrams as by stream.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_write_larger_than_the_space_is_refused_before_a_byte_is_written() {
+    let dir = scratch("config-too-long");
+    let (_hub, addr) = hub().await;
+    let config = dir.join("config.bin");
+    std::fs::write(&config, vec![0; 256]).unwrap();
+    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    let image = dir.join("image.bin");
+    std::fs::write(&image, data(300, 6)).unwrap();
+    for extra in [None, Some("--no-stream")] {
+        let mut args = vec!["write", path_arg(&image), "--to", SERVER];
+        args.extend(extra);
+        let (status, json) = run(&addr, &args).await;
+        assert_ne!(status, 0, "{extra:?}: {json}");
+        assert_eq!((json["result"].as_str(), json["bytes"].as_u64()), (Some("rejected"), Some(0)), "{extra:?}: {json}");
+        assert!(json["error"].as_str().unwrap().contains("out of bounds"), "{extra:?}: {json}");
+        assert_eq!(std::fs::read(&config).unwrap(), vec![0; 256], "{extra:?}: nothing written");
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stream_sent_to_serve_is_refused_not_swallowed() {
     let dir = scratch("send-to-serve");

@@ -90,7 +90,7 @@ enum Step {
     Options,
     /// Get Address Space Information sent: a read to the end needs the size (a datagram
     /// read to know where to stop; any read to refuse a space larger than it may take
-    /// before a byte moves), and a stream write to refuse what does not fit.
+    /// before a byte moves), and a write of more than one command to refuse what does not fit.
     SpaceInfo { by_stream: bool },
     /// One datagram Read or Write of `len` bytes at offset `at` of the operation.
     Chunk { at: u32, len: u32 },
@@ -362,14 +362,18 @@ impl MemoryClient {
             (Some(Some(_)), true) => self.read_stream(cx, index),
             (Some(Some(_)), false) => self.next_chunk(cx, index, 0),
             // A stream cannot say that its end fell outside the space (the Write Stream Reply
-            // comes first): the space's size is asked for, and a write that does not fit is
-            // refused before a byte goes out.
-            (_, true) if matches!(op.kind, Kind::Write { .. }) => {
-                self.send(cx, index, Step::SpaceInfo { by_stream: true }, &Command::GetSpaceInfo { space })
-            }
+            // comes first), and datagrams would say it only after the commands that fit: for
+            // a write of more than one command the space's size is asked for, and a write that
+            // does not fit is refused before a byte goes out.
+            _ if long_write => self.send(cx, index, Step::SpaceInfo { by_stream }, &Command::GetSpaceInfo { space }),
             (_, true) => self.write_stream(cx, index),
             (_, false) => self.next_chunk(cx, index, 0),
         }
+    }
+
+    /// Starts a write's bytes by stream or by datagrams, from its first byte.
+    fn write_by(&mut self, cx: &mut Cx<'_>, index: usize, by_stream: bool) -> Option<Outcome> {
+        if by_stream { self.write_stream(cx, index) } else { self.next_chunk(cx, index, 0) }
     }
 
     /// Moves the operation's bytes by datagrams after all, from its first byte.
@@ -542,10 +546,12 @@ impl MemoryClient {
                 op.deadline = Some(cx.now + reply_timeout);
                 None
             }
-            // A node without Get Address Space Information: the stream write goes ahead, and
-            // a space error ends it with TDE.
-            (Step::SpaceInfo { .. }, Err(DatagramFailure::Rejected(_))) if matches!(op.kind, Kind::Write { .. }) => {
-                self.write_stream(cx, index)
+            // A node without Get Address Space Information: the write goes ahead, and a space
+            // error ends it (a stream with TDE, datagrams with the first command refused).
+            (Step::SpaceInfo { by_stream }, Err(DatagramFailure::Rejected(_)))
+                if matches!(op.kind, Kind::Write { .. }) =>
+            {
+                self.write_by(cx, index, by_stream)
             }
             // The same for a stream read to the end: the stream runs to the end of the space,
             // and past the read limit it is given up.
@@ -633,7 +639,7 @@ impl MemoryClient {
                 if let Kind::Write { data } = &op.kind {
                     let fits = room.is_some_and(|room| data.len() as u64 <= room);
                     return if fits {
-                        self.write_stream(cx, index)
+                        self.write_by(cx, index, by_stream)
                     } else {
                         Some(Outcome::Fail(MemoryError::Failed(codes::OUT_OF_BOUNDS)))
                     };
