@@ -428,6 +428,34 @@ async fn config_show_and_backup_of_an_io_board_cdi() {
     assert!(text.contains("\nSettings.Line(5).Function=2\nSettings.Line(5).Event On=00.00.00.00.00.00.00.00\n"));
 }
 
+/// A factory-fresh board (every configuration byte 0xFF: erased strings, ints past their
+/// `max`) is backed up, restored onto a replacement that holds zeros, and the replacement's
+/// backup is the board's, byte for byte.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_factory_fresh_backup_restores_onto_a_replacement() {
+    let dir = scratch("config-fresh");
+    let (_hub, addr) = hub().await;
+    let cdi = concat!(env!("CARGO_MANIFEST_DIR"), "/../openlcb-cdi/tests/cdi/io16.xml");
+    let (fresh, replacement) = (dir.join("fresh.bin"), dir.join("replacement.bin"));
+    std::fs::write(&fresh, vec![0xFF; 2 + 16 * 39 + 1]).unwrap();
+    std::fs::write(&replacement, vec![0; 2 + 16 * 39 + 1]).unwrap();
+    const REPLACEMENT: &str = "05.01.01.01.22.E3";
+    let _board = Server::start(&dir, &addr, SERVER, &["--cdi", cdi, "--config", path_arg(&fresh)]).await;
+    let _new = Server::start(&dir, &addr, REPLACEMENT, &["--cdi", cdi, "--config", path_arg(&replacement)]).await;
+    let (board_backup, new_backup) = (dir.join("board.txt"), dir.join("new.txt"));
+    let (status, json) = run(&addr, &["config", "backup", SERVER, "--out", path_arg(&board_backup)]).await;
+    assert_eq!(status, 0, "{json}");
+    let text = std::fs::read_to_string(&board_backup).unwrap();
+    assert!(text.contains(&format!("\nSettings.Line(0).Label={}\n", "\u{FFFD}".repeat(16))), "{text}");
+    assert!(text.contains("\nSettings.Debounce (ms)=65535\n"), "{text}");
+    let (status, json) = run(&addr, &["config", "restore", REPLACEMENT, path_arg(&board_backup)]).await;
+    assert_eq!(status, 0, "{json}");
+    assert_eq!(std::fs::read(&replacement).unwrap()[..18], [0xFF; 18], "Debounce and Line(0).Label erased");
+    let (status, json) = run(&addr, &["config", "backup", REPLACEMENT, "--out", path_arg(&new_backup)]).await;
+    assert_eq!(status, 0, "{json}");
+    assert_eq!(std::fs::read_to_string(&new_backup).unwrap(), text);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_image_that_cannot_be_saved_fails_the_upgrade_and_a_retry_succeeds() {
     let dir = scratch("unsaved");

@@ -218,12 +218,11 @@ pub fn plan(layout: &Layout, snapshot: &Snapshot, lines: &[Line]) -> Result<Plan
             }
             continue;
         };
-        // What the node holds already is no change, even where it could not be written as
-        // it is (a string of erased 0xFF bytes, say).
+        // What the node holds already is no change.
         let old = snapshot.value(entry)?;
         let checked = entry.parse(&line.value).and_then(|new| match new == old {
             true => Ok(None),
-            false => entry.encode(&new).map(|bytes| Some((new, bytes))),
+            false => entry.encode_restored(&new).map(|bytes| Some((new, bytes))),
         });
         match checked {
             Ok(None) => plan.unchanged += 1,

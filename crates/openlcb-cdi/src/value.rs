@@ -3,6 +3,7 @@
 
 use alloc::format;
 use alloc::string::{String, ToString};
+use alloc::vec;
 use alloc::vec::Vec;
 
 use crate::layout::{Entry, EntryKind};
@@ -60,13 +61,16 @@ pub enum ValueError {
         /// The greatest allowed.
         max: String,
     },
-    /// The string is longer than its entry holds (one byte stays for the NUL).
-    #[error("{len} bytes do not fit in a string of {size} (at most {} bytes of text)", size.saturating_sub(1))]
+    /// The string is longer than its entry holds (a person's text keeps one byte for the
+    /// NUL; a backup's may fill the entry, see [`Entry::encode_restored`]).
+    #[error("{len} bytes do not fit in a string of {size} (at most {room} bytes of text)")]
     TooLong {
-        /// The text's length in UTF-8.
+        /// The text's length in bytes as it would be written.
         len: usize,
         /// The entry's size.
         size: u32,
+        /// The most bytes of text it takes.
+        room: u32,
     },
     /// The value is not in the entry's map.
     #[error("`{text}` is none of the values allowed: {allowed}")]
@@ -195,7 +199,11 @@ impl Entry {
             (EntryKind::String, Value::String(text)) => {
                 let size = self.size as usize;
                 if text.len() >= size || text.contains('\0') {
-                    return Err(ValueError::TooLong { len: text.len(), size: self.size });
+                    return Err(ValueError::TooLong {
+                        len: text.len(),
+                        size: self.size,
+                        room: self.size.saturating_sub(1),
+                    });
                 }
                 let mut bytes = text.as_bytes().to_vec();
                 bytes.resize(size, 0);
@@ -204,6 +212,42 @@ impl Entry {
             (EntryKind::Action { .. } | EntryKind::Unknown, _) => Err(ValueError::NoValue(self.kind.word())),
             _ => Err(wrong()),
         }
+    }
+
+    /// The bytes a backup line's `value` restores: checked as [`encode`](Entry::encode)
+    /// checks a person's value, except for strings. A backup holds what the node held, so its
+    /// text may fill the whole entry with no NUL, and each U+FFFD in it (a byte that was not
+    /// UTF-8 when the backup was made; JMRI writes the same character) goes back as 0xFF, the
+    /// byte of erased flash. 0xFF is never part of a UTF-8 character, so it reads back as one
+    /// U+FFFD whatever its neighbours: a restored string reads back as the line it came from,
+    /// and an erased string of a factory-fresh board restores onto its replacement.
+    ///
+    /// The erased value of an int or a float (every byte 0xFF: 65535 for two bytes, NaN) is
+    /// restored even outside the entry's `min`..`max`, as a node that was never configured
+    /// holds it; any other value out of range is refused as [`encode`](Entry::encode) does.
+    pub fn encode_restored(&self, value: &Value) -> Result<Vec<u8>, ValueError> {
+        let erased = vec![0xFF; self.size as usize];
+        let text = match (&self.kind, value) {
+            (EntryKind::String, Value::String(text)) => text,
+            (EntryKind::Int { .. } | EntryKind::Float { .. }, _)
+                if self.decode(&erased).is_ok_and(|e| same_number(&e, value)) =>
+            {
+                return Ok(erased);
+            }
+            _ => return self.encode(value),
+        };
+        let mut bytes = Vec::with_capacity(self.size as usize);
+        for c in text.chars() {
+            match c {
+                char::REPLACEMENT_CHARACTER => bytes.push(0xFF),
+                c => bytes.extend_from_slice(c.encode_utf8(&mut [0; 4]).as_bytes()),
+            }
+        }
+        if bytes.len() > self.size as usize || text.contains('\0') {
+            return Err(ValueError::TooLong { len: bytes.len(), size: self.size, room: self.size });
+        }
+        bytes.resize(self.size as usize, 0);
+        Ok(bytes)
     }
 
     /// The value a person wrote: a label of the entry's map, or the value's own text (see
@@ -262,6 +306,14 @@ impl Entry {
 
 /// The values an int of `size` bytes may take: what its bytes hold (unsigned, or any i64
 /// for 8 bytes, as JMRI reads them), narrowed by `min` and `max`.
+/// Whether two numbers are the same, NaN being the same as NaN.
+fn same_number(a: &Value, b: &Value) -> bool {
+    match (a, b) {
+        (Value::Float(a), Value::Float(b)) => a == b || (a.is_nan() && b.is_nan()),
+        (a, b) => a == b,
+    }
+}
+
 fn int_limits(size: u32, min: Option<i64>, max: Option<i64>) -> (i128, i128) {
     let (low, high) =
         if size >= 8 { (i128::from(i64::MIN), i128::from(i64::MAX)) } else { (0, (1i128 << (8 * size)) - 1) };

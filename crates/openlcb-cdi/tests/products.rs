@@ -278,3 +278,45 @@ fn a_backup_of_erased_strings_restores_as_unchanged() {
     let plan = backup::plan(&layout, &snap, &backup::parse(&text).unwrap()).unwrap();
     assert_eq!((plan.writes.len(), plan.invalid.len()), (0, 0), "{:?}", plan.invalid);
 }
+
+/// A factory-fresh board's backup restores onto a replacement whose bytes differ: erased
+/// strings go back as 0xFF, a string that filled its entry goes back whole, and bytes that
+/// were not UTF-8 beside text read back as the same line. The replacement's own backup is
+/// then the board's, byte for byte.
+#[test]
+fn a_backup_restores_onto_a_replacement_and_reads_back_as_itself() {
+    let layout = Layout::parse(IO16).unwrap();
+    let mut names = vec![0xFF; 63];
+    names.extend_from_slice(b"Full width description, sixty-four bytes with no NUL at its end!");
+    let mut settings = vec![0xFF; layout.spans()[1].len as usize];
+    settings[..2].copy_from_slice(&[0, 20]);
+    settings[2..2 + 16].copy_from_slice(b"a\xFF\xC3b\xE2\x82\0\0\0\0\0\0\0\0\0\0");
+    let mut board = Snapshot::new();
+    board.insert(layout.spans()[0], names);
+    board.insert(layout.spans()[1], settings);
+    let text = backup::write(&layout, &board).unwrap();
+    assert!(text.contains("\nSettings.Line(0).Label=a\u{FFFD}\u{FFFD}b\u{FFFD}\n"), "{text}");
+
+    let replacement = snapshot(&layout, |_| 0);
+    let plan = backup::plan(&layout, &replacement, &backup::parse(&text).unwrap()).unwrap();
+    assert!(plan.invalid.is_empty(), "{:?}", plan.invalid);
+    let mut restored = Snapshot::new();
+    for span in layout.spans() {
+        let mut bytes = replacement.get(span.space, span.address, span.len).unwrap().to_vec();
+        for (space, address, run) in backup::coalesce(&plan.writes) {
+            if space == span.space {
+                let at = (address - span.address) as usize;
+                bytes[at..at + run.len()].copy_from_slice(&run);
+            }
+        }
+        restored.insert(span, bytes);
+    }
+    assert_eq!(backup::write(&layout, &restored).unwrap(), text);
+    assert_eq!(restored.get(251, 1, 63).unwrap(), [0xFF; 63], "erased stays erased");
+
+    // A person's value still keeps a byte for the NUL.
+    let name = layout.find("Node ID.Node Name").next().unwrap();
+    let error = name.parse_strict(&"x".repeat(63)).unwrap_err();
+    assert_eq!(error, ValueError::TooLong { len: 63, size: 63, room: 62 });
+    assert!(name.encode_restored(&Value::String("x".repeat(64))).is_err());
+}
