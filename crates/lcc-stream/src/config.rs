@@ -31,7 +31,8 @@ for a value or backup that does not fit the CDI, \"error\" for a CDI that cannot
 \"verify_failed\" for a value that reads back differently) and, on failure, error. show adds segments (a tree of groups and entries: key, name, description, type,
 space, address, size, value, label, min, max, default, map); get and set add key, value and
 label (set also old); backup adds file and entries; restore adds written, unchanged,
-unknown_keys, invalid and dry_run.
+unknown_keys, invalid and dry_run. set and restore add warning when the node refused Update
+Complete after a verified write (exit status 0: the values are written).
 
 "
     };
@@ -170,6 +171,9 @@ impl std::fmt::Display for Failure {
 struct Done {
     text: String,
     fields: Json,
+    /// What went wrong after the work was done (Update Complete refused): printed, and in
+    /// `--json` as `warning`, with exit status 0.
+    warning: Option<String>,
 }
 
 pub(crate) fn run(args: &ConfigArgs) -> Result<ExitCode, String> {
@@ -208,6 +212,10 @@ fn finish(node: NodeId, command: &str, json: bool, outcome: Result<Done, Failure
                     Action::Backup { out: Some(out), .. } => outln!("backed up {} into {}", node, out.display()),
                     _ => out!("{}", done.text),
                 }
+            }
+            if let Some(warning) = &done.warning {
+                eprintln!("lcc-stream config {command}: warning: {warning}");
+                object["warning"] = json!(warning);
             }
             merge(&mut object, done.fields);
             object["result"] = json!("ok");
@@ -280,7 +288,11 @@ impl<'a> Session<'a> {
                 let value = self.read_value(entry, interrupt).await?;
                 let label = entry.label(&value).map(str::to_string);
                 let text = format!("{value}\n");
-                Ok(Done { text, fields: json!({ "key": key, "value": value_json(&value), "label": label }) })
+                Ok(Done {
+                    text,
+                    fields: json!({ "key": key, "value": value_json(&value), "label": label }),
+                    warning: None,
+                })
             }
             Action::Set { key, value, .. } => self.set(key, value, interrupt).await,
             Action::Backup { .. } => {
@@ -291,7 +303,7 @@ impl<'a> Session<'a> {
                     Action::Backup { out: Some(out), .. } => out.display().to_string(),
                     _ => "-".to_string(),
                 };
-                Ok(Done { text, fields: json!({ "file": file, "entries": entries }) })
+                Ok(Done { text, fields: json!({ "file": file, "entries": entries }), warning: None })
             }
             Action::Restore { file, dry_run, .. } => self.restore(file, *dry_run, interrupt).await,
         }
@@ -383,10 +395,14 @@ impl<'a> Session<'a> {
         Ok(())
     }
 
-    async fn update_complete(&self, interrupt: &mut net::Interrupt) -> Result<(), Failure> {
-        let transfer = self.node.update_complete(self.peer).await.map_err(Stop::Net)?;
-        memory::follow(&self.node, transfer, None, true, &self.client.pace, interrupt, &mut Moved::default()).await?;
-        Ok(())
+    /// Update Complete after a verified write: a node that refuses it or does not answer
+    /// still holds what was written, so that is a warning (None: it said OK).
+    async fn update_complete(&self, interrupt: &mut net::Interrupt) -> Result<Option<String>, Failure> {
+        match memory::update_complete(&self.node, self.peer, &self.client.pace, interrupt).await {
+            Err(Stop::Interrupted) => Err(Failure::Stop(Stop::Interrupted)),
+            Err(stop) => Ok(Some(memory::update_complete_warning(&stop))),
+            Ok(()) => Ok(None),
+        }
     }
 
     async fn set(&self, key: &str, text: &str, interrupt: &mut net::Interrupt) -> Result<Done, Failure> {
@@ -394,12 +410,13 @@ impl<'a> Session<'a> {
         let (value, bytes) = entry.parse_strict(text).map_err(|e| Failure::Invalid(format!("{key}: {e}")))?;
         let old = self.read_value(entry, interrupt).await?;
         self.write_verified(entry.space, entry.address, bytes, interrupt).await?;
-        self.update_complete(interrupt).await?;
+        let warning = self.update_complete(interrupt).await?;
         let label = entry.label(&value).map(str::to_string);
         let shown = label.as_ref().map_or(value.to_string(), |l| format!("{value} ({l})"));
         Ok(Done {
             text: format!("{key} = {shown} (was {old})\n"),
             fields: json!({ "key": key, "value": value_json(&value), "label": label, "old": value_json(&old) }),
+            warning,
         })
     }
 
@@ -437,11 +454,12 @@ impl<'a> Session<'a> {
         for key in &plan.unknown_keys {
             out.push_str(&format!("not in the CDI, left alone: {key}\n"));
         }
+        let mut warning = None;
         if !dry_run && !plan.writes.is_empty() {
             for (space, address, bytes) in backup::coalesce(&plan.writes) {
                 self.write_verified(space, address, bytes, interrupt).await?;
             }
-            self.update_complete(interrupt).await?;
+            warning = self.update_complete(interrupt).await?;
         }
         out.push_str(&format!(
             "{} {} of {} settings ({} unchanged, {} not in the CDI)\n",
@@ -461,6 +479,7 @@ impl<'a> Session<'a> {
                 "invalid": [],
                 "dry_run": dry_run,
             }),
+            warning,
         })
     }
 }
@@ -504,7 +523,7 @@ fn show(layout: &Layout, snapshot: &Snapshot) -> Result<Done, Failure> {
         describe(&mut text, segment.description.as_deref(), 1);
         segments.push(group_json(segment, snapshot, &mut text, 1)?);
     }
-    Ok(Done { text, fields: json!({ "segments": segments }) })
+    Ok(Done { text, fields: json!({ "segments": segments }), warning: None })
 }
 
 fn describe(text: &mut String, description: Option<&str>, depth: usize) {

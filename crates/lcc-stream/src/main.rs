@@ -7,6 +7,7 @@ mod stdout;
 mod args;
 mod cdi;
 mod config;
+mod control;
 mod demo;
 mod events;
 mod files;
@@ -93,6 +94,10 @@ enum Command {
     /// Show, get and set a node's settings by their CDI names; back them up and restore them
     /// in JMRI's format.
     Config(config::ConfigArgs),
+    /// Reboot a node (Memory Configuration Reset/Reboot), as after a power cycle.
+    Reboot(control::RebootArgs),
+    /// Put every setting of a node back to its default (Memory Configuration Factory Reset).
+    FactoryReset(control::FactoryResetArgs),
     /// Show the bus decoded, live or from a saved trace: one line per message, by name.
     Monitor(monitor::MonitorArgs),
     /// Watch event reports, send one, or ask who produces and consumes what.
@@ -129,6 +134,8 @@ fn main() -> ExitCode {
         Command::Cdi(args) => cdi::run(&args),
         Command::Config(args) => config::run(&args),
         Command::Events(args) => events::run(&args),
+        Command::Reboot(args) => control::reboot(&args),
+        Command::FactoryReset(args) => control::factory_reset(&args),
         Command::Monitor(args) => monitor::run(&args),
         Command::Demo(args) => demo::run(&args),
         Command::Completions { shell } => {

@@ -25,7 +25,8 @@ pub(crate) const JSON_HELP: &str = "\
 --json prints one object on every exit path: node (the target), space, address, bytes (moved,
 also before a failure), path (\"stream\" or \"datagrams\": what was used; \"none\" if nothing
 moved), file, elapsed_s (from the first command, once on the network), bytes_per_s, result
-(the word of the exit status below) and, on failure, error (the reason, worded for a person).
+(the word of the exit status below) and, on failure, error (the reason, worded for a person);
+write adds warning when the node refused the Update Complete that follows the bytes.
 
 ";
 
@@ -83,6 +84,9 @@ pub(crate) struct Report {
     pub(crate) result: &'static str,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub(crate) error: Option<String>,
+    /// What failed after the work was done (`write`: Update Complete refused).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) warning: Option<String>,
 }
 
 /// What a client command came to: the bytes moved (also before a failure), and how.
@@ -114,6 +118,7 @@ impl Report {
             bytes_per_s: net::rate(moved.bytes, elapsed_s),
             result: Outcome::Ok.word(),
             error: None,
+            warning: None,
         }
     }
 }
@@ -186,10 +191,31 @@ async fn stream_messages(node: &Node) -> u64 {
     node.stats().await.map_or(0, |s| u64::from(s.endpoint.messages_out))
 }
 
+/// Sends `peer` Update Complete and waits for its answer (not shown: it moves no bytes).
+pub(crate) async fn update_complete(
+    node: &Node,
+    peer: NodeId,
+    pace: &PaceArgs,
+    interrupt: &mut net::Interrupt,
+) -> Result<(), Failure> {
+    let transfer = node.update_complete(peer).await.map_err(Failure::Net)?;
+    follow(node, transfer, None, true, pace, interrupt, &mut Moved::default()).await?;
+    Ok(())
+}
+
+/// The words for an Update Complete that failed after the bytes were written and verified.
+pub(crate) fn update_complete_warning(failure: &Failure) -> String {
+    format!(
+        "what was written stays written, but Update Complete failed ({failure}): the node may apply it only \
+         after a reboot (`lcc-stream reboot NODE`)"
+    )
+}
+
 /// What `write` and `firmware` put into a node.
 pub(crate) enum Upload {
-    /// The bytes of a file into `space` from `address`.
-    Space { space: u8, address: u32 },
+    /// The bytes of a file into `space` from `address`, then Update Complete unless
+    /// `update_complete` is false.
+    Space { space: u8, address: u32, update_complete: bool },
     /// A firmware image (space 0xEF from 0, between Freeze and Unfreeze).
     Firmware,
 }
@@ -207,10 +233,11 @@ pub(crate) async fn upload(
 ) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
     let (space, address) = match what {
-        Upload::Space { space, address } => (space, address),
+        Upload::Space { space, address, .. } => (space, address),
         Upload::Firmware => (SPACE_FIRMWARE, 0),
     };
     let mut moved = Moved::default();
+    let mut warning = None;
     let outcome = async {
         let data = files::read_all(file).await?;
         let total = data.len() as u64;
@@ -219,20 +246,33 @@ pub(crate) async fn upload(
         moved.started = Some(Instant::now());
         tracing::info!(%peer, space = format!("0x{space:02X}"), address, bytes = total, "writing");
         let transfer = match what {
-            Upload::Space { space, address } => node.write_memory(peer, space, address, data, client.path()).await,
+            Upload::Space { space, address, .. } => node.write_memory(peer, space, address, data, client.path()).await,
             Upload::Firmware => node.upgrade_firmware(peer, data, client.path()).await,
         };
-        let written = match transfer {
+        let mut written = match transfer {
             Ok(transfer) => {
                 follow(&node, transfer, Some(total), client.json, &client.pace, &mut interrupt, &mut moved).await
             }
             Err(error) => Err(Failure::Net(error)),
         };
+        if written.is_ok()
+            && let Upload::Space { update_complete: true, .. } = what
+        {
+            match update_complete(&node, peer, &client.pace, &mut interrupt).await {
+                Err(Failure::Interrupted) => written = Err(Failure::Interrupted),
+                Err(failure) => warning = Some(update_complete_warning(&failure)),
+                Ok(()) => {}
+            }
+        }
         node.close().await;
         written
     }
     .await;
-    let report = Report::new(peer, space, address, file, &moved);
+    let mut report = Report::new(peer, space, address, file, &moved);
+    if let Some(warning) = warning {
+        eprintln!("lcc-stream {command}: warning: {warning}");
+        report.warning = Some(warning);
+    }
     let text = outcome.map(|_| done(&report));
     Ok(finish(report, text, client.json, command))
 }

@@ -1,4 +1,5 @@
-//! `lcc-stream write`: restore a memory space of a node from a file.
+//! `lcc-stream write`: restore a memory space of a node from a file, then tell the node with
+//! Update Complete.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -25,12 +26,16 @@ pub(crate) struct WriteArgs {
     /// The first address written.
     #[arg(long, default_value = "0", value_parser = memory::parse_number::<u32>)]
     address: u32,
+    /// Do not end with Update Complete (`20 A8`), which tells the node to apply what was
+    /// written; a refused one is a warning, not a failure.
+    #[arg(long)]
+    no_update_complete: bool,
     #[command(flatten)]
     client: ClientArgs,
 }
 
 pub(crate) fn run(args: &WriteArgs) -> Result<ExitCode, String> {
-    let what = Upload::Space { space: args.space, address: args.address };
+    let what = Upload::Space { space: args.space, address: args.address, update_complete: !args.no_update_complete };
     net::runtime()?.block_on(memory::upload(&args.client, "write", args.to, &args.file, what, |report| {
         format!(
             "wrote {} bytes of {} into space 0x{:02X} of {} in {:.3} s ({})",

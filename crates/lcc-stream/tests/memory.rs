@@ -542,6 +542,105 @@ async fn a_write_larger_than_the_space_is_refused_before_a_byte_is_written() {
     }
 }
 
+/// `write` ends with Update Complete, unless told not to; `reboot` and `factory-reset` reach
+/// the node, and `factory-reset` sends nothing without `--yes`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn write_ends_with_update_complete_and_reboot_and_factory_reset_reach_the_node() {
+    let dir = scratch("node-commands");
+    let (_hub, addr) = hub().await;
+    let config = dir.join("config.bin");
+    std::fs::write(&config, vec![0; 256]).unwrap();
+    let mut server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    let image = dir.join("image.bin");
+    std::fs::write(&image, data(100, 7)).unwrap();
+    let (status, json) = run(&addr, &["write", path_arg(&image), "--to", SERVER]).await;
+    assert_eq!(status, 0, "{json}");
+    server.wait_for("update complete, said").await;
+
+    let (status, json) = run(&addr, &["factory-reset", SERVER]).await;
+    assert_eq!((status, json["result"].as_str()), (2, Some("usage")), "{json}");
+    assert!(json["error"].as_str().unwrap().contains("--yes"), "{json}");
+    // Nothing was sent: the next line serve prints is the reboot's, not a factory reset.
+    let (status, json) = run(&addr, &["reboot", SERVER]).await;
+    assert_eq!((status, json["command"].as_str()), (0, Some("reboot")), "{json}");
+    let line = server.wait_for(" asked for by ").await;
+    assert!(line.contains("reset asked for by") && !line.contains("factory"), "{line}");
+    let (status, json) = run(&addr, &["factory-reset", SERVER, "--yes"]).await;
+    assert_eq!(status, 0, "{json}");
+    server.wait_for("factory reset asked for by").await;
+    let (status, json) = run(&addr, &["reboot", "05.01.01.01.22.99"]).await;
+    assert_eq!((status, json["result"].as_str()), (5, Some("not_found")), "{json}");
+}
+
+/// A relay between one client and the hub that answers the client's Update Complete (`20 A8`)
+/// with Datagram Rejected 0x1041 in the node's name, as a node without it would.
+async fn relay_refusing_update_complete(hub: &str) -> String {
+    use tokio::io::AsyncWriteExt as _;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let hub = hub.to_string();
+    tokio::spawn(async move {
+        while let Ok((client, _)) = listener.accept().await {
+            let upstream = tokio::net::TcpStream::connect(&hub).await.unwrap();
+            let (client_read, mut client_write) = client.into_split();
+            let (hub_read, mut hub_write) = upstream.into_split();
+            let refuse = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+            let asked = refuse.clone();
+            tokio::spawn(async move {
+                let mut lines = BufReader::new(client_read).lines();
+                while let Ok(Some(line)) = lines.next_line().await {
+                    if line.ends_with("N20A8;") {
+                        asked.store(true, std::sync::atomic::Ordering::SeqCst);
+                    }
+                    if hub_write.write_all(format!("{line}\n").as_bytes()).await.is_err() {
+                        break;
+                    }
+                }
+            });
+            tokio::spawn(async move {
+                let mut lines = BufReader::new(hub_read).lines();
+                while let Ok(Some(mut line)) = lines.next_line().await {
+                    // Datagram Received OK :X19A28sssN0ddd..; becomes Rejected with 0x1041.
+                    if line.starts_with(":X19A28") && refuse.swap(false, std::sync::atomic::Ordering::SeqCst) {
+                        let (head, payload) = line.split_at(line.find('N').unwrap() + 1);
+                        line =
+                            format!("{}N{}1041;", head.replace("19A28", "19A48").trim_end_matches('N'), &payload[..4]);
+                    }
+                    if client_write.write_all(format!("{line}\n").as_bytes()).await.is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+    });
+    addr
+}
+
+/// A node that refuses Update Complete after a verified `config set` or `write`: the value
+/// is written, so the command succeeds with a warning.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_refused_update_complete_after_a_verified_write_is_a_warning() {
+    let dir = scratch("update-refused");
+    let (_hub, addr) = hub().await;
+    let config = dir.join("config.bin");
+    std::fs::write(&config, vec![0; 256]).unwrap();
+    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    let relay = relay_refusing_update_complete(&addr).await;
+    let (status, json) = run(&relay, &["config", "set", SERVER, "Configuration.Mode", "1"]).await;
+    assert_eq!((status, json["result"].as_str()), (0, Some("ok")), "{json}");
+    let warning = json["warning"].as_str().unwrap_or_default();
+    assert!(warning.contains("Update Complete failed") && warning.contains("0x1041"), "{json}");
+    assert_eq!(std::fs::read(&config).unwrap()[32], 1, "Mode is written");
+    let image = dir.join("image.bin");
+    std::fs::write(&image, data(100, 8)).unwrap();
+    let (status, json) = run(&relay, &["write", path_arg(&image), "--to", SERVER]).await;
+    assert_eq!(status, 0, "{json}");
+    assert!(json["warning"].as_str().unwrap_or_default().contains("Update Complete failed"), "{json}");
+    assert_eq!(std::fs::read(&config).unwrap()[..100], data(100, 8));
+    let (status, json) = run(&relay, &["write", path_arg(&image), "--to", SERVER, "--no-update-complete"]).await;
+    assert_eq!((status, json.get("warning")), (0, None), "{json}");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stream_sent_to_serve_is_refused_not_swallowed() {
     let dir = scratch("send-to-serve");

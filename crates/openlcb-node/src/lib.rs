@@ -204,7 +204,7 @@ pub use events::{
 };
 pub use memconfig::{
     MemoryConfigOptions, MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, MemorySpace,
-    RamSpace, ReadOnlySpace, SpaceError, TransferPath,
+    NodeCommand, RamSpace, ReadOnlySpace, SpaceError, TransferPath,
 };
 pub use node::{DUPLICATE_NODE_ID_DETECTED, Node, NodeEvent, NodeStats, Streams};
 pub use snip::{MAX_REPLY_LEN, SnipFailure, SnipField, SnipInfo, SnipRequestError, SnipTooLong};

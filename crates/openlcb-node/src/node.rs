@@ -17,7 +17,7 @@ use crate::events::{EventNotice, EventService};
 pub(crate) use crate::memconfig::Cx;
 use crate::memconfig::{MemoryConfig, MemoryEvent, MemoryLent, MemoryServer, acdi_user_strings};
 #[cfg(feature = "memory-client")]
-use crate::memconfig::{MemoryOperation, MemoryRequestError, TransferPath};
+use crate::memconfig::{MemoryOperation, MemoryRequestError, NodeCommand, TransferPath};
 use crate::service::{Lent, Service, ServiceChange, earliest};
 use crate::snip::{SnipFailure, SnipInfo, SnipRequestError, SnipService};
 use crate::{DatagramStats, NodeConfig, Protocols};
@@ -756,7 +756,19 @@ impl Node {
     /// §4.23), so that it applies what changed; `WriteDone` (of 0 bytes) or `Failed` follows.
     #[cfg(feature = "memory-client")]
     pub fn update_complete(&mut self, now: Instant, peer: NodeId) -> Result<MemoryOperation, MemoryRequestError> {
-        self.with_memory(now, |cx, _, client| client.update_complete(cx, peer))
+        self.send_command(now, peer, NodeCommand::UpdateComplete)
+    }
+
+    /// Sends `peer` a [`NodeCommand`] (Update Complete, Reboot, Factory Reset); `WriteDone`
+    /// (of 0 bytes) follows its Datagram OK or the node's restart, `Failed` a rejection.
+    #[cfg(feature = "memory-client")]
+    pub fn send_command(
+        &mut self,
+        now: Instant,
+        peer: NodeId,
+        command: NodeCommand,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        self.with_memory(now, |cx, _, client| client.command(cx, peer, command))
     }
 
     /// Runs `f` on the memory server and client with the node's parts lent to them.

@@ -3,8 +3,8 @@
 
 use openlcb_node::memconfig::wire::{Command, Reply};
 use openlcb_node::{
-    MemoryError, MemoryEvent, MemoryServer, Node, NodeConfig, NodeEvent, Protocols, RamSpace, ReadOnlySpace,
-    TransferPath,
+    MemoryError, MemoryEvent, MemoryServer, Node, NodeCommand, NodeConfig, NodeEvent, Protocols, RamSpace,
+    ReadOnlySpace, TransferPath,
 };
 use openlcb_stream::{Duration, Instant, Message, Mti, NodeId, OpenOptions, PeerChange};
 
@@ -247,6 +247,30 @@ fn update_complete_ends_at_the_ok_and_reaches_the_server() {
         .iter()
         .any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::UpdateComplete { by }) if *by == CLIENT));
     assert!(told);
+}
+
+/// Reboot and Factory Reset from the client: each one datagram, done at the OK or the
+/// restart; the Factory Reset names the server, which acts on it.
+#[test]
+fn reboot_and_factory_reset_reach_the_server_and_end() {
+    for (command, told) in [
+        (
+            NodeCommand::Reboot,
+            (|e: &MemoryEvent| matches!(e, MemoryEvent::ResetRequested { by } if *by == CLIENT))
+                as fn(&MemoryEvent) -> bool,
+        ),
+        (NodeCommand::FactoryReset, |e| matches!(e, MemoryEvent::FactoryResetRequested { by } if *by == CLIENT)),
+    ] {
+        let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
+        pair.pump();
+        pair.client.send_command(pair.now, SERVER, command).unwrap();
+        match pair.finish() {
+            MemoryEvent::WriteDone { len, .. } => assert_eq!(len, 0, "{command:?}"),
+            other => panic!("{command:?}: {other:?}"),
+        }
+        let seen = pair.server_events.iter().any(|e| matches!(e, NodeEvent::Memory(m) if told(m)));
+        assert!(seen, "{command:?}");
+    }
 }
 
 #[test]

@@ -107,7 +107,7 @@ pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStr
 pub use openlcb_can::CanConfig;
 pub use openlcb_node::{
     DeclaredEvents, EventConfig, EventNotice, EventRange, EventRole, EventState, Listen, MemoryEvent, MemoryServer,
-    NodeConfig, Protocols, RamSpace, ReadOnlySpace, SnipInfo, TransferPath,
+    NodeCommand, NodeConfig, Protocols, RamSpace, ReadOnlySpace, SnipInfo, TransferPath,
 };
 pub use openlcb_stream::{Config as StreamConfig, EventId, NodeId, OpenOptions};
 pub use wire::{Framing, WireStats};

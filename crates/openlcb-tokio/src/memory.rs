@@ -10,7 +10,9 @@
 //! reboot waits), and a driver that stops fails every operation with its reason.
 
 use bytes::Bytes;
-use openlcb_node::{MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, TransferPath};
+use openlcb_node::{
+    MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, NodeCommand, TransferPath,
+};
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{Instant, NodeId};
 use tokio::sync::{mpsc, oneshot, watch};
@@ -46,7 +48,7 @@ pub(crate) enum Operation {
     Read { space: u8, address: u32, len: Option<u32> },
     Write { space: u8, address: u32, data: Bytes },
     Firmware { image: Bytes },
-    UpdateComplete,
+    Command(NodeCommand),
 }
 
 /// How a client operation ended well: the bytes read, or the count written.
@@ -134,7 +136,7 @@ impl MemoryDriver {
                         stack.write_memory(now, peer, space, address, data, path)
                     }
                     Operation::Firmware { image } => stack.upgrade_firmware(now, peer, image, path),
-                    Operation::UpdateComplete => stack.update_complete(now, peer),
+                    Operation::Command(command) => stack.send_command(now, peer, command),
                 };
                 match started {
                     Ok(operation) => self.running.push(Running { operation, progress, reply }),

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use bytes::Bytes;
 use openlcb_can::CanConfig;
-use openlcb_node::{MemoryServer, NodeConfig, NodeStats as StackStats, Protocols, SnipInfo, TransferPath};
+use openlcb_node::{MemoryServer, NodeCommand, NodeConfig, NodeStats as StackStats, Protocols, SnipInfo, TransferPath};
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{NodeId, OpenOptions, Stats, StreamHandle, StreamInfo};
 use tokio::net::{TcpStream, lookup_host};
@@ -459,7 +459,14 @@ impl Node {
     /// finished writing, so that the node applies the changes; ends with 0 at its Datagram OK
     /// (or its restart).
     pub async fn update_complete(&self, peer: NodeId) -> Result<MemoryTransfer<u64>, Error> {
-        self.start_memory(peer, TransferPath::Datagrams, Operation::UpdateComplete, written).await
+        self.send_command(peer, NodeCommand::UpdateComplete).await
+    }
+
+    /// Sends `peer` a [`NodeCommand`]: Update Complete, Reboot or Factory Reset. Ends with 0
+    /// at its Datagram OK or at the node's restart (Initialization Complete), which is how
+    /// many nodes answer a Reboot.
+    pub async fn send_command(&self, peer: NodeId, command: NodeCommand) -> Result<MemoryTransfer<u64>, Error> {
+        self.start_memory(peer, TransferPath::Datagrams, Operation::Command(command), written).await
     }
 
     async fn start_memory<T>(

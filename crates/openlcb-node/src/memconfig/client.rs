@@ -27,6 +27,32 @@ pub struct MemoryOperation(pub u32);
 /// endpoint's queue, before the next step goes out behind them.
 const STREAM_DRAIN_POLL: Duration = Duration::from_millis(1);
 
+/// A command that asks a node to act on its configuration: one datagram, done at its
+/// Datagram OK or at the node's restart (a node may reboot without an OK).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum NodeCommand {
+    /// Update Complete (MC §4.23): a tool has finished writing; the node applies what
+    /// changed (the events it produces and consumes, say).
+    UpdateComplete,
+    /// Reset/Reboot (MC §4.24): the node restarts as at power-up.
+    Reboot,
+    /// Reinitialize/Factory Reset (MC §4.25): the node's configuration goes back to its
+    /// defaults. The command names the node, so that a misaddressed one does nothing.
+    FactoryReset,
+}
+
+impl NodeCommand {
+    /// The command as `peer` receives it.
+    fn to_wire(self, peer: NodeId) -> Command {
+        match self {
+            NodeCommand::UpdateComplete => Command::UpdateComplete,
+            NodeCommand::Reboot => Command::Reset,
+            NodeCommand::FactoryReset => Command::FactoryReset { node: peer.as_raw() },
+        }
+    }
+}
+
 /// How a client operation moves its bytes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
@@ -80,8 +106,8 @@ enum Kind {
     Firmware {
         image: Vec<u8>,
     },
-    /// Update Complete (MC §4.23): one command, done at its Datagram OK.
-    UpdateComplete,
+    /// One command, done at its Datagram OK or the node's restart.
+    Command(NodeCommand),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -104,8 +130,8 @@ enum Step {
     Protocols,
     /// Firmware: Unfreeze sent; OK or a reboot ends the upgrade.
     Unfreeze,
-    /// Update Complete sent; its Datagram OK ends the operation.
-    UpdateComplete,
+    /// A [`NodeCommand`] sent; its Datagram OK or the node's restart ends the operation.
+    Command,
     /// Lock/Reserve sent before a write (MC §4.17), so that no other tool writes between
     /// its commands; the write goes on by stream or not as `by_stream` says.
     Lock { by_stream: bool },
@@ -149,7 +175,7 @@ impl Operation {
             Kind::Read { len, .. } => len.map_or(0, u64::from),
             Kind::Write { data } => data.len() as u64,
             Kind::Firmware { image } => image.len() as u64,
-            Kind::UpdateComplete => 0,
+            Kind::Command(_) => 0,
         }
     }
 
@@ -157,7 +183,7 @@ impl Operation {
         match &self.kind {
             Kind::Write { data } => data,
             Kind::Firmware { image } => image,
-            Kind::Read { .. } | Kind::UpdateComplete => &[],
+            Kind::Read { .. } | Kind::Command(_) => &[],
         }
     }
 
@@ -264,12 +290,13 @@ impl MemoryClient {
         self.start(cx, peer, SPACE_FIRMWARE, 0, Kind::Firmware { image }, path)
     }
 
-    pub(crate) fn update_complete(
+    pub(crate) fn command(
         &mut self,
         cx: &mut Cx<'_>,
         peer: NodeId,
+        command: NodeCommand,
     ) -> Result<MemoryOperation, MemoryRequestError> {
-        self.start(cx, peer, 0, 0, Kind::UpdateComplete, TransferPath::Datagrams)
+        self.start(cx, peer, 0, 0, Kind::Command(command), TransferPath::Datagrams)
     }
 
     fn start(
@@ -296,7 +323,10 @@ impl MemoryClient {
         let id = MemoryOperation(self.next_id);
         self.next_id = self.next_id.wrapping_add(1);
         let firmware = matches!(kind, Kind::Firmware { .. });
-        let update_complete = matches!(kind, Kind::UpdateComplete);
+        let command = match kind {
+            Kind::Command(command) => Some(command.to_wire(peer)),
+            _ => None,
+        };
         self.operations.push(Operation {
             id,
             peer,
@@ -318,7 +348,7 @@ impl MemoryClient {
         let outcome = match path {
             // FWU §5.5: Freeze first; the PIP asked after it decides the path.
             _ if firmware => self.send(cx, index, Step::Freeze, &Command::Freeze { space: SPACE_FIRMWARE }),
-            _ if update_complete => self.send(cx, index, Step::UpdateComplete, &Command::UpdateComplete),
+            _ if let Some(command) = &command => self.send(cx, index, Step::Command, command),
             TransferPath::Auto if cx.streams_enabled => self.send(cx, index, Step::Options, &Command::GetOptions),
             TransferPath::Stream => self.begin_transfer(cx, index, true),
             _ => self.begin_transfer(cx, index, false),
@@ -509,7 +539,7 @@ impl MemoryClient {
             (Step::Freeze, Ok(_) | Err(DatagramFailure::PeerRestarted)) => self.ask_protocols(cx, index),
             (Step::Unfreeze, Ok(_) | Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Done),
             // MC §4.23: no reply datagram follows; the node may reset instead of an OK.
-            (Step::UpdateComplete, Ok(_) | Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Done),
+            (Step::Command, Ok(_) | Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Done),
             (Step::Freeze | Step::Unfreeze, Err(DatagramFailure::TimedOut)) => {
                 // The OpenMRN Bootloader sends no OK: wait on for its Initialization Complete.
                 op.deadline = Some(cx.now + reboot_timeout);
@@ -593,7 +623,13 @@ impl MemoryClient {
             }
             Step::Chunk { at, .. } => self.next_chunk(cx, index, at),
             Step::Protocols => self.ask_protocols(cx, index),
-            Step::UpdateComplete => self.send(cx, index, Step::UpdateComplete, &Command::UpdateComplete),
+            Step::Command => match op.kind {
+                Kind::Command(command) => {
+                    let command = command.to_wire(op.peer);
+                    self.send(cx, index, Step::Command, &command)
+                }
+                _ => Some(Outcome::Fail(MemoryError::TimedOut)),
+            },
             Step::Lock { by_stream } => {
                 let node = cx.out.node.as_raw();
                 self.send(cx, index, Step::Lock { by_stream }, &Command::Lock { node })
@@ -726,7 +762,7 @@ impl MemoryClient {
             Some(Step::Freeze) => self.ask_protocols(cx, index),
             // The Initialization Complete that follows our Freeze's OK: the inquiry sent after
             // the OK reaches the restarted target (a lost one is asked again at the deadline).
-            Some(Step::Unfreeze | Step::UpdateComplete) => Some(Outcome::Done),
+            Some(Step::Unfreeze | Step::Command) => Some(Outcome::Done),
             // Streams and datagrams in flight end through their own events.
             _ => None,
         };
@@ -922,7 +958,7 @@ impl MemoryClient {
         let payload: &[u8] = match &op.kind {
             Kind::Write { data } => data,
             Kind::Firmware { image } => image,
-            Kind::Read { .. } | Kind::UpdateComplete => return None,
+            Kind::Read { .. } | Kind::Command(_) => return None,
         };
         let mut sent = sent;
         while let Some(rest) = payload.get(sent as usize..).filter(|r| !r.is_empty()) {

@@ -38,7 +38,7 @@ use crate::datagram::{DatagramId, DatagramOwner, DatagramService, OkFlags, Outco
 use crate::node::Outputs;
 use crate::service::{Lent, Service, ServiceChange, earliest};
 pub(crate) use client::MemoryClient;
-pub use client::{MemoryOperation, MemoryRequestError, TransferPath};
+pub use client::{MemoryOperation, MemoryRequestError, NodeCommand, TransferPath};
 pub use server::{MemoryServer, MemoryServerStats};
 pub use space::{
     ACDI_MANUFACTURER_LEN, ACDI_USER_LEN, MemorySpace, RamSpace, ReadOnlySpace, SpaceError, acdi_manufacturer_bytes,
