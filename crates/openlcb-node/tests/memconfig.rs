@@ -457,6 +457,8 @@ fn server_control_commands() {
     assert!(!pair.server.protocols().contains(Protocols::FIRMWARE_UPGRADE));
     let info = reply_of(&exchange(&mut pair, &Command::GetSpaceInfo { space: 0x99 }.to_bytes()));
     assert_eq!(info.map(|r| r.to_bytes()), Some(vec![0x20, 0x86, 0x99]));
+    let image = exchange(&mut pair, &[0x20, 0x00, 0, 0, 0, 0, 0xEF, 0xAA]);
+    assert_eq!(image[0].mti, Mti::DATAGRAM_RECEIVED_OK);
     let unfrozen = exchange(&mut pair, &Command::Unfreeze { space: 0xEF }.to_bytes());
     assert_eq!(unfrozen[1].mti, Mti::INITIALIZATION_COMPLETE);
     assert!(pair.server.protocols().contains(Protocols::FIRMWARE_UPGRADE | Protocols::MEMORY_CONFIGURATION));
@@ -1098,4 +1100,65 @@ fn an_application_datagram_is_answered_to_the_application_while_an_operation_run
         delivered,
         [&NodeEvent::DatagramDelivered { id: sent, to: SERVER, flags: openlcb_node::OkFlags::default() }]
     );
+}
+
+/// A firmware Write Stream that the client ends with TDE: with or without the optional MTI
+/// field, and with the MTI the wire spec names for a source (0x0888) or another, the next
+/// Unfreeze is answered (refused: the image is incomplete) and a retry can begin.
+#[test]
+fn a_firmware_stream_ended_by_tde_leaves_the_unfreeze_answered() {
+    for tde in [
+        vec![0x10, 0x00],
+        vec![0x10, 0x00, 0x08, 0x88],
+        vec![0x10, 0x00, 0x1F, 0x88],
+        vec![0x10, 0x00, 0x00],
+        vec![0x10, 0x00, 0x1C, 0x48],
+        vec![0x10, 0x00, 0x0A, 0x28],
+    ] {
+        let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
+        let freeze = exchange(&mut pair, &Command::Freeze { space: 0xEF }.to_bytes());
+        assert_eq!(freeze[0].mti, Mti::DATAGRAM_RECEIVED_OK);
+        let write = exchange(&mut pair, &[0x20, 0x20, 0, 0, 0, 0, 0xEF, 0xA0]);
+        assert_eq!(write[0].mti, Mti::DATAGRAM_RECEIVED_OK, "{tde:?}");
+        let initiate =
+            Message::addressed(Mti::STREAM_INITIATE_REQUEST, CLIENT, SERVER, vec![0x01, 0x00, 0, 0, 0xA0, 0xFF]);
+        pair.server.handle_message(pair.now, initiate.as_ref());
+        let answers: Vec<Message> = std::iter::from_fn(|| pair.server.poll_transmit()).collect();
+        let did = answers.iter().find(|m| m.mti == Mti::STREAM_INITIATE_REPLY).expect("accepted").payload[5];
+        let data = Message::addressed(Mti::STREAM_DATA_SEND, CLIENT, SERVER, vec![did, 1, 2, 3]);
+        pair.server.handle_message(pair.now, data.as_ref());
+        let end = Message::addressed(Mti::TERMINATE_DUE_TO_ERROR, CLIENT, SERVER, tde.clone());
+        pair.server.handle_message(pair.now, end.as_ref());
+        while pair.server.poll_event().is_some() {}
+        let _ = std::iter::from_fn(|| pair.server.poll_transmit()).count();
+        let mut unfreeze = exchange(&mut pair, &Command::Unfreeze { space: 0xEF }.to_bytes());
+        let at_once = !unfreeze.is_empty();
+        // A report about no interaction of ours leaves the stream to its own deadline.
+        while unfreeze.is_empty()
+            && let Some(next) = pair.server.poll_timeout().filter(|t| *t <= Instant::ZERO + Duration::from_secs(60))
+        {
+            pair.now = pair.now.max(next);
+            pair.server.handle_timeout(pair.now);
+            unfreeze.extend(
+                std::iter::from_fn(|| pair.server.poll_transmit()).filter(|m| m.mti != Mti::STREAM_DATA_PROCEED),
+            );
+        }
+        let refused = unfreeze.iter().find(|m| m.mti == Mti::DATAGRAM_REJECTED).map(|m| m.payload.to_vec());
+        assert_eq!(refused, Some(vec![0x10, 0x89]), "TDE {tde:02X?}: {unfreeze:?}");
+        assert_eq!(at_once, tde != [0x10, 0x00, 0x0A, 0x28], "TDE {tde:02X?}");
+    }
+}
+
+/// Freeze then Unfreeze with nothing written: no image, refused with 0x1089 (firmware
+/// invalid), nothing stored, and the node stays frozen for an upgrade.
+#[test]
+fn an_unfreeze_with_nothing_written_is_refused_as_no_image() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
+    let freeze = exchange(&mut pair, &Command::Freeze { space: 0xEF }.to_bytes());
+    assert_eq!(freeze[0].mti, Mti::DATAGRAM_RECEIVED_OK);
+    let unfreeze = exchange(&mut pair, &Command::Unfreeze { space: 0xEF }.to_bytes());
+    assert_eq!((unfreeze[0].mti, &unfreeze[0].payload[..]), (Mti::DATAGRAM_REJECTED, &[0x10, 0x89][..]));
+    assert!(pair.server.memory_server().unwrap().is_frozen());
+    let unfrozen = pair.server_events.iter().any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::Unfrozen { .. })));
+    assert!(!unfrozen, "no image reached the application");
 }

@@ -466,9 +466,20 @@ impl Service<MemoryLent<'_>> for MemoryConfig {
     }
 
     /// Its commands travel in datagrams: a rejection reaches the client as its datagram's
-    /// outcome, never as an error report of its own.
-    fn handle_error_report(&mut self, _: &mut MemoryLent<'_>, _: NodeId, _: ErrorReport) -> bool {
-        false
+    /// outcome. A report naming the datagram MTI from a peer whose Write Stream is running
+    /// ends that transfer (the stream endpoint leaves a report about another protocol alone):
+    /// a client that gives up its firmware stream so, with TDE, is answered at its Unfreeze.
+    fn handle_error_report(&mut self, lent: &mut MemoryLent<'_>, peer: NodeId, report: ErrorReport) -> bool {
+        if report.mti != Some(Mti::DATAGRAM) {
+            return false;
+        }
+        let mut ended = false;
+        self.run(lent, |cx, server, _| {
+            if let Some(server) = server {
+                ended = server.end_write_streams_of(cx, peer, report.code);
+            }
+        });
+        ended
     }
 
     /// A lost peer's transfers and operations end here, nothing sent (the peer is gone);

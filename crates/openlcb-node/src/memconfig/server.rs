@@ -729,6 +729,25 @@ impl MemoryServer {
         claimed
     }
 
+    /// Ends every Write Stream transfer of `peer` (its stream aborted with `code` when open),
+    /// as an end that failed; a pending Unfreeze is then answered. Whether there was one.
+    pub(crate) fn end_write_streams_of(&mut self, cx: &mut Cx<'_>, peer: NodeId, code: ErrorCode) -> bool {
+        let mut ended = false;
+        while let Some(index) = self.transfers.iter().position(|t| t.peer == peer && matches!(t.job, Job::Write { .. }))
+        {
+            if let Some(Transfer { job: Job::Write { handle: Some(handle), .. }, .. }) = self.transfers.get(index) {
+                let _ = cx.streams.abort(cx.now, *handle, code);
+            }
+            self.end(index, false);
+            ended = true;
+        }
+        if let Some(peer) = self.unfreeze_pending.filter(|p| !self.firmware_stream_open(*p)) {
+            self.unfreeze_pending = None;
+            self.unfreeze(cx, peer);
+        }
+        ended
+    }
+
     /// A Write Stream of `peer` into space 0xEF is open (its stream has started).
     fn firmware_stream_open(&self, peer: NodeId) -> bool {
         self.transfers
@@ -739,13 +758,15 @@ impl MemoryServer {
     /// Answers the owner's Unfreeze. The image is what was written while frozen, once the
     /// space has stored it ([`MemorySpace::complete`]): then the OK, and the node leaves the
     /// Firmware Upgrade state. An aborted transfer (0x1089) or an image the space could not
-    /// store is refused, and the node stays frozen for a retry, as OpenMRN's bootloader
+    /// store is refused, and so is an Unfreeze with nothing written (no image); the node
+    /// stays frozen for a retry (or a Reboot), as OpenMRN's bootloader
     /// refuses an Unfreeze whose flash did not complete.
     fn unfreeze(&mut self, cx: &mut Cx<'_>, by: NodeId) {
         let image_len = self.firmware_written;
         let aborted = self.firmware_aborted;
         let stored = match self.space_mut(SPACE_FIRMWARE) {
-            _ if aborted => Err(codes::FIRMWARE_CORRUPTED),
+            // No byte written is no image (0x1089, firmware invalid, FWU §6.2), not an empty one.
+            _ if aborted || image_len == 0 => Err(codes::FIRMWARE_CORRUPTED),
             Some(space) => space.complete(image_len).map_err(|e| e.code()),
             None => Err(codes::UNKNOWN_SPACE),
         };
