@@ -345,12 +345,14 @@ impl MemoryClient {
             locked: false,
         });
         let index = self.operations.len() - 1;
-        let outcome = match path {
+        let outcome = match (path, command) {
             // FWU §5.5: Freeze first; the PIP asked after it decides the path.
             _ if firmware => self.send(cx, index, Step::Freeze, &Command::Freeze { space: SPACE_FIRMWARE }),
-            _ if let Some(command) = &command => self.send(cx, index, Step::Command, command),
-            TransferPath::Auto if cx.streams_enabled => self.send(cx, index, Step::Options, &Command::GetOptions),
-            TransferPath::Stream => self.begin_transfer(cx, index, true),
+            (_, Some(command)) => self.send(cx, index, Step::Command, &command),
+            (TransferPath::Auto, None) if cx.streams_enabled => {
+                self.send(cx, index, Step::Options, &Command::GetOptions)
+            }
+            (TransferPath::Stream, None) => self.begin_transfer(cx, index, true),
             _ => self.begin_transfer(cx, index, false),
         };
         self.settle(cx, index, outcome);
