@@ -109,9 +109,10 @@ impl From<ProtocolArg> for Framing {
 /// `--connect` or `--serial`, and `--protocol`.
 #[derive(Debug, Args)]
 pub(crate) struct ConnectArgs {
-    /// The hub, HOST:PORT [default: 127.0.0.1:12021; 127.0.0.1:12022 with --protocol tcp,
-    /// the two listeners of `lcc-stream hub`].
-    #[arg(long, value_name = "HOST:PORT", conflicts_with = "serial", value_parser = crate::args::hub_addr)]
+    /// The hub, HOST:PORT, also set once for every command by the environment variable
+    /// LCC_HUB (--serial and --can take precedence over both) [default: 127.0.0.1:12021;
+    /// 127.0.0.1:12022 with --protocol tcp, the two listeners of `lcc-stream hub`].
+    #[arg(long, env = "LCC_HUB", value_name = "HOST:PORT", value_parser = crate::args::hub_addr)]
     pub(crate) connect: Option<String>,
     /// A serial port instead of a hub: a USB GridConnect adapter on the CAN bus (RR-CirKits
     /// LCC Buffer-USB, SPROG CANISB), e.g. /dev/ttyACM0 or COM3.
@@ -119,7 +120,7 @@ pub(crate) struct ConnectArgs {
     pub(crate) serial: Option<String>,
     /// A SocketCAN interface instead of a hub, e.g. can0 (Linux).
     #[cfg(target_os = "linux")]
-    #[arg(long, value_name = "IFACE", conflicts_with_all = ["connect", "serial"])]
+    #[arg(long, value_name = "IFACE", conflicts_with = "serial")]
     pub(crate) can: Option<String>,
     /// The serial port's line rate in bits per second (USB adapters ignore it).
     #[arg(long, value_name = "N", default_value_t = openlcb_tokio::serial::DEFAULT_BAUD, requires = "serial")]

@@ -229,6 +229,14 @@ fn hint(error: &Error) -> Option<String> {
             ));
         }
         Error::Rejected { code, .. } if code.0 & 0x1000 != 0 => return Some("the node takes no such stream".into()),
+        Error::Connect { source, .. } if source.kind() == std::io::ErrorKind::ConnectionRefused => {
+            return Some(
+                "nothing listens there: start a hub (`lcc-stream hub`), or name the one that runs with \
+                 --connect HOST:PORT (JMRI's hub listens on port 12021) or once for every command with \
+                 LCC_HUB=HOST:PORT"
+                    .into(),
+            );
+        }
         _ => return None,
     };
     match code {

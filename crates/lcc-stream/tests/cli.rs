@@ -7,7 +7,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::ExitStatus;
 
-use common::{bounded, scratch, spawn};
+use common::{bounded, command, scratch, spawn};
 use openlcb_stream::wire::ReplyCode;
 use openlcb_stream::{AcceptPolicy, NodeId, OpenOptions};
 use openlcb_tokio::{Framing, Hub, HubEvent, HubOptions, Node, NodeOptions};
@@ -246,9 +246,21 @@ async fn an_unreachable_hub_exits_3() {
     let (status, stdout, stderr) = finish(send).await;
     assert_eq!(status.code(), Some(3), "{stderr}");
     assert!(stderr.contains("cannot reach the hub") && stderr.contains(&addr), "{stderr}");
+    assert!(stderr.contains("start a hub (`lcc-stream hub`)") && stderr.contains("LCC_HUB"), "{stderr}");
     assert_eq!(field(&stdout, "result"), "unreachable_hub");
     let recv = spawn(&["recv", "--connect", &addr]);
     assert_eq!(finish(recv).await.0.code(), Some(3));
+    // The hub's address set once, in the environment.
+    let mut nodes = command(&["nodes", "--json"]);
+    nodes.env("LCC_HUB", &addr);
+    let (status, _, stderr) = finish(nodes.spawn().unwrap()).await;
+    assert_eq!(status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains(&addr), "LCC_HUB is where it went: {stderr}");
+    // A serial port given beside it is taken instead, with no conflict.
+    let mut serial = command(&["nodes", "--serial", "/dev/lcc-stream-no-such-port"]);
+    serial.env("LCC_HUB", &addr);
+    let (status, _, stderr) = finish(serial.spawn().unwrap()).await;
+    assert!(status.code() != Some(2) && stderr.contains("lcc-stream-no-such-port"), "{status:?} {stderr}");
     let _ = std::fs::remove_dir_all(dir);
 }
 
