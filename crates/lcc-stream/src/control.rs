@@ -50,13 +50,13 @@ fn after_help() -> String {
 }
 
 pub(crate) fn reboot(args: &RebootArgs) -> Result<ExitCode, String> {
-    let done = format!("rebooted {}", args.node);
+    let done = format!("{} accepted the reboot", args.node);
     send(NodeCommand::Reboot, args.node, &args.client, "reboot", Ok(done))
 }
 
 pub(crate) fn factory_reset(args: &FactoryResetArgs) -> Result<ExitCode, String> {
     let done = match args.yes {
-        true => Ok(format!("reset {} to its factory settings", args.node)),
+        true => Ok(format!("{} accepted the factory reset (its settings are not read back)", args.node)),
         false => Err(format!(
             "nothing sent: a factory reset puts every setting of {} back to its default; add --yes to do it \
              (`config backup` saves them first)",

@@ -91,6 +91,17 @@ fn path_arg(path: &Path) -> &str {
 
 const SERVER: &str = "05.01.01.01.22.E2";
 
+/// A scratch folder named for `test`, a hub, and `serve` as SERVER with a 256-byte
+/// configuration file of zeros: the folder, the hub, its address, the file, the server.
+async fn serve_zeros(test: &str) -> (std::path::PathBuf, Hub, String, std::path::PathBuf, Server) {
+    let dir = scratch(test);
+    let (hub, addr) = hub().await;
+    let config = dir.join("config.bin");
+    std::fs::write(&config, vec![0; 256]).unwrap();
+    let server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    (dir, hub, addr, config, server)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn read_and_write_the_configuration_by_stream_and_by_datagrams() {
     let dir = scratch("config");
@@ -339,11 +350,7 @@ async fn config_backup_set_restore_round_trip() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn config_refuses_what_the_cdi_does_not_allow_and_writes_nothing() {
-    let dir = scratch("config-refuse");
-    let (_hub, addr) = hub().await;
-    let config = dir.join("config.bin");
-    std::fs::write(&config, vec![0; 256]).unwrap();
-    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    let (dir, _hub, addr, config, _server) = serve_zeros("config-refuse").await;
     for (key, value) in [
         ("Configuration.Delay (ms)", "1001"),
         ("Configuration.Mode", "Sleeping"),
@@ -372,11 +379,7 @@ async fn config_refuses_what_the_cdi_does_not_allow_and_writes_nothing() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_restore_refuses_duplicates_reads_past_a_byte_order_mark_and_bounds_its_input() {
-    let dir = scratch("config-duplicates");
-    let (_hub, addr) = hub().await;
-    let config = dir.join("config.bin");
-    std::fs::write(&config, vec![0; 256]).unwrap();
-    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    let (dir, _hub, addr, config, _server) = serve_zeros("config-duplicates").await;
     let twice = dir.join("twice.txt");
     std::fs::write(&twice, "Configuration.Mode=1\nConfiguration.Label=x\nConfiguration.Mode=2\n").unwrap();
     let (status, json) = run(&addr, &["config", "restore", SERVER, path_arg(&twice)]).await;
@@ -524,11 +527,7 @@ async fn the_config_file_is_replaced_whole_never_written_in_place() {
 /// A write longer than the space is refused before a byte moves, by datagrams as by stream.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_write_larger_than_the_space_is_refused_before_a_byte_is_written() {
-    let dir = scratch("config-too-long");
-    let (_hub, addr) = hub().await;
-    let config = dir.join("config.bin");
-    std::fs::write(&config, vec![0; 256]).unwrap();
-    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    let (dir, _hub, addr, config, _server) = serve_zeros("config-too-long").await;
     let image = dir.join("image.bin");
     std::fs::write(&image, data(300, 6)).unwrap();
     for extra in [None, Some("--no-stream")] {
@@ -546,11 +545,7 @@ async fn a_write_larger_than_the_space_is_refused_before_a_byte_is_written() {
 /// the node, and `factory-reset` sends nothing without `--yes`.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn write_ends_with_update_complete_and_reboot_and_factory_reset_reach_the_node() {
-    let dir = scratch("node-commands");
-    let (_hub, addr) = hub().await;
-    let config = dir.join("config.bin");
-    std::fs::write(&config, vec![0; 256]).unwrap();
-    let mut server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    let (dir, _hub, addr, _config, mut server) = serve_zeros("node-commands").await;
     let image = dir.join("image.bin");
     std::fs::write(&image, data(100, 7)).unwrap();
     let (status, json) = run(&addr, &["write", path_arg(&image), "--to", SERVER]).await;
@@ -620,11 +615,7 @@ async fn relay_refusing_update_complete(hub: &str) -> String {
 /// is written, so the command succeeds with a warning.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_refused_update_complete_after_a_verified_write_is_a_warning() {
-    let dir = scratch("update-refused");
-    let (_hub, addr) = hub().await;
-    let config = dir.join("config.bin");
-    std::fs::write(&config, vec![0; 256]).unwrap();
-    let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
+    let (dir, _hub, addr, config, _server) = serve_zeros("update-refused").await;
     let relay = relay_refusing_update_complete(&addr).await;
     let (status, json) = run(&relay, &["config", "set", SERVER, "Configuration.Mode", "1"]).await;
     assert_eq!((status, json["result"].as_str()), (0, Some("ok")), "{json}");

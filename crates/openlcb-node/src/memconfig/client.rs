@@ -131,7 +131,7 @@ enum Step {
     /// Firmware: Unfreeze sent; OK or a reboot ends the upgrade.
     Unfreeze,
     /// A [`NodeCommand`] sent; its Datagram OK or the node's restart ends the operation.
-    Command,
+    Command(NodeCommand),
     /// Lock/Reserve sent before a write (MC §4.17), so that no other tool writes between
     /// its commands; the write goes on by stream or not as `by_stream` says.
     Lock { by_stream: bool },
@@ -324,7 +324,7 @@ impl MemoryClient {
         self.next_id = self.next_id.wrapping_add(1);
         let firmware = matches!(kind, Kind::Firmware { .. });
         let command = match kind {
-            Kind::Command(command) => Some(command.to_wire(peer)),
+            Kind::Command(command) => Some(command),
             _ => None,
         };
         self.operations.push(Operation {
@@ -348,7 +348,7 @@ impl MemoryClient {
         let outcome = match (path, command) {
             // FWU §5.5: Freeze first; the PIP asked after it decides the path.
             _ if firmware => self.send(cx, index, Step::Freeze, &Command::Freeze { space: SPACE_FIRMWARE }),
-            (_, Some(command)) => self.send(cx, index, Step::Command, &command),
+            (_, Some(command)) => self.send(cx, index, Step::Command(command), &command.to_wire(peer)),
             (TransferPath::Auto, None) if cx.streams_enabled => {
                 self.send(cx, index, Step::Options, &Command::GetOptions)
             }
@@ -541,7 +541,7 @@ impl MemoryClient {
             (Step::Freeze, Ok(_) | Err(DatagramFailure::PeerRestarted)) => self.ask_protocols(cx, index),
             (Step::Unfreeze, Ok(_) | Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Done),
             // MC §4.23: no reply datagram follows; the node may reset instead of an OK.
-            (Step::Command, Ok(_) | Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Done),
+            (Step::Command(_), Ok(_) | Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Done),
             (Step::Freeze | Step::Unfreeze, Err(DatagramFailure::TimedOut)) => {
                 // The OpenMRN Bootloader sends no OK: wait on for its Initialization Complete.
                 op.deadline = Some(cx.now + reboot_timeout);
@@ -625,13 +625,10 @@ impl MemoryClient {
             }
             Step::Chunk { at, .. } => self.next_chunk(cx, index, at),
             Step::Protocols => self.ask_protocols(cx, index),
-            Step::Command => match op.kind {
-                Kind::Command(command) => {
-                    let command = command.to_wire(op.peer);
-                    self.send(cx, index, Step::Command, &command)
-                }
-                _ => Some(Outcome::Fail(MemoryError::TimedOut)),
-            },
+            Step::Command(command) => {
+                let wire = command.to_wire(op.peer);
+                self.send(cx, index, Step::Command(command), &wire)
+            }
             Step::Lock { by_stream } => {
                 let node = cx.out.node.as_raw();
                 self.send(cx, index, Step::Lock { by_stream }, &Command::Lock { node })
@@ -764,7 +761,7 @@ impl MemoryClient {
             Some(Step::Freeze) => self.ask_protocols(cx, index),
             // The Initialization Complete that follows our Freeze's OK: the inquiry sent after
             // the OK reaches the restarted target (a lost one is asked again at the deadline).
-            Some(Step::Unfreeze | Step::Command) => Some(Outcome::Done),
+            Some(Step::Unfreeze | Step::Command(_)) => Some(Outcome::Done),
             // Streams and datagrams in flight end through their own events.
             _ => None,
         };
