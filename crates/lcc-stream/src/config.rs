@@ -138,6 +138,8 @@ enum Failure {
     Invalid(String),
     /// What was read back is not what was written.
     Verify(String),
+    /// A restore stopped by `cause` after `written` of its `of` settings were written.
+    Partial { cause: Box<Failure>, written: usize, of: usize },
 }
 
 impl From<Stop> for Failure {
@@ -153,6 +155,7 @@ impl Failure {
             Failure::Cdi(_) => Outcome::Error,
             Failure::Invalid(_) => Outcome::Usage,
             Failure::Verify(_) => Outcome::VerifyFailed,
+            Failure::Partial { cause, .. } => cause.outcome(),
         }
     }
 }
@@ -163,6 +166,11 @@ impl std::fmt::Display for Failure {
             Failure::Stop(stop) => write!(f, "{stop}"),
             Failure::Cdi(error) => write!(f, "the node's CDI: {error}"),
             Failure::Invalid(text) | Failure::Verify(text) => f.write_str(text),
+            Failure::Partial { cause, written, of } => write!(
+                f,
+                "{cause}: {written} of {of} settings were written before it stopped; \
+                 `config restore` again writes the rest"
+            ),
         }
     }
 }
@@ -361,13 +369,14 @@ impl<'a> Session<'a> {
         entry.decode(&bytes).map_err(|error| Failure::Cdi(openlcb_cdi::Error::Value { key: entry.key.clone(), error }))
     }
 
-    /// Writes `bytes` at `address`, reads them back and compares.
+    /// Writes `bytes` at `address`, reads them back and compares; `moved` counts the bytes
+    /// the node took (also when it stops early).
     async fn write_verified(
         &self,
-        space: u8,
-        address: u32,
+        (space, address): (u8, u32),
         bytes: Vec<u8>,
         interrupt: &mut net::Interrupt,
+        moved: &mut Moved,
     ) -> Result<(), Failure> {
         let len = bytes.len() as u32;
         let transfer = self
@@ -375,7 +384,6 @@ impl<'a> Session<'a> {
             .write_memory(self.peer, space, address, bytes.clone(), self.path(len))
             .await
             .map_err(Stop::Net)?;
-        let moved = &mut Moved::default();
         memory::follow(
             &self.node,
             transfer,
@@ -409,7 +417,7 @@ impl<'a> Session<'a> {
         let entry = self.entry(key)?;
         let (value, bytes) = entry.parse_strict(text).map_err(|e| Failure::Invalid(format!("{key}: {e}")))?;
         let old = self.read_value(entry, interrupt).await?;
-        self.write_verified(entry.space, entry.address, bytes, interrupt).await?;
+        self.write_verified((entry.space, entry.address), bytes, interrupt, &mut Moved::default()).await?;
         let warning = self.update_complete(interrupt).await?;
         let label = entry.label(&value).map(str::to_string);
         let shown = label.as_ref().map_or(value.to_string(), |l| format!("{value} ({l})"));
@@ -456,8 +464,17 @@ impl<'a> Session<'a> {
         }
         let mut warning = None;
         if !dry_run && !plan.writes.is_empty() {
+            let mut written = 0;
             for (space, address, bytes) in backup::coalesce(&plan.writes) {
-                self.write_verified(space, address, bytes, interrupt).await?;
+                let mut moved = Moved::default();
+                let len = bytes.len() as u64;
+                let result = self.write_verified((space, address), bytes, interrupt, &mut moved).await;
+                // A stopped write took its first `moved.bytes` bytes: the settings inside them.
+                let took = if result.is_ok() { len } else { moved.bytes };
+                written += settings_within(&plan.writes, (space, address), took);
+                if let Err(cause) = result {
+                    return Err(Failure::Partial { cause: Box::new(cause), written, of: plan.writes.len() });
+                }
             }
             warning = self.update_complete(interrupt).await?;
         }
@@ -482,6 +499,16 @@ impl<'a> Session<'a> {
             warning,
         })
     }
+}
+
+/// How many of `changes` lie wholly in the `len` bytes from `address` of `space`.
+fn settings_within(changes: &[backup::Change], (space, address): (u8, u32), len: u64) -> usize {
+    let end = u64::from(address) + len;
+    let inside = |c: &&backup::Change| {
+        let start = u64::from(c.entry.address);
+        c.entry.space == space && start >= u64::from(address) && start + c.bytes.len() as u64 <= end
+    };
+    changes.iter().filter(inside).count()
 }
 
 /// The text of a backup file, refused unread past `max_bytes` (more than the node's CDI can

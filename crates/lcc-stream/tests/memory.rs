@@ -777,3 +777,149 @@ async fn a_stream_longer_than_the_space_reported_is_a_bad_answer() {
     assert!(error.contains("sent more than 600 bytes"), "{error}");
     assert!(!out.exists() && !dir.join("backup.bin.part").exists());
 }
+
+// ----- a tool that vanished: its upgrade and its lock end, a rerun gets through -----
+
+/// A tool that logs in by hand as 05.01.01.01.22.F0 (alias 0x5A5), sends `command` to
+/// SERVER in one datagram frame, waits for its Datagram Received OK and vanishes: its socket
+/// closes with no AMR, as `kill -9` of a tool on a GridConnect hub leaves it.
+async fn vanish_after(hub: &str, command: &[u8]) {
+    use tokio::io::AsyncWriteExt as _;
+    let (read, mut write) = tokio::net::TcpStream::connect(hub).await.unwrap().into_split();
+    let login = ":X170505A5N;:X161015A5N;:X150125A5N;:X142F05A5N;:X107005A5N;:X107015A5N0501010122F0;";
+    write.write_all(format!("{login}:X107025A5N;\n").as_bytes()).await.unwrap();
+    let mut lines = BufReader::new(read).lines();
+    let amd = format!("N{};", SERVER.replace('.', ""));
+    let server_alias = bounded("SERVER's AMD", async {
+        loop {
+            let line = lines.next_line().await.unwrap().unwrap();
+            if line.starts_with(":X10701") && line.ends_with(&amd) {
+                break line[7..10].to_string();
+            }
+        }
+    })
+    .await;
+    let hex: String = command.iter().map(|b| format!("{b:02X}")).collect();
+    write.write_all(format!(":X1A{server_alias}5A5N{hex};\n").as_bytes()).await.unwrap();
+    let ok = format!(":X19A28{server_alias}N05A5");
+    bounded("the Datagram Received OK", async { while !lines.next_line().await.unwrap().unwrap().starts_with(&ok) {} })
+        .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_frozen_by_a_vanished_loader_is_taken_over_by_a_rerun() {
+    let dir = scratch("vanished-loader");
+    let (_hub, addr) = hub().await;
+    let out = dir.join("image.bin");
+    let mut server = Server::start(&dir, &addr, SERVER, &["--firmware-out", path_arg(&out)]).await;
+    vanish_after(&addr, &[0x20, 0xA1, 0xEF]).await;
+    let image = dir.join("upgrade.bin");
+    std::fs::write(&image, data(3000, 4)).unwrap();
+    let (status, json) = run(&addr, &["firmware", path_arg(&image), "--to", SERVER]).await;
+    assert_eq!(status, 0, "{json}");
+    server.wait_for("written to").await;
+    assert_eq!(std::fs::read(&out).unwrap(), data(3000, 4));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lock_left_by_a_vanished_tool_does_not_hold_up_the_next_write() {
+    let (dir, _hub, addr, config, _server) = serve_zeros("vanished-lock").await;
+    // Lock/Reserve naming the vanishing tool's Node ID.
+    vanish_after(&addr, &[0x20, 0x88, 0x05, 0x01, 0x01, 0x01, 0x22, 0xF0]).await;
+    let image = dir.join("values.bin");
+    std::fs::write(&image, data(200, 6)).unwrap();
+    let (status, json) = run(&addr, &["write", path_arg(&image), "--to", SERVER, "--no-stream"]).await;
+    assert_eq!(status, 0, "{json}");
+    assert_eq!(std::fs::read(&config).unwrap()[..200], data(200, 6));
+}
+
+/// A relay between one client and the hub that passes everything until the client has sent
+/// `writes` Write datagrams, then passes nothing more either way (the connection stays open):
+/// the client waits for an answer that never comes. `stalled` is told when it stops.
+async fn relay_stalling_after(hub: &str, writes: usize, stalled: mpsc::UnboundedSender<()>) -> String {
+    use tokio::io::AsyncWriteExt as _;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let hub = hub.to_string();
+    tokio::spawn(async move {
+        let (client, _) = listener.accept().await.unwrap();
+        let upstream = tokio::net::TcpStream::connect(&hub).await.unwrap();
+        let (client_read, mut client_write) = client.into_split();
+        let (hub_read, mut hub_write) = upstream.into_split();
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let stopped = stop.clone();
+        tokio::spawn(async move {
+            let mut lines = BufReader::new(hub_read).lines();
+            while let Ok(Some(line)) = lines.next_line().await {
+                if !stopped.load(std::sync::atomic::Ordering::SeqCst) {
+                    let _ = client_write.write_all(format!("{line}\n").as_bytes()).await;
+                }
+            }
+        });
+        let mut lines = BufReader::new(client_read).lines();
+        let mut seen = 0;
+        while let Ok(Some(line)) = lines.next_line().await {
+            if stop.load(std::sync::atomic::Ordering::SeqCst) {
+                continue;
+            }
+            let _ = hub_write.write_all(format!("{line}\n").as_bytes()).await;
+            // The first (or only) frame of a datagram whose command is a Write (20 00..03).
+            let data = line.split_once('N').map_or("", |(_, d)| d);
+            if (line.starts_with(":X1A") || line.starts_with(":X1B")) && data.len() >= 4 && &data[..3] == "200" {
+                seen += 1;
+                if seen == writes {
+                    stop.store(true, std::sync::atomic::Ordering::SeqCst);
+                    let _ = stalled.send(());
+                }
+            }
+        }
+    });
+    addr
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_interrupted_restore_says_how_many_settings_it_wrote_and_a_rerun_finishes() {
+    let dir = scratch("restore-interrupted");
+    let (_hub, addr) = hub().await;
+    let cdi = concat!(env!("CARGO_MANIFEST_DIR"), "/../openlcb-cdi/tests/cdi/io16.xml");
+    let (fresh, replacement) = (dir.join("fresh.bin"), dir.join("replacement.bin"));
+    std::fs::write(&fresh, vec![0xFF; 2 + 16 * 39 + 1]).unwrap();
+    std::fs::write(&replacement, vec![0; 2 + 16 * 39 + 1]).unwrap();
+    const REPLACEMENT: &str = "05.01.01.01.22.E3";
+    let _board = Server::start(&dir, &addr, SERVER, &["--cdi", cdi, "--config", path_arg(&fresh)]).await;
+    let _new = Server::start(&dir, &addr, REPLACEMENT, &["--cdi", cdi, "--config", path_arg(&replacement)]).await;
+    let backup = dir.join("board.txt");
+    let (status, json) = run(&addr, &["config", "backup", SERVER, "--out", path_arg(&backup)]).await;
+    assert_eq!(status, 0, "{json}");
+
+    // The restore by datagrams stalls after its third Write; Ctrl-C then.
+    let (stalled, mut stall) = mpsc::unbounded_channel();
+    let relay = relay_stalling_after(&addr, 3, stalled).await;
+    let restore = Command::new(BIN)
+        .args(["config", "restore", REPLACEMENT, path_arg(&backup), "--no-stream", "--connect", &relay, "--json"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()
+        .unwrap();
+    bounded("the third write", stall.recv()).await;
+    let pid = restore.id().unwrap().to_string();
+    assert!(bounded("kill", Command::new("kill").args(["-INT", &pid]).status()).await.unwrap().success());
+    let output = bounded("the interrupted restore", restore.wait_with_output()).await.unwrap();
+    let json: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    assert_eq!((output.status.code(), json["result"].as_str()), (Some(130), Some("interrupted")), "{json}");
+    let error = json["error"].as_str().unwrap_or_default();
+    // Two Writes were answered before the stall (64 bytes each: the settings wholly inside).
+    let settings: usize = std::fs::read_to_string(&backup).unwrap().lines().filter(|l| l.contains('=')).count();
+    assert!(error.contains(" settings were written before it stopped"), "{json}");
+    let written: usize = error.split(" of ").next().and_then(|s| s.rsplit(' ').next()).unwrap().parse().unwrap();
+    assert!(written > 0 && written < settings, "{json}");
+
+    // At once, by another transient Node ID: the interrupted tool's lock does not stop it.
+    let (status, json) = run(&addr, &["config", "restore", REPLACEMENT, path_arg(&backup)]).await;
+    assert_eq!(status, 0, "{json}");
+    let again = dir.join("again.txt");
+    let (status, _) = run(&addr, &["config", "backup", REPLACEMENT, "--out", path_arg(&again)]).await;
+    assert_eq!(status, 0);
+    assert_eq!(std::fs::read_to_string(&again).unwrap(), std::fs::read_to_string(&backup).unwrap());
+}

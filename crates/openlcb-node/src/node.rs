@@ -405,6 +405,9 @@ impl Node {
                 // The payload names the node; on CAN the source may be a provisional name.
                 let node = NodeId::from_slice(msg.payload).unwrap_or(msg.source);
                 out.event(NodeEvent::Verified { node });
+                // Memory Configuration may be asking whether a holder of its lock is here.
+                let Node { config, out, streams, datagrams, memory, .. } = self;
+                memory.handle_message(&mut memory_lent(now, out, config, datagrams, streams), msg);
             }
             // MN §3.3.2: a global Verify is answered when it names no node, or this one.
             Mti::VERIFY_NODE_ID_GLOBAL
@@ -606,6 +609,9 @@ impl Node {
         self.update_user_info();
         if core::mem::take(&mut self.memory.reboot) {
             self.reinitialize();
+        }
+        if let Some(peer) = self.memory.departed.take() {
+            self.peer_changed(PeerChange::Lost(peer));
         }
     }
 }

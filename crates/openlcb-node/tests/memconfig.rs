@@ -1162,3 +1162,92 @@ fn an_unfreeze_with_nothing_written_is_refused_as_no_image() {
     let unfrozen = pair.server_events.iter().any(|e| matches!(e, NodeEvent::Memory(MemoryEvent::Unfrozen { .. })));
     assert!(!unfrozen, "no image reached the application");
 }
+
+// ----- a holder of the lock or of an upgrade that left without a word -----
+
+/// A loader that froze the server (or took its lock) and then vanished: no AMR, no answer.
+const GONE: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 9]);
+
+/// Hands the server `command` from `from` and returns its answers (nothing goes back).
+fn command_from(pair: &mut Pair, from: NodeId, command: &[u8]) -> Vec<Message> {
+    let msg = Message::addressed(Mti::DATAGRAM, from, SERVER, command.to_vec());
+    pair.server.handle_message(pair.now, msg.as_ref());
+    std::iter::from_fn(|| pair.server.poll_transmit()).collect()
+}
+
+fn verify_to(answers: &[Message], node: NodeId) -> bool {
+    answers.iter().any(|m| m.mti == Mti::VERIFY_NODE_ID_ADDRESSED && m.destination == Some(node))
+}
+
+fn rejected_with(answers: &[Message], code: u16) -> bool {
+    answers.iter().any(|m| m.mti == Mti::DATAGRAM_REJECTED && m.payload[..2] == code.to_be_bytes())
+}
+
+#[test]
+fn a_frozen_node_whose_loader_vanished_is_taken_over_by_the_next_upgrade() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
+    pair.pump();
+    let frozen = command_from(&mut pair, GONE, &Command::Freeze { space: 0xEF }.to_bytes());
+    assert_eq!(frozen[0].mti, Mti::DATAGRAM_RECEIVED_OK);
+    // Another loader's whole upgrade: its Freeze is refused for now while the server asks
+    // the owner, which never answers; a resend gets through.
+    let image = pattern(3000, 5);
+    pair.client.upgrade_firmware(pair.now, SERVER, image.clone(), TransferPath::Auto).unwrap();
+    match pair.finish() {
+        MemoryEvent::WriteDone { len, .. } => assert_eq!(len, 3000),
+        other => panic!("the second loader failed: {other:?}"),
+    }
+    pair.pump();
+    assert_eq!(&read_back(&mut pair.server, 0xEF)[..image.len()], &image[..]);
+    assert!(!pair.server.memory_server().unwrap().is_frozen());
+    assert_eq!(pair.server.memory_server().unwrap().stats().holders_gone, 1);
+}
+
+#[test]
+fn a_loader_that_answers_keeps_its_upgrade() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
+    pair.pump();
+    command_from(&mut pair, GONE, &Command::Freeze { space: 0xEF }.to_bytes());
+    let freeze = Command::Freeze { space: 0xEF }.to_bytes();
+    let first = command_from(&mut pair, CLIENT, &freeze);
+    assert!(rejected_with(&first, 0x2000) && verify_to(&first, GONE), "{first:?}");
+    // The owner is still here: the refusal becomes the permanent one (two loaders never mix).
+    let verified = Message::verified_node_id(GONE);
+    pair.server.handle_message(pair.now, verified.as_ref());
+    pair.now += Duration::from_millis(200);
+    let again = command_from(&mut pair, CLIENT, &freeze);
+    assert!(rejected_with(&again, 0x1020), "{again:?}");
+    let image = command_from(&mut pair, CLIENT, &[0x20, 0x00, 0, 0, 0, 0, 0xEF, 0xAA]);
+    assert!(rejected_with(&image, 0x1020), "{image:?}");
+    assert_eq!(pair.server.memory_server().unwrap().stats().holders_gone, 0);
+}
+
+#[test]
+fn the_lock_of_a_vanished_node_ends_when_it_does_not_answer_and_when_it_leaves() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
+    pair.pump();
+    let lock = |node: NodeId| Command::Lock { node: node.as_raw() }.to_bytes();
+    command_from(&mut pair, GONE, &lock(GONE));
+    assert_eq!(pair.server.memory_server().unwrap().lock_owner(), GONE.as_raw());
+    // Asked while the holder is checked: refused for now, and asking does not extend it.
+    let asked = command_from(&mut pair, CLIENT, &lock(CLIENT));
+    assert!(rejected_with(&asked, 0x2000) && verify_to(&asked, GONE), "{asked:?}");
+    pair.now += Duration::from_millis(600);
+    pair.server.handle_timeout(pair.now);
+    assert_eq!(pair.server.memory_server().unwrap().lock_owner(), 0, "no answer: the lock ended");
+    assert_eq!(reply_of(&command_from(&mut pair, CLIENT, &lock(CLIENT))), Some(Reply::Lock { owner: CLIENT.as_raw() }));
+    // A holder the transport reports gone (an AMR on CAN) releases it at once.
+    pair.server.peer_changed(PeerChange::Lost(CLIENT));
+    assert_eq!(pair.server.memory_server().unwrap().lock_owner(), 0);
+}
+
+#[test]
+fn a_write_of_another_node_waits_for_the_lock_holder_to_be_found_gone() {
+    // The client's own write by datagrams: Lock refused for now, resent, then granted.
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+    pair.pump();
+    command_from(&mut pair, GONE, &Command::Lock { node: GONE.as_raw() }.to_bytes());
+    pair.client.write_memory(pair.now, SERVER, 0xFD, 0, vec![9; 40], TransferPath::Datagrams).unwrap();
+    assert!(matches!(pair.finish(), MemoryEvent::WriteDone { .. }));
+    assert_eq!(read_back(&mut pair.server, 0xFD)[..40], [9; 40]);
+}

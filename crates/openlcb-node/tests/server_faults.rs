@@ -156,7 +156,11 @@ fn only_the_node_that_froze_may_write_the_firmware_space_or_unfreeze() {
     assert!(answer(&command(&mut server, PEER, &Command::Freeze { space: 0xEF })).is_ok());
     let write = |data: Vec<u8>| Command::Write { space: 0xEF, address: 0, data };
     assert!(answer(&command(&mut server, PEER, &write(vec![1; 64]))).is_ok());
-    // A bystander: its Freeze, its writes by datagram and by stream, its Unfreeze.
+    // A bystander is refused for now (0x2000) while the owner is asked whether it is still
+    // here; it answers, and the bystander's Freeze, its writes by datagram and by stream,
+    // its Unfreeze are refused for good.
+    assert_eq!(answer(&command(&mut server, OTHER, &Command::Freeze { space: 0xEF })), Err(0x2000));
+    server.handle_message(Instant::ZERO, Message::verified_node_id(PEER).as_ref());
     assert_eq!(answer(&command(&mut server, OTHER, &Command::Freeze { space: 0xEF })), Err(0x1020));
     assert_eq!(answer(&command(&mut server, OTHER, &write(vec![2; 64]))), Err(0x1020));
     let stream = Command::WriteStream { space: 0xEF, address: 0, source_stream: 7 };

@@ -85,6 +85,12 @@ pub struct MemoryConfigOptions {
     /// Server: how long a Lock/Reserve holds without a command or stream data from its
     /// owner; then it lapses, so a client that died does not keep others from writing.
     pub lock_timeout: Duration,
+    /// Server: how long the holder of the lock or of an upgrade has to answer the Verify
+    /// Node ID sent when another node is refused on its account. Until then the other node
+    /// is refused for now (0x2000: it resends); with no answer the holder has left, and
+    /// what it held ends. Default 500 ms (a client's resends come after 200 ms, 400 ms,
+    /// 800 ms: the third gets through).
+    pub holder_answer_timeout: Duration,
 }
 
 impl Default for MemoryConfigOptions {
@@ -101,6 +107,7 @@ impl Default for MemoryConfigOptions {
             max_operations: 8,
             max_read_len: 16 * 1024 * 1024,
             lock_timeout: Duration::from_secs(10),
+            holder_answer_timeout: Duration::from_millis(500),
         }
     }
 }
@@ -269,6 +276,9 @@ pub(crate) struct Cx<'a> {
     pub(crate) announce: bool,
     /// Reset/Reboot was asked for: the node reinitializes once the command is answered.
     pub(crate) reboot: bool,
+    /// The server found this peer gone (it held something and did not answer a Verify
+    /// Node ID): the node treats it as lost.
+    pub(crate) departed: Option<NodeId>,
 }
 
 impl Cx<'_> {
@@ -334,6 +344,8 @@ pub(crate) struct MemoryConfig {
     ended: Vec<StreamHandle>,
     /// A Reset/Reboot command was answered: the node reinitializes.
     pub(crate) reboot: bool,
+    /// A peer the server found gone: the node treats it as lost.
+    pub(crate) departed: Option<NodeId>,
 }
 
 impl MemoryConfig {
@@ -349,7 +361,7 @@ impl MemoryConfig {
         lent: &mut MemoryLent<'_>,
         f: impl FnOnce(&mut Cx<'_>, Option<&mut MemoryServer>, &mut MemoryClient) -> T,
     ) -> T {
-        let MemoryConfig { server, client, ended, reboot } = self;
+        let MemoryConfig { server, client, ended, reboot, departed } = self;
         let mut cx = Cx {
             now: lent.lent.now,
             out: lent.lent.out,
@@ -360,9 +372,11 @@ impl MemoryConfig {
             ended,
             announce: false,
             reboot: false,
+            departed: None,
         };
         let result = f(&mut cx, server.as_mut(), client);
         *reboot |= cx.reboot;
+        *departed = departed.or(cx.departed);
         if cx.announce {
             // FWU §5.2: every change of state ends with a new Initialization Complete.
             let node = cx.out.node;
@@ -453,6 +467,13 @@ impl Service<MemoryLent<'_>> for MemoryConfig {
                 let protocols = Protocols::from_payload(msg.payload);
                 self.run_client(lent, |cx, client| client.on_protocols(cx, peer, protocols));
                 true
+            }
+            Mti::VERIFIED_NODE_ID | Mti::VERIFIED_NODE_ID_SIMPLE => {
+                // The payload names the node (on CAN the source may be a provisional name).
+                if let Some(server) = &mut self.server {
+                    server.peer_verified(NodeId::from_slice(msg.payload).unwrap_or(peer));
+                }
+                false
             }
             Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => {
                 if let Some(server) = &mut self.server {

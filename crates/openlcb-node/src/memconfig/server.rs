@@ -6,7 +6,7 @@ use alloc::vec::Vec;
 use core::fmt;
 
 use openlcb_stream::wire::ErrorCode;
-use openlcb_stream::{AcceptOptions, Event, Instant, NodeId, OpenOptions, StreamHandle, StreamId};
+use openlcb_stream::{AcceptOptions, Event, Instant, Message, Mti, NodeId, OpenOptions, StreamHandle, StreamId};
 
 use super::Cx;
 use super::space::{MemorySpace, SpaceError, acdi_manufacturer_bytes, acdi_user_bytes, read_slice};
@@ -31,6 +31,20 @@ pub struct MemoryServerStats {
     pub streams_done: u64,
     /// Stream transfers that ended early (terminated, timed out, refused, a space error).
     pub streams_failed: u64,
+    /// Holders of the lock or of an upgrade that did not answer a Verify Node ID: gone,
+    /// what they held ended.
+    pub holders_gone: u64,
+}
+
+/// A Verify Node ID sent to the node holding the lock or the upgrade because another node
+/// was refused on its account. Answered by `deadline`: it is still here and the refusals
+/// stand until then; not answered: it left without a word (`kill -9`, a pulled cable), and
+/// what it held ends, so that the refused node's resend gets through.
+#[derive(Debug, Clone, Copy)]
+struct HolderCheck {
+    holder: NodeId,
+    deadline: Instant,
+    answered: bool,
 }
 
 #[derive(Debug)]
@@ -102,6 +116,7 @@ pub struct MemoryServer {
     /// Unfreeze came from this node while its Write Stream into space 0xEF was still open:
     /// the image ends, and the node unfreezes, when that stream ends.
     unfreeze_pending: Option<NodeId>,
+    holder_check: Option<HolderCheck>,
     transfers: Vec<Transfer>,
     pub(crate) user_info_changed: bool,
     stats: MemoryServerStats,
@@ -141,6 +156,7 @@ impl MemoryServer {
             firmware_written: 0,
             firmware_aborted: false,
             unfreeze_pending: None,
+            holder_check: None,
             transfers: Vec::new(),
             user_info_changed: false,
             stats: MemoryServerStats::default(),
@@ -219,6 +235,63 @@ impl MemoryServer {
     /// voluntary; refusing writes is what keeps two tools from mixing their data.
     fn locked_out(&self, now: Instant, peer: NodeId) -> bool {
         self.lock != 0 && self.lock != peer.as_raw() && now < self.lock_deadline
+    }
+
+    /// The holder of the lock, when it is another node than `peer` and has not lapsed.
+    fn lock_holder_against(&self, now: Instant, peer: NodeId) -> Option<NodeId> {
+        self.locked_out(now, peer).then(|| NodeId::new(self.lock)).flatten()
+    }
+
+    /// The node keeping `peer` from `space` (from writing it, with `write`), with the code
+    /// `peer` is refused with while that node is known to be here: another's upgrade
+    /// (0x1020, source not permitted) or, for a write, another's lock (0x2000, temporary:
+    /// locked).
+    fn kept_out_by(&self, now: Instant, peer: NodeId, space: u8, write: bool) -> Option<(NodeId, ErrorCode)> {
+        match self.firmware_owner {
+            Some(owner) if self.firmware_refused(peer, space) => Some((owner, ErrorCode::SOURCE_NOT_PERMITTED)),
+            _ if write => self.lock_holder_against(now, peer).map(|holder| (holder, ErrorCode::TEMPORARY)),
+            _ => None,
+        }
+    }
+
+    /// The refusal of `peer` because another node holds `space` ([`kept_out_by`](Self::kept_out_by)),
+    /// if one does: its code once the holder answered a Verify Node ID, 0x2000 (temporary:
+    /// the sender resends) while it is asked.
+    fn refusal(&mut self, cx: &mut Cx<'_>, peer: NodeId, space: u8, write: bool) -> Option<ErrorCode> {
+        let (holder, code) = self.kept_out_by(cx.now, peer, space, write)?;
+        Some(if self.holder_answered(cx, holder) { code } else { ErrorCode::TEMPORARY })
+    }
+
+    /// Whether `holder` answered the Verify Node ID of the check running; without a check
+    /// of it, one starts (a single one at a time: its Verify is the only message sent).
+    fn holder_answered(&mut self, cx: &mut Cx<'_>, holder: NodeId) -> bool {
+        if let Some(check) = self.holder_check.filter(|c| c.holder == holder) {
+            return check.answered;
+        }
+        let deadline = cx.now + cx.options.holder_answer_timeout;
+        self.holder_check = Some(HolderCheck { holder, deadline, answered: false });
+        let verify = Message::addressed(Mti::VERIFY_NODE_ID_ADDRESSED, cx.out.node, holder, Vec::new());
+        cx.out.reply(verify);
+        false
+    }
+
+    /// A Verified Node ID from `node`: a holder being checked is still here.
+    pub(crate) fn peer_verified(&mut self, node: NodeId) {
+        if let Some(check) = self.holder_check.as_mut().filter(|c| c.holder == node) {
+            check.answered = true;
+        }
+    }
+
+    /// Ends the holder check whose time is up; a holder that did not answer has left:
+    /// what it held ends here, and the node hears it lost ([`Cx::departed`]).
+    fn end_holder_check(&mut self, cx: &mut Cx<'_>) {
+        let Some(check) = self.holder_check.filter(|c| cx.now >= c.deadline) else { return };
+        self.holder_check = None;
+        if !check.answered {
+            self.stats.holders_gone += 1;
+            self.forget_peer(Some(check.holder));
+            cx.departed = Some(check.holder);
+        }
     }
 
     /// `peer` did something: a lock it holds lasts on.
@@ -404,6 +477,7 @@ impl MemoryServer {
             // its replies does not starve the others.
             return self.reject(cx, peer, ErrorCode::BUFFER_UNAVAILABLE);
         }
+        self.end_holder_check(cx);
         self.touch_lock(cx.now, cx.options.lock_timeout, peer);
         let command = match Command::parse(bytes) {
             Ok(command) => command,
@@ -451,11 +525,18 @@ impl MemoryServer {
                 cx.send_server_reply(peer, Reply::SpaceInfo(self.space_info(space)), SpaceForm::Short);
             }
             Command::Lock { node } => {
-                // MC §4.17: test-and-set; a Node ID of 0 releases. A lapsed lock is free.
+                // MC §4.17: test-and-set; a Node ID of 0 releases. A lapsed lock is free; a
+                // holder that is gone is found so before the answer (refused for now).
+                if let Some(holder) = self.lock_holder_against(cx.now, peer)
+                    && node != 0
+                    && !self.holder_answered(cx, holder)
+                {
+                    return self.reject(cx, peer, ErrorCode::TEMPORARY);
+                }
                 if self.lock == 0 || node == 0 || cx.now >= self.lock_deadline {
                     self.lock = node;
+                    self.lock_deadline = cx.now + cx.options.lock_timeout;
                 }
-                self.lock_deadline = cx.now + cx.options.lock_timeout;
                 cx.ok(peer, pending);
                 cx.send_server_reply(peer, Reply::Lock { owner: self.lock }, SpaceForm::Short);
             }
@@ -472,8 +553,8 @@ impl MemoryServer {
                 if space != SPACE_FIRMWARE || !self.has_firmware() {
                     return self.reject(cx, peer, codes::UNKNOWN_SPACE);
                 }
-                if self.firmware_refused(peer, space) {
-                    return self.reject(cx, peer, ErrorCode::SOURCE_NOT_PERMITTED);
+                if let Some(code) = self.refusal(cx, peer, SPACE_FIRMWARE, false) {
+                    return self.reject(cx, peer, code);
                 }
                 // C-11: the OK, then Initialization Complete in the new state (FWU §5.2). A
                 // Freeze while frozen gets the same answer (FWU-TN §2.6.2).
@@ -491,8 +572,8 @@ impl MemoryServer {
                 if !self.frozen {
                     return cx.ok(peer, OkFlags::default());
                 }
-                if self.firmware_refused(peer, space) {
-                    return self.reject(cx, peer, ErrorCode::SOURCE_NOT_PERMITTED);
+                if let Some(code) = self.refusal(cx, peer, SPACE_FIRMWARE, false) {
+                    return self.reject(cx, peer, code);
                 }
                 if self.firmware_stream_open(peer) {
                     // On CAN the client's Unfreeze datagram may overtake the end of its own
@@ -545,11 +626,8 @@ impl MemoryServer {
         if self.read_only(space) {
             return self.reject(cx, peer, codes::READ_ONLY);
         }
-        if self.firmware_refused(peer, space) {
-            return self.reject(cx, peer, ErrorCode::SOURCE_NOT_PERMITTED);
-        }
-        if self.locked_out(cx.now, peer) {
-            return self.reject(cx, peer, ErrorCode::TEMPORARY);
+        if let Some(code) = self.refusal(cx, peer, space, true) {
+            return self.reject(cx, peer, code);
         }
         let mut merged = [0u8; MAX_DATA_LEN];
         let result = match mask {
@@ -587,7 +665,14 @@ impl MemoryServer {
     /// The checks a stream command passes before its OK: space known, address inside,
     /// readable for a Read Stream, writable for a Write Stream, streams on, room for one
     /// more transfer, and for one more of this peer's.
-    fn check_stream(&self, cx: &Cx<'_>, peer: NodeId, space: u8, address: u32, write: bool) -> Result<(), ErrorCode> {
+    fn check_stream(
+        &mut self,
+        cx: &mut Cx<'_>,
+        peer: NodeId,
+        space: u8,
+        address: u32,
+        write: bool,
+    ) -> Result<(), ErrorCode> {
         if !cx.streams_enabled {
             return Err(codes::UNKNOWN_COMMAND);
         }
@@ -598,11 +683,8 @@ impl MemoryServer {
         if write && self.read_only(space) {
             return Err(codes::READ_ONLY);
         }
-        if write && self.firmware_refused(peer, space) {
-            return Err(ErrorCode::SOURCE_NOT_PERMITTED);
-        }
-        if write && self.locked_out(cx.now, peer) {
-            return Err(ErrorCode::TEMPORARY);
+        if let Some(code) = write.then(|| self.refusal(cx, peer, space, true)).flatten() {
+            return Err(code);
         }
         if address >= len {
             return Err(codes::OUT_OF_BOUNDS);
@@ -964,7 +1046,8 @@ impl MemoryServer {
     }
 
     pub(crate) fn poll_timeout(&self) -> Option<Instant> {
-        self.transfers.iter().fold(None, |next, t| match t.job {
+        let check = self.holder_check.map(|c| c.deadline);
+        self.transfers.iter().fold(check, |next, t| match t.job {
             Job::Write { reply: WriteReply::Due(at), .. } | Job::Write { handle: None, deadline: at, .. } => {
                 earliest(next, Some(at))
             }
@@ -976,6 +1059,7 @@ impl MemoryServer {
     /// stream), and forgets a Write Stream whose stream never came (the streams themselves
     /// have the endpoint's timers).
     pub(crate) fn handle_timeout(&mut self, cx: &mut Cx<'_>) {
+        self.end_holder_check(cx);
         let now = cx.now;
         while let Some(index) = self
             .transfers
@@ -996,14 +1080,19 @@ impl MemoryServer {
     /// The node reinitializes (Reset/Reboot): no transfer, no lock, not frozen.
     pub(crate) fn reinitialize(&mut self) {
         self.transfers.clear();
+        self.holder_check = None;
         self.lock = 0;
         self.frozen = false;
         self.unfreeze_pending = None;
     }
 
     /// `peer` restarted or is gone: its transfers waiting for a stream are dropped (open
-    /// streams end through the endpoint's events).
+    /// streams end through the endpoint's events), its lock is released, and its upgrade
+    /// may be taken over.
     pub(crate) fn forget_peer(&mut self, peer: Option<NodeId>) {
+        if peer.is_none_or(|p| p.as_raw() == self.lock) {
+            self.lock = 0;
+        }
         // By position and an ordered remove: no `retain` (flash).
         while let Some(index) = self
             .transfers
