@@ -128,9 +128,22 @@ struct Slot {
     deadline: Instant,
 }
 
-/// Datagrams answered with an error and still arriving, remembered per reassembly slot: a
-/// crowd of senders refused at once (all slots taken) each hears one answer.
+/// Datagrams dropped before their last frame and still arriving, remembered per reassembly
+/// slot (see [`Dropped`]).
 const ANSWERED_PER_SLOT: usize = 16;
+
+/// What is remembered of a datagram dropped before its last frame, so that it gets exactly
+/// one answer (DG §7.3.2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Dropped {
+    /// Its error was answered: the rest of its frames go without a word.
+    Answered,
+    /// Its first frame found every slot taken, and was not answered: its last frame is,
+    /// with 0x2020. A crowd of senders refused at once so each hears one answer, however
+    /// many they are: one whose record was pushed out is answered at its last frame too,
+    /// as a datagram whose first frame never came (0x2041).
+    NoRoom,
+}
 
 /// Bounded reassembly: `slots` messages at once, each at most `max_len` payload bytes, each
 /// dropped when it is not complete within `timeout`. All memory is taken up front:
@@ -141,10 +154,10 @@ pub struct Reassembler {
     max_len: usize,
     timeout: Duration,
     rules: Rules,
-    /// Datagrams already answered with an error whose remaining frames are still coming:
-    /// dropped without a word until their last frame, so that each datagram gets one answer
-    /// (DG §7.3.2). At most [`ANSWERED_PER_SLOT`] per slot; the oldest goes first.
-    answered: Vec<ReassemblyKey>,
+    /// Datagrams dropped before their last frame whose remaining frames are still coming.
+    /// At most [`ANSWERED_PER_SLOT`] per slot; when full, the oldest [`Dropped::NoRoom`]
+    /// goes first (forgetting it changes only its code), else the oldest.
+    dropped: Vec<(ReassemblyKey, Dropped)>,
 }
 
 impl Reassembler {
@@ -176,9 +189,9 @@ impl Reassembler {
         while list.len() < slots && list.len() < list.capacity() {
             list.push(Slot { key: None, buffer: Vec::with_capacity(max_len), deadline: Instant::ZERO });
         }
-        let answered =
+        let dropped =
             Vec::with_capacity(if rules == Rules::Datagrams { slots.saturating_mul(ANSWERED_PER_SLOT) } else { 0 });
-        Reassembler { slots: list, max_len, timeout, rules, answered }
+        Reassembler { slots: list, max_len, timeout, rules, dropped }
     }
 
     /// Adds one frame's payload (data bytes 2..). Returns the whole payload when `position`
@@ -207,38 +220,60 @@ impl Reassembler {
         data: &[u8],
     ) -> Result<Option<usize>, ReassemblyError> {
         let result = self.add_frame(now, key, position, data);
-        if self.rules == Rules::Datagrams {
-            match result {
-                // The rest of a datagram already answered: dropped without a second answer.
-                Err(ReassemblyError::MiddleWithoutFirst) if self.unmute(key, position) => return Ok(None),
-                // A datagram whose first frame never came is answered once, at its last.
-                Err(ReassemblyError::MiddleWithoutFirst) if position == FramePosition::Middle => return Ok(None),
-                Err(_) if position != FramePosition::Last => self.mute(key),
-                _ => {}
-            }
+        if self.rules != Rules::Datagrams {
+            return result;
         }
-        result
+        let last = position == FramePosition::Last;
+        match result {
+            // No room at its first frame: answered once, at its last frame.
+            Err(ReassemblyError::NoFreeSlot) => {
+                self.remember(key, Dropped::NoRoom);
+                Ok(None)
+            }
+            Err(ReassemblyError::MiddleWithoutFirst) => match self.recall(key, last) {
+                Some(Dropped::NoRoom) if last => Err(ReassemblyError::NoFreeSlot),
+                // A datagram whose first frame never came is answered once, at its last.
+                None if last => result,
+                _ => Ok(None),
+            },
+            Err(_) if !last => {
+                self.remember(key, Dropped::Answered);
+                result
+            }
+            _ => result,
+        }
     }
 
-    /// A datagram's error was answered: its later frames are dropped without a word.
-    fn mute(&mut self, key: ReassemblyKey) {
-        if self.answered.contains(&key) || self.answered.capacity() == 0 {
+    /// Remembers how the datagram `key` was dropped until its last frame.
+    fn remember(&mut self, key: ReassemblyKey, how: Dropped) {
+        if self.dropped.capacity() == 0 {
             return;
         }
-        if self.answered.len() >= self.answered.capacity() {
-            self.answered.remove(0);
+        self.forget_dropped(key);
+        if self.dropped.len() >= self.dropped.capacity() {
+            let oldest = self.dropped.iter().position(|(_, d)| *d == Dropped::NoRoom).unwrap_or(0);
+            self.dropped.remove(oldest);
         }
-        self.answered.push(key);
+        self.dropped.push((key, how));
     }
 
-    /// A frame of the datagram `key` that was already answered: true if so (its last frame
-    /// ends the silence).
-    fn unmute(&mut self, key: ReassemblyKey, position: FramePosition) -> bool {
-        let Some(index) = self.answered.iter().position(|k| *k == key) else { return false };
-        if position == FramePosition::Last {
-            self.answered.remove(index);
+    /// How the datagram `key`, whose frame just came, was dropped; at its `last` frame the
+    /// record ends.
+    fn recall(&mut self, key: ReassemblyKey, last: bool) -> Option<Dropped> {
+        let index = self.dropped.iter().position(|(k, _)| *k == key)?;
+        let how = self.dropped.get(index).map(|(_, how)| *how);
+        if last {
+            self.dropped.remove(index);
         }
-        true
+        how
+    }
+
+    /// Forgets whatever was remembered of the datagram `key`.
+    fn forget_dropped(&mut self, key: ReassemblyKey) {
+        // By position, with `remove`: smaller than `retain` (flash).
+        while let Some(index) = self.dropped.iter().position(|(k, _)| *k == key) {
+            self.dropped.remove(index);
+        }
     }
 
     fn add_frame(
@@ -250,11 +285,8 @@ impl Reassembler {
     ) -> Result<Option<usize>, ReassemblyError> {
         let first = position == FramePosition::First;
         if first {
-            // A new datagram: whatever was answered before is over.
-            // By position, with the `remove` `mute` has: smaller than `retain` (flash).
-            while let Some(index) = self.answered.iter().position(|k| *k == key) {
-                self.answered.remove(index);
-            }
+            // A new datagram: whatever was dropped before is over.
+            self.forget_dropped(key);
         }
         let open = self.slots.iter().position(|s| s.key.is_some_and(|k| k == key));
         let index = match open {
@@ -299,7 +331,7 @@ impl Reassembler {
         let key = slot.key.take()?;
         if self.rules == Rules::Datagrams {
             // Answered with 0x2011: frames that come late are not answered again.
-            self.mute(key);
+            self.remember(key, Dropped::Answered);
         }
         Some(key)
     }
@@ -485,13 +517,17 @@ mod tests {
     fn a_crowd_refused_for_want_of_slots_hears_one_answer_each() {
         let mut r = Reassembler::for_datagrams(1, Duration::from_secs(3));
         r.push(T0, datagram_key(0x100), FramePosition::First, &[1; 8]).unwrap();
-        for source in 0x101..0x111 {
-            let first = r.push(T0, datagram_key(source), FramePosition::First, &[1; 8]);
-            assert_eq!(first, Err(ReassemblyError::NoFreeSlot));
+        // More than are remembered: each is answered once, at its last frame (0x2020 while
+        // remembered, 0x2041 once pushed out).
+        for source in 0x101..0x131 {
+            assert_eq!(r.push(T0, datagram_key(source), FramePosition::First, &[1; 8]), Ok(None));
         }
-        for source in 0x101..0x111 {
+        for source in 0x101..0x131 {
             assert_eq!(r.push(T0, datagram_key(source), FramePosition::Middle, &[2; 8]), Ok(None));
-            assert_eq!(r.push(T0, datagram_key(source), FramePosition::Last, &[3]), Ok(None));
+            let last = r.push(T0, datagram_key(source), FramePosition::Last, &[3]);
+            let expected =
+                if source < 0x121 { ReassemblyError::MiddleWithoutFirst } else { ReassemblyError::NoFreeSlot };
+            assert_eq!(last, Err(expected), "0x{source:03X}");
         }
     }
 

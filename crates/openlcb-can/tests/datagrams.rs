@@ -208,7 +208,7 @@ fn datagram_without_last_frame_times_out_0x2011() {
 }
 
 #[test]
-fn no_free_slot_at_a_first_frame_is_rejected_0x2020() {
+fn no_free_slot_at_a_first_frame_is_rejected_0x2020_at_its_last_frame() {
     let mut can = can_config(0x123);
     can.datagram_slots = 2;
     let mut solo = receiver(can);
@@ -216,7 +216,9 @@ fn no_free_slot_at_a_first_frame_is_rejected_0x2020() {
         &mut solo,
         &[":X1B123456N0101010101010101;", ":X1B123789N0101010101010101;", ":X1B123ABCN0101010101010101;"],
     );
-    assert_eq!(sent, [":X19A48123N0ABC2020;"]);
+    assert_eq!(sent, Vec::<String>::new(), "answered once, at its last frame");
+    assert_eq!(answers(&mut solo, &[":X1C123ABCN0202;"]), Vec::<String>::new());
+    assert_eq!(answers(&mut solo, &[":X1D123ABCN0303;"]), [":X19A48123N0ABC2020;"]);
     assert_eq!(solo.node.link.stats().datagram_errors.no_free_slot, 1);
     // A single-frame datagram needs no slot (0xABC is unknown: nothing is asked of it).
     assert_eq!(answers(&mut solo, &[":X1A123ABCN20;"]), Vec::<String>::new());
@@ -250,4 +252,27 @@ fn datagram_from_an_unknown_alias_is_delivered_under_its_provisional_name() {
     );
     solo.node.link.send(solo.now, rejected).unwrap();
     assert_eq!(solo.sent(), [":X19A48123N07E51042;"]);
+}
+
+#[test]
+fn a_crowd_of_interleaved_datagrams_gets_exactly_one_answer_each() {
+    // 500 senders, every slot taken: each first frame, then each middle, then each last.
+    let mut can = can_config(0x123);
+    can.datagram_slots = 4;
+    let mut solo = receiver(can);
+    let senders: Vec<u16> = (0x200..0x200 + 500).collect();
+    let mut sent = Vec::new();
+    for frame in ["1B", "1C", "1D"] {
+        for alias in &senders {
+            sent.extend(answers(&mut solo, &[&format!(":X{frame}123{alias:03X}N0101010101010101;")]));
+        }
+    }
+    let delivered = datagrams_delivered(&solo.node).len();
+    assert_eq!(delivered, 4, "one per slot went through");
+    for alias in &senders {
+        let answered = sent.iter().filter(|f| f.contains(&format!("N0{alias:03X}"))).count();
+        assert!(answered <= 1, "0x{alias:03X} heard {answered} answers: {sent:?}");
+    }
+    assert_eq!(sent.len() + delivered, senders.len(), "every datagram is answered or delivered");
+    assert!(sent.iter().all(|f| f.starts_with(":X19A48123N") && (f.ends_with("2020;") || f.ends_with("2041;"))));
 }
