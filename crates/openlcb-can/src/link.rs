@@ -47,12 +47,12 @@
 //! Framing errors are answered with Datagram Rejected (0x0A48) to the sender's alias and
 //! counted in [`LinkStats::datagram_errors`]: a middle or last frame without a first 0x2041;
 //! a first frame while one from the same source is open 0x2042 (both dropped); no free slot
-//! at a first frame 0x2020, answered at the datagram's last frame (each datagram gets exactly
-//! one answer, however many senders are refused at once); more than 72 bytes 0x1000 (permanent, as OpenMRN sends; the
+//! at a first frame 0x2020; more than 72 bytes 0x1000 (permanent, as OpenMRN sends; the
 //! partial datagram is dropped); no last frame within [`CanConfig::reassembly_timeout`] of
 //! the first 0x2011. A single-frame datagram from a source with a datagram still open ends
-//! the open one quietly (the sender has moved on). Datagram Received OK and Rejected are
-//! ordinary addressed messages.
+//! the open one quietly (the sender has moved on). Each datagram gets exactly one answer,
+//! however many senders crowd in (see [`Reassembler::for_datagrams`]). Datagram Received OK and
+//! Rejected are ordinary addressed messages.
 
 use alloc::vec::Vec;
 

@@ -128,22 +128,10 @@ struct Slot {
     deadline: Instant,
 }
 
-/// Datagrams dropped before their last frame and still arriving, remembered per reassembly
-/// slot (see [`Dropped`]).
+/// Datagrams answered with an error and still arriving, remembered per reassembly slot: a
+/// crowd of senders refused at once (all slots taken) is answered at once; beyond that many,
+/// each is answered at its last frame instead (see [`Reassembler::for_datagrams`]).
 const ANSWERED_PER_SLOT: usize = 16;
-
-/// What is remembered of a datagram dropped before its last frame, so that it gets exactly
-/// one answer (DG §7.3.2).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Dropped {
-    /// Its error was answered: the rest of its frames go without a word.
-    Answered,
-    /// Its first frame found every slot taken, and was not answered: its last frame is,
-    /// with 0x2020. A crowd of senders refused at once so each hears one answer, however
-    /// many they are: one whose record was pushed out is answered at its last frame too,
-    /// as a datagram whose first frame never came (0x2041).
-    NoRoom,
-}
 
 /// Bounded reassembly: `slots` messages at once, each at most `max_len` payload bytes, each
 /// dropped when it is not complete within `timeout`. All memory is taken up front:
@@ -154,10 +142,11 @@ pub struct Reassembler {
     max_len: usize,
     timeout: Duration,
     rules: Rules,
-    /// Datagrams dropped before their last frame whose remaining frames are still coming.
-    /// At most [`ANSWERED_PER_SLOT`] per slot; when full, the oldest [`Dropped::NoRoom`]
-    /// goes first (forgetting it changes only its code), else the oldest.
-    dropped: Vec<(ReassemblyKey, Dropped)>,
+    /// Datagrams already answered with an error whose remaining frames are still coming:
+    /// dropped without a word until their last frame, so that each datagram gets one answer
+    /// (DG §7.3.2). At most [`ANSWERED_PER_SLOT`] per slot: none is forgotten before its
+    /// last frame, or that frame would be answered a second time.
+    answered: Vec<ReassemblyKey>,
 }
 
 impl Reassembler {
@@ -179,6 +168,11 @@ impl Reassembler {
     ///   frame been kept, that datagram would arrive twice.
     /// - The wait runs from the first frame, not from the latest one: 72 bytes take at most
     ///   nine frames, and a stream of empty middle frames cannot hold a slot for ever.
+    ///
+    /// A datagram gets exactly one answer. An error before its last frame is answered at once
+    /// when it can be remembered (its later frames then go without a word); when the record
+    /// is full it is not answered then, and its last frame is answered as that of a datagram
+    /// whose first frame never came (0x2041), however many senders crowd in.
     pub fn for_datagrams(slots: usize, timeout: Duration) -> Self {
         Self::with_rules(slots, MAX_DATAGRAM_LEN, timeout, Rules::Datagrams)
     }
@@ -189,9 +183,9 @@ impl Reassembler {
         while list.len() < slots && list.len() < list.capacity() {
             list.push(Slot { key: None, buffer: Vec::with_capacity(max_len), deadline: Instant::ZERO });
         }
-        let dropped =
+        let answered =
             Vec::with_capacity(if rules == Rules::Datagrams { slots.saturating_mul(ANSWERED_PER_SLOT) } else { 0 });
-        Reassembler { slots: list, max_len, timeout, rules, dropped }
+        Reassembler { slots: list, max_len, timeout, rules, answered }
     }
 
     /// Adds one frame's payload (data bytes 2..). Returns the whole payload when `position`
@@ -220,60 +214,40 @@ impl Reassembler {
         data: &[u8],
     ) -> Result<Option<usize>, ReassemblyError> {
         let result = self.add_frame(now, key, position, data);
-        if self.rules != Rules::Datagrams {
-            return result;
-        }
-        let last = position == FramePosition::Last;
-        match result {
-            // No room at its first frame: answered once, at its last frame.
-            Err(ReassemblyError::NoFreeSlot) => {
-                self.remember(key, Dropped::NoRoom);
-                Ok(None)
-            }
-            Err(ReassemblyError::MiddleWithoutFirst) => match self.recall(key, last) {
-                Some(Dropped::NoRoom) if last => Err(ReassemblyError::NoFreeSlot),
+        if self.rules == Rules::Datagrams {
+            match result {
+                // The rest of a datagram already answered: dropped without a second answer.
+                Err(ReassemblyError::MiddleWithoutFirst) if self.unmute(key, position) => return Ok(None),
                 // A datagram whose first frame never came is answered once, at its last.
-                None if last => result,
-                _ => Ok(None),
-            },
-            Err(_) if !last => {
-                self.remember(key, Dropped::Answered);
-                result
+                Err(ReassemblyError::MiddleWithoutFirst) if position == FramePosition::Middle => return Ok(None),
+                Err(_) if position != FramePosition::Last && !self.mute(key) => return Ok(None),
+                _ => {}
             }
-            _ => result,
         }
+        result
     }
 
-    /// Remembers how the datagram `key` was dropped until its last frame.
-    fn remember(&mut self, key: ReassemblyKey, how: Dropped) {
-        if self.dropped.capacity() == 0 {
-            return;
+    /// A datagram's error is answered now: its later frames are dropped without a word.
+    /// `false` when the record is full: then it is not answered now (its last frame is).
+    fn mute(&mut self, key: ReassemblyKey) -> bool {
+        if self.answered.contains(&key) {
+            return true;
         }
-        self.forget_dropped(key);
-        if self.dropped.len() >= self.dropped.capacity() {
-            let oldest = self.dropped.iter().position(|(_, d)| *d == Dropped::NoRoom).unwrap_or(0);
-            self.dropped.remove(oldest);
+        if self.answered.len() >= self.answered.capacity() {
+            return false;
         }
-        self.dropped.push((key, how));
+        self.answered.push(key);
+        true
     }
 
-    /// How the datagram `key`, whose frame just came, was dropped; at its `last` frame the
-    /// record ends.
-    fn recall(&mut self, key: ReassemblyKey, last: bool) -> Option<Dropped> {
-        let index = self.dropped.iter().position(|(k, _)| *k == key)?;
-        let how = self.dropped.get(index).map(|(_, how)| *how);
-        if last {
-            self.dropped.remove(index);
+    /// A frame of the datagram `key` that was already answered: true if so (its last frame
+    /// ends the silence).
+    fn unmute(&mut self, key: ReassemblyKey, position: FramePosition) -> bool {
+        let Some(index) = self.answered.iter().position(|k| *k == key) else { return false };
+        if position == FramePosition::Last {
+            self.answered.remove(index);
         }
-        how
-    }
-
-    /// Forgets whatever was remembered of the datagram `key`.
-    fn forget_dropped(&mut self, key: ReassemblyKey) {
-        // By position, with `remove`: smaller than `retain` (flash).
-        while let Some(index) = self.dropped.iter().position(|(k, _)| *k == key) {
-            self.dropped.remove(index);
-        }
+        true
     }
 
     fn add_frame(
@@ -285,8 +259,11 @@ impl Reassembler {
     ) -> Result<Option<usize>, ReassemblyError> {
         let first = position == FramePosition::First;
         if first {
-            // A new datagram: whatever was dropped before is over.
-            self.forget_dropped(key);
+            // A new datagram: whatever was answered before is over.
+            // By position, with the `remove` `mute` has: smaller than `retain` (flash).
+            while let Some(index) = self.answered.iter().position(|k| *k == key) {
+                self.answered.remove(index);
+            }
         }
         let open = self.slots.iter().position(|s| s.key.is_some_and(|k| k == key));
         let index = match open {
@@ -327,13 +304,15 @@ impl Reassembler {
     /// The key of one message whose wait ran out at `now` (it is dropped), if any. Call until
     /// `None`.
     pub fn take_expired(&mut self, now: Instant) -> Option<ReassemblyKey> {
-        let slot = self.slots.iter_mut().find(|s| s.key.is_some() && s.deadline <= now)?;
-        let key = slot.key.take()?;
-        if self.rules == Rules::Datagrams {
-            // Answered with 0x2011: frames that come late are not answered again.
-            self.remember(key, Dropped::Answered);
+        loop {
+            let slot = self.slots.iter_mut().find(|s| s.key.is_some() && s.deadline <= now)?;
+            let key = slot.key.take()?;
+            // Answered with 0x2011 when remembered: frames that come late are not answered
+            // again. Otherwise dropped unanswered: its last frame is answered.
+            if self.rules != Rules::Datagrams || self.mute(key) {
+                return Some(key);
+            }
         }
-        Some(key)
     }
 
     /// When the next open message times out.
@@ -517,17 +496,17 @@ mod tests {
     fn a_crowd_refused_for_want_of_slots_hears_one_answer_each() {
         let mut r = Reassembler::for_datagrams(1, Duration::from_secs(3));
         r.push(T0, datagram_key(0x100), FramePosition::First, &[1; 8]).unwrap();
-        // More than are remembered: each is answered once, at its last frame (0x2020 while
-        // remembered, 0x2041 once pushed out).
+        // More than are remembered: those are answered at their last frame instead.
         for source in 0x101..0x131 {
-            assert_eq!(r.push(T0, datagram_key(source), FramePosition::First, &[1; 8]), Ok(None));
+            let first = r.push(T0, datagram_key(source), FramePosition::First, &[1; 8]);
+            let expected = if source < 0x111 { Err(ReassemblyError::NoFreeSlot) } else { Ok(None) };
+            assert_eq!(first, expected, "0x{source:03X}");
         }
         for source in 0x101..0x131 {
             assert_eq!(r.push(T0, datagram_key(source), FramePosition::Middle, &[2; 8]), Ok(None));
             let last = r.push(T0, datagram_key(source), FramePosition::Last, &[3]);
-            let expected =
-                if source < 0x121 { ReassemblyError::MiddleWithoutFirst } else { ReassemblyError::NoFreeSlot };
-            assert_eq!(last, Err(expected), "0x{source:03X}");
+            let expected = if source < 0x111 { Ok(None) } else { Err(ReassemblyError::MiddleWithoutFirst) };
+            assert_eq!(last, expected, "0x{source:03X}");
         }
     }
 

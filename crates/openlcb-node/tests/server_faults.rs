@@ -113,9 +113,10 @@ fn unfreeze(server: &mut Node, from: NodeId) -> (Result<Vec<u8>, u16>, Vec<NodeE
     (answer(&answers), events)
 }
 
-/// Streams `data` into the open Write Stream `did` (SID 0x42) and completes it.
+/// Streams `data` into the open Write Stream `did` (SID 0x42) and completes it, in messages
+/// that never cross a window boundary (2048 bytes), each Proceed taken as it comes.
 fn stream_image(server: &mut Node, from: NodeId, did: u8, data: &[u8]) {
-    for chunk in data.chunks(200) {
+    for chunk in data.chunks(256) {
         let mut payload = vec![did];
         payload.extend_from_slice(chunk);
         deliver(server, from, Mti::STREAM_DATA_SEND, payload);
@@ -324,4 +325,30 @@ fn one_peer_takes_at_most_half_of_the_stream_transfers() {
     assert_eq!(answer(&command(&mut server, PEER, &read(4))), Err(0x2020), "a fifth for the same peer");
     const OTHER: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x40, 3]);
     assert!(answer(&command(&mut server, OTHER, &read(0))).is_ok(), "room left for another peer");
+}
+
+#[test]
+fn a_write_stream_source_past_its_window_gets_tde_and_nothing_past_the_window_is_stored() {
+    // 28 000 bytes into the 2 048-byte window at once: no Proceed left the server meanwhile.
+    let mut server = server();
+    let did = open_write_stream(&mut server, PEER, 0xFD, 0);
+    let data = pattern(28_000, 5);
+    for chunk in data.chunks(256) {
+        let payload = [&[did][..], chunk].concat();
+        server.handle_message(Instant::ZERO, Message::addressed(Mti::STREAM_DATA_SEND, PEER, SERVER, payload).as_ref());
+    }
+    let answers: Vec<Message> = std::iter::from_fn(|| server.poll_transmit()).collect();
+    let tde = answers.iter().find(|m| m.mti == Mti::TERMINATE_DUE_TO_ERROR).expect("TDE");
+    assert_eq!(tde.payload, [0x20, 0x40, 0x1F, 0x88], "{tde:?}");
+    let stored = space(&mut server, 0xFD);
+    assert_eq!(stored[..2048], data[..2048], "the window is stored");
+    assert!(stored[2048..].iter().all(|b| *b == 0), "nothing past the window");
+    // A source that waits for each Proceed is never cut off.
+    let did = open_write_stream(&mut server, PEER, 0xFD, 0);
+    let mut answers = Vec::new();
+    for chunk in data.chunks(256) {
+        answers.extend(deliver(&mut server, PEER, Mti::STREAM_DATA_SEND, [&[did][..], chunk].concat()));
+    }
+    assert!(answers.iter().all(|m| m.mti != Mti::TERMINATE_DUE_TO_ERROR), "{answers:?}");
+    assert_eq!(space(&mut server, 0xFD)[..28_000], data[..]);
 }

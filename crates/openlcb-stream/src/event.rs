@@ -45,7 +45,8 @@ pub struct StreamInfo {
 pub enum Termination {
     /// The peer sent Terminate Due To Error (or an OIR naming a stream MTI).
     ByPeer(ErrorCode),
-    /// The source sent more than the window and the buffer was full: TDE 0x2040 was sent.
+    /// The source sent more than the window it was granted: TDE 0x2040 was sent, and
+    /// nothing of the message past the window was taken.
     WindowOverrun,
     /// The same source opened a new stream with this stream's SID: it has forgotten this one.
     Superseded,

@@ -762,7 +762,7 @@ fn initiated_reply_wrong_sid_or_node() {
 }
 
 #[test]
-fn open_window_overrun_with_room_is_tolerated() {
+fn open_window_overrun_terminates_even_with_room() {
     let mut c = config();
     c.early_proceed = true; // buffer of 32 for a window of 16
     let mut b = Bench::new(c);
@@ -772,11 +772,14 @@ fn open_window_overrun_with_room_is_tolerated() {
     b.peer(Mti::STREAM_DATA_SEND, &data(did, &[2; 16])); // credit was 16 more: fine
     b.peer(Mti::STREAM_DATA_SEND, &[did]); // flush: fine
     assert_eq!(b.ep.stats().window_overruns, 0);
-    read_all(&mut b, h);
+    assert_eq!(read_all(&mut b, h), [[1; 16], [2; 16]].concat());
     b.sent();
-    b.peer(Mti::STREAM_DATA_SEND, &data(did, &[3; 20])); // 4 more than the 16 granted
+    // 4 more than the 16 granted, though the buffer has room: TDE, and none of it taken.
+    b.peer(Mti::STREAM_DATA_SEND, &data(did, &[3; 20]));
+    assert_eq!(b.sent(), [(Mti::TERMINATE_DUE_TO_ERROR, vec![0x20, 0x40, 0x1F, 0x88])]);
+    assert_eq!(b.events().last(), Some(&Event::Terminated { handle: h, cause: Termination::WindowOverrun }));
     assert_eq!(b.ep.stats().window_overruns, 1);
-    assert_eq!(read_all(&mut b, h), [3; 20]);
+    assert_eq!(read_all(&mut b, h), Vec::<u8>::new());
 }
 
 #[test]

@@ -153,7 +153,8 @@ pub struct Stats {
     pub stray_replies: u32,
     /// TDE or OIR that matched no stream.
     pub stray_error_reports: u32,
-    /// Data beyond the granted window that still fitted the buffer (tolerated).
+    /// Data beyond the granted window (the source's credit): each ended its stream with
+    /// TDE 0x2040.
     pub window_overruns: u32,
     /// Data beyond the count a Complete stated, or after the stream ended.
     pub excess_data: u32,
@@ -365,7 +366,23 @@ impl StreamEndpoint {
 
     /// The next message to send.
     pub fn poll_transmit(&mut self) -> Option<Message> {
-        self.out.transmits.pop_front()
+        let message = self.out.transmits.pop_front()?;
+        if message.mti == Mti::STREAM_DATA_PROCEED {
+            self.proceed_sent(&message);
+        }
+        Some(message)
+    }
+
+    /// A Proceed leaves for the transport: only now may its source send the window it
+    /// grants. Data past the credit before that is an overrun (the source did not wait).
+    fn proceed_sent(&mut self, proceed: &Message) {
+        let (Some(peer), Ok(ids)) = (proceed.destination, DataProceed::parse(&proceed.payload)) else { return };
+        if let Some((_, stream, _)) = self.lookup(peer, Role::Destination, ids.destination_stream)
+            && stream.proceeds_queued > 0
+        {
+            stream.proceeds_queued -= 1;
+            stream.credit += u32::from(stream.window);
+        }
     }
 
     /// The next event.
@@ -768,17 +785,16 @@ impl StreamEndpoint {
             return bump(&mut out.stats.excess_data);
         }
         let bytes = data.data;
-        if bytes.len() > stream.buffer.free() {
-            // Overrun beyond what the buffer holds: data would be lost, so end the stream.
+        let len = bytes.len() as u32;
+        // Past the credit (at most two windows: the buffer's size): a source that does not
+        // keep to its window cannot be trusted with the rest of the data either (wire-spec
+        // §6.4). The message is not half-taken; what came before it stays.
+        if len > stream.credit || bytes.len() > stream.buffer.free() {
+            bump(&mut out.stats.window_overruns);
             self.end(Event::Terminated { handle, cause: Termination::WindowOverrun });
             return self.terminate(peer, Role::Destination, ErrorCode::OUT_OF_ORDER);
         }
-        // At most two windows: the buffer's size.
-        let len = bytes.len() as u32;
-        if len > stream.credit {
-            bump(&mut out.stats.window_overruns);
-        }
-        stream.credit = stream.credit.saturating_sub(len);
+        stream.credit -= len;
         if stream.buffer.is_empty() && !bytes.is_empty() {
             out.event(Event::Readable { handle });
         }
@@ -1271,7 +1287,7 @@ fn send_accept(stream: &Stream, out: &mut Outputs) {
 /// `Stream::proceed_due`), and says whether it did.
 fn send_due_proceed(stream: &mut Stream, out: &mut Outputs) -> bool {
     let Some(did) = stream.destination_stream.filter(|_| stream.proceed_due()) else { return false };
-    stream.credit += u32::from(stream.window);
+    stream.proceeds_queued = stream.proceeds_queued.saturating_add(1);
     let proceed = DataProceed { source_stream: stream.source_stream, destination_stream: did };
     out.send_wire(Mti::STREAM_DATA_PROCEED, stream.peer, &proceed);
     true
@@ -1280,7 +1296,7 @@ fn send_due_proceed(stream: &mut Stream, out: &mut Outputs) -> bool {
 /// Runs the idle timer only while the source holds credit: a source waiting for a Proceed
 /// (because our reader is slow) is not idle.
 fn restart_idle(stream: &mut Stream, idle_at: Instant) {
-    stream.deadline = if stream.credit > 0 { idle_at } else { NEVER };
+    stream.deadline = if stream.granted() > 0 { idle_at } else { NEVER };
 }
 
 impl PeerChanges for StreamEndpoint {

@@ -82,8 +82,11 @@ pub(crate) struct Stream {
     /// Bumped when the slot is freed, so that old handles no longer match.
     pub(crate) generation: u16,
     /// Bytes the source may still send before the next Proceed: the same figure at both
-    /// ends (grows by a window per Proceed).
+    /// ends (grows by a window per Proceed; at the destination, once the Proceed is handed
+    /// to the transport: a source cannot have seen it before).
     pub(crate) credit: u32,
+    /// Destination: Proceeds queued and not yet handed to the transport.
+    pub(crate) proceeds_queued: u8,
     /// Source: payload bytes sent into the current window (`count` modulo the window, kept so
     /// that `write` needs no 64-bit division).
     pub(crate) window_sent: u32,
@@ -124,6 +127,7 @@ impl Stream {
             keepalive: NEVER,
             heard: Instant::ZERO,
             credit: 0,
+            proceeds_queued: 0,
             count: 0,
             window_sent: 0,
             expected: 0,
@@ -214,7 +218,13 @@ impl Stream {
         self.window = window;
         self.buffer = ByteRing::new(capacity);
         self.credit = u32::from(window);
+        self.proceeds_queued = 0;
         self.early_proceed = early_proceed;
+    }
+
+    /// Destination: what the source may send once every queued Proceed has gone.
+    pub(crate) fn granted(&self) -> u32 {
+        self.credit + u32::from(self.proceeds_queued) * u32::from(self.window)
     }
 
     /// Draft §7.3: a Proceed grants one more window. Without early Proceed it goes once the
@@ -225,9 +235,9 @@ impl Stream {
         if self.state != State::Receiving {
             return false;
         }
-        let window = u32::from(self.window);
-        let due = if self.early_proceed { self.credit < window } else { self.credit == 0 };
-        due && self.buffer.free() as u32 >= self.credit + window
+        let (window, granted) = (u32::from(self.window), self.granted());
+        let due = if self.early_proceed { granted < window } else { granted == 0 };
+        due && self.buffer.free() as u32 >= granted + window
     }
 }
 
