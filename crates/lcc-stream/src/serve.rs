@@ -50,8 +50,9 @@ pub(crate) struct ServeArgs {
     /// the user name and description].
     #[arg(long, value_name = "FILE")]
     cdi: Option<PathBuf>,
-    /// The configuration space 0xFD: this file (its size; writes go to it) [default: 256
-    /// bytes in memory].
+    /// The configuration space 0xFD: this file (its size; writes go to it, each write
+    /// command whole: a datagram's bytes in place, a Write Stream's by replacing the file
+    /// once at its end) [default: 256 bytes in memory].
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
     /// Where each firmware image (space 0xEF) is written at Unfreeze; by default
@@ -396,13 +397,24 @@ const BUILTIN_SETTINGS: &str = r#"<string size="32"><name>Label</name><descripti
 </group>
 "#;
 
-/// Space 0xFD: a file or bytes in memory. The file is replaced whole after each write
-/// command (through `<file>.part`, then a rename), so it holds the space as it was before or
-/// after each command, never half of one, even when `serve` is killed.
+/// Space 0xFD: a file or bytes in memory. A write command reaches the file whole, once, at
+/// its end ([`MemorySpace::commit`]): bytes within one page of the file (a Write datagram's)
+/// in place, with one `write` the kernel does at once or not at all; anything larger (a
+/// Write Stream's) by replacing the file (through `<file>.part`, then a rename). So the file
+/// holds the space as it was before or after each command, never half of one, even when
+/// `serve` is killed, and a 1 MiB transfer costs one save, not one per 256 bytes.
 enum ConfigSpace {
-    File { path: PathBuf, bytes: RamSpace },
+    /// `dirty`: the addresses written since the last commit.
+    File {
+        path: PathBuf,
+        bytes: RamSpace,
+        dirty: Option<(u32, u32)>,
+    },
     Memory(RamSpace),
 }
+
+/// The unit of the file a single `write` of changed bytes never crosses.
+const PAGE: u32 = 4096;
 
 impl ConfigSpace {
     fn open(path: &Path) -> Result<ConfigSpace, String> {
@@ -411,7 +423,7 @@ impl ConfigSpace {
             return Err(format!("{} must hold 1 byte to 4 GiB", path.display()));
         }
         save_whole(path, &bytes, true).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
-        Ok(ConfigSpace::File { path: path.to_path_buf(), bytes: RamSpace::from_bytes(bytes) })
+        Ok(ConfigSpace::File { path: path.to_path_buf(), bytes: RamSpace::from_bytes(bytes), dirty: None })
     }
 
     fn ram(&self) -> &RamSpace {
@@ -419,6 +431,14 @@ impl ConfigSpace {
             ConfigSpace::File { bytes, .. } | ConfigSpace::Memory(bytes) => bytes,
         }
     }
+}
+
+/// Writes `bytes` over the same range of the file at `path`, in one `write`.
+fn write_in_place(path: &Path, start: u32, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::{Seek as _, SeekFrom};
+    let mut file = std::fs::OpenOptions::new().write(true).open(path)?;
+    file.seek(SeekFrom::Start(u64::from(start)))?;
+    file.write_all(bytes)
 }
 
 impl MemorySpace for ConfigSpace {
@@ -436,18 +456,26 @@ impl MemorySpace for ConfigSpace {
     fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
         match self {
             ConfigSpace::Memory(bytes) => bytes.write(address, data),
-            ConfigSpace::File { path, bytes } => {
-                let start = address as usize;
-                let before = bytes.as_bytes()[start..start + data.len()].to_vec();
+            ConfigSpace::File { bytes, dirty, .. } => {
                 bytes.write(address, data)?;
-                if save_whole(path, bytes.as_bytes(), true).is_err() {
-                    // The file was left as it was: so is the space.
-                    bytes.write(address, &before)?;
-                    return Err(SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT));
-                }
+                let end = address + data.len() as u32;
+                *dirty = Some(dirty.map_or((address, end), |(low, high)| (low.min(address), high.max(end))));
                 Ok(())
             }
         }
+    }
+    fn commit(&mut self) -> Result<(), SpaceError> {
+        let ConfigSpace::File { path, bytes, dirty } = self else { return Ok(()) };
+        let Some((start, end)) = *dirty else { return Ok(()) };
+        let whole = bytes.as_bytes();
+        let saved = match whole.get(start as usize..end as usize) {
+            Some(changed) if start / PAGE == end.saturating_sub(1) / PAGE => write_in_place(path, start, changed),
+            _ => save_whole(path, whole, true),
+        };
+        // Not saved: the bytes stay marked, and the next command's commit saves them too.
+        saved.map_err(|_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT))?;
+        *dirty = None;
+        Ok(())
     }
 }
 
@@ -546,6 +574,30 @@ impl MemorySpace for Image {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_config_file_takes_each_write_command_whole_at_its_commit() {
+        let dir = std::env::temp_dir().join(format!("lcc-stream-serve-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("config.bin");
+        std::fs::write(&path, vec![0u8; 3 * PAGE as usize]).unwrap();
+        let mut space = ConfigSpace::open(&path).unwrap();
+        // A transfer in pieces across pages: the file keeps the old bytes until its commit.
+        for (i, address) in (0..2 * PAGE).step_by(256).enumerate() {
+            space.write(address, &[i as u8 + 1; 256]).unwrap();
+        }
+        assert!(std::fs::read(&path).unwrap().iter().all(|b| *b == 0), "nothing before the commit");
+        space.commit().unwrap();
+        let file = std::fs::read(&path).unwrap();
+        assert_eq!(file[..2 * PAGE as usize], space.ram().as_bytes()[..2 * PAGE as usize]);
+        assert!(!part_path(&path).exists());
+        // A datagram's bytes within one page: written in place.
+        space.write(PAGE * 2 + 10, &[0xAB; 64]).unwrap();
+        space.commit().unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), space.ram().as_bytes());
+        assert!(space.commit().is_ok(), "nothing left to store");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn image_space_keeps_what_was_written_and_reads_zeros_past_it() {

@@ -352,3 +352,45 @@ fn a_write_stream_source_past_its_window_gets_tde_and_nothing_past_the_window_is
     assert!(answers.iter().all(|m| m.mti != Mti::TERMINATE_DUE_TO_ERROR), "{answers:?}");
     assert_eq!(space(&mut server, 0xFD)[..28_000], data[..]);
 }
+
+/// A space that counts its writes and commits (shared, to read them after the server took it).
+struct Counting(RamSpace, std::sync::Arc<std::sync::Mutex<(usize, usize)>>);
+
+impl MemorySpace for Counting {
+    fn len(&self) -> u32 {
+        self.0.len()
+    }
+    fn read_only(&self) -> bool {
+        false
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        self.0.read(address, buf)
+    }
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        self.1.lock().unwrap().0 += 1;
+        self.0.write(address, data)
+    }
+    fn commit(&mut self) -> Result<(), SpaceError> {
+        self.1.lock().unwrap().1 += 1;
+        Ok(())
+    }
+}
+
+#[test]
+fn a_space_commits_once_per_write_command_and_once_per_write_stream() {
+    let counts = std::sync::Arc::new(std::sync::Mutex::new((0, 0)));
+    let memory = MemoryServer::new().with_space(0xFD, Counting(RamSpace::new(SPACE_LEN), counts.clone()));
+    let mut server = Node::new(SERVER, NodeConfig::default()).with_memory_server(memory);
+    let _ = std::iter::from_fn(|| server.poll_transmit()).count();
+    for address in [0, 64] {
+        let write = Command::Write { space: 0xFD, address, data: vec![1; 64] };
+        assert!(answer(&command(&mut server, PEER, &write)).is_ok());
+    }
+    assert_eq!(*counts.lock().unwrap(), (2, 2), "a commit per Write datagram");
+    let did = open_write_stream(&mut server, PEER, 0xFD, 0);
+    stream_image(&mut server, PEER, did, &pattern(20_000, 4));
+    let (writes, commits) = *counts.lock().unwrap();
+    assert!(writes > 10, "the stream's bytes came in pieces: {writes}");
+    assert_eq!(commits, 3, "one commit for the whole transfer");
+    assert_eq!(space(&mut server, 0xFD)[..20_000], pattern(20_000, 4)[..]);
+}

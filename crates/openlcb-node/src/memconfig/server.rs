@@ -631,7 +631,7 @@ impl MemoryServer {
         }
         let mut merged = [0u8; MAX_DATA_LEN];
         let result = match mask {
-            None => self.write_space(space, address, data),
+            None => self.write_space(space, address, data).and_then(|()| self.commit(space)),
             Some(mask) => {
                 let merged = merged.get_mut(..data.len()).unwrap_or_default();
                 self.read_space(space, address, merged).and_then(|n| {
@@ -641,7 +641,7 @@ impl MemoryServer {
                     for ((old, new), m) in merged.iter_mut().zip(data).zip(mask) {
                         *old = (*old & !m) | (new & m);
                     }
-                    self.write_space(space, address, merged)
+                    self.write_space(space, address, merged).and_then(|()| self.commit(space))
                 })
             }
         };
@@ -941,6 +941,11 @@ impl MemoryServer {
 
     fn end(&mut self, index: usize, done: bool) {
         if index < self.transfers.len() {
+            // What a Write Stream that failed wrote stays: committed as a finished one is
+            // (before its reply, in `drain_write`).
+            if !done {
+                let _ = self.commit_transfer(index);
+            }
             let transfer = self.transfers.swap_remove(index);
             if done {
                 self.stats.streams_done += 1;
@@ -1030,10 +1035,24 @@ impl MemoryServer {
             }
         }
         if finished {
+            let stored = self.commit_transfer(index).err().map(|e| e.code());
             if self.write_reply(index) == Some(WriteReply::AfterComplete) {
-                self.send_write_reply(cx, index, None);
+                self.send_write_reply(cx, index, stored);
             }
-            self.end(index, true);
+            self.end(index, stored.is_none());
+        }
+    }
+
+    /// [`MemorySpace::commit`] of `space`, at the end of a write command.
+    fn commit(&mut self, space: u8) -> Result<(), SpaceError> {
+        self.space_mut(space).map_or(Ok(()), |s| s.commit())
+    }
+
+    /// [`MemorySpace::commit`] of the space the Write Stream at `index` writes.
+    fn commit_transfer(&mut self, index: usize) -> Result<(), SpaceError> {
+        match self.transfers.get(index) {
+            Some(Transfer { job: Job::Write { space, .. }, .. }) => self.commit(*space),
+            _ => Ok(()),
         }
     }
 

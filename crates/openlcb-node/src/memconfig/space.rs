@@ -67,6 +67,15 @@ pub trait MemorySpace {
     /// Stores `data` at `address`. The server calls it with the whole range inside the space.
     fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError>;
 
+    /// One write command is done: a Write datagram, or a whole Write Stream transfer (whose
+    /// bytes came in [`write`](Self::write)s of a few hundred bytes), whether it ended well
+    /// or not. A space whose medium is slow to update (a file replaced whole, a flash page)
+    /// stores here what the command wrote, once. An error fails a datagram's write (Write
+    /// Failed with its code) and a transfer still waiting for its reply.
+    fn commit(&mut self) -> Result<(), SpaceError> {
+        Ok(())
+    }
+
     /// The most bytes a Write Stream to this space may have in flight (the window the server
     /// grants), for a medium that takes data in blocks (one flash page). `None`: the
     /// server's [`MemoryConfigOptions::write_stream_window`](super::MemoryConfigOptions::write_stream_window).
