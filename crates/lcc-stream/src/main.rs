@@ -24,6 +24,7 @@ mod read;
 mod recv;
 mod send;
 mod serve;
+mod settings;
 mod sim;
 mod write;
 
@@ -118,6 +119,10 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logs(cli.verbose);
+    if let Err(error) = settings::load() {
+        eprintln!("lcc-stream: {error}");
+        return ExitCode::from(outcome::Outcome::Usage.status());
+    }
     if cli.quiet {
         net::set_quiet();
     }

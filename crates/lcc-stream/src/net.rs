@@ -110,8 +110,10 @@ impl From<ProtocolArg> for Framing {
 #[derive(Debug, Args)]
 pub(crate) struct ConnectArgs {
     /// The hub, HOST:PORT, also set once for every command by the environment variable
-    /// LCC_HUB (--serial and --can take precedence over both) [default: 127.0.0.1:12021;
-    /// 127.0.0.1:12022 with --protocol tcp, the two listeners of `lcc-stream hub`].
+    /// LCC_HUB or by `hub = "HOST:PORT"` in the settings file (`~/.config/lcc-stream/config.toml`
+    /// on Linux, or the file LCC_STREAM_CONFIG names); --serial and --can take precedence
+    /// over all three [default: 127.0.0.1:12021; 127.0.0.1:12022 with --protocol tcp, the
+    /// two listeners of `lcc-stream hub`].
     #[arg(long, env = "LCC_HUB", value_name = "HOST:PORT", value_parser = crate::args::hub_addr)]
     pub(crate) connect: Option<String>,
     /// A serial port instead of a hub: a USB GridConnect adapter on the CAN bus (RR-CirKits
@@ -140,8 +142,10 @@ impl ConnectArgs {
         match (&self.serial, &self.connect, self.protocol) {
             (Some(device), _, _) => device,
             (None, Some(addr), _) => addr,
-            (None, None, ProtocolArg::Gridconnect) => GRIDCONNECT_ADDR,
-            (None, None, ProtocolArg::Tcp) => TCP_ADDR,
+            (None, None, protocol) => crate::settings::hub().unwrap_or(match protocol {
+                ProtocolArg::Gridconnect => GRIDCONNECT_ADDR,
+                ProtocolArg::Tcp => TCP_ADDR,
+            }),
         }
     }
 

@@ -189,7 +189,7 @@ pub(crate) fn net_outcome(error: &Error) -> Outcome {
     match error {
         Error::Bind { .. } => Outcome::Usage,
         Error::DuplicateNodeId { .. } => Outcome::DuplicateNodeId,
-        Error::Connect { .. } | Error::Device { .. } | Error::Login(_) => Outcome::UnreachableHub,
+        Error::Connect { .. } | Error::Device { .. } | Error::Login(_) | Error::HubFull(_) => Outcome::UnreachableHub,
         Error::Rejected { .. } => Outcome::Rejected,
         Error::Unreachable(_) => Outcome::NotFound,
         Error::TimedOut { .. } | Error::NoAnswer { .. } => Outcome::TimedOut,

@@ -265,6 +265,49 @@ async fn an_unreachable_hub_exits_3() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_hub_is_set_once_in_the_settings_file() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let addr = format!("127.0.0.1:{port}");
+    let dir = scratch("settings");
+    let settings = dir.join("config.toml");
+    std::fs::write(&settings, format!("# the layout's hub\nhub = \"{addr}\"\n")).unwrap();
+    let mut nodes = command(&["nodes"]);
+    nodes.env("LCC_STREAM_CONFIG", &settings).env_remove("LCC_HUB");
+    let (status, _, stderr) = finish(nodes.spawn().unwrap()).await;
+    assert_eq!(status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains(&addr), "the file's hub is where it went: {stderr}");
+    // LCC_HUB wins over the file.
+    let mut nodes = command(&["nodes"]);
+    nodes.env("LCC_STREAM_CONFIG", &settings).env("LCC_HUB", "127.0.0.1:1");
+    let (_, _, stderr) = finish(nodes.spawn().unwrap()).await;
+    assert!(stderr.contains("127.0.0.1:1") && !stderr.contains(&addr), "{stderr}");
+    // A file that cannot be used stops every command with words, exit 2.
+    for (text, says) in [("hub = \"nowhere\"\n", "has no port"), ("hubb = \"x:1\"\n", "unknown field")] {
+        std::fs::write(&settings, text).unwrap();
+        let mut nodes = command(&["nodes"]);
+        nodes.env("LCC_STREAM_CONFIG", &settings);
+        let (status, _, stderr) = finish(nodes.spawn().unwrap()).await;
+        assert_eq!(status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains("the settings file") && stderr.contains(says), "{stderr}");
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_hub_is_named_full() {
+    let mut options = HubOptions::default();
+    options.max_clients = 1;
+    let hub = Hub::bind("127.0.0.1:0", None, options).await.unwrap();
+    let addr = hub.local_addr().to_string();
+    let _only_client = tokio::net::TcpStream::connect(&addr).await.unwrap();
+    let (status, stdout, stderr) = finish(spawn(&["nodes", "--connect", &addr, "--json"])).await;
+    assert_eq!(status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains("the hub refused this connection (hub full: 1 clients connected"), "{stderr}");
+    assert!(!stderr.contains("does not speak"), "{stderr}");
+    assert_eq!(field(&stdout, "result"), "unreachable_hub");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_demo_verifies_its_transfer() {
     for protocol in ["gridconnect", "tcp"] {
         let demo = spawn(&["demo", "--bytes", "200000", "--protocol", protocol]);

@@ -277,6 +277,9 @@ impl Driver {
             Ok(n) => {
                 let now = self.now();
                 let bytes = self.read_buf.get(..n).unwrap_or_default();
+                if let Some(line) = hub_full(bytes) {
+                    return Err(Error::HubFull(line));
+                }
                 self.wire.receive(now, bytes, &mut self.stack, &mut self.stats)
             }
             Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => Ok(()),
@@ -604,4 +607,13 @@ fn log_stream_event(event: &Event) {
         Event::TimedOut { handle, kind } => tracing::warn!(stream = ?handle, ?kind, "stream timed out"),
         _ => {}
     }
+}
+
+/// The line a full hub sends before it closes a connection it refuses (`lcc-stream hub`:
+/// "hub full: N clients connected; try again later"), if `bytes` begin with one. Frames
+/// never begin so (GridConnect's begin with `:`).
+fn hub_full(bytes: &[u8]) -> Option<String> {
+    let line = bytes.strip_prefix(b"hub full")?;
+    let end = line.iter().position(|b| matches!(b, b'\r' | b'\n')).unwrap_or(line.len());
+    Some(format!("hub full{}", String::from_utf8_lossy(line.get(..end).unwrap_or_default())))
 }

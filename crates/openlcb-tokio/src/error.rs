@@ -47,6 +47,10 @@ pub enum Error {
     /// the connection is given up, and every transfer on it ends.
     #[error("the hub took no data for {} s; giving the connection up", .0.as_secs_f64())]
     WriteStalled(std::time::Duration),
+    /// The hub refused this connection: it has as many clients as it takes (what it said,
+    /// as `lcc-stream hub` says it: "hub full: 64 clients connected; try again later").
+    #[error("the hub refused this connection ({0})")]
+    HubFull(String),
     /// The hub sent bytes that cannot be framed (an OpenLCB-TCP length that cannot be trusted).
     #[error("the hub sent undecodable data: {0}")]
     Protocol(String),
@@ -153,9 +157,11 @@ impl Error {
     pub fn is_temporary(&self) -> bool {
         match self {
             Error::Rejected { code, .. } => code.class() == ReplyClass::Temporary,
-            Error::Connect { .. } | Error::ConnectionLost(_) | Error::TimedOut { .. } | Error::Terminated { .. } => {
-                true
-            }
+            Error::Connect { .. }
+            | Error::HubFull(_)
+            | Error::ConnectionLost(_)
+            | Error::TimedOut { .. }
+            | Error::Terminated { .. } => true,
             _ => false,
         }
     }
