@@ -1,5 +1,9 @@
 //! `lcc-stream cdi`: a node's CDI (space 0xFF) as clean XML, without the NUL that ends it
 //! in the space.
+//!
+//! Every command that reads a CDI (`cdi`, and `config` before anything else) reads it up to
+//! its first NUL and at most [`MAX_CDI_BYTES`]; an empty CDI, or one that would pass the
+//! bound, is an error that says so.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -9,6 +13,9 @@ use clap::Args;
 use openlcb_stream::NodeId;
 use openlcb_tokio::Node;
 
+use openlcb_tokio::Error;
+use openlcb_tokio::openlcb_node::MemoryError;
+
 use crate::memory::{self, ClientArgs, Moved, Report};
 use crate::net;
 use crate::outcome::Failure;
@@ -16,9 +23,54 @@ use crate::outcome::Failure;
 /// The CDI's space.
 pub(crate) const SPACE_CDI: u8 = 0xFF;
 
+/// The most bytes a CDI may have here (1 MiB). Real CDIs are tens of KiB, and OpenMRN's
+/// largest are well under 1 MiB; a node that reports a larger CDI space, or whose CDI runs
+/// on past this without its NUL, is refused at once instead of being read for minutes.
+pub(crate) const MAX_CDI_BYTES: u32 = 1024 * 1024;
+
+/// What the help of every command that reads a CDI says about it.
+pub(crate) fn cdi_help() -> String {
+    format!(
+        "\
+The CDI is read up to its first NUL, at most {MAX_CDI_BYTES} bytes (1 MiB): a CDI space that
+reports more, a CDI with no NUL within that, and an empty CDI (nothing but white space before
+the NUL) fail with exit status 11, and nothing is written. A node that does not answer Get
+Address Space Information for space 0xFF is read until its answers end the space.
+
+"
+    )
+}
+
+/// Why a node's CDI cannot be taken.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum CdiFault {
+    /// Nothing but white space before the NUL.
+    Empty,
+    /// More than [`MAX_CDI_BYTES`]: the size its space reports (`None`: the node gave
+    /// none, and its bytes went on past the bound without a NUL).
+    TooLarge { size: Option<u64> },
+}
+
+impl std::fmt::Display for CdiFault {
+    /// The words that follow "the CDI of node N".
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CdiFault::Empty => write!(f, "is empty: space 0xFF holds nothing but white space before its NUL"),
+            CdiFault::TooLarge { size: Some(size) } => write!(
+                f,
+                "is too large: its space 0xFF holds {size} bytes by the node's own report, more than the \
+                 {MAX_CDI_BYTES} bytes (1 MiB) a CDI may have; nothing was read"
+            ),
+            CdiFault::TooLarge { size: None } => {
+                write!(f, "has no end: no NUL within {MAX_CDI_BYTES} bytes (1 MiB), the most a CDI may have")
+            }
+        }
+    }
+}
+
 /// Options of `lcc-stream cdi`.
 #[derive(Debug, Args)]
-#[command(after_help = memory::after_help(""))]
+#[command(after_help = memory::after_help(&cdi_help()))]
 pub(crate) struct CdiArgs {
     /// The node whose CDI is read.
     #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id)]
@@ -30,7 +82,7 @@ pub(crate) struct CdiArgs {
     client: ClientArgs,
 }
 
-/// The document of a CDI space's bytes: up to its first NUL.
+/// The document of a CDI space's bytes (`read --space 0xFF`): up to its first NUL.
 pub(crate) fn trim_cdi(mut bytes: Vec<u8>) -> Vec<u8> {
     if let Some(end) = bytes.iter().position(|b| *b == 0) {
         bytes.truncate(end);
@@ -38,7 +90,8 @@ pub(crate) fn trim_cdi(mut bytes: Vec<u8>) -> Vec<u8> {
     bytes
 }
 
-/// Reads `peer`'s CDI, with a progress bar unless `json`.
+/// Reads `peer`'s CDI up to its NUL, with a progress bar unless `json`: an empty CDI and
+/// one larger than [`MAX_CDI_BYTES`] fail.
 pub(crate) async fn read_cdi(
     node: &Node,
     peer: NodeId,
@@ -46,8 +99,17 @@ pub(crate) async fn read_cdi(
     interrupt: &mut net::Interrupt,
     moved: &mut Moved,
 ) -> Result<Vec<u8>, Failure> {
-    let transfer = node.read_memory(peer, SPACE_CDI, 0, None, client.path()).await?;
-    memory::follow(node, transfer, None, client.json, &client.pace, interrupt, moved).await.map(trim_cdi)
+    let transfer = node.read_memory_to_nul(peer, SPACE_CDI, MAX_CDI_BYTES, client.path()).await?;
+    let xml = match memory::follow(node, transfer, None, client.json, &client.pace, interrupt, moved).await {
+        Err(Failure::Net(Error::Memory { error: MemoryError::SpaceTooLarge { size, .. }, .. })) => {
+            return Err(Failure::BadCdi { peer, fault: CdiFault::TooLarge { size } });
+        }
+        read => read?,
+    };
+    if xml.iter().all(u8::is_ascii_whitespace) {
+        return Err(Failure::BadCdi { peer, fault: CdiFault::Empty });
+    }
+    Ok(xml)
 }
 
 pub(crate) fn run(args: &CdiArgs) -> Result<ExitCode, String> {

@@ -125,7 +125,8 @@ fn after_help() -> String {
         Outcome::VerifyFailed,
         Outcome::BadAnswer,
     ];
-    format!("{}{}{}", config_json_help!(), crate::pace::PACE_HELP, net::network_help(&outcomes))
+    let cdi = crate::cdi::cdi_help();
+    format!("{}{cdi}{}{}", config_json_help!(), crate::pace::PACE_HELP, net::network_help(&outcomes))
 }
 
 /// Why a config command stopped.

@@ -7,13 +7,12 @@ use std::time::{Duration, Instant};
 
 use clap::Args;
 use openlcb_stream::NodeId;
-use openlcb_tokio::openlcb_node::MemoryError;
 use openlcb_tokio::{Error, MemoryTransfer, Node, NodeOptions, Protocols, TransferPath};
 use serde::Serialize;
 
 use crate::files;
 use crate::net::{self, ConnectArgs};
-use crate::outcome::{Failure, Outcome};
+use crate::outcome::{Failure, Missing, Outcome};
 use crate::pace::{PACE_HELP, PaceArgs};
 use crate::progress::Progress;
 
@@ -96,6 +95,9 @@ pub(crate) struct Moved {
     pub(crate) by_stream: bool,
     /// When the first command went out (None: the network was never joined).
     pub(crate) started: Option<Instant>,
+    /// The bytes a read had received when it was cut short (interrupted, or too slow):
+    /// its first bytes, in order.
+    pub(crate) cut_short: Vec<u8>,
 }
 
 impl Report {
@@ -137,21 +139,30 @@ pub(crate) async fn join(args: &ClientArgs, command: &str, peer: NodeId) -> Resu
             tracing::info!(%peer, protocols = %protocols.names().collect::<Vec<_>>().join(" "), "found the node");
             Ok(node)
         }
-        Ok(_) => Err(Failure::Net(Error::Memory { peer, error: MemoryError::Rejected(NOT_IMPLEMENTED) })),
+        Ok(_) => Err(Failure::Lacks { peer, missing: Missing::Configuration, code: None }),
         Err(Error::NoAnswer { .. }) => Err(Failure::Net(Error::Unreachable(peer))),
         Err(error) => Err(Failure::Net(error)),
     }
 }
 
-/// The code of a node that does not implement Memory Configuration (OIR 0x1042).
-const NOT_IMPLEMENTED: openlcb_stream::wire::ErrorCode = openlcb_stream::wire::ErrorCode(0x1042);
+/// `failure`, or, when it is a "not implemented" refusal from `peer` and the node's PIP
+/// (asked now, within [`FIND_TIMEOUT`]) lists no protocol of `missing`, the words for that.
+/// A PIP that does not come keeps `failure` as it is.
+pub(crate) async fn name_what_is_missing(node: &Node, peer: NodeId, failure: Failure, missing: Missing) -> Failure {
+    let Some(code) = failure.not_implemented_code() else { return failure };
+    tracing::info!(%peer, %code, "asking the node's protocols (PIP) about a refusal");
+    match node.protocols(peer, FIND_TIMEOUT).await {
+        Ok(protocols) if !missing.is_in(protocols) => Failure::Lacks { peer, missing, code: Some(code) },
+        _ => failure,
+    }
+}
 
 /// Waits for `transfer` (of `total` bytes, if known) to end, showing its progress unless
-/// `json`, until interrupted, or until it falls behind `pace`; `moved` follows the bytes and
-/// the path.
+/// `json`, until interrupted, or until it falls behind `pace` (then it is cancelled, and a
+/// read's bytes so far go to `moved.cut_short`); `moved` follows the bytes and the path.
 pub(crate) async fn follow<T>(
     node: &Node,
-    transfer: MemoryTransfer<T>,
+    mut transfer: MemoryTransfer<T>,
     total: Option<u64>,
     json: bool,
     pace: &PaceArgs,
@@ -164,19 +175,26 @@ pub(crate) async fn follow<T>(
     let mut progress = transfer.watch_progress();
     let watched = transfer.watch_progress();
     let slow = pace.watch(started, total, || *watched.borrow());
-    let end = transfer.finish();
-    tokio::pin!(end, slow);
-    let result = loop {
-        tokio::select! {
-            result = &mut end => break result.map_err(Failure::Net),
-            Ok(()) = progress.changed() => {
-                moved.bytes = *progress.borrow_and_update();
-                bar.set(moved.bytes);
+    tokio::pin!(slow);
+    let result = {
+        let end = transfer.wait();
+        tokio::pin!(end);
+        loop {
+            tokio::select! {
+                result = &mut end => break result.map_err(Failure::Net),
+                Ok(()) = progress.changed() => {
+                    moved.bytes = *progress.borrow_and_update();
+                    bar.set(moved.bytes);
+                }
+                slow = &mut slow => break Err(Failure::TooSlow(slow)),
+                () = interrupt.wait() => break Err(Failure::Interrupted),
             }
-            slow = &mut slow => break Err(Failure::TooSlow(slow)),
-            () = interrupt.wait() => break Err(Failure::Interrupted),
         }
     };
+    if let Err(Failure::Interrupted | Failure::TooSlow(_)) = &result {
+        // The wait did not end: the operation still runs.
+        moved.cut_short = transfer.cancel().await;
+    }
     bar.finish();
     moved.bytes = moved.bytes.max(*progress.borrow());
     moved.by_stream = stream_messages(node).await > streams_before;
@@ -249,11 +267,17 @@ pub(crate) async fn upload(
             Upload::Space { space, address, .. } => node.write_memory(peer, space, address, data, client.path()).await,
             Upload::Firmware => node.upgrade_firmware(peer, data, client.path()).await,
         };
-        let mut written = match transfer {
+        let written = match transfer {
             Ok(transfer) => {
                 follow(&node, transfer, Some(total), client.json, &client.pace, &mut interrupt, &mut moved).await
             }
             Err(error) => Err(Failure::Net(error)),
+        };
+        let mut written = match (written, &what) {
+            (Err(failure), Upload::Firmware) => {
+                Err(name_what_is_missing(&node, peer, failure, Missing::FirmwareUpgrade).await)
+            }
+            (written, _) => written,
         };
         if written.is_ok()
             && let Upload::Space { update_complete: true, .. } = what

@@ -11,8 +11,12 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use openlcb_tokio::Error;
+use openlcb_stream::NodeId;
+use openlcb_stream::wire::ErrorCode;
 use openlcb_tokio::openlcb_node::MemoryError;
+use openlcb_tokio::{Error, Protocols};
+
+use crate::cdi::CdiFault;
 
 /// How a command ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -111,8 +115,8 @@ impl Outcome {
             Outcome::VerifyFailed => "the data did not verify",
             Outcome::DuplicateNodeId => "another node on the network has this Node ID (see --node-id)",
             Outcome::BadAnswer => {
-                "the other node answered against the protocol (more data than asked for, another space; named \
-                 in the message)"
+                "the other node answered against the protocol (more data than asked for, another space, an \
+                 empty CDI or one larger than a CDI may be; named in the message)"
             }
             Outcome::Interrupted => "Ctrl-C, SIGTERM or SIGHUP (open streams are terminated, partial files kept)",
         }
@@ -141,6 +145,57 @@ pub(crate) enum Failure {
     TooSlow(crate::pace::TooSlow),
     /// SIGINT, SIGTERM or SIGHUP.
     Interrupted,
+    /// SIGINT, SIGTERM or SIGHUP during a read into `part`, which is kept and holds the
+    /// first `bytes` of the read.
+    InterruptedKeeping { part: PathBuf, bytes: u64 },
+    /// The node's CDI cannot be taken: empty, or larger than a CDI may be.
+    BadCdi { peer: NodeId, fault: CdiFault },
+    /// The node lacks a protocol by its own PIP: it does not list it (and, when `code` is
+    /// there, it refused with that "not implemented" code).
+    Lacks { peer: NodeId, missing: Missing, code: Option<ErrorCode> },
+}
+
+/// A protocol a command needs that a node's PIP may not list.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Missing {
+    /// Memory Configuration: every command that reads or writes a node's spaces.
+    Configuration,
+    /// Firmware Upgrade (either of its two bits): `firmware`.
+    FirmwareUpgrade,
+    /// Stream Transport: `send`.
+    Streams,
+}
+
+impl Missing {
+    /// Whether `protocols` has what `self` names.
+    pub(crate) fn is_in(self, protocols: Protocols) -> bool {
+        match self {
+            Missing::Configuration => protocols.contains(Protocols::MEMORY_CONFIGURATION),
+            Missing::FirmwareUpgrade => {
+                protocols.contains(Protocols::FIRMWARE_UPGRADE)
+                    || protocols.contains(Protocols::FIRMWARE_UPGRADE_ACTIVE)
+            }
+            Missing::Streams => protocols.contains(Protocols::STREAM),
+        }
+    }
+
+    /// What the node has not, for a person.
+    const fn words(self) -> &'static str {
+        match self {
+            Missing::Configuration => "configuration",
+            Missing::FirmwareUpgrade => "firmware upgrade",
+            Missing::Streams => "streams",
+        }
+    }
+
+    /// The protocol's name in a PIP.
+    const fn protocol(self) -> &'static str {
+        match self {
+            Missing::Configuration => "Memory Configuration",
+            Missing::FirmwareUpgrade => "Firmware Upgrade",
+            Missing::Streams => "Stream",
+        }
+    }
 }
 
 impl Failure {
@@ -155,8 +210,24 @@ impl Failure {
             Failure::File { .. } => Outcome::FileError,
             Failure::WrongProtocol(_) => Outcome::UnreachableHub,
             Failure::TooSlow(_) => Outcome::TimedOut,
-            Failure::Interrupted => Outcome::Interrupted,
+            Failure::Interrupted | Failure::InterruptedKeeping { .. } => Outcome::Interrupted,
+            Failure::BadCdi { .. } => Outcome::BadAnswer,
+            Failure::Lacks { .. } => Outcome::Rejected,
         }
+    }
+
+    /// The code of a refusal that says "not implemented" (0x1040 to 0x1043, MN §3.5.5):
+    /// of a Memory Configuration command, or of a stream's Initiate.
+    pub(crate) fn not_implemented_code(&self) -> Option<ErrorCode> {
+        let code = match self {
+            Failure::Net(Error::Memory {
+                error: MemoryError::Rejected(code) | MemoryError::Failed(code) | MemoryError::StreamRejected(code),
+                ..
+            }) => *code,
+            Failure::Net(Error::Rejected { code, .. }) => ErrorCode(code.0),
+            _ => return None,
+        };
+        (0x1040..=0x1043).contains(&code.0).then_some(code)
     }
 }
 
@@ -180,6 +251,22 @@ impl fmt::Display for Failure {
             Failure::WrongProtocol(text) => write!(f, "{text}"),
             Failure::TooSlow(slow) => write!(f, "{slow}"),
             Failure::Interrupted => write!(f, "interrupted"),
+            Failure::InterruptedKeeping { part, bytes } => {
+                write!(f, "interrupted: {} holds {bytes} bytes, the first of the read (kept)", part.display())
+            }
+            Failure::BadCdi { peer, fault } => write!(f, "the CDI of node {peer} {fault}"),
+            Failure::Lacks { peer, missing, code } => {
+                write!(
+                    f,
+                    "this node ({peer}) has no {}: its Protocol Support Reply (PIP) lists no {}",
+                    missing.words(),
+                    missing.protocol()
+                )?;
+                match code {
+                    Some(code) => write!(f, ", and it answered {code} (not implemented)"),
+                    None => Ok(()),
+                }
+            }
         }
     }
 }

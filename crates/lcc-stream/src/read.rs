@@ -1,7 +1,9 @@
 //! `lcc-stream read`: back up a memory space of a node into a file.
 //!
 //! The bytes go to `FILE.part`, claimed before the transfer starts, and it is renamed to
-//! `FILE` only once every byte has arrived; an existing file is kept unless `--force`. With
+//! `FILE` only once every byte has arrived; an existing file is kept unless `--force`.
+//! Interrupted (Ctrl-C, SIGTERM, SIGHUP), the read is cancelled and `FILE.part` is kept
+//! with the bytes that had arrived, and the message says how many. With
 //! `--out -` the bytes go to stdout; into a FIFO or a device (`/dev/null`) they are written
 //! through once they have all arrived, with no `.part`, no rename and no need of `--force`.
 
@@ -21,9 +23,16 @@ use crate::net;
 use crate::outcome::{Failure, Outcome};
 use crate::recv::{part_path, publish};
 
+/// What an interrupted read leaves, for the help.
+const INTERRUPTED_HELP: &str = "\
+Interrupted (Ctrl-C, SIGTERM, SIGHUP), the read stops and FILE.part is kept with the bytes
+that had arrived (the first of the read); the message says how many. Exit status 130.
+
+";
+
 /// Options of `lcc-stream read`.
 #[derive(Debug, Args)]
-#[command(after_help = memory::after_help(""))]
+#[command(after_help = memory::after_help(INTERRUPTED_HELP))]
 pub(crate) struct ReadArgs {
     /// The node to read.
     #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id)]
@@ -92,6 +101,12 @@ async fn read(args: &ReadArgs) -> Result<ExitCode, String> {
         let result = transfer(args, &mut interrupt, &mut moved).await;
         let data = match result {
             Ok(data) => data,
+            Err(Failure::Interrupted) => {
+                let kept = std::mem::take(&mut moved.cut_short);
+                moved.bytes = kept.len() as u64;
+                save(file, &kept).await.map_err(|e| Failure::file(&part, e))?;
+                return Err(Failure::InterruptedKeeping { part, bytes: moved.bytes });
+            }
             Err(failure) => {
                 drop(file);
                 let _ = tokio::fs::remove_file(&part).await;

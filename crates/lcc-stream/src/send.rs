@@ -14,8 +14,9 @@ use serde::Serialize;
 use tokio::io::AsyncReadExt as _;
 
 use crate::files;
+use crate::memory;
 use crate::net::{self, ConnectArgs};
-use crate::outcome::{Failure, Outcome};
+use crate::outcome::{Failure, Missing, Outcome};
 use crate::pace::{PACE_HELP, PaceArgs};
 use crate::progress::Progress;
 
@@ -208,6 +209,10 @@ async fn connect_and_send(
     let outcome = tokio::select! {
         outcome = transfer(args, &node, &mut input, size, sent, window) => outcome,
         () = interrupt.wait() => Err(Failure::Interrupted),
+    };
+    let outcome = match outcome {
+        Err(failure) => Err(memory::name_what_is_missing(&node, args.to, failure, Missing::Streams).await),
+        done => done,
     };
     let stats = node.stats().await.map(|s| s.wire).unwrap_or_default();
     node.close().await;

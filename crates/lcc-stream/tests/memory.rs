@@ -8,7 +8,7 @@ use std::path::Path;
 use std::process::Stdio;
 
 use common::{BIN, bounded, scratch};
-use openlcb_tokio::openlcb_node::{MemoryServer, MemorySpace, SpaceError};
+use openlcb_tokio::openlcb_node::{MemoryServer, MemorySpace, RamSpace, SpaceError};
 use openlcb_tokio::{Framing, Hub, HubOptions, Node, NodeOptions};
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
@@ -496,32 +496,38 @@ async fn an_image_that_cannot_be_saved_fails_the_upgrade_and_a_retry_succeeds() 
     assert_eq!(std::fs::read(&out).unwrap(), data(10_000, 4));
 }
 
-/// The file behind `--config` is replaced whole after each write command, never written in
-/// place: a reader that opened it before a write still reads the whole earlier version (the
-/// file it opened), the name then holds the whole new one, and no `.part` is left.
+/// The file behind `--config` takes each write command whole, once: bytes across pages (a
+/// Write Stream's) by replacing the file (a reader that opened it before still reads the
+/// whole earlier version), bytes within a page (a Write datagram's) in place; no `.part` is
+/// left.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_config_file_is_replaced_whole_never_written_in_place() {
+async fn the_config_file_takes_each_write_command_whole() {
     use std::io::Read as _;
     let dir = scratch("config-whole");
     let (_hub, addr) = hub().await;
     let config = dir.join("config.bin");
-    std::fs::write(&config, data(1000, 4)).unwrap();
+    std::fs::write(&config, data(12_288, 4)).unwrap();
     let _server = Server::start(&dir, &addr, SERVER, &["--config", path_arg(&config)]).await;
 
     let mut opened_before = std::fs::File::open(&config).unwrap();
-    let restore = dir.join("restore.bin");
-    std::fs::write(&restore, data(1000, 5)).unwrap();
-    for extra in [None, Some("--no-stream")] {
+    let mut expected = data(12_288, 4);
+    for (key, len, extra) in [(5, 8192, None), (6, 100, Some("--no-stream"))] {
+        let restore = dir.join(format!("restore-{key}.bin"));
+        std::fs::write(&restore, data(len, key)).unwrap();
         let mut args = vec!["write", path_arg(&restore), "--to", SERVER];
         args.extend(extra);
         let (status, json) = run(&addr, &args).await;
         assert_eq!(status, 0, "{json}");
-        assert_eq!(std::fs::read(&config).unwrap(), data(1000, 5));
+        assert_eq!(json["path"], if extra.is_none() { "stream" } else { "datagrams" }, "{json}");
+        expected[..len].copy_from_slice(&data(len, key));
+        assert_eq!(std::fs::read(&config).unwrap(), expected);
         assert!(!dir.join("config.bin.part").exists());
+        if key == 5 {
+            let mut seen = Vec::new();
+            opened_before.read_to_end(&mut seen).unwrap();
+            assert_eq!(seen, data(12_288, 4), "the stream's bytes were written in place");
+        }
     }
-    let mut seen = Vec::new();
-    opened_before.read_to_end(&mut seen).unwrap();
-    assert_eq!(seen, data(1000, 4), "the file was written in place");
 }
 
 /// A write longer than the space is refused before a byte moves, by datagrams as by stream.
@@ -567,9 +573,11 @@ async fn write_ends_with_update_complete_and_reboot_and_factory_reset_reach_the_
     assert_eq!((status, json["result"].as_str()), (5, Some("not_found")), "{json}");
 }
 
-/// A relay between one client and the hub that answers the client's Update Complete (`20 A8`)
-/// with Datagram Rejected 0x1041 in the node's name, as a node without it would.
-async fn relay_refusing_update_complete(hub: &str) -> String {
+/// A relay between each client and the hub that keeps from the node every datagram of the
+/// client's whose payload is `command` (hex, e.g. `20A8`: Update Complete) and answers it
+/// in the node's name with the frames `answer` gives for (the node's alias, the client's
+/// alias), as a node that has not that command would; every other frame passes.
+async fn relay_answering(hub: &str, command: &'static str, answer: fn(&str, &str) -> Vec<String>) -> String {
     use tokio::io::AsyncWriteExt as _;
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
@@ -577,15 +585,20 @@ async fn relay_refusing_update_complete(hub: &str) -> String {
     tokio::spawn(async move {
         while let Ok((client, _)) = listener.accept().await {
             let upstream = tokio::net::TcpStream::connect(&hub).await.unwrap();
-            let (client_read, mut client_write) = client.into_split();
+            let (client_read, client_write) = client.into_split();
             let (hub_read, mut hub_write) = upstream.into_split();
-            let refuse = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-            let asked = refuse.clone();
+            let client_write = std::sync::Arc::new(tokio::sync::Mutex::new(client_write));
+            let answers = client_write.clone();
             tokio::spawn(async move {
                 let mut lines = BufReader::new(client_read).lines();
                 while let Ok(Some(line)) = lines.next_line().await {
-                    if line.ends_with("N20A8;") {
-                        asked.store(true, std::sync::atomic::Ordering::SeqCst);
+                    // A one-frame datagram :X1Adddsss N<payload>; (ddd the node, sss the client).
+                    if line.starts_with(":X1A") && line.ends_with(&format!("N{command};")) {
+                        let mut to_client = answers.lock().await;
+                        for frame in answer(&line[4..7], &line[7..10]) {
+                            let _ = to_client.write_all(format!("{frame}\n").as_bytes()).await;
+                        }
+                        continue;
                     }
                     if hub_write.write_all(format!("{line}\n").as_bytes()).await.is_err() {
                         break;
@@ -594,14 +607,8 @@ async fn relay_refusing_update_complete(hub: &str) -> String {
             });
             tokio::spawn(async move {
                 let mut lines = BufReader::new(hub_read).lines();
-                while let Ok(Some(mut line)) = lines.next_line().await {
-                    // Datagram Received OK :X19A28sssN0ddd..; becomes Rejected with 0x1041.
-                    if line.starts_with(":X19A28") && refuse.swap(false, std::sync::atomic::Ordering::SeqCst) {
-                        let (head, payload) = line.split_at(line.find('N').unwrap() + 1);
-                        line =
-                            format!("{}N{}1041;", head.replace("19A28", "19A48").trim_end_matches('N'), &payload[..4]);
-                    }
-                    if client_write.write_all(format!("{line}\n").as_bytes()).await.is_err() {
+                while let Ok(Some(line)) = lines.next_line().await {
+                    if client_write.lock().await.write_all(format!("{line}\n").as_bytes()).await.is_err() {
                         break;
                     }
                 }
@@ -611,12 +618,17 @@ async fn relay_refusing_update_complete(hub: &str) -> String {
     addr
 }
 
+/// Datagram Rejected 0x1041 (not implemented: unknown command) from `node` to `client`.
+fn rejected_1041(node: &str, client: &str) -> Vec<String> {
+    vec![format!(":X19A48{node}N0{client}1041;")]
+}
+
 /// A node that refuses Update Complete after a verified `config set` or `write`: the value
 /// is written, so the command succeeds with a warning.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_refused_update_complete_after_a_verified_write_is_a_warning() {
     let (dir, _hub, addr, config, _server) = serve_zeros("update-refused").await;
-    let relay = relay_refusing_update_complete(&addr).await;
+    let relay = relay_answering(&addr, "20A8", rejected_1041).await;
     let (status, json) = run(&relay, &["config", "set", SERVER, "Configuration.Mode", "1"]).await;
     assert_eq!((status, json["result"].as_str()), (0, Some("ok")), "{json}");
     let warning = json["warning"].as_str().unwrap_or_default();
@@ -696,12 +708,14 @@ async fn a_whole_read_of_a_space_larger_than_a_read_takes_fails_at_once_pointing
 
 /// Space 0xFD of an in-process node: `len` bytes of `data(len, 9)`, each read taking `delay`
 /// (it blocks the node's own thread: a node that trickles), and, after the first time its
-/// size is asked, `grown` bytes long (a node whose stream goes on past the size it reported).
+/// size is asked, `grown` bytes long (a node whose stream goes on past the size it reported);
+/// `reads` counts the reads served.
 struct OddSpace {
     bytes: Vec<u8>,
     delay: std::time::Duration,
     grown: u32,
     asked: std::sync::atomic::AtomicBool,
+    reads: std::sync::Arc<std::sync::atomic::AtomicUsize>,
 }
 
 impl MemorySpace for OddSpace {
@@ -714,6 +728,7 @@ impl MemorySpace for OddSpace {
     }
     fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
         std::thread::sleep(self.delay);
+        self.reads.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let at = (address as usize).min(self.bytes.len());
         let n = buf.len().min(self.grown as usize - address as usize);
         let held = self.bytes.get(at..).unwrap_or_default();
@@ -727,9 +742,9 @@ impl MemorySpace for OddSpace {
     }
 }
 
-/// Serves `space` as 0xFD from a node on `hub` on a thread and runtime of its own; it runs
-/// until the test's process ends.
-async fn serve_in_process(hub: &str, space: OddSpace) {
+/// A node on `hub` with `server`'s spaces (none: a node without Memory Configuration), on
+/// a thread and runtime of its own; it runs until the test's process ends.
+async fn node_in_process(hub: &str, server: Option<MemoryServer>) {
     let (ready, is_ready) = tokio::sync::oneshot::channel();
     let hub = hub.to_string();
     std::thread::spawn(move || {
@@ -737,12 +752,20 @@ async fn serve_in_process(hub: &str, space: OddSpace) {
         runtime.block_on(async move {
             let options = NodeOptions::new(SERVER.parse().unwrap());
             let node = Node::connect(&hub, Framing::GridConnect, options).await.unwrap();
-            let _events = node.serve_memory(MemoryServer::new().with_space(0xFD, space)).await.unwrap();
+            let _events = match server {
+                Some(server) => Some(node.serve_memory(server).await.unwrap()),
+                None => None,
+            };
             let _ = ready.send(());
             std::future::pending::<()>().await;
         });
     });
-    bounded("the in-process server", is_ready).await.unwrap();
+    bounded("the in-process node", is_ready).await.unwrap();
+}
+
+/// Serves `space` as 0xFD from a node on `hub` (see [`node_in_process`]).
+async fn serve_in_process(hub: &str, space: OddSpace) {
+    node_in_process(hub, Some(MemoryServer::new().with_space(0xFD, space))).await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -750,7 +773,9 @@ async fn a_read_from_a_node_that_trickles_ends_below_the_minimum_rate() {
     let (_hub, addr) = hub().await;
     let len = 1024 * 1024;
     let delay = std::time::Duration::from_millis(50);
-    serve_in_process(&addr, OddSpace { bytes: data(len, 9), delay, grown: len as u32, asked: false.into() }).await;
+    let space =
+        OddSpace { bytes: data(len, 9), delay, grown: len as u32, asked: false.into(), reads: Default::default() };
+    serve_in_process(&addr, space).await;
     let dir = scratch("trickle");
     for extra in [None, Some("--no-stream")] {
         let out = dir.join("slow.bin");
@@ -767,7 +792,8 @@ async fn a_read_from_a_node_that_trickles_ends_below_the_minimum_rate() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stream_longer_than_the_space_reported_is_a_bad_answer() {
     let (_hub, addr) = hub().await;
-    let space = OddSpace { bytes: data(600, 9), delay: std::time::Duration::ZERO, grown: 1024, asked: false.into() };
+    let delay = std::time::Duration::ZERO;
+    let space = OddSpace { bytes: data(600, 9), delay, grown: 1024, asked: false.into(), reads: Default::default() };
     serve_in_process(&addr, space).await;
     let dir = scratch("overrun");
     let out = dir.join("backup.bin");
@@ -922,4 +948,207 @@ async fn an_interrupted_restore_says_how_many_settings_it_wrote_and_a_rerun_fini
     let (status, _) = run(&addr, &["config", "backup", REPLACEMENT, "--out", path_arg(&again)]).await;
     assert_eq!(status, 0);
     assert_eq!(std::fs::read_to_string(&again).unwrap(), std::fs::read_to_string(&backup).unwrap());
+}
+
+// ----- CDIs that cannot be taken; refusals in words -----
+
+/// The most bytes a CDI may have (`lcc-stream cdi --help`).
+const MAX_CDI_BYTES: usize = 1024 * 1024;
+
+/// An empty CDI (`serve --cdi` of an empty file, or of white space) is an error in words,
+/// exit 11, for `cdi` (no file written) and for `config`, by stream and by datagrams.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_empty_cdi_is_an_error_and_no_file_is_written() {
+    let dir = scratch("cdi-empty");
+    let (_hub, addr) = hub().await;
+    let (empty, blank) = (dir.join("empty.xml"), dir.join("blank.xml"));
+    std::fs::write(&empty, b"").unwrap();
+    std::fs::write(&blank, b" \n\t\r\n").unwrap();
+    const BLANK: &str = "05.01.01.01.22.E3";
+    let _empty = Server::start(&dir, &addr, SERVER, &["--cdi", path_arg(&empty)]).await;
+    let _blank = Server::start(&dir, &addr, BLANK, &["--cdi", path_arg(&blank)]).await;
+    for (node, extra) in [(SERVER, None), (BLANK, Some("--no-stream"))] {
+        let out = dir.join("cdi.xml");
+        let mut args = vec!["cdi", "--from", node, "--out", path_arg(&out)];
+        args.extend(extra);
+        let (status, json) = run(&addr, &args).await;
+        assert_eq!((status, json["result"].as_str()), (11, Some("bad_answer")), "{node}: {json}");
+        let error = json["error"].as_str().unwrap();
+        assert!(error.contains(&format!("the CDI of node {node} is empty")), "{error}");
+        assert!(!out.exists() && !dir.join("cdi.xml.part").exists(), "{node}: a file was written");
+        let (status, json) = run(&addr, &["config", "show", node]).await;
+        assert_eq!(status, 11, "{node}: {json}");
+        assert!(json["error"].as_str().unwrap().contains("is empty"), "{json}");
+    }
+}
+
+/// A CDI space that reports more than a CDI may have (an unterminated 2 MiB of text) is
+/// refused before a byte is read, naming the bound, by `cdi` (by stream and by datagrams),
+/// `config show`, `config backup` and `config restore`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cdi_larger_than_the_bound_is_refused_before_it_is_read() {
+    let dir = scratch("cdi-huge");
+    let (_hub, addr) = hub().await;
+    let huge = dir.join("huge.xml");
+    std::fs::write(&huge, "<".repeat(2 * MAX_CDI_BYTES)).unwrap();
+    let _server = Server::start(&dir, &addr, SERVER, &["--cdi", path_arg(&huge)]).await;
+    let (out, backup) = (dir.join("cdi.xml"), dir.join("backup.txt"));
+    std::fs::write(&backup, "Configuration.Mode=1\n").unwrap();
+    let cdi = ["cdi", "--from", SERVER, "--out", path_arg(&out)];
+    let cdi_by_datagrams = ["cdi", "--from", SERVER, "--out", path_arg(&out), "--no-stream"];
+    let show = ["config", "show", SERVER];
+    let save = ["config", "backup", SERVER];
+    let restore = ["config", "restore", SERVER, path_arg(&backup)];
+    for args in [&cdi[..], &cdi_by_datagrams, &show, &save, &restore] {
+        let (status, json) = run(&addr, args).await;
+        assert_eq!((status, json["result"].as_str()), (11, Some("bad_answer")), "{args:?}: {json}");
+        let error = json["error"].as_str().unwrap();
+        let size = (2 * MAX_CDI_BYTES + 1).to_string();
+        assert!(error.contains("too large") && error.contains(&size), "{error}");
+        assert!(error.contains(&MAX_CDI_BYTES.to_string()) && error.contains("1 MiB"), "{error}");
+        assert!(!out.exists() && !dir.join("cdi.xml.part").exists());
+    }
+}
+
+/// Get Address Space Information not present for space 0xFF, as a node without it answers.
+fn space_ff_not_present(node: &str, client: &str) -> Vec<String> {
+    vec![format!(":X19A28{node}N0{client}80;"), format!(":X1A{client}{node}N2086FF;")]
+}
+
+/// A node that refuses Get Address Space Information for its CDI (Datagram Rejected, or
+/// a reply that says "not present") is still read to the end, by datagrams and by stream,
+/// and its CDI is the one it serves.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cdi_is_read_from_a_node_that_refuses_get_address_space_information() {
+    let dir = scratch("cdi-no-info");
+    let (_hub, addr) = hub().await;
+    let _server = Server::start(&dir, &addr, SERVER, &[]).await;
+    let direct = dir.join("direct.xml");
+    assert_eq!(run(&addr, &["cdi", "--from", SERVER, "--out", path_arg(&direct)]).await.0, 0);
+    let served = std::fs::read(&direct).unwrap();
+    let refusing = relay_answering(&addr, "2084FF", rejected_1041).await;
+    let not_present = relay_answering(&addr, "2084FF", space_ff_not_present).await;
+    for (relay, extra) in [(&refusing, None), (&refusing, Some("--no-stream")), (&not_present, Some("--no-stream"))] {
+        let out = dir.join("cdi.xml");
+        let _ = std::fs::remove_file(&out);
+        let mut args = vec!["cdi", "--from", SERVER, "--out", path_arg(&out)];
+        args.extend(extra);
+        let (status, json) = run(relay, &args).await;
+        assert_eq!(status, 0, "{extra:?}: {json}");
+        assert_eq!(std::fs::read(&out).unwrap(), served, "{extra:?}");
+        let (status, json) = run(relay, &["config", "show", SERVER, "--no-stream"]).await;
+        assert_eq!(status, 0, "{json}");
+    }
+}
+
+/// A node that gives no size for its CDI and whose CDI runs on past the bound without a
+/// NUL fails once the bound is passed, naming it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cdi_of_unknown_size_with_no_end_within_the_bound_fails_naming_it() {
+    let dir = scratch("cdi-no-end");
+    let (_hub, addr) = hub().await;
+    let huge = dir.join("huge.xml");
+    std::fs::write(&huge, "<".repeat(2 * MAX_CDI_BYTES)).unwrap();
+    let _server = Server::start(&dir, &addr, SERVER, &["--cdi", path_arg(&huge)]).await;
+    let relay = relay_answering(&addr, "2084FF", rejected_1041).await;
+    let out = dir.join("cdi.xml");
+    let (status, json) = run(&relay, &["cdi", "--from", SERVER, "--out", path_arg(&out)]).await;
+    assert_eq!((status, json["result"].as_str()), (11, Some("bad_answer")), "{json}");
+    let error = json["error"].as_str().unwrap();
+    assert!(error.contains("has no end") && error.contains(&MAX_CDI_BYTES.to_string()), "{error}");
+    assert!(!out.exists() && !dir.join("cdi.xml.part").exists());
+}
+
+/// A node whose PIP lists no Memory Configuration: "this node has no configuration".
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_without_memory_configuration_has_no_configuration_in_words() {
+    let dir = scratch("no-configuration");
+    let (_hub, addr) = hub().await;
+    node_in_process(&addr, None).await;
+    let out = dir.join("config.bin");
+    for args in [&["read", "--from", SERVER, "--out", path_arg(&out)][..], &["config", "show", SERVER]] {
+        let (status, json) = run(&addr, args).await;
+        assert_eq!((status, json["result"].as_str()), (4, Some("rejected")), "{args:?}: {json}");
+        let error = json["error"].as_str().unwrap();
+        assert!(error.contains(&format!("this node ({SERVER}) has no configuration")), "{error}");
+    }
+}
+
+/// A node without Firmware Upgrade in its PIP that refuses Freeze with 0x1041: "this node
+/// has no firmware upgrade", exit 4.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_without_firmware_upgrade_has_no_firmware_upgrade_in_words() {
+    let dir = scratch("no-firmware-upgrade");
+    let (_hub, addr) = hub().await;
+    node_in_process(&addr, Some(MemoryServer::new().with_space(0xFD, RamSpace::new(64)))).await;
+    let relay = relay_answering(&addr, "20A1EF", rejected_1041).await;
+    let image = dir.join("image.bin");
+    std::fs::write(&image, data(100, 1)).unwrap();
+    let (status, json) = run(&relay, &["firmware", path_arg(&image), "--to", SERVER]).await;
+    assert_eq!((status, json["result"].as_str()), (4, Some("rejected")), "{json}");
+    let error = json["error"].as_str().unwrap();
+    assert!(error.contains("has no firmware upgrade") && error.contains("0x1041"), "{error}");
+}
+
+/// A stream sent to a node without streams (`serve --no-streams`, OIR 0x1043): "this node
+/// has no streams", exit 4.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stream_sent_to_a_node_without_streams_says_it_has_none() {
+    let dir = scratch("send-no-streams");
+    let (_hub, addr) = hub().await;
+    let _server = Server::start(&dir, &addr, SERVER, &["--no-streams"]).await;
+    let input = dir.join("input.bin");
+    std::fs::write(&input, data(300, 2)).unwrap();
+    let output = Command::new(BIN)
+        .args(["send", path_arg(&input), "--to", SERVER, "--connect", &addr])
+        .stdin(Stdio::null())
+        .kill_on_drop(true)
+        .output();
+    let output = bounded("send to a node without streams", output).await.unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(4), "{stderr}");
+    assert!(stderr.contains(&format!("this node ({SERVER}) has no streams")), "{stderr}");
+}
+
+/// Ctrl-C (SIGINT) in the middle of `read --out FILE` from a node that trickles, by
+/// datagrams and by stream: exit 130, FILE.part kept with the first bytes of the space, and
+/// the message says how many; FILE is not made.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ctrl_c_on_read_keeps_the_part_and_says_how_many_bytes_it_holds() {
+    use std::sync::atomic::Ordering;
+    let (_hub, addr) = hub().await;
+    let len = 1024 * 1024;
+    let reads = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let delay = std::time::Duration::from_millis(20);
+    let space = OddSpace { bytes: data(len, 9), delay, grown: len as u32, asked: false.into(), reads: reads.clone() };
+    serve_in_process(&addr, space).await;
+    let dir = scratch("read-interrupted");
+    for extra in [Some("--no-stream"), None] {
+        let out = dir.join("slow.bin");
+        let part = dir.join("slow.bin.part");
+        let _ = std::fs::remove_file(&part);
+        let mut args = vec!["read", "--from", SERVER, "--out", path_arg(&out), "--connect", &addr];
+        args.extend(extra);
+        let child = common::spawn(&args);
+        // Some bytes have been served (the first read answers the size, the rest data).
+        let before = reads.load(Ordering::Relaxed);
+        bounded("the first bytes served", async {
+            while reads.load(Ordering::Relaxed) < before + 40 {
+                tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+            }
+        })
+        .await;
+        let pid = child.id().unwrap().to_string();
+        let killed = Command::new("kill").args(["-INT", &pid]).status();
+        assert!(bounded("kill", killed).await.unwrap().success());
+        let output = bounded("read's exit", child.wait_with_output()).await.unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(130), "{extra:?}: {stderr}");
+        let kept = std::fs::read(&part).unwrap();
+        assert!(!kept.is_empty() && kept.len() < len, "{extra:?}: {} bytes kept", kept.len());
+        assert_eq!(kept, data(len, 9)[..kept.len()], "{extra:?}: the first bytes of the space");
+        let said = format!("interrupted: {} holds {} bytes", part.display(), kept.len());
+        assert!(stderr.contains(&said), "{extra:?}: {stderr}");
+        assert!(!out.exists());
+    }
 }

@@ -293,6 +293,15 @@ impl Node {
         self.memory.server.as_mut()
     }
 
+    /// Ends `operation` at once, and no event follows: its stream is terminated and the
+    /// peer's lock released. A read hands over the bytes it has so far, in order from its
+    /// address (the part of a whole read that arrived); any other operation an empty `Vec`.
+    /// `None`: the operation has already ended (its event came or is on its way).
+    #[cfg(feature = "memory-client")]
+    pub fn cancel_memory(&mut self, now: Instant, operation: MemoryOperation) -> Option<Vec<u8>> {
+        self.with_memory(now, |cx, _, client| client.cancel(cx, operation))
+    }
+
     /// Bytes an operation has moved so far (`None` once it has ended).
     #[cfg(feature = "memory-client")]
     pub fn memory_progress(&self, operation: MemoryOperation) -> Option<u64> {
@@ -725,6 +734,24 @@ impl Node {
         path: TransferPath,
     ) -> Result<MemoryOperation, MemoryRequestError> {
         self.with_memory(now, |cx, _, client| client.read(cx, peer, space, address, len, path))
+    }
+
+    /// Reads `space` of `peer` from address 0 up to its first NUL, as a CDI (space 0xFF)
+    /// ends, taking at most `limit` bytes: `ReadDone` follows with the bytes before the NUL,
+    /// or `Failed` with [`MemoryError::SpaceTooLarge`](crate::MemoryError::SpaceTooLarge)
+    /// once the space's reported size or its bytes pass `limit`. A node that does not answer
+    /// Get Address Space Information (rejected, or "not present") is read until its answers
+    /// end the space: a stream's end, an empty read, out of bounds, or the NUL.
+    #[cfg(feature = "memory-client")]
+    pub fn read_memory_to_nul(
+        &mut self,
+        now: Instant,
+        peer: NodeId,
+        space: u8,
+        limit: u32,
+        path: TransferPath,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        self.with_memory(now, |cx, _, client| client.read_to_nul(cx, peer, space, limit, path))
     }
 
     /// Writes `data` into `space` from `address` on `peer`; `WriteDone` or `Failed` follows.

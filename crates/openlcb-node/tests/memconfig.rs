@@ -178,6 +178,44 @@ fn read_auto_falls_back_to_datagrams_without_server_streams() {
     assert_eq!(pair.server.memory_server().unwrap().stats().streams_done, 0);
 }
 
+#[test]
+fn a_read_to_the_first_nul_hands_over_the_document_and_is_bounded() {
+    let xml = b"<?xml version=\"1.0\"?><cdi/>";
+    for path in [TransferPath::Datagrams, TransferPath::Stream] {
+        let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 64));
+        pair.pump();
+        pair.client.read_memory_to_nul(pair.now, SERVER, 0xFF, 1024, path).unwrap();
+        match pair.finish() {
+            MemoryEvent::ReadDone { data, .. } => assert_eq!(data, xml, "{path:?}: up to the NUL, without it"),
+            other => panic!("{path:?}: {other:?}"),
+        }
+        // A space that reports more than the bound is refused before a byte is read.
+        pair.client.read_memory_to_nul(pair.now, SERVER, 0xFF, 10, path).unwrap();
+        let size = xml.len() as u64 + 1;
+        match pair.finish() {
+            MemoryEvent::Failed { error: MemoryError::SpaceTooLarge { size: Some(s), limit: 10 }, .. } => {
+                assert_eq!(s, size, "{path:?}");
+            }
+            other => panic!("{path:?}: {other:?}"),
+        }
+        assert_eq!(pair.server.memory_server().unwrap().stats().streams_done, u64::from(path == TransferPath::Stream));
+    }
+}
+
+#[test]
+fn a_cancelled_read_hands_over_what_it_has_and_ends_without_an_event() {
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 4096));
+    pair.pump();
+    let operation = pair.client.read_memory(pair.now, SERVER, 0xFD, 0, None, TransferPath::Datagrams).unwrap();
+    assert_eq!(pair.client.cancel_memory(pair.now, operation), Some(Vec::new()), "nothing had arrived");
+    assert_eq!(pair.client.cancel_memory(pair.now, operation), None, "it has ended");
+    pair.pump();
+    assert!(!pair.events.iter().any(|e| matches!(e, NodeEvent::Memory(_))), "{:?}", pair.events);
+    // The next read with that node starts: the cancelled one holds nothing.
+    pair.client.read_memory(pair.now, SERVER, 0xFD, 0, Some(100), TransferPath::Datagrams).unwrap();
+    assert!(matches!(pair.finish(), MemoryEvent::ReadDone { data, .. } if data == pattern(4096, 7)[..100]));
+}
+
 fn write_then_verify(path: TransferPath) {
     let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 8192));
     pair.pump();

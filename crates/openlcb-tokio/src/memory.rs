@@ -9,6 +9,8 @@
 //! deadline ([`MemoryConfigOptions`](openlcb_node::MemoryConfigOptions): reply, stream and
 //! reboot waits), and a driver that stops fails every operation with its reason.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use bytes::Bytes;
 use openlcb_node::{
     MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, NodeCommand, TransferPath,
@@ -46,6 +48,7 @@ impl ServerEvents {
 #[derive(Debug, Clone)]
 pub(crate) enum Operation {
     Read { space: u8, address: u32, len: Option<u32> },
+    ReadToNul { space: u8, limit: u32 },
     Write { space: u8, address: u32, data: Bytes },
     Firmware { image: Bytes },
     Command(NodeCommand),
@@ -63,27 +66,61 @@ type DoneReply = oneshot::Sender<Result<Done, Error>>;
 /// Requests of the handles to the driver's Memory Configuration.
 #[derive(Debug)]
 pub(crate) enum MemoryCommand {
-    Serve { server: Box<MemoryServer>, events: mpsc::Sender<MemoryEvent> },
-    Start { peer: NodeId, path: TransferPath, operation: Operation, progress: watch::Sender<u64>, reply: DoneReply },
+    Serve {
+        server: Box<MemoryServer>,
+        events: mpsc::Sender<MemoryEvent>,
+    },
+    Start {
+        key: TransferKey,
+        peer: NodeId,
+        path: TransferPath,
+        operation: Operation,
+        progress: watch::Sender<u64>,
+        reply: DoneReply,
+    },
+    /// Ends the operation of `key` at once; `reply` gets a read's bytes so far (`None`: it
+    /// had ended).
+    Cancel {
+        key: TransferKey,
+        reply: oneshot::Sender<Option<Vec<u8>>>,
+    },
 }
 
-/// A client operation running, from the handle's point of view: progress now, and the end.
+/// Names one [`MemoryTransfer`] between its handle and the driver, unique in the process.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct TransferKey(u64);
+
+impl TransferKey {
+    /// A key no other transfer has.
+    pub(crate) fn next() -> Self {
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        TransferKey(NEXT.fetch_add(1, Ordering::Relaxed))
+    }
+}
+
+/// A client operation running, from the handle's point of view: progress now, and the end
+/// (or [`cancel`](Self::cancel) it). Like a stream, it keeps the node's driver running
+/// while it lives.
 #[derive(Debug)]
 pub struct MemoryTransfer<T> {
+    key: TransferKey,
     progress: watch::Receiver<u64>,
     done: oneshot::Receiver<Result<Done, Error>>,
+    commands: mpsc::Sender<crate::node::Command>,
     shared: crate::node::Shared,
     map: fn(Done) -> Option<T>,
 }
 
 impl<T> MemoryTransfer<T> {
     pub(crate) fn new(
+        key: TransferKey,
         progress: watch::Receiver<u64>,
         done: oneshot::Receiver<Result<Done, Error>>,
-        shared: crate::node::Shared,
+        control: &crate::node::Control,
         map: fn(Done) -> Option<T>,
     ) -> Self {
-        MemoryTransfer { progress, done, shared, map }
+        let (commands, shared) = (control.commands.clone(), control.shared.clone());
+        MemoryTransfer { key, progress, done, commands, shared, map }
     }
 
     /// Bytes moved so far (read, or written and acknowledged by credit or reply).
@@ -98,16 +135,42 @@ impl<T> MemoryTransfer<T> {
     }
 
     /// Waits for the end: the bytes read (for a read) or the count written.
-    pub async fn finish(self) -> Result<T, Error> {
-        match self.done.await {
+    pub async fn finish(mut self) -> Result<T, Error> {
+        self.wait().await
+    }
+
+    /// Waits for the end, as [`finish`](Self::finish) does, keeping the handle: a wait
+    /// dropped before its end (beside a Ctrl-C in a `select!`) leaves the transfer to
+    /// [`cancel`](Self::cancel). Wait no more once it has returned.
+    pub async fn wait(&mut self) -> Result<T, Error> {
+        match (&mut self.done).await {
             Ok(Ok(done)) => (self.map)(done).ok_or(Error::Closed),
             Ok(Err(error)) => Err(error),
             Err(_) => Err(self.shared.error()),
         }
     }
+
+    /// Ends the operation at once (its stream terminated, the node's lock released) and
+    /// hands over the bytes a read had received so far, in order from its address; a write
+    /// or an upgrade hands over none. A read that ended meanwhile hands over all its bytes.
+    /// Call it only before a [`wait`](Self::wait) has returned.
+    pub async fn cancel(self) -> Vec<u8> {
+        let (reply, answer) = oneshot::channel();
+        let command = crate::node::Command::Memory(MemoryCommand::Cancel { key: self.key, reply });
+        if self.commands.send(command).await.is_ok()
+            && let Ok(Some(data)) = answer.await
+        {
+            return data;
+        }
+        match self.done.await {
+            Ok(Ok(Done::Read(data))) => data,
+            _ => Vec::new(),
+        }
+    }
 }
 
 struct Running {
+    key: TransferKey,
     operation: MemoryOperation,
     progress: watch::Sender<u64>,
     reply: DoneReply,
@@ -129,9 +192,17 @@ impl MemoryDriver {
                 stack.set_memory_server(*server);
                 self.events = Some(events);
             }
-            MemoryCommand::Start { peer, path, operation, progress, reply } => {
+            MemoryCommand::Cancel { key, reply } => {
+                let data = match self.running.iter().position(|r| r.key == key) {
+                    Some(index) => stack.cancel_memory(now, self.running.swap_remove(index).operation),
+                    None => None,
+                };
+                let _ = reply.send(data);
+            }
+            MemoryCommand::Start { key, peer, path, operation, progress, reply } => {
                 let started = match operation {
                     Operation::Read { space, address, len } => stack.read_memory(now, peer, space, address, len, path),
+                    Operation::ReadToNul { space, limit } => stack.read_memory_to_nul(now, peer, space, limit, path),
                     Operation::Write { space, address, data } => {
                         stack.write_memory(now, peer, space, address, data, path)
                     }
@@ -139,7 +210,7 @@ impl MemoryDriver {
                     Operation::Command(command) => stack.send_command(now, peer, command),
                 };
                 match started {
-                    Ok(operation) => self.running.push(Running { operation, progress, reply }),
+                    Ok(operation) => self.running.push(Running { key, operation, progress, reply }),
                     Err(error) => {
                         let _ = reply.send(Err(Error::MemoryRequest(error)));
                     }
@@ -222,7 +293,10 @@ pub(crate) fn memory_error_text(peer: NodeId, error: MemoryError) -> String {
             "the space of node {peer} holds {size} bytes from that address, more than the {limit} one read takes"
         ),
         MemoryError::SpaceTooLarge { size: None, limit } => {
-            format!("the space of node {peer} holds more than the {limit} bytes one read takes (its stream went on)")
+            format!(
+                "the space of node {peer} holds more than the {limit} bytes one read takes (it gave no size, and its \
+                 bytes went on past that)"
+            )
         }
         MemoryError::PeerRestarted => format!("node {peer} restarted in the middle of the operation"),
         MemoryError::PeerLost => format!("node {peer} left the network"),

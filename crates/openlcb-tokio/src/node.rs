@@ -16,7 +16,7 @@ use tracing::Instrument as _;
 
 use crate::driver::Driver;
 use crate::events::{EVENT_NOTICE_QUEUE, EventCommand, EventNotices};
-use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents};
+use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents, TransferKey};
 use crate::{Error, Framing, WireStats};
 use openlcb_node::EventRole;
 use openlcb_stream::EventId;
@@ -422,11 +422,23 @@ impl Node {
         path: TransferPath,
     ) -> Result<MemoryTransfer<Vec<u8>>, Error> {
         let operation = Operation::Read { space, address, len };
-        self.start_memory(peer, path, operation, |done| match done {
-            Done::Read(data) => Some(data),
-            Done::Written(_) => None,
-        })
-        .await
+        self.start_memory(peer, path, operation, read_bytes).await
+    }
+
+    /// Reads `space` of `peer` from address 0 up to its first NUL, as a CDI (space 0xFF)
+    /// ends, taking at most `limit` bytes (at most the node's `max_read_len`); ends with the
+    /// bytes before the NUL. A space whose reported size, or whose bytes, pass `limit` fails
+    /// with [`MemoryError::SpaceTooLarge`](openlcb_node::MemoryError::SpaceTooLarge) at
+    /// once; a node that does not answer Get Address Space Information is read until its
+    /// answers end the space.
+    pub async fn read_memory_to_nul(
+        &self,
+        peer: NodeId,
+        space: u8,
+        limit: u32,
+        path: TransferPath,
+    ) -> Result<MemoryTransfer<Vec<u8>>, Error> {
+        self.start_memory(peer, path, Operation::ReadToNul { space, limit }, read_bytes).await
     }
 
     /// Writes `data` into `space` from `address` on `peer`, by `path`; ends with the count
@@ -478,9 +490,10 @@ impl Node {
     ) -> Result<MemoryTransfer<T>, Error> {
         let (progress, progress_rx) = watch::channel(0);
         let (reply, done) = oneshot::channel();
-        let command = Command::Memory(MemoryCommand::Start { peer, path, operation, progress, reply });
+        let key = TransferKey::next();
+        let command = Command::Memory(MemoryCommand::Start { key, peer, path, operation, progress, reply });
         self.control.commands.send(command).await.map_err(|_| self.control.shared.error())?;
-        Ok(MemoryTransfer::new(progress_rx, done, self.control.shared.clone(), map))
+        Ok(MemoryTransfer::new(key, progress_rx, done, &self.control, map))
     }
 
     /// Stops the node at once: the connection closes without a word to anyone, as if the
@@ -513,6 +526,14 @@ impl Node {
             self.driver = None;
         }
         self.control.shared.error()
+    }
+}
+
+/// The bytes of a read.
+fn read_bytes(done: Done) -> Option<Vec<u8>> {
+    match done {
+        Done::Read(data) => Some(data),
+        Done::Written(_) => None,
     }
 }
 

@@ -94,11 +94,15 @@ pub enum MemoryRequestError {
 #[derive(Debug)]
 enum Kind {
     /// `len: None` reads to the end of the space; `reported`: `len` is the end the node
-    /// itself reported (Get Address Space Info), not one the caller asked for.
+    /// itself reported (Get Address Space Info), not one the caller asked for. `limit`: the
+    /// most bytes the read takes; `to_nul`: the read ends at the first NUL (a CDI), which
+    /// is no part of the bytes handed over.
     Read {
         data: Vec<u8>,
         len: Option<u32>,
         reported: bool,
+        limit: u32,
+        to_nul: bool,
     },
     Write {
         data: Vec<u8>,
@@ -167,6 +171,18 @@ impl Kind {
     fn ends_at_reported(&self, end: u32) -> bool {
         matches!(self, Kind::Read { len: Some(len), reported: true, .. } if *len == end)
     }
+
+    /// A read to the end of a space whose size the node did not give: it ends where the
+    /// node's answers say the space ends.
+    fn size_unknown(&self) -> bool {
+        matches!(self, Kind::Read { len: None, .. })
+    }
+
+    /// A read of `len` bytes (`None`: to the end of the space), at most `limit`; `to_nul`:
+    /// it ends at the first NUL.
+    fn read(len: Option<u32>, limit: u32, to_nul: bool) -> Kind {
+        Kind::Read { data: Vec::new(), len, reported: false, limit, to_nul }
+    }
 }
 
 impl Operation {
@@ -218,12 +234,29 @@ enum Outcome {
     Fail(MemoryError),
 }
 
+/// What ends with `op`: its stream (terminated when `abort`, as for a failure) and the
+/// node's lock it holds.
+fn wind_up(cx: &mut Cx<'_>, op: &Operation, abort: bool) {
+    if let (true, Some(handle)) = (abort, op.stream_handle()) {
+        let _ = cx.streams.abort(cx.now, handle, ErrorCode::PERMANENT);
+    }
+    if op.locked {
+        // Released once the last command is answered; its outcome needs nothing more.
+        let _ = cx.send_datagram(op.peer, &Command::Lock { node: 0 }.to_bytes());
+    }
+}
+
 /// The event that ends `op`.
 fn final_event(op: Operation, outcome: Outcome) -> NodeEvent {
     let (operation, peer) = (op.id, op.peer);
     NodeEvent::Memory(match (outcome, op.kind) {
         (Outcome::Fail(error), _) => MemoryEvent::Failed { operation, peer, error },
-        (Outcome::Done, Kind::Read { data, .. }) => MemoryEvent::ReadDone { operation, peer, data },
+        (Outcome::Done, Kind::Read { mut data, to_nul, .. }) => {
+            if let Some(end) = data.iter().position(|&b| b == 0).filter(|_| to_nul) {
+                data.truncate(end);
+            }
+            MemoryEvent::ReadDone { operation, peer, data }
+        }
         (Outcome::Done, _) => MemoryEvent::WriteDone { operation, peer, len: op.progress },
     })
 }
@@ -259,7 +292,22 @@ impl MemoryClient {
         if len.is_some_and(|n| n == 0 || n > cx.options.max_read_len) {
             return Err(MemoryRequestError::BadLength);
         }
-        self.start(cx, peer, space, address, Kind::Read { data: Vec::new(), len, reported: false }, path)
+        let limit = cx.options.max_read_len;
+        self.start(cx, peer, space, address, Kind::read(len, limit, false), path)
+    }
+
+    pub(crate) fn read_to_nul(
+        &mut self,
+        cx: &mut Cx<'_>,
+        peer: NodeId,
+        space: u8,
+        limit: u32,
+        path: TransferPath,
+    ) -> Result<MemoryOperation, MemoryRequestError> {
+        if limit == 0 || limit > cx.options.max_read_len {
+            return Err(MemoryRequestError::BadLength);
+        }
+        self.start(cx, peer, space, 0, Kind::read(None, limit, true), path)
     }
 
     pub(crate) fn write(
@@ -464,7 +512,14 @@ impl MemoryClient {
     /// The datagram chunk at offset `at`, or the end of the transfer.
     fn next_chunk(&mut self, cx: &mut Cx<'_>, index: usize, at: u32) -> Option<Outcome> {
         let op = self.operations.get(index)?;
-        let total = u32::try_from(op.total()).unwrap_or(u32::MAX);
+        let total = match op.kind {
+            // Of unknown size: chunks until the node says the space ends, up to the limit.
+            Kind::Read { len: None, limit, .. } if at >= limit => {
+                return Some(Outcome::Fail(MemoryError::SpaceTooLarge { size: None, limit }));
+            }
+            Kind::Read { len: None, limit, .. } => limit,
+            _ => u32::try_from(op.total()).unwrap_or(u32::MAX),
+        };
         if at >= total {
             return self.transfer_done(cx, index);
         }
@@ -496,14 +551,23 @@ impl MemoryClient {
             return;
         }
         let op = self.operations.swap_remove(index);
-        if let (Outcome::Fail(_), Some(handle)) = (&outcome, op.stream_handle()) {
-            let _ = cx.streams.abort(cx.now, handle, ErrorCode::PERMANENT);
-        }
-        if op.locked {
-            // Released once the last command is answered; its outcome needs nothing more.
-            let _ = cx.send_datagram(op.peer, &Command::Lock { node: 0 }.to_bytes());
-        }
+        wind_up(cx, &op, matches!(outcome, Outcome::Fail(_)));
         cx.out.event(final_event(op, outcome));
+    }
+
+    /// Ends operation `id` at once, with no event: its stream terminated, the node's lock
+    /// released. A read hands over the bytes it has so far, in order from its address;
+    /// any other operation an empty `Vec`. `None`: no such operation runs.
+    pub(crate) fn cancel(&mut self, cx: &mut Cx<'_>, id: MemoryOperation) -> Option<Vec<u8>> {
+        let index = self.operations.iter().position(|o| o.id == id)?;
+        // What the stream has brought and the endpoint still holds is read too.
+        let _ = self.drain_read(cx, index);
+        let op = self.operations.swap_remove(index);
+        wind_up(cx, &op, true);
+        Some(match op.kind {
+            Kind::Read { data, .. } => data,
+            _ => Vec::new(),
+        })
     }
 
     fn find(&self, peer: NodeId) -> Option<usize> {
@@ -585,9 +649,17 @@ impl MemoryClient {
             {
                 self.write_by(cx, index, by_stream)
             }
-            // The same for a stream read to the end: the stream runs to the end of the space,
-            // and past the read limit it is given up.
-            (Step::SpaceInfo { by_stream: true }, Err(DatagramFailure::Rejected(_))) => self.read_stream(cx, index),
+            // The same for a read to the end: a stream runs to the end of the space, datagrams
+            // until the node says the space ends (an empty reply, out of bounds); past the
+            // read's limit it is given up.
+            (Step::SpaceInfo { by_stream }, Err(DatagramFailure::Rejected(_))) => {
+                self.read_unknown_size(cx, index, by_stream)
+            }
+            (Step::Chunk { at, .. }, Err(DatagramFailure::Rejected(code)))
+                if code == codes::OUT_OF_BOUNDS && op.kind.size_unknown() && at > 0 =>
+            {
+                Some(Outcome::Done)
+            }
             // A node without Lock/Reserve (OpenMRN answers 0x1041): written without it.
             (Step::Lock { by_stream }, Err(DatagramFailure::Rejected(_))) => self.begin_transfer(cx, index, by_stream),
             (_, Err(DatagramFailure::Rejected(code))) if op.may_go_by_datagrams(code) => self.by_datagrams(cx, index),
@@ -596,6 +668,11 @@ impl MemoryClient {
             (_, Err(DatagramFailure::PeerRestarted)) => Some(Outcome::Fail(MemoryError::PeerRestarted)),
             (_, Err(_)) => Some(Outcome::Fail(MemoryError::PeerLost)),
         }
+    }
+
+    /// Reads to the end of a space whose size the node does not give.
+    fn read_unknown_size(&mut self, cx: &mut Cx<'_>, index: usize, by_stream: bool) -> Option<Outcome> {
+        if by_stream { self.read_stream(cx, index) } else { self.next_chunk(cx, index, 0) }
     }
 
     fn ask_protocols(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
@@ -646,7 +723,6 @@ impl MemoryClient {
     }
 
     fn reply_outcome(&mut self, cx: &mut Cx<'_>, index: usize, reply: Reply) -> Option<Outcome> {
-        let max_read = cx.options.max_read_len;
         let node = cx.out.node.as_raw();
         let op = self.operations.get_mut(index)?;
         match (op.step, reply) {
@@ -667,6 +743,11 @@ impl MemoryClient {
             (Step::SpaceInfo { by_stream }, Reply::SpaceInfo(info)) => {
                 let highest = info.highest_address.filter(|_| info.present);
                 let Some(highest) = highest else {
+                    // A read to the first NUL (a CDI) is read all the same: the node's answers
+                    // to the reads say where the space ends, or that it has none (0x1081).
+                    if matches!(op.kind, Kind::Read { to_nul: true, .. }) {
+                        return self.read_unknown_size(cx, index, by_stream);
+                    }
                     return Some(Outcome::Fail(MemoryError::Failed(codes::UNKNOWN_SPACE)));
                 };
                 // Bytes from the address to the end (up to 4 GiB: counted in 64 bits).
@@ -683,8 +764,12 @@ impl MemoryClient {
                     return Some(Outcome::Fail(MemoryError::Failed(codes::OUT_OF_BOUNDS)));
                 };
                 // Refused before a byte moves: a whole read of a space larger than the limit.
-                let Some(len) = u32::try_from(room).ok().filter(|&n| n <= max_read) else {
-                    return Some(Outcome::Fail(MemoryError::SpaceTooLarge { size: Some(room), limit: max_read }));
+                let limit = match op.kind {
+                    Kind::Read { limit, .. } => limit,
+                    _ => cx.options.max_read_len,
+                };
+                let Some(len) = u32::try_from(room).ok().filter(|&n| n <= limit) else {
+                    return Some(Outcome::Fail(MemoryError::SpaceTooLarge { size: Some(room), limit }));
                 };
                 if let Kind::Read { len: want, reported, .. } = &mut op.kind {
                     *want = Some(len);
@@ -707,13 +792,25 @@ impl MemoryClient {
                     return self.next_chunk(cx, index, at);
                 }
                 op.short_reply = None;
-                if let Kind::Read { data: buf, .. } = &mut op.kind {
-                    buf.extend_from_slice(data.get(..n).unwrap_or_default());
+                if n == 0 {
+                    // Twice nothing: the space ends here (a read of unknown size), or it does
+                    // not hold what the read asked for.
+                    return Some(if op.kind.size_unknown() {
+                        Outcome::Done
+                    } else {
+                        Outcome::Fail(MemoryError::WrongLength { expected: op.total(), received: u64::from(at) })
+                    });
+                }
+                let chunk = data.get(..n).unwrap_or_default();
+                let mut ended = false;
+                if let Kind::Read { data: buf, to_nul, .. } = &mut op.kind {
+                    buf.extend_from_slice(chunk);
+                    ended = *to_nul && chunk.contains(&0);
                 }
                 let next = at.saturating_add(n as u32);
                 op.progress = u64::from(next);
                 op.retries = 0;
-                self.next_chunk(cx, index, next)
+                if ended { Some(Outcome::Done) } else { self.next_chunk(cx, index, next) }
             }
             (Step::Chunk { at, len }, Reply::WriteOk { address, .. }) if address == op.address.saturating_add(at) => {
                 op.progress = u64::from(at.saturating_add(len));
@@ -721,10 +818,13 @@ impl MemoryClient {
                 self.next_chunk(cx, index, at.saturating_add(len))
             }
             (Step::Chunk { at, len }, Reply::Failed { kind: FailedKind::Read, code, .. })
-                if code == codes::OUT_OF_BOUNDS && op.kind.ends_at_reported(at.saturating_add(len)) && at > 0 =>
+                if code == codes::OUT_OF_BOUNDS
+                    && (op.kind.ends_at_reported(at.saturating_add(len)) || op.kind.size_unknown())
+                    && at > 0 =>
             {
                 // Liberal at the edge: a node that refuses the last address it reported itself
-                // (OpenMRN's io_board: highest 0x157, 0x157 out of bounds) ends its space there.
+                // (OpenMRN's io_board: highest 0x157, 0x157 out of bounds) ends its space there,
+                // as does one that gave no size.
                 if let Kind::Read { len: want, .. } = &mut op.kind {
                     *want = Some(at);
                 }
@@ -898,23 +998,27 @@ impl MemoryClient {
     }
 
     fn drain_read(&mut self, cx: &mut Cx<'_>, index: usize) -> Option<Outcome> {
-        let max_read = cx.options.max_read_len;
         let op = self.operations.get_mut(index)?;
         let handle = op.stream_handle()?;
-        let Kind::Read { data, len, .. } = &mut op.kind else { return None };
-        let limit = len.unwrap_or(max_read) as usize;
+        let Kind::Read { data, len, limit, to_nul, .. } = &mut op.kind else { return None };
+        let most = len.unwrap_or(*limit) as usize;
         let mut buf = [0u8; 512];
         loop {
             let n = cx.streams.read(cx.now, handle, &mut buf).unwrap_or(0);
             if n == 0 {
                 break;
             }
-            if data.len().saturating_add(n) > limit {
+            if data.len().saturating_add(n) > most {
+                if *to_nul && data.contains(&0) {
+                    // The document has ended; what the stream still brings is no part of it.
+                    let _ = cx.streams.abort(cx.now, handle, ErrorCode::PERMANENT);
+                    return Some(Outcome::Done);
+                }
                 // More than asked for, or than the space holds by the node's own report; a
                 // read of unknown size (no Get Address Space Information) ran past the limit.
                 return Some(Outcome::Fail(match len {
                     Some(len) => MemoryError::Overrun { expected: u64::from(*len) },
-                    None => MemoryError::SpaceTooLarge { size: None, limit: max_read },
+                    None => MemoryError::SpaceTooLarge { size: None, limit: *limit },
                 }));
             }
             data.extend_from_slice(buf.get(..n).unwrap_or_default());
@@ -928,7 +1032,7 @@ impl MemoryClient {
     /// node reported (a node whose last reported address is not served, as by datagrams).
     fn read_finished(&mut self, index: usize, total: u64, mismatch: Option<u64>) -> Option<Outcome> {
         let op = self.operations.get(index)?;
-        let Kind::Read { data, len, reported } = &op.kind else { return None };
+        let Kind::Read { data, len, reported, .. } = &op.kind else { return None };
         let received = data.len() as u64;
         if let Some(stated) = mismatch {
             return Some(Outcome::Fail(MemoryError::CountMismatch { stated, received }));
