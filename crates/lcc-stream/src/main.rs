@@ -19,12 +19,15 @@ mod net;
 mod nodes;
 mod outcome;
 mod pace;
+mod peer;
+mod printer;
 mod progress;
 mod read;
 mod recv;
 mod send;
 mod serve;
 mod sim;
+mod watch;
 mod write;
 
 use std::io::IsTerminal as _;
