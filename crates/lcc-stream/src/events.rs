@@ -2,21 +2,17 @@
 //! and consumes what. Also the `--produces`/`--consumes` arguments of `serve` and the names
 //! of the well-known events, which `monitor` prints too.
 
-use std::collections::HashMap;
 use std::process::ExitCode;
 use std::time::Duration;
 
 use clap::{Args, Subcommand};
 use openlcb_stream::{AcceptPolicy, EventId, NodeId, wire::ReplyCode};
-use openlcb_tokio::{
-    DeclaredEvents, EventNotice, EventRange, EventRole, EventState, Listen, Node, NodeOptions, SnipInfo,
-};
+use openlcb_tokio::{DeclaredEvents, EventNotice, EventRange, EventRole, EventState, Listen, Node, NodeOptions};
 use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
-
-/// How long a node may take to answer the SNIP request `watch` sends to name it.
-const SNIP_WAIT: Duration = Duration::from_secs(2);
+use crate::peer::Peer;
+use crate::watch::{self, Format};
 
 /// Event IDs with a meaning fixed by the standards, printed by name.
 const WELL_KNOWN: [(u64, &str); 10] = [
@@ -110,14 +106,32 @@ struct Joining {
 
 #[derive(Debug, Subcommand)]
 enum EventsCommand {
-    /// Print every event report on the bus as it comes (with the sender's Node ID and SNIP
-    /// name), until Ctrl-C.
+    /// Print every event report on the bus as it comes, with its sender's Node ID and SNIP
+    /// name, until Ctrl-C.
+    ///
+    /// A sender known only by its CAN alias is shown as that alias (`alias 4FF`). Each
+    /// report is printed the moment it arrives. Names are looked up beside the stream (a
+    /// few senders at a time, each for at most --snip-timeout): a report whose sender's name
+    /// is not known yet is printed without it, and later reports of that sender carry it
+    /// once the sender has answered. A sender that does not answer in time stays unnamed.
+    ///
+    /// Reports that come faster than the output takes them are dropped and counted, never
+    /// lost without a word: a line `… 312 reports dropped (the bus is faster than this
+    /// terminal)` stands where they were, and the end says on stderr how many were printed
+    /// and how many dropped.
     Watch {
         /// One JSON object per report: time (seconds since start), event, name (well-known
-        /// events; else null), from (Node ID), from_name (its SNIP user name, else its
-        /// model; null if unknown) and payload (hex).
+        /// events; else null), from (the sender's Node ID) or, when only its CAN alias is
+        /// known, from_alias (the alias in hex, "4FF") instead, from_name (its SNIP user
+        /// name, else its model; null if not known yet) and payload (hex). Where reports
+        /// were dropped, {time, dropped} (how many since the last such object); at the end
+        /// {time, reports, printed, dropped} (reports = printed + dropped; dropped also
+        /// counts the rare other event messages the node had no room for).
         #[arg(long)]
         json: bool,
+        /// Seconds a sender has to answer the SNIP request that names it.
+        #[arg(long, value_name = "SECS", default_value_t = 5, value_parser = crate::args::positive::<u64>)]
+        snip_timeout: u64,
         #[command(flatten)]
         joining: Joining,
     },
@@ -141,7 +155,8 @@ enum EventsCommand {
         /// Seconds of quiet after the last answer before the table is complete.
         #[arg(long, value_name = "SECS", default_value_t = 1.0)]
         wait: f64,
-        /// One JSON object per answer: node, role (producer/consumer), event (the first ID),
+        /// One JSON object per answer: node (its Node ID) or, when only its CAN alias is
+        /// known, alias (in hex, "4FF") instead, role (producer/consumer), event (the first ID),
         /// last (the last ID of a range, else equal to event), name, state (valid, invalid,
         /// unknown; null for a range).
         #[arg(long)]
@@ -177,11 +192,19 @@ async fn events(args: &EventsArgs) -> Result<ExitCode, String> {
     let (EventsCommand::Watch { joining, .. }
     | EventsCommand::Send { joining, .. }
     | EventsCommand::Identify { joining, .. }) = &args.command;
+    let snip_timeout = match &args.command {
+        EventsCommand::Watch { snip_timeout, .. } => Some(openlcb_stream::Duration::from_secs(*snip_timeout)),
+        _ => None,
+    };
     let node = joining.connect.join(&joining.node_id, |id| {
         let mut options = NodeOptions::new(id);
         options.node.snip = net::snip("events");
         options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
         options.node.events.listen = Listen::Everything;
+        if let Some(timeout) = snip_timeout {
+            options.node.snip_timeout = timeout;
+            options.node.max_snip_requests = watch::LOOKUPS;
+        }
         options
     });
     let node = match node.await {
@@ -189,10 +212,18 @@ async fn events(args: &EventsArgs) -> Result<ExitCode, String> {
         Err(failure) => return Ok(net::fail("events", &failure)),
     };
     let result = match &args.command {
-        EventsCommand::Watch { json, .. } => tokio::select! {
-            result = watch(&node, *json) => result,
-            () = interrupt.wait() => Ok(ExitCode::from(crate::outcome::Outcome::Interrupted.status())),
-        },
+        EventsCommand::Watch { json, .. } => {
+            let format = if *json { Format::Json } else { Format::Text };
+            match node.event_notices().await {
+                Ok(notices) => {
+                    // Who is there, so that the link knows their Node IDs and the reports name
+                    // their senders by them.
+                    let _ = node.discover(Duration::from_millis(500), 1024).await;
+                    watch::watch(&node, notices, format, &mut interrupt).await
+                }
+                Err(error) => Err(error.to_string()),
+            }
+        }
         EventsCommand::Send { event, payload, .. } => {
             match node.send_event(*event, payload.clone().map(|p| p.0).unwrap_or_default()).await {
                 Ok(()) => {
@@ -208,59 +239,15 @@ async fn events(args: &EventsArgs) -> Result<ExitCode, String> {
     result
 }
 
-/// One report as `watch --json` prints it.
-#[derive(Debug, Serialize)]
-struct ReportLine {
-    time: f64,
-    event: String,
-    name: Option<&'static str>,
-    from: String,
-    from_name: Option<String>,
-    payload: String,
-}
-
-async fn watch(node: &Node, json: bool) -> Result<ExitCode, String> {
-    let mut notices = node.event_notices().await.map_err(|e| e.to_string())?;
-    // Who is there, so that the link knows their aliases and reports name their senders.
-    let _ = node.discover(Duration::from_millis(500), 1024).await;
-    let start = std::time::Instant::now();
-    let mut names: HashMap<NodeId, Option<String>> = HashMap::new();
-    eprintln!("lcc-stream events: watching event reports (Ctrl-C stops)");
-    while let Some(notice) = notices.next().await {
-        let EventNotice::Report { from, event, payload } = notice else { continue };
-        if let std::collections::hash_map::Entry::Vacant(slot) = names.entry(from) {
-            let info = tokio::time::timeout(SNIP_WAIT, node.snip(from)).await.ok().and_then(Result::ok);
-            slot.insert(info.as_ref().map(snip_name));
-        }
-        let from_name = names.get(&from).cloned().flatten();
-        let line = ReportLine {
-            time: start.elapsed().as_secs_f64(),
-            event: event.to_string(),
-            name: well_known(event),
-            from: from.to_string(),
-            from_name,
-            payload: payload.iter().map(|b| format!("{b:02X}")).collect(),
-        };
-        if json {
-            net::print_json(&line);
-        } else {
-            let who = line.from_name.as_ref().map_or(line.from.clone(), |name| format!("{} \"{name}\"", line.from));
-            let payload = if line.payload.is_empty() { String::new() } else { format!(" payload {}", line.payload) };
-            outln!("{:9.3}  {}  from {who}{payload}", line.time, event_text(event));
-        }
-    }
-    Err("the connection ended".into())
-}
-
-/// The user name of a node, or else its manufacturer and model.
-fn snip_name(info: &SnipInfo) -> String {
-    if info.user_name.is_empty() { format!("{} {}", info.manufacturer, info.model) } else { info.user_name.clone() }
-}
-
 /// One answer as `identify --json` prints it.
 #[derive(Debug, Serialize, PartialEq, Eq, PartialOrd, Ord)]
 struct IdentifiedLine {
-    node: String,
+    #[serde(skip)]
+    peer: Peer,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    node: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    alias: Option<String>,
     role: &'static str,
     event: String,
     last: String,
@@ -270,8 +257,11 @@ struct IdentifiedLine {
 
 impl IdentifiedLine {
     fn new(from: NodeId, role: EventRole, range: EventRange, state: Option<EventState>) -> Self {
+        let peer = Peer::of(from);
         IdentifiedLine {
-            node: from.to_string(),
+            peer,
+            node: peer.node_field(),
+            alias: peer.alias_field(),
             role: match role {
                 EventRole::Producer => "producer",
                 EventRole::Consumer => "consumer",
@@ -295,7 +285,7 @@ impl IdentifiedLine {
             Some(name) => format!("{events} ({name})"),
             None => events,
         };
-        format!("{:17}  {:8}  {:48}  {}", self.node, self.role, events, self.state.unwrap_or("range"))
+        format!("{:17}  {:8}  {:48}  {}", self.peer.to_string(), self.role, events, self.state.unwrap_or("range"))
     }
 }
 

@@ -19,6 +19,8 @@ mod net;
 mod nodes;
 mod outcome;
 mod pace;
+mod peer;
+mod printer;
 mod progress;
 mod read;
 mod recv;
@@ -26,6 +28,7 @@ mod send;
 mod serve;
 mod settings;
 mod sim;
+mod watch;
 mod write;
 
 use std::io::IsTerminal as _;

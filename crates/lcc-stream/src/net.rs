@@ -380,9 +380,14 @@ pub(crate) fn rate(bytes: u64, seconds: f64) -> f64 {
 
 /// Prints `report` as one line of JSON on stdout.
 pub(crate) fn print_json(report: &impl serde::Serialize) {
-    match serde_json::to_string(report) {
-        Ok(line) => outln!("{line}"),
-        // Only a map with non-string keys fails, and no report has one.
-        Err(error) => eprintln!("lcc-stream: cannot write JSON: {error}"),
-    }
+    out!("{}", json_line(report));
+}
+
+/// `report` as one line of JSON, newline included.
+pub(crate) fn json_line(report: &impl serde::Serialize) -> String {
+    // Only a map with non-string keys fails, and no report has one.
+    let mut line = serde_json::to_string(report)
+        .unwrap_or_else(|error| serde_json::json!({ "error": format!("cannot write JSON: {error}") }).to_string());
+    line.push('\n');
+    line
 }

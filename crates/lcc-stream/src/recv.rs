@@ -22,6 +22,7 @@ use tokio::sync::watch;
 use crate::files;
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome};
+use crate::peer::Peer;
 use crate::progress::{Progress, ProgressGroup};
 
 /// Names tried for one stream before giving up (every one of them already taken).
@@ -37,8 +38,9 @@ fn after_help() -> String {
         "{}{}",
         "\
 --json prints one object per stream: file (final name, or the .part kept; absent if no data
-came), from (Node ID), bytes (received), elapsed_s, bytes_per_s, window (granted), result (the
-word of the exit status below), content_uid (if the source sent one) and error (a sentence, on
+came), from (the source's Node ID) or, when only its CAN alias is known, from_alias (in hex,
+4FF) instead, bytes (received), elapsed_s, bytes_per_s, window (granted), result (the word
+of the exit status below), content_uid (if the source sent one) and error (a sentence, on
 failure). An exit before any stream ended (a connection or file error, an interrupt) prints
 one object with result and error.
 
@@ -142,7 +144,7 @@ async fn listen(args: &RecvArgs, interrupt: &mut net::Interrupt, reported: &mut 
             accepted = node.accept(), if accepting => match accepted {
                 Ok(stream) => {
                     let target = Target { out: args.out.clone(), counter: counter.clone() };
-                    let shown = progress.start(None, &format!("from {}", stream.info().peer));
+                    let shown = progress.start(None, &format!("from {}", Peer::of(stream.info().peer)));
                     transfers.spawn(save(stream, target, args.json, shown, stopped.clone()));
                     // With --once, take no more: the one stream decides the exit status.
                     accepting = !args.once;
@@ -322,7 +324,10 @@ async fn finish(target: &Target, peer: NodeId, out: Option<Output>) -> Result<Pa
 struct RecvReport<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     file: Option<&'a str>,
-    from: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from_alias: Option<String>,
     bytes: u64,
     elapsed_s: f64,
     bytes_per_s: f64,
@@ -356,10 +361,12 @@ fn report(
         Ok(path) | Err((_, Some(path))) => Some(path.display().to_string()),
         Err((_, None)) => None,
     };
+    let from = Peer::of(info.peer);
     if json {
         net::print_json(&RecvReport {
             file: file.as_deref(),
-            from: info.peer.to_string(),
+            from: from.node_field(),
+            from_alias: from.alias_field(),
             bytes,
             elapsed_s: elapsed.as_secs_f64(),
             bytes_per_s,
@@ -370,11 +377,10 @@ fn report(
         });
     } else if let Some(error) = error {
         let kept = file.map_or_else(|| "no file written".to_string(), |file| format!("kept in {file}"));
-        eprintln!("lcc-stream recv: stream from {} failed after {bytes} bytes ({kept}): {error}", info.peer);
+        eprintln!("lcc-stream recv: stream from {from} failed after {bytes} bytes ({kept}): {error}");
     } else {
         net::say(&format!(
-            "received {bytes} bytes from {} into {} in {:.3} s ({}), window {}",
-            info.peer,
+            "received {bytes} bytes from {from} into {} in {:.3} s ({}), window {}",
             file.unwrap_or_default(),
             elapsed.as_secs_f64(),
             net::rate_text(bytes_per_s),

@@ -17,6 +17,8 @@ use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome, net_outcome};
+use crate::peer::Peer;
+use crate::printer::{Output, Printer};
 use crate::recv::{part_path, publish_blocking};
 
 /// The Node ID `serve` uses unless told otherwise.
@@ -31,9 +33,13 @@ macro_rules! serve_json_help {
     () => {
         "\
 --json prints one object when the node stops: node, config_bytes (the size of space 0xFD),
-cdi_bytes, firmware (one object per image received: from, bytes, file, and error when it
-could not be saved), user_info_changes (writes of space 0xFB), events_dropped, result
-(the word of the exit status below) and, on failure, error.
+cdi_bytes, firmware (one object per image received: from (the loader's Node ID, or
+from_alias, its CAN alias in hex, when only that is known), bytes, file, and error when it
+could not be saved), user_info_changes (writes of space 0xFB), events_received (reports and
+Learn Event messages of consumed events taken), events_dropped (those the node received but
+had no room for: with events_received, every one that came), memory_events_dropped (the
+memory server's notices lost the same way), result (the word of the exit status below) and,
+on failure, error.
 
 "
     };
@@ -75,7 +81,8 @@ pub(crate) struct ServeArgs {
     #[arg(long, value_name = "EVENT_ID[/COUNT]", value_parser = crate::events::declared)]
     produces: Vec<DeclaredEvents>,
     /// An event this node consumes (forms as --produces); repeatable. Each report of one is
-    /// printed as it comes.
+    /// printed on stderr as it comes; reports that come faster than stderr takes them are
+    /// dropped, and a line says how many where they were lost.
     #[arg(long, value_name = "EVENT_ID[/COUNT]", value_parser = crate::events::declared)]
     consumes: Vec<DeclaredEvents>,
     /// Take no part in streams: every transfer goes by datagrams.
@@ -96,7 +103,9 @@ struct ServeReport {
     cdi_bytes: u32,
     firmware: Vec<ImageReport>,
     user_info_changes: u64,
+    events_received: u64,
     events_dropped: u64,
+    memory_events_dropped: u64,
     result: &'static str,
     #[serde(skip_serializing_if = "Option::is_none")]
     error: Option<String>,
@@ -105,11 +114,21 @@ struct ServeReport {
 /// One firmware image received.
 #[derive(Debug, Serialize)]
 struct ImageReport {
-    from: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from_alias: Option<String>,
     bytes: u32,
     file: String,
     #[serde(skip_serializing_if = "Option::is_none")]
     error: Option<String>,
+}
+
+impl ImageReport {
+    fn new(from: NodeId, bytes: u32, file: String, error: Option<String>) -> Self {
+        let from = Peer::of(from);
+        ImageReport { from: from.node_field(), from_alias: from.alias_field(), bytes, file, error }
+    }
 }
 
 pub(crate) fn run(args: &ServeArgs) -> Result<ExitCode, String> {
@@ -163,6 +182,8 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         Ok(notices) => notices,
         Err(error) => return Ok(net::fail("serve", &Failure::Net(error))),
     };
+    // The reports go to stderr beside the loop, so that a slow terminal never holds it up.
+    let mut printer = if args.json { None } else { Some(Printer::start(Output::Stderr)?) };
     // On stderr even with --json: scripts can wait for this line before starting a tool.
     eprintln!(
         "lcc-stream serve: node {} serving spaces 0xFF 0xFD 0xFC 0xFB 0xEF on {}",
@@ -184,7 +205,7 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
                     break net_outcome(&error).status();
                 }
             },
-            Some(notice) = notices.next() => on_notice(&notice, args.json),
+            Some(notice) = notices.next() => on_notice(&notice, notices.dropped(), printer.as_mut(), &mut report),
             error = node.closed() => {
                 (report.result, report.error) = (net_outcome(&error).word(), Some(error.to_string()));
                 break net_outcome(&error).status();
@@ -195,38 +216,60 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
             }
         }
     };
+    // What the node had handed over already is printed too.
+    while let Some(notice) = notices.try_next() {
+        on_notice(&notice, notices.dropped(), printer.as_mut(), &mut report);
+    }
+    report.events_dropped = notices.dropped();
     if let Ok(stats) = node.stats().await {
-        report.events_dropped = stats.memory_events_dropped;
+        report.memory_events_dropped = stats.memory_events_dropped;
     }
     node.close().await;
+    let reports = match printer {
+        Some(mut printer) => {
+            printer.node_lost(notices.dropped());
+            let (printed, dropped, unsaid) = (printer.printed(), printer.dropped(), printer.unsaid());
+            printer.finish(if unsaid > 0 { vec![dropped_reports(unsaid)] } else { Vec::new() }).await;
+            format!(" ({printed} event reports printed, {dropped} dropped)")
+        }
+        None => String::new(),
+    };
     if args.json {
         outln!("{}", serde_json::to_string(&report).map_err(|e| e.to_string())?);
     } else if let Some(error) = &report.error {
-        eprintln!("lcc-stream serve: {error}");
+        eprintln!("lcc-stream serve: {error}{reports}");
     } else {
-        eprintln!("lcc-stream serve: interrupted");
+        eprintln!("lcc-stream serve: interrupted{reports}");
     }
     Ok(ExitCode::from(status))
 }
 
-/// Prints a consumed event's report (or a Learn Event) as it comes, on stderr.
-fn on_notice(notice: &EventNotice, json: bool) {
+/// Prints a consumed event's report (or a Learn Event) on stderr as it comes, with `printer`
+/// (none with `--json`); `node_lost` is the listener's count of lost notices.
+fn on_notice(notice: &EventNotice, node_lost: u64, printer: Option<&mut Printer>, report: &mut ServeReport) {
     let text = match notice {
         EventNotice::Report { from, event, payload } if payload.is_empty() => {
-            format!("event {} from {from}", crate::events::event_text(*event))
+            format!("event {} from {}", crate::events::event_text(*event), Peer::of(*from))
         }
         EventNotice::Report { from, event, payload } => {
             let hex: String = payload.iter().map(|b| format!("{b:02X}")).collect();
-            format!("event {} from {from}, payload {hex}", crate::events::event_text(*event))
+            format!("event {} from {}, payload {hex}", crate::events::event_text(*event), Peer::of(*from))
         }
         EventNotice::Learn { from, event } => {
-            format!("learn event {} from {from} (ignored)", crate::events::event_text(*event))
+            format!("learn event {} from {} (ignored)", crate::events::event_text(*event), Peer::of(*from))
         }
         _ => return,
     };
-    if !json {
-        eprintln!("lcc-stream serve: {text}");
+    report.events_received += 1;
+    if let Some(printer) = printer {
+        printer.node_lost(node_lost);
+        printer.report(format!("lcc-stream serve: {text}\n"), dropped_reports);
     }
+}
+
+/// The line saying that `dropped` event reports were not printed.
+fn dropped_reports(dropped: u64) -> String {
+    format!("lcc-stream serve: … {dropped} event reports dropped (they came faster than they could be printed)\n")
 }
 
 /// Says on stderr what the server was asked to do and did.
@@ -237,27 +280,30 @@ fn on_event(event: MemoryEvent, args: &ServeArgs, image: &Image, report: &mut Se
         }
     };
     match event {
-        MemoryEvent::Frozen { by } => say(format!("frozen for a firmware upgrade by {by}")),
+        MemoryEvent::Frozen { by } => say(format!("frozen for a firmware upgrade by {}", Peer::of(by))),
         MemoryEvent::Unfrozen { by, image_len } => {
             let file = image.last_saved().map(|p| p.display().to_string()).unwrap_or_default();
-            say(format!("firmware of {image_len} bytes from {by} written to {file}"));
-            report.firmware.push(ImageReport { from: by.to_string(), bytes: image_len, file, error: None });
+            say(format!("firmware of {image_len} bytes from {} written to {file}", Peer::of(by)));
+            report.firmware.push(ImageReport::new(by, image_len, file, None));
         }
         MemoryEvent::UpgradeRefused { by, code } => {
             let why = image.last_error().unwrap_or_else(|| "the transfer was aborted".to_string());
-            say(format!("Unfreeze of {by} refused with 0x{:04X}, still frozen: {why}", code.0));
+            say(format!("Unfreeze of {} refused with 0x{:04X}, still frozen: {why}", Peer::of(by), code.0));
             let file = image.next_path().display().to_string();
-            report.firmware.push(ImageReport { from: by.to_string(), bytes: 0, file, error: Some(why) });
+            report.firmware.push(ImageReport::new(by, 0, file, Some(why)));
         }
         MemoryEvent::UserInfoChanged => {
             report.user_info_changes += 1;
             say("user name and description changed (space 0xFB)".to_string());
         }
-        MemoryEvent::UpdateComplete { by } => say(format!("update complete, said {by}")),
+        MemoryEvent::UpdateComplete { by } => say(format!("update complete, said {}", Peer::of(by))),
         MemoryEvent::ResetRequested { by } => say(format!(
-            "reset asked for by {by}: the node started again (streams ended, Initialization Complete sent)"
+            "reset asked for by {}: the node started again (streams ended, Initialization Complete sent)",
+            Peer::of(by)
         )),
-        MemoryEvent::FactoryResetRequested { by } => say(format!("factory reset asked for by {by} (ignored)")),
+        MemoryEvent::FactoryResetRequested { by } => {
+            say(format!("factory reset asked for by {} (ignored)", Peer::of(by)))
+        }
         _ => {}
     }
 }

@@ -21,6 +21,9 @@ use crate::{Error, Framing, NodeOptions, RecvStream};
 
 /// Bytes read from the socket at once.
 pub(crate) const READ_CHUNK: usize = 64 * 1024;
+/// The shortest GridConnect frame, `:X00000000N;`: so many bytes of input hold at most one
+/// frame (OpenLCB-TCP messages are longer).
+pub(crate) const SHORTEST_FRAME: usize = ":X00000000N;".len();
 /// Received stream data the driver holds per stream for a reader that has not asked yet.
 /// Taking data out of the endpoint frees its buffer, which sends the next Proceed; past this
 /// bound the driver stops taking, and a slow reader slows the source.
@@ -81,6 +84,9 @@ pub(crate) struct Driver {
     /// `finish` calls waiting until everything has been written to the socket.
     flush_waiters: Vec<DoneReply>,
     read_buf: Vec<u8>,
+    /// Bytes of a read handed to the node at once, before its events are drained: few enough
+    /// frames that the node's bounded event queue cannot fill (see [`notice_slice`]).
+    read_slice: usize,
     scratch: Vec<u8>,
     /// See [`NodeOptions::write_timeout`].
     write_timeout: std::time::Duration,
@@ -99,6 +105,7 @@ impl Driver {
         shared: Shared,
     ) -> Self {
         let NodeOptions { node_id, node, can, write_timeout, .. } = options;
+        let read_slice = notice_slice(node.transmit_queue_limit);
         let start = tokio::time::Instant::now();
         Driver {
             reader,
@@ -120,6 +127,7 @@ impl Driver {
             recvs: HashMap::new(),
             flush_waiters: Vec::new(),
             read_buf: vec![0; READ_CHUNK],
+            read_slice,
             scratch: vec![0; READ_CHUNK],
         }
     }
@@ -276,11 +284,20 @@ impl Driver {
             Ok(0) => Err(Error::closed_by_hub()),
             Ok(n) => {
                 let now = self.now();
-                let bytes = self.read_buf.get(..n).unwrap_or_default();
-                if let Some(line) = hub_full(bytes) {
+                if let Some(line) = self.read_buf.get(..n).and_then(hub_full) {
                     return Err(Error::HubFull(line));
                 }
-                self.wire.receive(now, bytes, &mut self.stack, &mut self.stats)
+                // A read holds thousands of frames: the node's events are taken between
+                // slices of it, so that none is lost to its bounded queue.
+                let mut start = 0;
+                while start < n {
+                    let end = n.min(start + self.read_slice);
+                    let bytes = self.read_buf.get(start..end).unwrap_or_default();
+                    self.wire.receive(now, bytes, &mut self.stack, &mut self.stats)?;
+                    self.node_events(now);
+                    start = end;
+                }
+                Ok(())
             }
             Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => Ok(()),
             Err(error) => Err(Error::lost(error)),
@@ -417,6 +434,7 @@ impl Driver {
     // ----- the node's events -----
 
     fn node_events(&mut self, now: Instant) {
+        self.events.node_dropped(self.stack.event_stats().notices_dropped);
         while let Some(event) = self.stack.poll_event() {
             let event = match event {
                 NodeEvent::Stream(event) => event,
@@ -591,6 +609,13 @@ impl Driver {
             }
         });
     }
+}
+
+/// The bytes of input handed to the node between two drains of its events: a frame causes at
+/// most one notice, and the node keeps `queue_limit` events before it drops notices, so half
+/// as many frames (the rest of the room is for the events of what this node started).
+fn notice_slice(queue_limit: usize) -> usize {
+    (queue_limit / 2).max(1) * SHORTEST_FRAME
 }
 
 /// Logs the events that begin or end a stream (in the node's span), none per window or frame.

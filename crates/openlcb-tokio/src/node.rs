@@ -15,7 +15,7 @@ use tokio::task::JoinHandle;
 use tracing::Instrument as _;
 
 use crate::driver::Driver;
-use crate::events::{EVENT_NOTICE_QUEUE, EventCommand, EventNotices};
+use crate::events::{EventCommand, EventNotices};
 use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents, TransferKey};
 use crate::{Error, Framing, WireStats};
 use openlcb_node::EventRole;
@@ -52,9 +52,8 @@ pub struct NodeOptions {
 /// from many nodes is answered in full before the driver sends (each frame causes at most
 /// one).
 fn can_config() -> CanConfig {
-    const SHORTEST_FRAME: usize = ":X00000000N;".len();
     let mut can = CanConfig::default();
-    can.frame_queue_limit = crate::driver::READ_CHUNK / SHORTEST_FRAME;
+    can.frame_queue_limit = crate::driver::READ_CHUNK / crate::driver::SHORTEST_FRAME;
     can
 }
 
@@ -83,7 +82,8 @@ pub struct NodeStats {
     pub node: StackStats,
     /// Memory server events dropped because the application did not take them in time.
     pub memory_events_dropped: u64,
-    /// Event notices dropped because a listener did not take them in time.
+    /// Event notices lost, summed over the listeners (each one's
+    /// [`EventNotices::dropped`]).
     pub event_notices_dropped: u64,
 }
 
@@ -352,9 +352,11 @@ impl Node {
         Ok(found)
     }
 
-    /// Asks `peer` for its Simple Node Information (the node's SNIP timeout applies).
-    pub async fn snip(&self, peer: NodeId) -> Result<SnipInfo, Error> {
-        self.control.call(|reply| Command::Snip { peer, reply }).await?
+    /// Asks `peer` for its Simple Node Information (the node's SNIP timeout applies). The
+    /// question borrows nothing from the node, so many can run at once as tasks of their own.
+    pub fn snip(&self, peer: NodeId) -> impl Future<Output = Result<SnipInfo, Error>> + Send + 'static {
+        let control = self.control.clone();
+        async move { control.call(|reply| Command::Snip { peer, reply }).await? }
     }
 
     /// Asks `peer` which protocols it supports, waiting at most `timeout` for the answer.
@@ -371,13 +373,16 @@ impl Node {
     }
 
     /// From now on, the event messages the node's
-    /// [`EventConfig`](openlcb_node::EventConfig) lets through. Notices a listener leaves
-    /// waiting past [`EVENT_NOTICE_QUEUE`] are dropped and counted.
+    /// [`EventConfig`](openlcb_node::EventConfig) lets through: every one the node receives
+    /// after this returns is either taken from the listener or counted in its
+    /// [`EventNotices::dropped`] (those it leaves waiting past
+    /// [`EVENT_NOTICE_QUEUE`](crate::events::EVENT_NOTICE_QUEUE)).
     pub async fn event_notices(&self) -> Result<EventNotices, Error> {
-        let (sink, notices) = mpsc::channel(EVENT_NOTICE_QUEUE);
-        let command = Command::Events(EventCommand::Listen { sink });
-        self.control.commands.send(command).await.map_err(|_| self.control.shared.error())?;
-        Ok(EventNotices::new(notices))
+        let (listening, registered) = oneshot::channel();
+        let (command, notices) = EventCommand::listen(listening);
+        self.control.commands.send(Command::Events(command)).await.map_err(|_| self.control.shared.error())?;
+        registered.await.map_err(|_| self.control.shared.error())?;
+        Ok(notices)
     }
 
     /// Sends a Producer/Consumer Event Report for `event`, with `payload` after it if not
