@@ -85,6 +85,10 @@ enum Action {
     },
     /// Write every int, string and Event ID setting into a file of key=value lines, as JMRI's
     /// Backup does.
+    ///
+    /// Floats are left out, as JMRI's `BackupConfig` leaves them out (its visitor writes
+    /// strings, ints and Event IDs only): the file stays byte for byte JMRI's, and JMRI
+    /// restores it. `config show` and `config get` read floats.
     #[command(after_help = after_help())]
     Backup {
         /// The node.

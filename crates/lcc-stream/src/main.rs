@@ -115,8 +115,17 @@ enum Command {
         #[arg(value_enum)]
         shell: clap_complete::Shell,
     },
-    /// Print the manual page (roff) on stdout, e.g. `lcc-stream man > lcc-stream.1`.
-    Man,
+    /// Print the manual page (roff) on stdout, e.g. `lcc-stream man > lcc-stream.1`; a
+    /// subcommand's with its name (`lcc-stream man config restore > lcc-stream-config-restore.1`),
+    /// or every page into a folder with --dir.
+    Man {
+        /// The subcommand whose page to print, e.g. `send` or `config restore`.
+        command: Vec<String>,
+        /// Write the pages of the tool and of every subcommand into this folder
+        /// (lcc-stream.1, lcc-stream-send.1, lcc-stream-config-restore.1, ...).
+        #[arg(long, value_name = "DIR", conflicts_with = "command")]
+        dir: Option<std::path::PathBuf>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -153,7 +162,7 @@ fn main() -> ExitCode {
                 .map(|()| ExitCode::SUCCESS)
                 .map_err(|e| format!("cannot write the completion script: {e}"))
         }
-        Command::Man => man(),
+        Command::Man { command, dir } => man(&command, dir.as_deref()),
     };
     match result {
         Ok(code) => code,
@@ -165,8 +174,28 @@ fn main() -> ExitCode {
 }
 
 /// Writes the manual page (the tool, its options and its commands) to stdout.
-fn man() -> Result<ExitCode, String> {
-    let page = clap_mangen::Man::new(Cli::command());
+/// The manual page of the subcommand `path` names (the tool's for none) on stdout, or every
+/// page into `dir`.
+fn man(path: &[String], dir: Option<&std::path::Path>) -> Result<ExitCode, String> {
+    let mut cli = Cli::command().disable_help_subcommand(true);
+    if let Some(dir) = dir {
+        clap_mangen::generate_to(cli, dir)
+            .map_err(|e| format!("cannot write the manual pages into {}: {e}", dir.display()))?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    // Built, each subcommand is named as its page is: lcc-stream-config-restore.
+    cli.build();
+    let mut command = &cli;
+    for name in path {
+        let Some(sub) = command.find_subcommand(name) else {
+            let known: Vec<&str> = command.get_subcommands().map(clap::Command::get_name).collect();
+            let parent = command.get_display_name().unwrap_or("lcc-stream");
+            eprintln!("lcc-stream man: `{parent}` has no subcommand `{name}` (it has: {})", known.join(", "));
+            return Ok(ExitCode::from(outcome::Outcome::Usage.status()));
+        };
+        command = sub;
+    }
+    let page = clap_mangen::Man::new(command.clone());
     let mut roff = Vec::new();
     page.render(&mut roff).map_err(|e| format!("cannot render the manual page: {e}"))?;
     stdout::write_bytes(&roff).map_err(|e| format!("cannot write the manual page: {e}"))?;

@@ -279,6 +279,16 @@ async fn completions_man_page_quiet_and_stdin() {
     assert!(bash.status.success() && text(&bash.stdout).contains("lcc-stream"));
     let man = run(&["man"]).await;
     assert!(text(&man.stdout).starts_with(".ie") || text(&man.stdout).contains(".TH"), "{}", text(&man.stdout));
+    // Each subcommand has its page, by name or all into a folder.
+    let restore = run(&["man", "config", "restore"]).await;
+    assert!(text(&restore.stdout).contains(".TH lcc-stream-config-restore 1"), "{}", text(&restore.stdout));
+    assert!(text(&restore.stdout).contains("dry\\-run"), "its options: {}", text(&restore.stdout));
+    assert_eq!(run(&["man", "nope"]).await.status.code(), Some(2));
+    let pages = scratch("man-pages");
+    assert!(run(&["man", "--dir", pages.to_str().unwrap()]).await.status.success());
+    for page in ["lcc-stream.1", "lcc-stream-send.1", "lcc-stream-config-restore.1", "lcc-stream-events-watch.1"] {
+        assert!(pages.join(page).exists(), "{page}");
+    }
     let (_hub, addr, _, _) = hub().await;
     let dir = scratch("stdin");
     let out = dir.join("in.bin");
