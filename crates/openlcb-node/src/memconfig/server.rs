@@ -270,8 +270,10 @@ impl MemoryServer {
         }
         let deadline = cx.now + cx.options.holder_answer_timeout;
         self.holder_check = Some(HolderCheck { holder, deadline, answered: false });
+        // Queued whatever the answers waiting: a Verify dropped would find a holder gone that
+        // is not (one check at a time bounds them).
         let verify = Message::addressed(Mti::VERIFY_NODE_ID_ADDRESSED, cx.out.node, holder, Vec::new());
-        cx.out.reply(verify);
+        cx.out.transmit(verify);
         false
     }
 
