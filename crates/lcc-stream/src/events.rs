@@ -12,6 +12,7 @@ use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
 use crate::peer::Peer;
+use crate::reconnect::{RECONNECT_HELP, ReconnectArgs};
 use crate::watch::{self, Format};
 
 /// Event IDs with a meaning fixed by the standards, printed by name.
@@ -119,6 +120,10 @@ enum EventsCommand {
     /// lost without a word: a line `… 312 reports dropped (the bus is faster than this
     /// terminal)` stands where they were, and the end says on stderr how many were printed
     /// and how many dropped.
+    ///
+    /// A lost hub: the counts and the names learnt are kept, and a new login (same Node ID)
+    /// watches on. While the hub was away nothing was seen.
+    #[command(after_help = format!("{RECONNECT_HELP}{}", net::network_help(&[])))]
     Watch {
         /// One JSON object per report: time (seconds since start), event, name (well-known
         /// events; else null), from (the sender's Node ID) or, when only its CAN alias is
@@ -134,6 +139,8 @@ enum EventsCommand {
         snip_timeout: u64,
         #[command(flatten)]
         joining: Joining,
+        #[command(flatten)]
+        reconnect: ReconnectArgs,
     },
     /// Send one Producer/Consumer Event Report.
     Send {
@@ -196,7 +203,7 @@ async fn events(args: &EventsArgs) -> Result<ExitCode, String> {
         EventsCommand::Watch { snip_timeout, .. } => Some(openlcb_stream::Duration::from_secs(*snip_timeout)),
         _ => None,
     };
-    let node = joining.connect.join(&joining.node_id, |id| {
+    let options = |id| {
         let mut options = NodeOptions::new(id);
         options.node.snip = net::snip("events");
         options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
@@ -206,23 +213,16 @@ async fn events(args: &EventsArgs) -> Result<ExitCode, String> {
             options.node.max_snip_requests = watch::LOOKUPS;
         }
         options
-    });
-    let node = match node.await {
+    };
+    let node = match joining.connect.join(&joining.node_id, options).await {
         Ok(node) => node,
         Err(failure) => return Ok(net::fail("events", &failure)),
     };
     let result = match &args.command {
-        EventsCommand::Watch { json, .. } => {
+        EventsCommand::Watch { json, reconnect, .. } => {
             let format = if *json { Format::Json } else { Format::Text };
-            match node.event_notices().await {
-                Ok(notices) => {
-                    // Who is there, so that the link knows their Node IDs and the reports name
-                    // their senders by them.
-                    let _ = node.discover(Duration::from_millis(500), 1024).await;
-                    watch::watch(&node, notices, format, &mut interrupt).await
-                }
-                Err(error) => Err(error.to_string()),
-            }
+            // It closes the node it ends with.
+            return watch::watch(node, &joining.connect, options, reconnect, format, &mut interrupt).await;
         }
         EventsCommand::Send { event, payload, .. } => {
             match node.send_event(*event, payload.clone().map(|p| p.0).unwrap_or_default()).await {

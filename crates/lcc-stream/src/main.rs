@@ -23,6 +23,7 @@ mod peer;
 mod printer;
 mod progress;
 mod read;
+mod reconnect;
 mod recv;
 mod send;
 mod serve;

@@ -23,6 +23,8 @@ use tokio::io::AsyncReadExt as _;
 
 use crate::events::{event_text, range_text};
 use crate::net::{self, ConnectArgs};
+use crate::outcome::Outcome;
+use crate::reconnect::{RECONNECT_HELP, ReconnectArgs, Stop};
 
 /// Messages being reassembled at once (addressed messages and reports with payload).
 const MESSAGE_SLOTS: usize = 64;
@@ -57,7 +59,7 @@ pub(crate) enum Kind {
 
 /// Options of `lcc-stream monitor`.
 #[derive(Debug, Args)]
-#[command(after_help = format!("{}{}", "\
+#[command(after_help = format!("{}{RECONNECT_HELP}{}", "\
 Prints one line per message (CAN frames reassembled): the time in seconds, the source (alias,
 and Node ID once learnt), the destination, the message by name and its content decoded.
 --from reads a saved trace: GridConnect frames one a line, as `lcc-stream hub --trace` or
@@ -66,6 +68,11 @@ OpenMRN's `hub -l` print them (a leading time in seconds is used when there is o
 --json prints one object per message: time, kind, source_alias, source (Node ID or null),
 destination_alias and destination (null for global messages), message (its name), detail
 (the decoded content) and raw (the frame, for what did not decode; else null).
+
+Live, a lost hub is listened to again as below (monitor has no node, so no login: it says
+`listening again on ADDR`); the filters and the Node IDs learnt are kept, and a line marks
+the gap, whatever the filters: `    12.345  -- nothing seen for 3.2 s: the hub at ADDR was
+lost (connection to the hub lost: ...) --`, with --json {time, gap_s, error}.
 
 ", net::network_help(&[])))]
 pub(crate) struct MonitorArgs {
@@ -84,6 +91,26 @@ pub(crate) struct MonitorArgs {
     json: bool,
     #[command(flatten)]
     connect: ConnectArgs,
+    #[command(flatten)]
+    reconnect: ReconnectArgs,
+}
+
+/// Where a live monitor saw nothing: the hub was lost at `time` for `gap_s` seconds.
+#[derive(Debug, Serialize)]
+struct GapLine<'a> {
+    time: f64,
+    gap_s: f64,
+    error: &'a str,
+}
+
+impl GapLine<'_> {
+    /// The text form.
+    fn text(&self, addr: &str) -> String {
+        format!(
+            "{:10.3}  -- nothing seen for {:.1} s: the hub at {addr} was lost ({}) --",
+            self.time, self.gap_s, self.error
+        )
+    }
 }
 
 /// One decoded message.
@@ -827,7 +854,7 @@ async fn live(args: &MonitorArgs, mut print: impl FnMut(&mut Vec<Line>)) -> Resu
         Ok(stream) => stream,
         Err(error) => {
             eprintln!("lcc-stream monitor: {error}");
-            return Ok(ExitCode::from(3));
+            return Ok(ExitCode::from(Outcome::UnreachableHub.status()));
         }
     };
     eprintln!("lcc-stream monitor: listening on {} (Ctrl-C stops)", args.connect.addr());
@@ -836,17 +863,43 @@ async fn live(args: &MonitorArgs, mut print: impl FnMut(&mut Vec<Line>)) -> Resu
     let mut decoder = GridConnectDecoder::new();
     let mut buf = vec![0u8; 64 * 1024];
     let mut lines = Vec::new();
+    let addr = args.connect.addr();
     let status = loop {
-        tokio::select! {
+        let lost = tokio::select! {
             read = stream.read(&mut buf) => match read {
-                Ok(0) | Err(_) => break 6,
+                Ok(0) => "connection to the hub lost: it closed the connection".to_string(),
+                Err(error) => format!("connection to the hub lost: {error}"),
                 Ok(n) => {
                     let time = start.elapsed().as_secs_f64();
                     decode_text(&mut monitor, &mut decoder, time, buf.get(..n).unwrap_or_default(), &mut lines);
                     print(&mut lines);
+                    continue;
                 }
             },
-            () = interrupt.wait() => break crate::outcome::Outcome::Interrupted.status(),
+            () = interrupt.wait() => break Outcome::Interrupted.status(),
+        };
+        // What was complete before the loss is shown; a frame cut in half is not.
+        monitor.flush(&mut lines);
+        print(&mut lines);
+        let lost_at = start.elapsed().as_secs_f64();
+        match args.reconnect.rejoin("monitor", addr, &lost, &mut interrupt, || args.connect.byte_stream()).await {
+            Ok(again) => {
+                stream = again;
+                decoder = GridConnectDecoder::new();
+                let time = start.elapsed().as_secs_f64();
+                let gap = GapLine { time, gap_s: time - lost_at, error: &lost };
+                if args.json {
+                    net::print_json(&gap);
+                } else {
+                    outln!("{}", gap.text(addr));
+                }
+                eprintln!("lcc-stream monitor: listening again on {addr}");
+            }
+            Err(Stop::Interrupted) => break Outcome::Interrupted.status(),
+            Err(Stop::GaveUp) => {
+                eprintln!("lcc-stream monitor: {lost}");
+                break Outcome::ConnectionLost.status();
+            }
         }
     };
     monitor.flush(&mut lines);

@@ -219,6 +219,12 @@ impl ConnectArgs {
         Err(Failure::Net(last_taken.unwrap_or(Error::Closed)))
     }
 
+    /// Joins again as `options` says, after the connection was lost (see
+    /// [`crate::reconnect`]): a fresh login with the same Node ID; the failure in brief.
+    pub(crate) async fn join_again(&self, options: NodeOptions) -> Result<Node, String> {
+        self.checked(options).await.map_err(|failure| failure.brief())
+    }
+
     /// Joins as `options` says, then looks at what the hub sent: bytes that never made a
     /// message mean that it speaks the other protocol.
     async fn checked(&self, options: NodeOptions) -> Result<Node, Failure> {

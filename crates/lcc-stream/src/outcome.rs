@@ -109,7 +109,10 @@ impl Outcome {
             Outcome::Rejected => "the other node refused",
             Outcome::TimedOut => "the other node stopped answering, or moved the bytes slower than --min-rate",
             Outcome::NotFound => "no node with that Node ID answered",
-            Outcome::ConnectionLost => "the connection to the hub was lost",
+            Outcome::ConnectionLost => {
+                "the connection to the hub was lost (one-shot commands at once; serve, recv, events watch and \
+                 monitor join again unless --no-reconnect, and exit so once --reconnect-for runs out)"
+            }
             Outcome::Terminated => "the transfer ended early or incomplete",
             Outcome::FileError => "a file cannot be read or written (named in the message)",
             Outcome::VerifyFailed => "the data did not verify",
@@ -213,6 +216,15 @@ impl Failure {
             Failure::Interrupted | Failure::InterruptedKeeping { .. } => Outcome::Interrupted,
             Failure::BadCdi { .. } => Outcome::BadAnswer,
             Failure::Lacks { .. } => Outcome::Rejected,
+        }
+    }
+
+    /// What went wrong, without the advice of `Display` (for a line said at every attempt to
+    /// reach the hub again).
+    pub(crate) fn brief(&self) -> String {
+        match self {
+            Failure::Net(error) => error.to_string(),
+            other => other.to_string(),
         }
     }
 

@@ -63,6 +63,12 @@ impl Printer {
         self.unsaid += lost;
     }
 
+    /// The node's listener was replaced by a new one (a new connection to the hub): the
+    /// counts that [`node_lost`](Self::node_lost) takes start again from 0.
+    pub(crate) fn new_listener(&mut self) {
+        self.node_lost = 0;
+    }
+
     /// Queues the line of a report (it ends with a newline), after `said(count)`, the line
     /// saying how many were dropped since the last such line, if any were; a report that
     /// finds the queue full is dropped.

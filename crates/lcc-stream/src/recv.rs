@@ -24,6 +24,7 @@ use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome};
 use crate::peer::Peer;
 use crate::progress::{Progress, ProgressGroup};
+use crate::reconnect::{self, RECONNECT_HELP, ReconnectArgs, Stop};
 
 /// Names tried for one stream before giving up (every one of them already taken).
 const NAME_ATTEMPTS: u64 = 100_000;
@@ -35,7 +36,6 @@ pub(crate) const DEFAULT_RECEIVER: &str = "05.01.01.01.22.F1";
 fn after_help() -> String {
     let outcomes = [Outcome::TimedOut, Outcome::Terminated, Outcome::FileError];
     format!(
-        "{}{}",
         "\
 --json prints one object per stream: file (final name, or the .part kept; absent if no data
 came), from (the source's Node ID) or, when only its CAN alias is known, from_alias (in hex,
@@ -44,7 +44,7 @@ of the exit status below), content_uid (if the source sent one) and error (a sen
 failure). An exit before any stream ended (a connection or file error, an interrupt) prints
 one object with result and error.
 
-",
+{RECONNECT_HELP}{}",
         net::network_help(&outcomes)
     )
 }
@@ -87,6 +87,10 @@ pub(crate) struct RecvArgs {
     json: bool,
     #[command(flatten)]
     connect: ConnectArgs,
+    /// A lost hub: the streams under way end (their `.part` files kept), and a new login
+    /// listens again.
+    #[command(flatten)]
+    reconnect: ReconnectArgs,
 }
 
 pub(crate) fn run(args: &RecvArgs) -> Result<ExitCode, String> {
@@ -150,10 +154,22 @@ async fn listen(args: &RecvArgs, interrupt: &mut net::Interrupt, reported: &mut 
                     accepting = !args.once;
                 }
                 Err(error) => {
+                    // The streams under way end with the connection, each with its report.
                     while transfers.join_next().await.is_some() {
                         *reported += 1;
                     }
-                    return Err(Failure::Net(error));
+                    if !reconnect::is_lost(&error) {
+                        return Err(Failure::Net(error));
+                    }
+                    let attempt = || args.connect.join_again(options.clone());
+                    match args.reconnect.rejoin("recv", args.connect.addr(), &error, interrupt, attempt).await {
+                        Ok(again) => {
+                            node = again;
+                            reconnect::say_rejoined("recv", args.connect.addr(), &node).await;
+                        }
+                        Err(Stop::Interrupted) => return Err(Failure::Interrupted),
+                        Err(Stop::GaveUp) => return Err(Failure::Net(error)),
+                    }
                 }
             },
             Some(done) = transfers.join_next() => {

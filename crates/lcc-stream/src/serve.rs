@@ -6,19 +6,23 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 
 use clap::Args;
 use openlcb_stream::wire::ReplyCode;
 use openlcb_stream::{AcceptPolicy, NodeId};
 use openlcb_tokio::openlcb_node::{MemorySpace, SpaceError};
-use openlcb_tokio::{DeclaredEvents, EventNotice, MemoryEvent, MemoryServer, NodeOptions, RamSpace, ReadOnlySpace};
+use openlcb_tokio::{
+    DeclaredEvents, Error, EventNotice, EventNotices, MemoryEvent, MemoryServer, Node, NodeOptions, RamSpace,
+    ReadOnlySpace, ServerEvents,
+};
 use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome, net_outcome};
 use crate::peer::Peer;
 use crate::printer::{Output, Printer};
+use crate::reconnect::{self, RECONNECT_HELP, ReconnectArgs, Stop};
 use crate::recv::{part_path, publish_blocking};
 
 /// The Node ID `serve` uses unless told otherwise.
@@ -47,7 +51,11 @@ on failure, error.
 
 /// Options of `lcc-stream serve`.
 #[derive(Debug, Args)]
-#[command(after_help = format!("{}{}", serve_json_help!(), net::network_help(&[Outcome::Usage, Outcome::FileError])))]
+#[command(after_help = format!(
+    "{}{RECONNECT_HELP}{}",
+    serve_json_help!(),
+    net::network_help(&[Outcome::Usage, Outcome::FileError])
+))]
 pub(crate) struct ServeArgs {
     /// This node's Node ID.
     #[arg(long, value_name = "NODE_ID", default_value = DEFAULT_SERVER)]
@@ -93,6 +101,10 @@ pub(crate) struct ServeArgs {
     json: bool,
     #[command(flatten)]
     connect: ConnectArgs,
+    /// A lost hub: the spaces (the configuration file, the CDI, the events declared) stay as
+    /// they are, and a new login serves them again.
+    #[command(flatten)]
+    reconnect: ReconnectArgs,
 }
 
 /// What `serve --json` prints.
@@ -166,7 +178,7 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
     let image = spaces.image.clone();
     // On stderr even with --json: the name the first image will take.
     eprintln!("lcc-stream serve: firmware images go to {}", image.next_path().display());
-    let connect = args.connect.node(options);
+    let connect = args.connect.node(options.clone());
     let mut node = tokio::select! {
         connected = connect => match connected {
             Ok(node) => node,
@@ -174,12 +186,8 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         },
         () = interrupt.wait() => return Ok(ExitCode::from(Outcome::Interrupted.status())),
     };
-    let mut events = match node.serve_memory(spaces.into_server()).await {
-        Ok(events) => events,
-        Err(error) => return Ok(net::fail("serve", &Failure::Net(error))),
-    };
-    let mut notices = match node.event_notices().await {
-        Ok(notices) => notices,
+    let (mut events, mut notices) = match serve_on(&node, &spaces).await {
+        Ok(started) => started,
         Err(error) => return Ok(net::fail("serve", &Failure::Net(error))),
     };
     // The reports go to stderr beside the loop, so that a slow terminal never holds it up.
@@ -195,32 +203,64 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
             eprintln!("lcc-stream serve: {verb} {}", crate::events::range_text(declared.range));
         }
     }
+    // Notices lost by the listeners of earlier connections.
+    let mut dropped_before = 0;
     let status = loop {
-        tokio::select! {
+        let lost = tokio::select! {
             event = events.next() => match event {
-                Some(event) => on_event(event, args, &image, &mut report),
-                None => {
-                    let error = node.closed().await;
-                    (report.result, report.error) = (net_outcome(&error).word(), Some(error.to_string()));
-                    break net_outcome(&error).status();
+                Some(event) => {
+                    on_event(event, args, &image, &mut report);
+                    continue;
                 }
+                None => node.closed().await,
             },
-            Some(notice) = notices.next() => on_notice(&notice, notices.dropped(), printer.as_mut(), &mut report),
-            error = node.closed() => {
-                (report.result, report.error) = (net_outcome(&error).word(), Some(error.to_string()));
-                break net_outcome(&error).status();
+            Some(notice) = notices.next() => {
+                on_notice(&notice, notices.dropped(), printer.as_mut(), &mut report);
+                continue;
             }
+            error = node.closed() => error,
             () = interrupt.wait() => {
                 report.result = Outcome::Interrupted.word();
                 break Outcome::Interrupted.status();
             }
+        };
+        // What the node had handed over already is printed too.
+        while let Some(notice) = notices.try_next() {
+            on_notice(&notice, notices.dropped(), printer.as_mut(), &mut report);
         }
+        let stopped = if reconnect::is_lost(&lost) {
+            let attempt = || async {
+                let node = args.connect.join_again(options.clone()).await?;
+                let started = serve_on(&node, &spaces).await.map_err(|error| error.to_string())?;
+                Ok::<_, String>((node, started))
+            };
+            match args.reconnect.rejoin("serve", args.connect.addr(), &lost, &mut interrupt, attempt).await {
+                Ok((again, started)) => {
+                    dropped_before += notices.dropped();
+                    (node, (events, notices)) = (again, started);
+                    if let Some(printer) = printer.as_mut() {
+                        printer.new_listener();
+                    }
+                    reconnect::say_rejoined("serve", args.connect.addr(), &node).await;
+                    continue;
+                }
+                Err(stop) => stop,
+            }
+        } else {
+            Stop::GaveUp
+        };
+        if stopped == Stop::Interrupted {
+            report.result = Outcome::Interrupted.word();
+            break Outcome::Interrupted.status();
+        }
+        (report.result, report.error) = (net_outcome(&lost).word(), Some(lost.to_string()));
+        break net_outcome(&lost).status();
     };
     // What the node had handed over already is printed too.
     while let Some(notice) = notices.try_next() {
         on_notice(&notice, notices.dropped(), printer.as_mut(), &mut report);
     }
-    report.events_dropped = notices.dropped();
+    report.events_dropped = dropped_before + notices.dropped();
     if let Ok(stats) = node.stats().await {
         report.memory_events_dropped = stats.memory_events_dropped;
     }
@@ -242,6 +282,12 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         eprintln!("lcc-stream serve: interrupted{reports}");
     }
     Ok(ExitCode::from(status))
+}
+
+/// Serves `spaces` on `node` (a new connection's), and listens to its event reports.
+async fn serve_on(node: &Node, spaces: &Spaces) -> Result<(ServerEvents, EventNotices), Error> {
+    let events = node.serve_memory(spaces.server()).await?;
+    Ok((events, node.event_notices().await?))
 }
 
 /// Prints a consumed event's report (or a Learn Event) on stderr as it comes, with `printer`
@@ -355,10 +401,11 @@ fn check_writable(path: &Path) -> Result<(), String> {
         .map_err(|e| format!("cannot write firmware images to {}: {e}", path.display()))
 }
 
-/// The spaces `serve` hands to its node.
+/// The spaces `serve` hands to its node, kept across connections: each connection's memory
+/// server is handed the same spaces.
 struct Spaces {
     cdi: ReadOnlySpace,
-    config: ConfigSpace,
+    config: Shared<ConfigSpace>,
     image: Image,
 }
 
@@ -377,15 +424,70 @@ impl Spaces {
         };
         let firmware_out = args.firmware_out.clone().unwrap_or_else(|| default_firmware_path(args.node_id));
         check_writable(&firmware_out)?;
-        Ok(Spaces { cdi, config, image: Image::new(firmware_out, args.force) })
+        Ok(Spaces { cdi, config: Shared::new(config), image: Image::new(firmware_out, args.force) })
     }
 
-    fn into_server(self) -> MemoryServer {
+    /// A memory server for a new connection, over these spaces. A firmware image that was
+    /// being received when the last connection was lost is dropped (that upgrade ended).
+    fn server(&self) -> MemoryServer {
+        let mut image = self.image.clone();
+        image.discard();
         MemoryServer::new()
-            .with_space(0xFF, self.cdi)
-            .with_space(0xFD, self.config)
-            .with_space(0xEF, self.image)
+            .with_space(0xFF, self.cdi.clone())
+            .with_space(0xFD, self.config.clone())
+            .with_space(0xEF, image)
             .with_acdi()
+    }
+}
+
+/// A space shared by the memory servers of successive connections.
+#[derive(Debug)]
+struct Shared<S>(Arc<Mutex<S>>);
+
+impl<S> Clone for Shared<S> {
+    fn clone(&self) -> Self {
+        Shared(self.0.clone())
+    }
+}
+
+impl<S> Shared<S> {
+    fn new(space: S) -> Self {
+        Shared(Arc::new(Mutex::new(space)))
+    }
+
+    /// The space; one that a panic left behind is used as it is (its bytes are all there).
+    fn space(&self) -> MutexGuard<'_, S> {
+        self.0.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+impl<S: MemorySpace> MemorySpace for Shared<S> {
+    fn len(&self) -> u32 {
+        self.space().len()
+    }
+    fn read_only(&self) -> bool {
+        self.space().read_only()
+    }
+    fn write_only(&self) -> bool {
+        self.space().write_only()
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        self.space().read(address, buf)
+    }
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        self.space().write(address, data)
+    }
+    fn commit(&mut self) -> Result<(), SpaceError> {
+        self.space().commit()
+    }
+    fn write_window(&self) -> Option<u16> {
+        self.space().write_window()
+    }
+    fn complete(&mut self, len: u32) -> Result<(), SpaceError> {
+        self.space().complete(len)
+    }
+    fn discard(&mut self) {
+        self.space().discard();
     }
 }
 

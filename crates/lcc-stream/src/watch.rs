@@ -6,18 +6,19 @@
 use std::collections::{HashMap, VecDeque};
 use std::io::IsTerminal as _;
 use std::process::ExitCode;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use openlcb_stream::{EventId, NodeId};
-use openlcb_tokio::{Error, EventNotice, EventNotices, Node, SnipInfo};
+use openlcb_tokio::{Error, EventNotice, EventNotices, Node, NodeOptions, SnipInfo};
 use serde::Serialize;
 use tokio::task::{Id as TaskId, JoinSet};
 
 use crate::events::{event_text, well_known};
-use crate::net;
-use crate::outcome::Outcome;
+use crate::net::{self, ConnectArgs};
+use crate::outcome::{Outcome, net_outcome};
 use crate::peer::Peer;
 use crate::printer::{Output, Printer};
+use crate::reconnect::{self, ReconnectArgs, Stop};
 
 /// SNIP lookups under way at once (also the node's limit of SNIP requests); a sender first
 /// seen while all are busy is looked up at one of its later reports.
@@ -62,38 +63,83 @@ struct SummaryLine {
     dropped: u64,
 }
 
-/// Prints every report `notices` brings until the connection ends or `interrupt` comes.
+/// Prints every report that reaches `node` until `interrupt` comes, joining the hub at
+/// `connect` again (as `options` of the same Node ID) whenever it is lost, as `reconnect`
+/// says; closes the node it ends with.
 pub(crate) async fn watch(
-    node: &Node,
-    mut notices: EventNotices,
+    mut node: Node,
+    connect: &ConnectArgs,
+    options: impl Fn(NodeId) -> NodeOptions,
+    reconnect: &ReconnectArgs,
     format: Format,
     interrupt: &mut net::Interrupt,
 ) -> Result<ExitCode, String> {
-    let mut watch = Watch::new(node, format)?;
+    let mut watch = Watch::new(format)?;
+    let mut notices = listen(&node).await.map_err(|error| error.to_string())?;
     eprintln!("lcc-stream events: watching event reports (Ctrl-C stops)");
     let ended = loop {
-        tokio::select! {
+        let lost = tokio::select! {
             notice = notices.next() => match notice {
-                Some(notice) => watch.notice(notice, notices.dropped()),
-                None => break Err("the connection ended".to_string()),
+                Some(notice) => {
+                    watch.notice(&node, notice, notices.dropped());
+                    continue;
+                }
+                None => node.closed().await,
             },
             Some(answer) = watch.names.asking.join_next_with_id(), if !watch.names.asking.is_empty() => {
                 watch.names.answered(answer);
+                continue;
             }
-            () = interrupt.wait() => break Ok(ExitCode::from(Outcome::Interrupted.status())),
+            () = interrupt.wait() => break Outcome::Interrupted.status(),
+        };
+        // What the node had handed over already is printed or counted too.
+        while let Some(notice) = notices.try_next() {
+            watch.notice(&node, notice, notices.dropped());
         }
+        let stopped = if reconnect::is_lost(&lost) {
+            let id = node.node_id();
+            let attempt = || async {
+                let node = connect.join_again(options(id)).await?;
+                let notices = listen(&node).await.map_err(|error| error.to_string())?;
+                Ok::<_, String>((node, notices))
+            };
+            match reconnect.rejoin("events", connect.addr(), &lost, interrupt, attempt).await {
+                Ok((again, listening)) => {
+                    (node, notices) = (again, listening);
+                    watch.rejoined();
+                    reconnect::say_rejoined("events", connect.addr(), &node).await;
+                    continue;
+                }
+                Err(stop) => stop,
+            }
+        } else {
+            Stop::GaveUp
+        };
+        if stopped == Stop::Interrupted {
+            break Outcome::Interrupted.status();
+        }
+        eprintln!("lcc-stream events: {lost}");
+        break net_outcome(&lost).status();
     };
     // What the node had handed over already is printed or counted too.
     while let Some(notice) = notices.try_next() {
-        watch.notice(notice, notices.dropped());
+        watch.notice(&node, notice, notices.dropped());
     }
     watch.finish(notices.dropped()).await;
-    ended
+    node.close().await;
+    Ok(ExitCode::from(ended))
 }
 
-/// The state of one `watch`.
-struct Watch<'a> {
-    node: &'a Node,
+/// Listens to every event report that reaches `node` (a new connection's), then asks who is
+/// there, so that the link knows their Node IDs and the reports name their senders by them.
+async fn listen(node: &Node) -> Result<EventNotices, Error> {
+    let notices = node.event_notices().await?;
+    let _ = node.discover(Duration::from_millis(500), 1024).await;
+    Ok(notices)
+}
+
+/// The state of one `watch`, kept across connections.
+struct Watch {
     format: Format,
     start: Instant,
     names: Names,
@@ -102,18 +148,19 @@ struct Watch<'a> {
     output: &'static str,
 }
 
-impl<'a> Watch<'a> {
-    fn new(node: &'a Node, format: Format) -> Result<Self, String> {
+impl Watch {
+    fn new(format: Format) -> Result<Self, String> {
         let output = if std::io::stdout().is_terminal() { "this terminal" } else { "this output" };
         let printer = Printer::start(Output::Stdout)?;
-        Ok(Watch { node, format, start: Instant::now(), names: Names::default(), printer, output })
+        Ok(Watch { format, start: Instant::now(), names: Names::default(), printer, output })
     }
 
-    /// Queues the line of a report; `node_lost` is the listener's count of lost notices now.
-    fn notice(&mut self, notice: EventNotice, node_lost: u64) {
+    /// Queues the line of a report that reached `node`; `node_lost` is the listener's count
+    /// of lost notices now.
+    fn notice(&mut self, node: &Node, notice: EventNotice, node_lost: u64) {
         self.printer.node_lost(node_lost);
         let EventNotice::Report { from, event, payload } = notice else { return };
-        let line = self.report_line(from, event, &payload);
+        let line = self.report_line(node, from, event, &payload);
         let time = self.time();
         let (format, output) = (self.format, self.output);
         self.printer.report(line, |dropped| dropped_line(format, time, dropped, output));
@@ -123,7 +170,14 @@ impl<'a> Watch<'a> {
         self.start.elapsed().as_secs_f64()
     }
 
-    fn report_line(&mut self, from: NodeId, event: EventId, payload: &[u8]) -> String {
+    /// A new connection: its listener counts from 0, and the questions asked over the lost
+    /// one are asked again at their senders' next reports.
+    fn rejoined(&mut self) {
+        self.printer.new_listener();
+        self.names.forget_questions();
+    }
+
+    fn report_line(&mut self, node: &Node, from: NodeId, event: EventId, payload: &[u8]) -> String {
         let peer = Peer::of(from);
         let line = ReportLine {
             time: self.time(),
@@ -131,7 +185,7 @@ impl<'a> Watch<'a> {
             name: well_known(event),
             from: peer.node_field(),
             from_alias: peer.alias_field(),
-            from_name: self.names.name(self.node, from),
+            from_name: self.names.name(node, from),
             payload: payload.iter().map(|b| format!("{b:02X}")).collect(),
         };
         match self.format {
@@ -221,6 +275,13 @@ impl Names {
             Err(Error::Busy) => {}
             Err(_) => self.remember(sender, None),
         }
+    }
+
+    /// Drops the questions under way (asked over a connection that is gone): their senders
+    /// are asked again when they next report.
+    fn forget_questions(&mut self) {
+        self.asking.abort_all();
+        self.asked.clear();
     }
 
     fn remember(&mut self, sender: NodeId, name: Option<String>) {

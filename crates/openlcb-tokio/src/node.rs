@@ -371,7 +371,8 @@ impl Node {
         }
     }
 
-    /// The CAN alias the node's link knows for `node` (always `None` over OpenLCB-TCP).
+    /// The CAN alias the node's link knows for `node`, this node's own included (always
+    /// `None` over OpenLCB-TCP).
     pub async fn alias_of(&self, node: NodeId) -> Result<Option<u16>, Error> {
         self.control.call(|reply| Command::AliasOf { node, reply }).await
     }

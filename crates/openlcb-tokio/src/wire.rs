@@ -251,9 +251,10 @@ impl Wire {
         apply_link_events(now, link, joining, waiting, node)
     }
 
-    /// The CAN alias the link knows for `node`.
+    /// The CAN alias the link knows for `node`, its own included (once logged in).
     pub(crate) fn alias_of(&self, node: NodeId) -> Option<u16> {
         match self {
+            Wire::GridConnect { link, .. } if node == link.node_id() => link.alias().map(|alias| alias.as_raw()),
             Wire::GridConnect { link, .. } => link.alias_of(node).map(|alias| alias.as_raw()),
             Wire::Tcp { .. } => None,
         }
