@@ -59,12 +59,30 @@ pub(crate) struct HubArgs {
     /// of the trace says how many it left out.
     #[arg(long)]
     trace: bool,
-    /// Bytes queued for one client before it is disconnected as too slow.
+    /// Bytes queued for one client. The hub runs at the pace of its slowest reader, like a
+    /// CAN bus: when a client's queue is full, the hub stops reading from whoever sends the
+    /// next frame for it until there is room, so a bulk transfer slows down rather than cost
+    /// a listening client its connection.
     #[arg(long, value_name = "BYTES", default_value_t = 1024 * 1024, value_parser = crate::args::positive::<usize>)]
     max_queue: usize,
-    /// Clients connected at once (both listeners); more are refused.
+    /// Seconds a client may take nothing of its full queue while senders wait for it; then it
+    /// is disconnected as too slow (a dead connection), and the others go on.
+    #[arg(long, value_name = "SECS", default_value_t = 10, value_parser = crate::args::positive::<u64>)]
+    drain_timeout: u64,
+    /// Clients connected at once (both listeners and links). When the hub is full, a new
+    /// client takes the slot of the client with the lowest rate below --slot-min-frames per
+    /// --slot-window (quiet clients keep their slots while there is room); if every client
+    /// keeps the rate, the new one is refused.
     #[arg(long, value_name = "N", default_value_t = 64)]
     max_clients: usize,
+    /// Complete frames a client must send per --slot-window to keep its slot when the hub is
+    /// full (a client that connected less than a window ago, --serial, --can and --upstream
+    /// are never evicted); 0 never evicts anyone.
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    slot_min_frames: u16,
+    /// The window, in seconds, of --slot-min-frames; 0 never evicts anyone.
+    #[arg(long, value_name = "SECS", default_value_t = 60)]
+    slot_window: u64,
     /// Seconds a new client may stay silent (send nothing at all) before it is closed;
     /// 0 keeps silent clients.
     #[arg(long, value_name = "SECS", default_value_t = 60)]
@@ -81,6 +99,9 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
     options.trace = args.trace;
     options.max_queued_bytes = args.max_queue;
     options.max_clients = args.max_clients;
+    options.drain_timeout = std::time::Duration::from_secs(args.drain_timeout);
+    options.slot_min_frames = args.slot_min_frames;
+    options.slot_window = (args.slot_window > 0).then(|| std::time::Duration::from_secs(args.slot_window));
     options.silent_timeout = (args.silent_timeout > 0).then(|| std::time::Duration::from_secs(args.silent_timeout));
     options.bridge = !args.no_bridge;
     options.gateway_node_id = args.gateway_node_id;
@@ -134,8 +155,13 @@ async fn serve(args: &HubArgs) -> Result<ExitCode, String> {
             () = interrupt.wait() => {
                 let stats = hub.stats();
                 eprintln!(
-                    "lcc-stream hub: interrupted; {} clients served, {} frames relayed, {} decode errors, {} slow clients dropped, {} events not shown",
-                    stats.clients_accepted, stats.frames, stats.decode_errors, stats.slow_clients, stats.events_dropped
+                    "lcc-stream hub: interrupted; {} clients served, {} frames relayed, {} decode errors, {} slow clients dropped, {} evicted from a full hub, {} events not shown",
+                    stats.clients_accepted,
+                    stats.frames,
+                    stats.decode_errors,
+                    stats.slow_clients,
+                    stats.clients_evicted,
+                    stats.events_dropped
                 );
                 return Ok(ExitCode::from(Outcome::Interrupted.status()));
             }
@@ -221,13 +247,26 @@ impl ClientNames {
                 self.names.remove(client);
             }
             HubEvent::SlowClient { client, queued } => {
-                eprintln!("{} dropped: too slow ({queued} bytes were waiting for it)", self.name(*client))
+                eprintln!(
+                    "{} dropped: too slow (it took none of the {queued} bytes waiting for it within --drain-timeout)",
+                    self.name(*client)
+                );
+                self.names.remove(client);
+            }
+            HubEvent::Evicted { client, frames, newcomer } => {
+                eprintln!(
+                    "{} dropped: the hub is full and it sent {frames} frames in the last --slot-window; its slot went to {newcomer}",
+                    self.name(*client)
+                );
+                self.names.remove(client);
             }
             HubEvent::Garbage { client, count, error } => {
                 eprintln!("{} sent {count} undecodable pieces (the first: {error})", self.name(*client))
             }
             HubEvent::Refused { peer, clients } => {
-                eprintln!("refused a client from {peer}: {clients} clients connected (--max-clients)")
+                eprintln!(
+                    "refused a client from {peer}: the hub is full ({clients} clients, --max-clients) and none could be evicted (--slot-min-frames, --slot-window)"
+                )
             }
             HubEvent::Frame { client, text } => {
                 let at = self.start.elapsed().as_secs_f64();

@@ -24,6 +24,7 @@ fn zero_timeouts_bitrates_and_queues_are_refused() {
         &["recv", "--timeout", "0"],
         &["sim", "--bandwidth", "0"],
         &["hub", "--max-queue", "0"],
+        &["hub", "--drain-timeout", "0"],
     ] {
         assert!(refused(args).contains("must be at least 1"), "{args:?}");
     }

@@ -7,7 +7,8 @@
 //! OpenLCB-TCP framing with the gateway's Node ID as originating node. Full-format nodes get
 //! proxy aliases on the CAN side; streams crossing are tracked by the gateway's rules. When an
 //! OpenLCB-TCP client leaves, the hub sends the Node IDs it carried, and the gateway releases
-//! their proxy aliases. The gateway's clock is microseconds since the bridge started.
+//! their proxy aliases. Like any sender, the bridge waits while a client's queue is full. The
+//! gateway's clock is microseconds since the bridge started.
 
 use std::sync::Arc;
 
@@ -115,10 +116,10 @@ pub(crate) async fn run(can: Side, tcp: Side, mut departed: mpsc::UnboundedRecei
         }
         state.count(frames, 0);
         if !to_can.is_empty() {
-            state.relay(can_id, Framing::GridConnect, &to_can.split().freeze());
+            state.relay(can_id, Framing::GridConnect, &to_can.split().freeze()).await;
         }
         if !to_tcp.is_empty() {
-            state.relay(tcp_id, Framing::Tcp, &to_tcp.split().freeze());
+            state.relay(tcp_id, Framing::Tcp, &to_tcp.split().freeze()).await;
         }
     }
 }

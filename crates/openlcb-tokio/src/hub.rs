@@ -8,14 +8,43 @@
 //! two groups as one more client of each: CAN nodes and OpenLCB-TCP nodes see each other,
 //! streams included.
 //!
-//! Every client has its own queue, bounded in bytes. A client that falls that far behind is
-//! disconnected (with a [`HubEvent::SlowClient`]): one slow client never stalls the rest.
-//! The number of clients is capped ([`HubOptions::max_clients`]; one more is told so and
-//! closed), TCP keep-alive finds clients that vanished, a client that says nothing at all
-//! for [`HubOptions::silent_timeout`] after connecting is closed (bytes that never make a
-//! frame are not a word), and a client whose input ends (it closed or half-closed its socket)
-//! is removed at once, so that it frees its slot. Garbage is counted
-//! and reported at most once per [`GARBAGE_REPORT_INTERVAL`] per client.
+//! # The pace of the hub
+//!
+//! Every client has its own queue, bounded by [`HubOptions::max_queued_bytes`]. The hub is
+//! one bus, and like a CAN bus it runs at the pace of its slowest reader: when a frame finds
+//! a client's queue full, the hub stops reading from the client that sent it until there is
+//! room, so that TCP flow control slows the sender down (a stream's sender waits for its
+//! Proceeds all the same). A client that only listens therefore never falls behind by more
+//! than its queue, however much others move through the hub, and loses nothing. A client
+//! that takes none of its queue for [`HubOptions::drain_timeout`] while a sender waits for it
+//! is a dead socket: it is disconnected ([`HubEvent::SlowClient`]) and the senders go on.
+//! One dead client thus holds the bus for at most that long, and the memory a hub holds for
+//! a client is its queue and one write batch.
+//!
+//! # Slots
+//!
+//! The number of clients is capped ([`HubOptions::max_clients`]). While there are free slots,
+//! nobody is closed for being quiet: a board that has nothing to say for hours, a throttle
+//! that only listens, keep their place. When the hub is full, a slot needs a minimum rate:
+//! a new client takes the slot of the client that completed fewer than
+//! [`HubOptions::slot_min_frames`] frames in the last [`HubOptions::slot_window`] (the one
+//! whose rate is the lowest, if there are several; [`HubEvent::Evicted`]). A client that
+//! connected less than a window ago, an attached link and the bridge are never evicted. Only
+//! if no client is below the rate is the new one told that the hub is full and closed
+//! ([`HubEvent::Refused`]). A slot cannot be held with a frame now and then: clients that
+//! each complete one frame a minute hold every slot only until someone else needs one.
+//!
+//! A client that says nothing at all for [`HubOptions::silent_timeout`] after connecting is
+//! closed (bytes that never make a frame are not a word), and TCP keep-alive finds clients
+//! that vanished.
+//!
+//! A client whose input ends is removed at once and its connection closed, whether it
+//! closed its socket or only half-closed it (shut down its sending side): over TCP the two
+//! cannot be told apart until a write to the client fails, which on a quiet bus may be
+//! never, and a client that left must not hold its slot. A half-closed client therefore gets
+//! no more frames; a client that wants to listen keeps its sending side open.
+//!
+//! Garbage is counted and reported at most once per [`GARBAGE_REPORT_INTERVAL`] per client.
 //!
 //! Besides TCP clients, the GridConnect group takes links: any byte stream of GridConnect
 //! text ([`Hub::attach`]: a serial adapter, a CAN interface through
@@ -23,9 +52,10 @@
 //! ([`Hub::link_upstream`]), kept up with a bounded backoff.
 
 use std::collections::HashMap;
+use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use bytes::{Bytes, BytesMut};
@@ -33,8 +63,9 @@ use openlcb_can::{CanFrame, CanHeader, FrameKind, GridConnectDecoder, NodeAlias,
 use openlcb_tcp::Decoder;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::mpsc;
+use tokio::sync::{Notify, mpsc};
 use tokio::task::{AbortHandle, JoinSet};
+use tokio::time::Instant;
 use tracing::Instrument as _;
 
 use crate::io::{ByteReader, ByteWriter};
@@ -60,10 +91,28 @@ const WRITE_BATCH: usize = 64 * 1024;
 #[derive(Debug, Clone)]
 #[non_exhaustive]
 pub struct HubOptions {
-    /// Bytes queued for one client before it counts as too slow and is disconnected.
+    /// Bytes queued for one client (one chunk of frames more if a single chunk is larger).
+    /// When a client's queue is full, the hub stops reading from the sender of the next frame
+    /// for it until there is room (see [the module docs](self)).
     pub max_queued_bytes: usize,
-    /// Clients connected at once (both listeners); one more is refused and closed.
+    /// How long a sender may wait for room in a client's full queue: a client that takes
+    /// nothing of it for this long is disconnected ([`HubEvent::SlowClient`]). Default 10 s,
+    /// well within the 30 s a [`Node`](crate::Node) lets a stalled socket take
+    /// ([`NodeOptions::write_timeout`](crate::NodeOptions::write_timeout)), so that the
+    /// sender held up by a dead client is not given up itself.
+    pub drain_timeout: std::time::Duration,
+    /// Clients connected at once (both listeners, attached links included). When the hub is
+    /// full, a new client takes the slot of a client below the minimum rate
+    /// ([`HubOptions::slot_min_frames`] per [`HubOptions::slot_window`]), or is refused and
+    /// closed if there is none.
     pub max_clients: usize,
+    /// The window over which a client's rate is judged when the hub is full. `None` never
+    /// evicts anyone: a new client of a full hub is refused. Default 60 s.
+    pub slot_window: Option<std::time::Duration>,
+    /// Complete frames a client must have sent in the last [`HubOptions::slot_window`] to keep
+    /// its slot when the hub is full; 0 never evicts anyone. Default 10. The hub remembers
+    /// the times of this many recent frames per client.
+    pub slot_min_frames: u16,
     /// A client that sends no complete frame for this long after connecting is closed (a node
     /// logs in at once; a silent connection is a stray, a port scan or a client trickling an
     /// endless partial frame). `None` keeps them.
@@ -86,7 +135,10 @@ impl Default for HubOptions {
     fn default() -> Self {
         HubOptions {
             max_queued_bytes: 1024 * 1024,
+            drain_timeout: std::time::Duration::from_secs(10),
             max_clients: 64,
+            slot_window: Some(std::time::Duration::from_secs(60)),
+            slot_min_frames: 10,
             silent_timeout: Some(std::time::Duration::from_secs(60)),
             trace: false,
             event_capacity: 4096,
@@ -136,12 +188,23 @@ pub enum HubEvent {
         /// Why.
         reason: String,
     },
-    /// A client fell too far behind and was disconnected.
+    /// A client's queue was full and it took nothing of it for [`HubOptions::drain_timeout`]
+    /// while a sender waited: it was disconnected.
     SlowClient {
         /// Its number.
         client: ClientId,
         /// Bytes it had queued.
         queued: usize,
+    },
+    /// The hub was full and a client below the minimum rate was disconnected to make room
+    /// for a new one (see [`HubOptions::slot_min_frames`]).
+    Evicted {
+        /// Its number.
+        client: ClientId,
+        /// Complete frames it sent in the last [`HubOptions::slot_window`].
+        frames: usize,
+        /// The address of the client that took its slot.
+        newcomer: SocketAddr,
     },
     /// A client sent something that is not a frame: at most one report per client per
     /// [`GARBAGE_REPORT_INTERVAL`], and one when it leaves, with the count since the last.
@@ -159,7 +222,8 @@ pub enum HubEvent {
         /// Its number.
         client: ClientId,
     },
-    /// A client was refused: the hub has [`HubOptions::max_clients`] clients.
+    /// A client was refused: the hub has [`HubOptions::max_clients`] clients, none of them
+    /// below the minimum rate.
     Refused {
         /// Its address.
         peer: SocketAddr,
@@ -187,8 +251,14 @@ pub struct HubStats {
     pub frames: u64,
     /// Undecodable input from clients.
     pub decode_errors: u64,
-    /// Clients disconnected for being too slow.
+    /// Clients disconnected for taking nothing of a full queue for
+    /// [`HubOptions::drain_timeout`].
     pub slow_clients: u64,
+    /// Times a client's input was paused because a frame it sent found another client's
+    /// queue full.
+    pub senders_paused: u64,
+    /// Clients disconnected to make room for a new one in a full hub.
+    pub clients_evicted: u64,
     /// Events dropped because nobody read them.
     pub events_dropped: u64,
     /// Clients refused because the hub was full.
@@ -203,7 +273,10 @@ pub(crate) struct Client {
     /// The bridge: never dropped for being slow (it is in-process and bounded by the gateway).
     bridge: bool,
     queue: mpsc::UnboundedSender<Bytes>,
-    queued: Arc<AtomicUsize>,
+    backlog: Arc<Backlog>,
+    /// The client's recent frames, to judge its rate when the hub is full; `None` for those
+    /// never evicted (attached links, the bridge).
+    activity: Option<Activity>,
     tasks: Vec<AbortHandle>,
     /// Aliases the client announced (AMD) and has not released (AMR), at most
     /// [`ALIASES_PER_CLIENT`]: when it leaves, the hub releases them for it.
@@ -211,6 +284,99 @@ pub(crate) struct Client {
     /// Node IDs the OpenLCB-TCP client carried (sources of its messages), at most
     /// [`NODES_PER_CLIENT`]: when it leaves, the bridge releases their CAN aliases.
     nodes: Vec<NodeId>,
+}
+
+/// The bytes queued for one client, counted against [`HubOptions::max_queued_bytes`] (the
+/// bridge's are not counted), and the signal senders wait on for room.
+#[derive(Default)]
+pub(crate) struct Backlog {
+    bytes: AtomicUsize,
+    /// Notified when the client's writer takes bytes out and when the client is removed.
+    room: Notify,
+    /// The client was removed: nothing more is queued for it.
+    gone: AtomicBool,
+}
+
+impl Backlog {
+    /// Counts `len` more bytes if they fit under `max` (an empty queue takes any chunk).
+    fn reserve(&self, len: usize, max: usize) -> bool {
+        self.bytes
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |q| {
+                (q == 0 || q.saturating_add(len) <= max).then(|| q.saturating_add(len))
+            })
+            .is_ok()
+    }
+
+    /// Waits until `len` bytes fit and counts them (`true`), or until `deadline` or the
+    /// client's removal (`false`).
+    async fn wait_for_room(&self, len: usize, max: usize, deadline: Instant) -> bool {
+        loop {
+            // Registered before the check, so that no notification between the two is lost.
+            let room = self.room.notified();
+            tokio::pin!(room);
+            room.as_mut().enable();
+            if self.gone.load(Ordering::Relaxed) {
+                return false;
+            }
+            if self.reserve(len, max) {
+                return true;
+            }
+            if tokio::time::timeout_at(deadline, room).await.is_err() {
+                return false;
+            }
+        }
+    }
+
+    /// The writer took `len` bytes out.
+    fn take(&self, len: usize) {
+        // Every byte taken was counted before it was queued (a removed client's count is 0).
+        let _ = self.bytes.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |q| Some(q.saturating_sub(len)));
+        self.room.notify_waiters();
+    }
+
+    /// The client was removed: its queue goes with it, and nobody waits for it any more.
+    fn close(&self) {
+        self.gone.store(true, Ordering::Relaxed);
+        self.bytes.store(0, Ordering::Relaxed);
+        self.room.notify_waiters();
+    }
+
+    fn queued(&self) -> usize {
+        self.bytes.load(Ordering::Relaxed)
+    }
+}
+
+/// When a client completed its last frames, at most [`HubOptions::slot_min_frames`] of them,
+/// oldest first. A new client starts with that many at the time it connected: it counts as
+/// keeping the rate for its first window.
+struct Activity {
+    recent: VecDeque<Instant>,
+}
+
+impl Activity {
+    fn new(now: Instant, min_frames: u16) -> Self {
+        Activity { recent: std::iter::repeat_n(now, usize::from(min_frames)).collect() }
+    }
+
+    /// Notes `frames` completed at `now`.
+    fn note(&mut self, now: Instant, frames: u64) {
+        let kept = self.recent.len();
+        for _ in 0..frames.min(kept as u64) {
+            self.recent.pop_front();
+            self.recent.push_back(now);
+        }
+    }
+
+    /// When the oldest of the remembered frames came, if the client is below the rate at
+    /// `now` (that frame is more than `window` old); the earlier, the lower the rate.
+    fn below_rate(&self, now: Instant, window: std::time::Duration) -> Option<Instant> {
+        self.recent.front().copied().filter(|&oldest| now.duration_since(oldest) >= window)
+    }
+
+    /// Frames completed within `window` before `now`.
+    fn frames_within(&self, now: Instant, window: std::time::Duration) -> usize {
+        self.recent.iter().filter(|&&at| now.duration_since(at) < window).count()
+    }
 }
 
 /// Aliases remembered per GridConnect client (a gateway or a host of many virtual nodes has
@@ -230,6 +396,8 @@ pub(crate) struct State {
     frames: AtomicU64,
     decode_errors: AtomicU64,
     slow_clients: AtomicU64,
+    senders_paused: AtomicU64,
+    evicted: AtomicU64,
     events_dropped: AtomicU64,
     refused: AtomicU64,
     /// With a bridge: where the Node IDs of OpenLCB-TCP clients that left go.
@@ -241,7 +409,10 @@ impl State {
         // Inside the client's span when it concerns one; frames only with `options.trace`.
         match &event {
             HubEvent::Frame { .. } => tracing::trace!(?event),
-            HubEvent::Garbage { .. } | HubEvent::SlowClient { .. } | HubEvent::Refused { .. } => tracing::warn!(?event),
+            HubEvent::Garbage { .. }
+            | HubEvent::SlowClient { .. }
+            | HubEvent::Evicted { .. }
+            | HubEvent::Refused { .. } => tracing::warn!(?event),
             _ => tracing::info!(?event),
         }
         if self.events.try_send(event).is_err() {
@@ -260,7 +431,8 @@ impl State {
             protocol,
             bridge: true,
             queue,
-            queued: Arc::default(),
+            backlog: Arc::default(),
+            activity: None,
             tasks: Vec::new(),
             aliases: Vec::new(),
             nodes: Vec::new(),
@@ -272,16 +444,22 @@ impl State {
     }
 
     /// Registers a new client of `protocol`'s group: its id, its queue and its queue's count.
-    fn add_client(&self, protocol: Framing) -> (ClientId, mpsc::UnboundedReceiver<Bytes>, Arc<AtomicUsize>) {
+    /// A TCP client can be evicted from a full hub; a link (`evictable` false) never is.
+    fn add_client(
+        &self,
+        protocol: Framing,
+        evictable: bool,
+    ) -> (ClientId, mpsc::UnboundedReceiver<Bytes>, Arc<Backlog>) {
         let id = self.next_id.fetch_add(1, Ordering::Relaxed);
         self.accepted.fetch_add(1, Ordering::Relaxed);
         let (queue, rx) = mpsc::unbounded_channel();
-        let queued = Arc::new(AtomicUsize::new(0));
+        let backlog = Arc::new(Backlog::default());
         let client = Client {
             protocol,
             bridge: false,
             queue,
-            queued: queued.clone(),
+            backlog: backlog.clone(),
+            activity: evictable.then(|| Activity::new(Instant::now(), self.options.slot_min_frames)),
             tasks: Vec::new(),
             aliases: Vec::new(),
             nodes: Vec::new(),
@@ -289,7 +467,7 @@ impl State {
         if let Ok(mut clients) = self.clients.lock() {
             clients.insert(id, client);
         }
-        (id, rx, queued)
+        (id, rx, backlog)
     }
 
     /// Counts relayed frames and undecodable input.
@@ -315,8 +493,7 @@ impl State {
             entry.nodes.iter().copied().filter(|node| !clients.values().any(|c| c.nodes.contains(node))).collect();
         drop(clients);
         entry.tasks.iter().for_each(AbortHandle::abort);
-        // Its queue goes with it: nothing it held counts any more.
-        entry.queued.store(0, Ordering::Relaxed);
+        entry.backlog.close();
         self.bridge_forgets(&entry.aliases);
         if let Some(bridge) = &self.departed {
             for node in departed {
@@ -376,31 +553,69 @@ impl State {
         }
     }
 
-    /// Queues `chunk` for every other client of the same protocol; drops those too far behind.
-    pub(crate) fn relay(&self, from: ClientId, protocol: Framing, chunk: &Bytes) {
-        let mut slow = Vec::new();
+    /// Queues `chunk` for every other client of the same protocol. For a client whose queue
+    /// is full it waits (and the caller reads nothing meanwhile) until there is room, for at
+    /// most [`HubOptions::drain_timeout`]; a client that made no room by then is dropped.
+    pub(crate) async fn relay(&self, from: ClientId, protocol: Framing, chunk: &Bytes) {
+        let max = self.options.max_queued_bytes;
+        let mut full = Vec::new();
         if let Ok(clients) = self.clients.lock() {
             for (&id, client) in clients.iter() {
                 if id == from || client.protocol != protocol {
                     continue;
                 }
-                if !client.bridge {
-                    let queued = client.queued.load(Ordering::Relaxed);
-                    if queued + chunk.len() > self.options.max_queued_bytes {
-                        slow.push((id, queued));
-                        continue;
-                    }
-                    client.queued.fetch_add(chunk.len(), Ordering::Relaxed);
+                if client.bridge || client.backlog.reserve(chunk.len(), max) {
+                    let _ = client.queue.send(chunk.clone());
+                } else {
+                    full.push((id, client.backlog.clone(), client.queue.clone()));
                 }
-                let _ = client.queue.send(chunk.clone());
             }
         }
-        for (client, queued) in slow {
-            if self.remove(client) {
+        if full.is_empty() {
+            return;
+        }
+        self.senders_paused.fetch_add(1, Ordering::Relaxed);
+        let deadline = Instant::now() + self.options.drain_timeout;
+        for (client, backlog, queue) in full {
+            if backlog.wait_for_room(chunk.len(), max, deadline).await {
+                let _ = queue.send(chunk.clone());
+            } else if self.remove(client) {
                 self.slow_clients.fetch_add(1, Ordering::Relaxed);
-                self.event(HubEvent::SlowClient { client, queued });
+                self.event(HubEvent::SlowClient { client, queued: backlog.queued() });
             }
         }
+    }
+
+    /// Notes that `client` completed `frames` frames now (its rate, for a full hub).
+    fn heard(&self, client: ClientId, frames: u64) {
+        if let Ok(mut clients) = self.clients.lock()
+            && let Some(activity) = clients.get_mut(&client).and_then(|c| c.activity.as_mut())
+        {
+            activity.note(Instant::now(), frames);
+        }
+    }
+
+    /// In a full hub, disconnects the client with the lowest rate below the minimum to make
+    /// room for `newcomer`; `false` if every client keeps the rate.
+    fn evict_for(&self, newcomer: SocketAddr) -> bool {
+        let Some(window) = self.options.slot_window else { return false };
+        let now = Instant::now();
+        let victim = self.clients.lock().ok().and_then(|clients| {
+            clients
+                .iter()
+                .filter_map(|(&id, c)| {
+                    let activity = c.activity.as_ref()?;
+                    let oldest = activity.below_rate(now, window)?;
+                    Some((oldest, id, activity.frames_within(now, window)))
+                })
+                .min()
+        });
+        let Some((_, client, frames)) = victim else { return false };
+        if self.remove(client) {
+            self.evicted.fetch_add(1, Ordering::Relaxed);
+            self.event(HubEvent::Evicted { client, frames, newcomer });
+        }
+        true
     }
 }
 
@@ -458,6 +673,8 @@ impl Hub {
             frames: AtomicU64::new(0),
             decode_errors: AtomicU64::new(0),
             slow_clients: AtomicU64::new(0),
+            senders_paused: AtomicU64::new(0),
+            evicted: AtomicU64::new(0),
             events_dropped: AtomicU64::new(0),
             refused: AtomicU64::new(0),
             departed: departed_tx,
@@ -500,33 +717,32 @@ impl Hub {
             frames: state.frames.load(Ordering::Relaxed),
             decode_errors: state.decode_errors.load(Ordering::Relaxed),
             slow_clients: state.slow_clients.load(Ordering::Relaxed),
+            senders_paused: state.senders_paused.load(Ordering::Relaxed),
+            clients_evicted: state.evicted.load(Ordering::Relaxed),
             events_dropped: state.events_dropped.load(Ordering::Relaxed),
             clients_refused: state.refused.load(Ordering::Relaxed),
-            queued_bytes: state
-                .clients
-                .lock()
-                .map(|c| c.values().map(|c| c.queued.load(Ordering::Relaxed)).sum())
-                .unwrap_or(0),
+            queued_bytes: state.clients.lock().map(|c| c.values().map(|c| c.backlog.queued()).sum()).unwrap_or(0),
         }
     }
 
     /// Relays between the GridConnect clients and `stream`, any byte stream that carries
     /// GridConnect text (a USB-serial adapter to a real CAN bus, a pseudo-terminal): it is
     /// one more client, numbered like the others, never closed for being silent (a quiet bus
-    /// is no stray connection). It leaves when the stream ends or fails
-    /// ([`HubEvent::Disconnected`]).
+    /// is no stray connection) nor evicted from a full hub. It leaves when the stream ends or
+    /// fails ([`HubEvent::Disconnected`]).
     pub fn attach(&mut self, stream: impl ByteStream, name: &str) -> ClientId {
-        let (id, queue, queued) = self.state.add_client(Framing::GridConnect);
+        let (id, queue, backlog) = self.state.add_client(Framing::GridConnect, false);
         self.state.event(HubEvent::Attached { client: id, name: name.to_string() });
-        self._listeners.spawn(serve_link(id, crate::io::halves(stream), queue, queued, self.state.clone()));
+        self._listeners.spawn(serve_link(id, crate::io::halves(stream), queue, backlog, self.state.clone()));
         id
     }
 
     /// Joins the GridConnect hub at `addr` (`HOST:PORT`) as one of its clients and relays both
-    /// ways: the two hubs' clients share one CAN segment. A lost or refused connection is
-    /// tried again, after [`UPSTREAM_RETRY_FIRST`] and then twice as long each time up to
-    /// [`UPSTREAM_RETRY_MAX`] ([`HubEvent::UpstreamDown`] says so); each new connection is a
-    /// new client ([`HubEvent::Attached`]).
+    /// ways: the two hubs' clients share one CAN segment. The link is never evicted from this
+    /// hub when it is full. A lost or refused connection is tried again, after
+    /// [`UPSTREAM_RETRY_FIRST`] and then twice as long each time up to [`UPSTREAM_RETRY_MAX`]
+    /// ([`HubEvent::UpstreamDown`] says so); each new connection is a new client
+    /// ([`HubEvent::Attached`]).
     pub fn link_upstream(&mut self, addr: &str) {
         self._listeners.spawn(upstream_loop(addr.to_string(), self.state.clone()));
     }
@@ -571,7 +787,7 @@ async fn accept_loop(listener: TcpListener, protocol: Framing, state: Arc<State>
 
 fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, protocol: Framing, state: &Arc<State>) {
     let connected = state.clients.lock().map(|c| c.values().filter(|c| !c.bridge).count()).unwrap_or(0);
-    if connected >= state.options.max_clients {
+    if connected >= state.options.max_clients && !state.evict_for(peer) {
         state.refused.fetch_add(1, Ordering::Relaxed);
         state.event(HubEvent::Refused { peer, clients: connected });
         tasks.spawn(refuse(socket, protocol, connected));
@@ -579,14 +795,14 @@ fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, pr
     }
     let _ = socket.set_nodelay(true);
     let _ = crate::socket::keep_alive(&socket);
-    let (id, rx, queued) = state.add_client(protocol);
+    let (id, rx, backlog) = state.add_client(protocol, true);
     let span = tracing::info_span!("client", id, %peer, ?protocol);
     span.in_scope(|| state.event(HubEvent::Connected { client: id, peer, protocol }));
     let (reader, writer) = crate::io::tcp_halves(socket);
     let silent_timeout = state.options.silent_timeout;
     let handles = [
         tasks.spawn(read_client(id, reader, protocol, silent_timeout, state.clone()).instrument(span.clone())),
-        tasks.spawn(write_client(id, writer, rx, queued, state.clone()).instrument(span)),
+        tasks.spawn(write_client(id, writer, rx, backlog, state.clone()).instrument(span)),
     ];
     let registered = state
         .clients
@@ -614,9 +830,9 @@ async fn upstream_loop(addr: String, state: Arc<State>) {
         let reason = match tokio::time::timeout(UPSTREAM_CONNECT_TIMEOUT, crate::node::dial(&addr)).await {
             Ok(Ok(socket)) => {
                 let _ = socket.set_nodelay(true);
-                let (id, queue, queued) = state.add_client(Framing::GridConnect);
+                let (id, queue, backlog) = state.add_client(Framing::GridConnect, false);
                 state.event(HubEvent::Attached { client: id, name: name.clone() });
-                serve_link(id, crate::io::tcp_halves(socket), queue, queued, state.clone()).await;
+                serve_link(id, crate::io::tcp_halves(socket), queue, backlog, state.clone()).await;
                 // It was up: the next attempt starts from the shortest wait.
                 retry_in = UPSTREAM_RETRY_FIRST;
                 "the connection ended".to_string()
@@ -636,12 +852,12 @@ async fn serve_link(
     id: ClientId,
     (reader, writer): (ByteReader, ByteWriter),
     queue: mpsc::UnboundedReceiver<Bytes>,
-    queued: Arc<AtomicUsize>,
+    backlog: Arc<Backlog>,
     state: Arc<State>,
 ) {
     tokio::select! {
         () = read_client(id, reader, Framing::GridConnect, None, state.clone()) => {}
-        () = write_client(id, writer, queue, queued, state.clone()) => {}
+        () = write_client(id, writer, queue, backlog, state.clone()) => {}
     }
     if state.remove(id) {
         state.event(HubEvent::Disconnected { client: id, reason: "the link ended".to_string() });
@@ -698,8 +914,9 @@ fn other_protocol(port: Framing, first: &[u8]) -> Option<&'static str> {
     }
 }
 
-/// Reads a client's frames, encodes each again and relays them in one chunk per read. At
-/// the end of its input (a close or a half-close) the client is removed.
+/// Reads a client's frames, encodes each again and relays them in one chunk per read; reads
+/// nothing more while a client's full queue holds the chunk up. At the end of its input (a
+/// close or a half-close) the client is removed.
 async fn read_client(
     id: ClientId,
     mut reader: ByteReader,
@@ -749,8 +966,11 @@ async fn read_client(
         garbage.flush(id, &state, false);
         state.frames.fetch_add(frames, Ordering::Relaxed);
         state.decode_errors.fetch_add(errors, Ordering::Relaxed);
+        if frames > 0 {
+            state.heard(id, frames);
+        }
         if !chunk.is_empty() {
-            state.relay(id, protocol, &chunk.split().freeze());
+            state.relay(id, protocol, &chunk.split().freeze()).await;
         }
         if let Some(failure) = tcp_decoder.failure() {
             break format!("sent an OpenLCB-TCP length that cannot be trusted ({failure})");
@@ -875,7 +1095,7 @@ async fn write_client(
     id: ClientId,
     mut writer: ByteWriter,
     mut queue: mpsc::UnboundedReceiver<Bytes>,
-    queued: Arc<AtomicUsize>,
+    backlog: Arc<Backlog>,
     state: Arc<State>,
 ) {
     let mut batch = Vec::new();
@@ -886,9 +1106,7 @@ async fn write_client(
             let Ok(more) = queue.try_recv() else { break };
             batch.extend_from_slice(&more);
         }
-        // Every byte here was added to `queued` before it was queued (a removed client's
-        // count is already 0).
-        let _ = queued.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |q| Some(q.saturating_sub(batch.len())));
+        backlog.take(batch.len());
         if let Err(error) = writer.write_all(&batch).await {
             break Some(departure(&error));
         }

@@ -2,6 +2,8 @@
 //! and a relay with the socket options of OpenMRN's `hub`. Every wait is bounded; every
 //! loop stops by itself.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use bytes::BytesMut;
@@ -508,6 +510,7 @@ async fn a_client_that_never_speaks_is_closed() {
 async fn clients_that_never_read_leave_no_queued_bytes_behind() {
     let mut options = HubOptions::default();
     options.max_queued_bytes = 64 * 1024;
+    options.drain_timeout = Duration::from_millis(300);
     let hub = start_hub(options).await;
     let addr = hub.local_addr();
     let mut idle = Vec::new();
@@ -571,4 +574,172 @@ async fn a_burst_of_datagrams_from_many_nodes_gets_one_answer_each() {
         assert_eq!(answers.iter().filter(to_it).count(), 1, "answers to {s:03X} in {answers:?}");
     }
     drop(node);
+}
+
+/// A GridConnect client that only listens, and slowly: a 4 KiB receive buffer, 2 KiB taken
+/// every 2 ms. Counts the frames it gets (`;` ends each) until the hub closes it.
+async fn slow_listener(addr: std::net::SocketAddr, frames: Arc<AtomicU64>) -> &'static str {
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let mut socket = socket.connect(addr).await.unwrap();
+    let mut buf = vec![0u8; 2048];
+    loop {
+        match socket.read(&mut buf).await {
+            Ok(0) => return "the hub closed the connection",
+            Err(_) => return "the connection failed",
+            Ok(n) => {
+                let ends = buf[..n].iter().filter(|&&b| b == b';').count();
+                frames.fetch_add(ends as u64, Ordering::Relaxed);
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_bulk_transfer_through_the_hub_costs_a_slow_listener_nothing() {
+    let mut options = HubOptions::default();
+    options.max_queued_bytes = 32 * 1024;
+    options.silent_timeout = None;
+    // GridConnect only: every frame relayed is one a client sent, and the listener gets all.
+    let hub = bounded("binding the hub", Hub::bind("127.0.0.1:0", None, options)).await.unwrap();
+    let heard = Arc::new(AtomicU64::new(0));
+    let listener = tokio::spawn(slow_listener(hub.local_addr(), heard.clone()));
+    until_clients(&hub, 1).await;
+    let addr = hub.local_addr().to_string();
+    let join = |node| Node::connect(&addr, Framing::GridConnect, NodeOptions::new(node));
+    let sender = bounded("joining", join(id(0x40))).await.unwrap();
+    let mut receiver = bounded("joining", join(id(0x41))).await.unwrap();
+    // About 1.1 MB of GridConnect text for the listener: 35 times its queue.
+    transfer(&sender, &mut receiver, 256 * 1024, 2048).await;
+    // Once both have left (each with its AMR), nothing more is sent: the count is final.
+    sender.close().await;
+    receiver.close().await;
+    until_clients(&hub, 1).await;
+    let sent = hub.stats().frames;
+    bounded("the listener hearing every frame", async {
+        while heard.load(Ordering::Relaxed) < sent {
+            assert!(!listener.is_finished(), "the listener lost its connection: {:?}", hub.stats());
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await;
+    assert_eq!(heard.load(Ordering::Relaxed), sent, "every frame, once");
+    assert_eq!(hub.stats().slow_clients, 0, "{:?}", hub.stats());
+    assert!(hub.stats().senders_paused > 0, "the listener never held the sender up: {:?}", hub.stats());
+    listener.abort();
+}
+
+/// Options for the slot tests: `max_clients`, and a minimum rate of `min_frames` per `window`.
+fn slot_options(max_clients: usize, min_frames: u16, window: Duration) -> HubOptions {
+    let mut options = HubOptions::default();
+    options.max_clients = max_clients;
+    options.slot_min_frames = min_frames;
+    options.slot_window = Some(window);
+    options
+}
+
+/// Waits (bounded) for the hub's next [`HubEvent::Evicted`]: the client and its frames.
+async fn next_eviction(hub: &mut Hub) -> (u64, usize) {
+    bounded("an eviction", async {
+        loop {
+            match hub.next_event().await {
+                Some(HubEvent::Evicted { client, frames, .. }) => return (client, frames),
+                Some(_) => {}
+                None => panic!("the hub stopped"),
+            }
+        }
+    })
+    .await
+}
+
+const FRAME: &[u8] = b":X19170456N0501010122AA;\n";
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn clients_sending_a_frame_now_and_then_cannot_hold_every_slot() {
+    let window = Duration::from_millis(400);
+    let mut hub = start_hub(slot_options(3, 3, window)).await;
+    let addr = hub.local_addr();
+    let mut holders = Vec::new();
+    for _ in 0..3 {
+        holders.push(TcpStream::connect(addr).await.unwrap());
+    }
+    until_clients(&hub, 3).await;
+    // Every slot held by a client that completes a frame now and then: two per window, one
+    // short of the rate, for four windows.
+    for _ in 0..8 {
+        for holder in &mut holders {
+            holder.write_all(FRAME).await.unwrap();
+        }
+        tokio::time::sleep(window / 2).await;
+    }
+    let mut newcomer = TcpStream::connect(addr).await.unwrap();
+    let (_, frames) = next_eviction(&mut hub).await;
+    assert!(frames < 3, "evicted with {frames} frames in the window");
+    until_clients(&hub, 3).await;
+    // The newcomer is in: it hears the holders that stayed.
+    for holder in &mut holders {
+        let _ = holder.write_all(FRAME).await;
+    }
+    let heard = frames_until(&mut newcomer, ":X19170").await;
+    assert!(!heard.iter().any(|f| f.contains("full")), "the newcomer was refused: {heard:?}");
+    assert_eq!(hub.stats().clients_evicted, 1, "{:?}", hub.stats());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_idle_client_keeps_its_slot_until_the_hub_is_full() {
+    let window = Duration::from_millis(300);
+    let mut hub = start_hub(slot_options(3, 2, window)).await;
+    let addr = hub.local_addr();
+    // Client 1 logs in with one frame and then only listens; client 2 keeps talking.
+    let mut idle = TcpStream::connect(addr).await.unwrap();
+    idle.write_all(FRAME).await.unwrap();
+    let mut talker = TcpStream::connect(addr).await.unwrap();
+    until_clients(&hub, 2).await;
+    let talking = tokio::spawn(async move {
+        for _ in 0..400 {
+            if talker.write_all(FRAME).await.is_err() {
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(25)).await;
+        }
+    });
+    // Many windows go by, and one more client takes the last free slot: the idle client is
+    // still there and hears the talker.
+    tokio::time::sleep(window * 4).await;
+    let _third = TcpStream::connect(addr).await.unwrap();
+    until_clients(&hub, 3).await;
+    assert!(!frames_until(&mut idle, ":X19170").await.is_empty());
+    assert_eq!(hub.stats().clients_evicted, 0, "{:?}", hub.stats());
+    // The hub is full: a fourth client takes the idle client's slot, not the talker's nor
+    // that of the client that has only just come.
+    let _fourth = TcpStream::connect(addr).await.unwrap();
+    assert_eq!(next_eviction(&mut hub).await, (1, 0));
+    until_clients(&hub, 3).await;
+    let mut rest = Vec::new();
+    let closed = bounded("the evicted client's close", idle.read_to_end(&mut rest)).await;
+    assert!(closed.is_ok(), "{closed:?}");
+    talking.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_half_closed_client_is_removed_and_gets_no_more_frames() {
+    let mut hub = start_hub(HubOptions::default()).await;
+    let addr = hub.local_addr();
+    let mut talker = TcpStream::connect(addr).await.unwrap();
+    let mut half = TcpStream::connect(addr).await.unwrap();
+    until_clients(&hub, 2).await;
+    half.write_all(FRAME).await.unwrap();
+    assert_eq!(frames_until(&mut talker, ":X19170").await.len(), 1);
+    half.shutdown().await.unwrap();
+    bounded("the hub noticing", async {
+        while !matches!(hub.next_event().await, Some(HubEvent::InputClosed { .. }) | None) {}
+    })
+    .await;
+    until_clients(&hub, 1).await;
+    // What the talker sends now does not reach it: the hub closed its connection.
+    talker.write_all(FRAME).await.unwrap();
+    let mut rest = Vec::new();
+    bounded("the close", half.read_to_end(&mut rest)).await.unwrap();
+    assert!(rest.is_empty(), "a half-closed client got {:?}", String::from_utf8_lossy(&rest));
 }
