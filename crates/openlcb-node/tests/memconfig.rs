@@ -1289,3 +1289,17 @@ fn a_write_of_another_node_waits_for_the_lock_holder_to_be_found_gone() {
     assert!(matches!(pair.finish(), MemoryEvent::WriteDone { .. }));
     assert_eq!(read_back(&mut pair.server, 0xFD)[..40], [9; 40]);
 }
+
+#[test]
+fn lock_is_test_and_set_at_once_for_the_node_that_took_it_whatever_ids_it_names() {
+    // OlcbChecker's mc40_lock: one sender locks with made-up Node IDs and expects each answer
+    // at once (no holder check: the node that took the lock is the one asking).
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
+    pair.pump();
+    let (a, b) = (0x0102_0304_0506, 0x0605_0403_0201);
+    for (asked, owner) in [(0, 0), (a, a), (b, a), (0, 0), (b, b), (a, b), (a, b), (0, 0), (0, 0)] {
+        let answers = exchange(&mut pair, &Command::Lock { node: asked }.to_bytes());
+        assert_eq!(reply_of(&answers), Some(Reply::Lock { owner }), "Lock({asked:012X}): {answers:?}");
+        assert!(!verify_to(&answers, NodeId::new(a).unwrap()) && !verify_to(&answers, NodeId::new(b).unwrap()));
+    }
+}

@@ -102,6 +102,9 @@ pub struct MemoryServer {
     acdi_user: Vec<u8>,
     unique_ids: Vec<[u8; 8]>,
     lock: u64,
+    /// The node whose Lock command took the lock (it may name another node: OlcbChecker's
+    /// `mc40` locks with made-up Node IDs). Its presence is what a holder check asks about.
+    lock_by: Option<NodeId>,
     /// The lock lapses at this time unless its owner sends another command (or stream data)
     /// first: a client that died does not lock the node for good.
     lock_deadline: Instant,
@@ -150,6 +153,7 @@ impl MemoryServer {
             acdi_user: Vec::new(),
             unique_ids: Vec::new(),
             lock: 0,
+            lock_by: None,
             lock_deadline: Instant::ZERO,
             frozen: false,
             firmware_owner: None,
@@ -237,9 +241,10 @@ impl MemoryServer {
         self.lock != 0 && self.lock != peer.as_raw() && now < self.lock_deadline
     }
 
-    /// The holder of the lock, when it is another node than `peer` and has not lapsed.
+    /// The node that took the lock, when the lock keeps `peer` out (it names another node
+    /// and has not lapsed).
     fn lock_holder_against(&self, now: Instant, peer: NodeId) -> Option<NodeId> {
-        self.locked_out(now, peer).then(|| NodeId::new(self.lock)).flatten()
+        self.lock_by.filter(|_| self.locked_out(now, peer))
     }
 
     /// The node keeping `peer` from `space` (from writing it, with `write`), with the code
@@ -259,7 +264,8 @@ impl MemoryServer {
     /// the sender resends) while it is asked.
     fn refusal(&mut self, cx: &mut Cx<'_>, peer: NodeId, space: u8, write: bool) -> Option<ErrorCode> {
         let (holder, code) = self.kept_out_by(cx.now, peer, space, write)?;
-        Some(if self.holder_answered(cx, holder) { code } else { ErrorCode::TEMPORARY })
+        // `peer` itself took a lock naming another node: nobody to ask.
+        Some(if holder == peer || self.holder_answered(cx, holder) { code } else { ErrorCode::TEMPORARY })
     }
 
     /// Whether `holder` answered the Verify Node ID of the check running; without a check
@@ -296,9 +302,9 @@ impl MemoryServer {
         }
     }
 
-    /// `peer` did something: a lock it holds lasts on.
+    /// `peer` did something: a lock it holds (or took) lasts on.
     fn touch_lock(&mut self, now: Instant, timeout: openlcb_stream::Duration, peer: NodeId) {
-        if self.lock == peer.as_raw() {
+        if self.lock != 0 && (self.lock == peer.as_raw() || self.lock_by == Some(peer)) {
             self.lock_deadline = now + timeout;
         }
     }
@@ -527,16 +533,19 @@ impl MemoryServer {
                 cx.send_server_reply(peer, Reply::SpaceInfo(self.space_info(space)), SpaceForm::Short);
             }
             Command::Lock { node } => {
-                // MC §4.17: test-and-set; a Node ID of 0 releases. A lapsed lock is free; a
-                // holder that is gone is found so before the answer (refused for now).
-                if let Some(holder) = self.lock_holder_against(cx.now, peer)
+                // MC §4.17: test-and-set; a Node ID of 0 releases. A lapsed lock is free. The
+                // node that took it gets its answers at once, whatever Node IDs it names; for
+                // another, a taker that is gone is found so first (refused for now).
+                if let Some(taker) = self.lock_by.filter(|by| *by != peer && self.lock != 0)
                     && node != 0
-                    && !self.holder_answered(cx, holder)
+                    && cx.now < self.lock_deadline
+                    && !self.holder_answered(cx, taker)
                 {
                     return self.reject(cx, peer, ErrorCode::TEMPORARY);
                 }
                 if self.lock == 0 || node == 0 || cx.now >= self.lock_deadline {
                     self.lock = node;
+                    self.lock_by = (node != 0).then_some(peer);
                     self.lock_deadline = cx.now + cx.options.lock_timeout;
                 }
                 cx.ok(peer, pending);
@@ -1103,6 +1112,7 @@ impl MemoryServer {
         self.transfers.clear();
         self.holder_check = None;
         self.lock = 0;
+        self.lock_by = None;
         self.frozen = false;
         self.unfreeze_pending = None;
     }
@@ -1111,8 +1121,9 @@ impl MemoryServer {
     /// streams end through the endpoint's events), its lock is released, and its upgrade
     /// may be taken over.
     pub(crate) fn forget_peer(&mut self, peer: Option<NodeId>) {
-        if peer.is_none_or(|p| p.as_raw() == self.lock) {
+        if peer.is_none_or(|p| p.as_raw() == self.lock || Some(p) == self.lock_by) {
             self.lock = 0;
+            self.lock_by = None;
         }
         // By position and an ordered remove: no `retain` (flash).
         while let Some(index) = self
@@ -1134,7 +1145,11 @@ impl MemoryServer {
         for t in self.transfers.iter_mut() {
             change.rename(&mut t.peer);
         }
-        for peer in [&mut self.firmware_owner, &mut self.unfreeze_pending].into_iter().flatten() {
+        let checked = self.holder_check.as_mut().map(|c| &mut c.holder);
+        for peer in [self.firmware_owner.as_mut(), self.unfreeze_pending.as_mut(), self.lock_by.as_mut(), checked]
+            .into_iter()
+            .flatten()
+        {
             change.rename(peer);
         }
         let ServiceChange::Lost(lost) = change else { return };
