@@ -50,14 +50,16 @@ pub struct NodeOptions {
 /// The link's defaults, but room for one frame of its own (a Datagram Rejected, an AMD, an
 /// OIR) for every frame of one read from the socket, however short: a burst of datagrams
 /// from many nodes is answered in full before the driver sends (each frame causes at most
-/// one); and a newcomer window of 200 ms, the wait before [`Node::connect`] returns. A node
-/// that has this Node ID answers the global Verify Node ID within milliseconds, through hubs
-/// too; every tool command waits this long once (500 ms made a firmware upgrade of 200 kB
-/// into OpenMRN's Bootloader 12% slower than OpenMRN's own client, which waits for none).
+/// one); and a newcomer window of 100 ms, the wait before [`Node::connect`] returns. A node
+/// that has this Node ID answers the global Verify Node ID within a few milliseconds, on the
+/// same hub or bus, through an adapter too; every command of a tool waits this long once
+/// (500 ms made a firmware upgrade of 200 kB into OpenMRN's Bootloader 12% slower than
+/// OpenMRN's own client, which waits for none). An answer later than that finds this node
+/// joined: both nodes then report the duplicate and stay, as two that started together do.
 fn can_config() -> CanConfig {
     let mut can = CanConfig::default();
     can.frame_queue_limit = crate::driver::READ_CHUNK / crate::driver::SHORTEST_FRAME;
-    can.newcomer_window = openlcb_stream::Duration::from_millis(200);
+    can.newcomer_window = openlcb_stream::Duration::from_millis(100);
     can
 }
 

@@ -266,7 +266,12 @@ async fn a_second_node_with_a_taken_node_id_refuses_to_join_and_the_first_keeps_
     let hub = start_hub(HubOptions::default()).await;
     let addr = hub.local_addr().to_string();
     let taken = id(0x20);
-    let join = |node| Node::connect(&addr, Framing::GridConnect, NodeOptions::new(node));
+    // A newcomer window long enough for the first node's answer however loaded the machine.
+    let join = |node| {
+        let mut options = NodeOptions::new(node);
+        options.can.newcomer_window = openlcb_stream::Duration::from_secs(1);
+        Node::connect(&addr, Framing::GridConnect, options)
+    };
     let mut first = bounded("joining", join(taken)).await.unwrap();
     let mut observer = TcpStream::connect(hub.local_addr()).await.unwrap();
     until_clients(&hub, 2).await;
