@@ -431,30 +431,52 @@ async fn config_show_and_backup_of_an_io_board_cdi() {
     assert!(text.contains("\nSettings.Line(5).Function=2\nSettings.Line(5).Event On=00.00.00.00.00.00.00.00\n"));
 }
 
+/// The Node ID of the replacement in [`FreshBoard`].
+const REPLACEMENT: &str = "05.01.01.01.22.E3";
+
+/// A factory-fresh board (every configuration byte 0xFF: erased strings, ints past their
+/// `max`) as SERVER and a replacement holding zeros as REPLACEMENT, both `serve --cdi` of the
+/// same 16-line CDI, on one hub. Dropped, it stops both.
+struct FreshBoard {
+    dir: std::path::PathBuf,
+    _hub: Hub,
+    addr: String,
+    /// The replacement's configuration file.
+    replacement: std::path::PathBuf,
+    _servers: [Server; 2],
+}
+
+impl FreshBoard {
+    async fn start(test: &str) -> FreshBoard {
+        let dir = scratch(test);
+        let (hub, addr) = hub().await;
+        let cdi = concat!(env!("CARGO_MANIFEST_DIR"), "/../openlcb-cdi/tests/cdi/io16.xml");
+        let (fresh, replacement) = (dir.join("fresh.bin"), dir.join("replacement.bin"));
+        std::fs::write(&fresh, vec![0xFF; 2 + 16 * 39 + 1]).unwrap();
+        std::fs::write(&replacement, vec![0; 2 + 16 * 39 + 1]).unwrap();
+        let board = Server::start(&dir, &addr, SERVER, &["--cdi", cdi, "--config", path_arg(&fresh)]).await;
+        let new = Server::start(&dir, &addr, REPLACEMENT, &["--cdi", cdi, "--config", path_arg(&replacement)]).await;
+        FreshBoard { dir, _hub: hub, addr, replacement, _servers: [board, new] }
+    }
+}
+
 /// A factory-fresh board (every configuration byte 0xFF: erased strings, ints past their
 /// `max`) is backed up, restored onto a replacement that holds zeros, and the replacement's
 /// backup is the board's, byte for byte.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_factory_fresh_backup_restores_onto_a_replacement() {
-    let dir = scratch("config-fresh");
-    let (_hub, addr) = hub().await;
-    let cdi = concat!(env!("CARGO_MANIFEST_DIR"), "/../openlcb-cdi/tests/cdi/io16.xml");
-    let (fresh, replacement) = (dir.join("fresh.bin"), dir.join("replacement.bin"));
-    std::fs::write(&fresh, vec![0xFF; 2 + 16 * 39 + 1]).unwrap();
-    std::fs::write(&replacement, vec![0; 2 + 16 * 39 + 1]).unwrap();
-    const REPLACEMENT: &str = "05.01.01.01.22.E3";
-    let _board = Server::start(&dir, &addr, SERVER, &["--cdi", cdi, "--config", path_arg(&fresh)]).await;
-    let _new = Server::start(&dir, &addr, REPLACEMENT, &["--cdi", cdi, "--config", path_arg(&replacement)]).await;
+    let board = FreshBoard::start("config-fresh").await;
+    let (dir, addr, replacement) = (&board.dir, &board.addr, &board.replacement);
     let (board_backup, new_backup) = (dir.join("board.txt"), dir.join("new.txt"));
-    let (status, json) = run(&addr, &["config", "backup", SERVER, "--out", path_arg(&board_backup)]).await;
+    let (status, json) = run(addr, &["config", "backup", SERVER, "--out", path_arg(&board_backup)]).await;
     assert_eq!(status, 0, "{json}");
     let text = std::fs::read_to_string(&board_backup).unwrap();
     assert!(text.contains(&format!("\nSettings.Line(0).Label={}\n", "\u{FFFD}".repeat(16))), "{text}");
     assert!(text.contains("\nSettings.Debounce (ms)=65535\n"), "{text}");
-    let (status, json) = run(&addr, &["config", "restore", REPLACEMENT, path_arg(&board_backup)]).await;
+    let (status, json) = run(addr, &["config", "restore", REPLACEMENT, path_arg(&board_backup)]).await;
     assert_eq!(status, 0, "{json}");
-    assert_eq!(std::fs::read(&replacement).unwrap()[..18], [0xFF; 18], "Debounce and Line(0).Label erased");
-    let (status, json) = run(&addr, &["config", "backup", REPLACEMENT, "--out", path_arg(&new_backup)]).await;
+    assert_eq!(std::fs::read(replacement).unwrap()[..18], [0xFF; 18], "Debounce and Line(0).Label erased");
+    let (status, json) = run(addr, &["config", "backup", REPLACEMENT, "--out", path_arg(&new_backup)]).await;
     assert_eq!(status, 0, "{json}");
     assert_eq!(std::fs::read_to_string(&new_backup).unwrap(), text);
 }
@@ -646,20 +668,28 @@ async fn a_refused_update_complete_after_a_verified_write_is_a_warning() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stream_sent_to_serve_is_refused_not_swallowed() {
-    let dir = scratch("send-to-serve");
-    let (_hub, addr) = hub().await;
-    let _server = Server::start(&dir, &addr, SERVER, &[]).await;
-    let input = dir.join("input.bin");
-    std::fs::write(&input, data(300, 2)).unwrap();
-    let output = Command::new(BIN)
-        .args(["send", path_arg(&input), "--to", SERVER, "--connect", &addr])
-        .stdin(Stdio::null())
-        .kill_on_drop(true)
-        .output();
-    let output = bounded("send to serve", output).await.unwrap();
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert_eq!(output.status.code(), Some(4), "{stderr}");
-    assert!(stderr.contains("0x1010") && stderr.contains("streams not supported"), "{stderr}");
+    // serve takes streams only for its Memory Configuration (0x1010); with --no-streams it has
+    // none, and its PIP says so: the refusal is worded from it.
+    let without_streams = format!("this node ({SERVER}) has no streams");
+    for (test, extra, said) in [
+        ("send-to-serve", &[][..], "streams not supported"),
+        ("send-no-streams", &["--no-streams"][..], without_streams.as_str()),
+    ] {
+        let dir = scratch(test);
+        let (_hub, addr) = hub().await;
+        let _server = Server::start(&dir, &addr, SERVER, extra).await;
+        let input = dir.join("input.bin");
+        std::fs::write(&input, data(300, 2)).unwrap();
+        let output = Command::new(BIN)
+            .args(["send", path_arg(&input), "--to", SERVER, "--connect", &addr])
+            .stdin(Stdio::null())
+            .kill_on_drop(true)
+            .output();
+        let output = bounded(test, output).await.unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(4), "{stderr}");
+        assert!(stderr.contains(said), "{stderr}");
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -905,22 +935,15 @@ async fn relay_stalling_after(hub: &str, writes: usize, stalled: mpsc::Unbounded
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_interrupted_restore_says_how_many_settings_it_wrote_and_a_rerun_finishes() {
-    let dir = scratch("restore-interrupted");
-    let (_hub, addr) = hub().await;
-    let cdi = concat!(env!("CARGO_MANIFEST_DIR"), "/../openlcb-cdi/tests/cdi/io16.xml");
-    let (fresh, replacement) = (dir.join("fresh.bin"), dir.join("replacement.bin"));
-    std::fs::write(&fresh, vec![0xFF; 2 + 16 * 39 + 1]).unwrap();
-    std::fs::write(&replacement, vec![0; 2 + 16 * 39 + 1]).unwrap();
-    const REPLACEMENT: &str = "05.01.01.01.22.E3";
-    let _board = Server::start(&dir, &addr, SERVER, &["--cdi", cdi, "--config", path_arg(&fresh)]).await;
-    let _new = Server::start(&dir, &addr, REPLACEMENT, &["--cdi", cdi, "--config", path_arg(&replacement)]).await;
+    let board = FreshBoard::start("restore-interrupted").await;
+    let (dir, addr) = (&board.dir, &board.addr);
     let backup = dir.join("board.txt");
-    let (status, json) = run(&addr, &["config", "backup", SERVER, "--out", path_arg(&backup)]).await;
+    let (status, json) = run(addr, &["config", "backup", SERVER, "--out", path_arg(&backup)]).await;
     assert_eq!(status, 0, "{json}");
 
     // The restore by datagrams stalls after its third Write; Ctrl-C then.
     let (stalled, mut stall) = mpsc::unbounded_channel();
-    let relay = relay_stalling_after(&addr, 3, stalled).await;
+    let relay = relay_stalling_after(addr, 3, stalled).await;
     let restore = Command::new(BIN)
         .args(["config", "restore", REPLACEMENT, path_arg(&backup), "--no-stream", "--connect", &relay, "--json"])
         .stdin(Stdio::null())
@@ -942,10 +965,10 @@ async fn an_interrupted_restore_says_how_many_settings_it_wrote_and_a_rerun_fini
     assert!(written > 0 && written < settings, "{json}");
 
     // At once, by another transient Node ID: the interrupted tool's lock does not stop it.
-    let (status, json) = run(&addr, &["config", "restore", REPLACEMENT, path_arg(&backup)]).await;
+    let (status, json) = run(addr, &["config", "restore", REPLACEMENT, path_arg(&backup)]).await;
     assert_eq!(status, 0, "{json}");
     let again = dir.join("again.txt");
-    let (status, _) = run(&addr, &["config", "backup", REPLACEMENT, "--out", path_arg(&again)]).await;
+    let (status, _) = run(addr, &["config", "backup", REPLACEMENT, "--out", path_arg(&again)]).await;
     assert_eq!(status, 0);
     assert_eq!(std::fs::read_to_string(&again).unwrap(), std::fs::read_to_string(&backup).unwrap());
 }
@@ -1092,24 +1115,6 @@ async fn a_node_without_firmware_upgrade_has_no_firmware_upgrade_in_words() {
 
 /// A stream sent to a node without streams (`serve --no-streams`, OIR 0x1043): "this node
 /// has no streams", exit 4.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_stream_sent_to_a_node_without_streams_says_it_has_none() {
-    let dir = scratch("send-no-streams");
-    let (_hub, addr) = hub().await;
-    let _server = Server::start(&dir, &addr, SERVER, &["--no-streams"]).await;
-    let input = dir.join("input.bin");
-    std::fs::write(&input, data(300, 2)).unwrap();
-    let output = Command::new(BIN)
-        .args(["send", path_arg(&input), "--to", SERVER, "--connect", &addr])
-        .stdin(Stdio::null())
-        .kill_on_drop(true)
-        .output();
-    let output = bounded("send to a node without streams", output).await.unwrap();
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert_eq!(output.status.code(), Some(4), "{stderr}");
-    assert!(stderr.contains(&format!("this node ({SERVER}) has no streams")), "{stderr}");
-}
-
 /// Ctrl-C (SIGINT) in the middle of `read --out FILE` from a node that trickles, by
 /// datagrams and by stream: exit 130, FILE.part kept with the first bytes of the space, and
 /// the message says how many; FILE is not made.

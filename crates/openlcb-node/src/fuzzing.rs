@@ -3,7 +3,7 @@
 use alloc::vec::Vec;
 
 use arbitrary::{Arbitrary, Unstructured};
-use openlcb_stream::{Duration, Instant, MessageRef, Mti, NodeId, PeerChange};
+use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId, PeerChange};
 
 use crate::{DatagramAnswer, Node, NodeConfig, NodeEvent, OkFlags, SnipInfo};
 
@@ -410,6 +410,7 @@ pub fn memconfig_server_ops(data: &[u8]) {
                     }
                 }
                 Mti::DATAGRAM_REJECTED if to_commander => answers.push(None),
+                Mti::VERIFY_NODE_ID_ADDRESSED => answer_verify(&mut node, now, &sent),
                 Mti::DATAGRAM => {
                     if let Some(i) = index {
                         if let Some(n) = promised.get_mut(i) {
@@ -499,6 +500,7 @@ pub fn memconfig_server_ops(data: &[u8]) {
                     *n -= 1;
                 }
             }
+            answer_verify(&mut node, now, &sent);
         }
         while node.poll_event().is_some() {}
     }
@@ -508,6 +510,14 @@ pub fn memconfig_server_ops(data: &[u8]) {
         let mut bytes = alloc::vec![0; 300];
         let _ = space.read(0, &mut bytes);
         assert!(bytes == shadow, "space 0xFD is not what the accepted writes left");
+    }
+}
+
+/// The peers are alive: each answers an addressed Verify Node ID sent to it (MN §3.3), as the
+/// memory server's check of a holder of its lock or upgrade expects of a node still there.
+fn answer_verify(node: &mut Node, now: Instant, sent: &Message) {
+    if let Some(to) = sent.destination.filter(|d| sent.mti == Mti::VERIFY_NODE_ID_ADDRESSED && PEERS.contains(d)) {
+        node.handle_message(now, Message::verified_node_id(to).as_ref());
     }
 }
 

@@ -1303,3 +1303,20 @@ fn lock_is_test_and_set_at_once_for_the_node_that_took_it_whatever_ids_it_names(
         assert!(!verify_to(&answers, NodeId::new(a).unwrap()) && !verify_to(&answers, NodeId::new(b).unwrap()));
     }
 }
+
+#[test]
+fn a_holder_that_keeps_sending_commands_is_not_found_gone() {
+    // A loader that does not answer Verify Node ID but is plainly there (it sends commands).
+    let mut pair = Pair::new(NodeConfig::default(), server_with(NodeConfig::default(), 16));
+    pair.pump();
+    command_from(&mut pair, GONE, &Command::Freeze { space: 0xEF }.to_bytes());
+    let freeze = Command::Freeze { space: 0xEF }.to_bytes();
+    assert!(rejected_with(&command_from(&mut pair, CLIENT, &freeze), 0x2000));
+    let image = command_from(&mut pair, GONE, &[0x20, 0x00, 0, 0, 0, 0, 0xEF, 0xAA]);
+    assert_eq!(image[0].mti, Mti::DATAGRAM_RECEIVED_OK, "{image:?}");
+    pair.now += Duration::from_millis(600);
+    pair.server.handle_timeout(pair.now);
+    assert_eq!(pair.server.memory_server().unwrap().stats().holders_gone, 0);
+    let again = command_from(&mut pair, CLIENT, &freeze);
+    assert!(!again.iter().any(|m| m.mti == Mti::DATAGRAM_RECEIVED_OK), "the owner's upgrade stays: {again:?}");
+}

@@ -283,7 +283,7 @@ impl MemoryServer {
         false
     }
 
-    /// A Verified Node ID from `node`: a holder being checked is still here.
+    /// A Verified Node ID (or a command) from `node`: a holder being checked is still here.
     pub(crate) fn peer_verified(&mut self, node: NodeId) {
         if let Some(check) = self.holder_check.as_mut().filter(|c| c.holder == node) {
             check.answered = true;
@@ -485,6 +485,8 @@ impl MemoryServer {
             // its replies does not starve the others.
             return self.reject(cx, peer, ErrorCode::BUFFER_UNAVAILABLE);
         }
+        // A holder being checked that sends a command is still here.
+        self.peer_verified(peer);
         self.end_holder_check(cx);
         self.touch_lock(cx.now, cx.options.lock_timeout, peer);
         let command = match Command::parse(bytes) {
