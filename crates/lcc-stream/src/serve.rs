@@ -286,7 +286,7 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
 
 /// Serves `spaces` on `node` (a new connection's), and listens to its event reports.
 async fn serve_on(node: &Node, spaces: &Spaces) -> Result<(ServerEvents, EventNotices), Error> {
-    let events = node.serve_memory(spaces.server()).await?;
+    let events = node.set_memory_server(spaces.server()).await?;
     Ok((events, node.event_notices().await?))
 }
 

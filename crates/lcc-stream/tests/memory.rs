@@ -783,7 +783,7 @@ async fn node_in_process(hub: &str, server: Option<MemoryServer>) {
             let options = NodeOptions::new(SERVER.parse().unwrap());
             let node = Node::connect(&hub, Framing::GridConnect, options).await.unwrap();
             let _events = match server {
-                Some(server) => Some(node.serve_memory(server).await.unwrap()),
+                Some(server) => Some(node.set_memory_server(server).await.unwrap()),
                 None => None,
             };
             let _ = ready.send(());

@@ -18,7 +18,7 @@ async fn run() -> Result<(), Error> {
     // The configured node: space 0xFD in memory.
     let board_id: NodeId = "05.01.01.01.22.E0".parse().expect("a valid Node ID");
     let board = Node::connect(&addr, Framing::GridConnect, NodeOptions::new(board_id)).await?;
-    let _events = board.serve_memory(MemoryServer::new().with_space(0xFD, RamSpace::new(256))).await?;
+    let _events = board.set_memory_server(MemoryServer::new().with_space(0xFD, RamSpace::new(256))).await?;
 
     // The tool: write 4 bytes at address 16, then read the whole space back.
     let tool_id: NodeId = "05.01.01.01.22.E1".parse().expect("a valid Node ID");

@@ -5,7 +5,7 @@
 //!   [`CanLink`](openlcb_can::CanLink) with alias login under the stream endpoint) or the
 //!   binary OpenLCB-TCP framing (a [`TcpLink`](openlcb_tcp::TcpLink)). [`Node::open`] gives a
 //!   [`SendStream`], [`Node::accept`] a [`RecvStream`].
-//! - Memory Configuration ([`memory`]): [`Node::serve_memory`] serves address spaces,
+//! - Memory Configuration ([`memory`]): [`Node::set_memory_server`] serves address spaces,
 //!   [`Node::read_memory`], [`Node::write_memory`] and [`Node::upgrade_firmware`] configure
 //!   and upgrade other nodes, with progress.
 //! - [`Hub`]: a hub that relays every frame from a client to every other client, with bounded

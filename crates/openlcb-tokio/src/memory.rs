@@ -1,5 +1,5 @@
 //! Memory Configuration on a [`Node`](crate::Node): serving address spaces
-//! ([`Node::serve_memory`](crate::Node::serve_memory)) and reading, writing and upgrading
+//! ([`Node::set_memory_server`](crate::Node::set_memory_server)) and reading, writing and upgrading
 //! the spaces of other nodes ([`Node::read_memory`](crate::Node::read_memory),
 //! [`Node::write_memory`](crate::Node::write_memory),
 //! [`Node::upgrade_firmware`](crate::Node::upgrade_firmware)).
@@ -25,7 +25,7 @@ use crate::Error;
 pub const SERVER_EVENT_QUEUE: usize = 64;
 
 /// What a node serving memory spaces was asked to do, for the application to carry out,
-/// from [`Node::serve_memory`](crate::Node::serve_memory): the server's variants of
+/// from [`Node::set_memory_server`](crate::Node::set_memory_server): the server's variants of
 /// [`MemoryEvent`] (`Frozen`, `Unfrozen` with the image's length, `UpdateComplete`,
 /// `ResetRequested`, `FactoryResetRequested`, `UserInfoChanged`).
 #[derive(Debug)]

@@ -415,7 +415,7 @@ impl Node {
     /// the returned [`ServerEvents`]. Events the application leaves waiting past
     /// [`SERVER_EVENT_QUEUE`](crate::memory::SERVER_EVENT_QUEUE) are dropped and counted
     /// ([`NodeStats::memory_events_dropped`]).
-    pub async fn serve_memory(&self, server: MemoryServer) -> Result<ServerEvents, Error> {
+    pub async fn set_memory_server(&self, server: MemoryServer) -> Result<ServerEvents, Error> {
         let (events, receiver) = mpsc::channel(SERVER_EVENT_QUEUE);
         let command = Command::Memory(MemoryCommand::Serve { server: Box::new(server), events });
         self.control.commands.send(command).await.map_err(|_| self.control.shared.error())?;

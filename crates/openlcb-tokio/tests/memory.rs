@@ -26,7 +26,7 @@ async fn pair(protocol: Framing) -> (Hub, Node, Node, openlcb_tokio::ServerEvent
         .with_space(0xFD, RamSpace::from_bytes(data(20_000, 1)))
         .with_space(0xEF, RamSpace::new(200_000))
         .with_acdi();
-    let events = server.serve_memory(spaces).await.unwrap();
+    let events = server.set_memory_server(spaces).await.unwrap();
     let client_id: NodeId = "05.01.01.01.22.D3".parse().unwrap();
     let client = Node::connect(&addr, protocol, NodeOptions::new(client_id)).await.unwrap();
     (hub, server, client, events)
