@@ -620,8 +620,18 @@ impl MemorySpace for ConfigSpace {
             Some(changed) if start / PAGE == end.saturating_sub(1) / PAGE => write_in_place(path, start, changed),
             _ => save_whole(path, whole, true),
         };
-        // Not saved: the bytes stay marked, and the next command's commit saves them too.
-        saved.map_err(|_| SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT))?;
+        if saved.is_err() {
+            // Not saved: the space goes back to what the file holds, so that no read-back
+            // (`config set`'s, a tool's) takes the failed command for done; a file that
+            // cannot be read either keeps the bytes marked for the next commit.
+            if let Ok(held) = std::fs::read(path.as_path())
+                && held.len() == whole.len()
+            {
+                *bytes = RamSpace::from_bytes(held);
+                *dirty = None;
+            }
+            return Err(SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT));
+        }
         *dirty = None;
         Ok(())
     }
@@ -744,6 +754,15 @@ mod tests {
         space.commit().unwrap();
         assert_eq!(std::fs::read(&path).unwrap(), space.ram().as_bytes());
         assert!(space.commit().is_ok(), "nothing left to store");
+        // A commit that cannot replace the file (a folder stands where its `.part` goes,
+        // which even root cannot create as a file) fails, and the space reads as the file
+        // still holds it.
+        let held = std::fs::read(&path).unwrap();
+        std::fs::create_dir(part_path(&path)).unwrap();
+        space.write(0, &[0x5A; 2 * PAGE as usize]).unwrap();
+        assert!(space.commit().is_err());
+        assert_eq!(space.ram().as_bytes(), &held[..], "the failed command is not read back as done");
+        assert_eq!(std::fs::read(&path).unwrap(), held);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

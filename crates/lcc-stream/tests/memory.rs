@@ -595,42 +595,61 @@ async fn write_ends_with_update_complete_and_reboot_and_factory_reset_reach_the_
     assert_eq!((status, json["result"].as_str()), (5, Some("not_found")), "{json}");
 }
 
-/// A relay between each client and the hub that keeps from the node every datagram of the
-/// client's whose payload is `command` (hex, e.g. `20A8`: Update Complete) and answers it
-/// in the node's name with the frames `answer` gives for (the node's alias, the client's
-/// alias), as a node that has not that command would; every other frame passes.
-async fn relay_answering(hub: &str, command: &'static str, answer: fn(&str, &str) -> Vec<String>) -> String {
+/// What a test relay does with one line its client sends.
+enum Route {
+    /// To the hub.
+    Pass,
+    /// Kept from the hub; these frames go back to the client instead.
+    Answer(Vec<String>),
+    /// To the hub, and from then on nothing more passes either way (the connection stays
+    /// open: the client waits for answers that never come).
+    PassThenStall,
+}
+
+/// A relay between each client and the hub on 127.0.0.1: `route` decides every line a
+/// client sends; every line from the hub goes to the client until a stall. Its address.
+async fn relay(hub: &str, route: impl Fn(&str) -> Route + Send + Sync + 'static) -> String {
+    use std::sync::atomic::{AtomicBool, Ordering::SeqCst};
     use tokio::io::AsyncWriteExt as _;
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
-    let hub = hub.to_string();
+    let (hub, route) = (hub.to_string(), std::sync::Arc::new(route));
     tokio::spawn(async move {
         while let Ok((client, _)) = listener.accept().await {
             let upstream = tokio::net::TcpStream::connect(&hub).await.unwrap();
             let (client_read, client_write) = client.into_split();
             let (hub_read, mut hub_write) = upstream.into_split();
             let client_write = std::sync::Arc::new(tokio::sync::Mutex::new(client_write));
-            let answers = client_write.clone();
+            let stalled = std::sync::Arc::new(AtomicBool::new(false));
+            let (answers, stall, route) = (client_write.clone(), stalled.clone(), route.clone());
             tokio::spawn(async move {
                 let mut lines = BufReader::new(client_read).lines();
                 while let Ok(Some(line)) = lines.next_line().await {
-                    // A one-frame datagram :X1Adddsss N<payload>; (ddd the node, sss the client).
-                    if line.starts_with(":X1A") && line.ends_with(&format!("N{command};")) {
-                        let mut to_client = answers.lock().await;
-                        for frame in answer(&line[4..7], &line[7..10]) {
-                            let _ = to_client.write_all(format!("{frame}\n").as_bytes()).await;
-                        }
+                    if stall.load(SeqCst) {
                         continue;
                     }
-                    if hub_write.write_all(format!("{line}\n").as_bytes()).await.is_err() {
+                    let frames = match route(&line) {
+                        Route::Answer(frames) => frames,
+                        pass => {
+                            stall.store(matches!(pass, Route::PassThenStall), SeqCst);
+                            vec![]
+                        }
+                    };
+                    if frames.is_empty() && hub_write.write_all(format!("{line}\n").as_bytes()).await.is_err() {
                         break;
+                    }
+                    let mut to_client = answers.lock().await;
+                    for frame in frames {
+                        let _ = to_client.write_all(format!("{frame}\n").as_bytes()).await;
                     }
                 }
             });
             tokio::spawn(async move {
                 let mut lines = BufReader::new(hub_read).lines();
                 while let Ok(Some(line)) = lines.next_line().await {
-                    if client_write.lock().await.write_all(format!("{line}\n").as_bytes()).await.is_err() {
+                    if !stalled.load(SeqCst)
+                        && client_write.lock().await.write_all(format!("{line}\n").as_bytes()).await.is_err()
+                    {
                         break;
                     }
                 }
@@ -638,6 +657,22 @@ async fn relay_answering(hub: &str, command: &'static str, answer: fn(&str, &str
         }
     });
     addr
+}
+
+/// A relay that keeps from the node every one-frame datagram of a client whose payload is
+/// `command` (hex, e.g. `20A8`: Update Complete) and answers it in the node's name with the
+/// frames `answer` gives for (the node's alias, the client's alias), as a node that has not
+/// that command would; every other frame passes.
+async fn relay_answering(hub: &str, command: &'static str, answer: fn(&str, &str) -> Vec<String>) -> String {
+    relay(hub, move |line| {
+        // A one-frame datagram :X1Adddsss N<payload>; (ddd the node, sss the client).
+        if line.starts_with(":X1A") && line.ends_with(&format!("N{command};")) {
+            Route::Answer(answer(&line[4..7], &line[7..10]))
+        } else {
+            Route::Pass
+        }
+    })
+    .await
 }
 
 /// Datagram Rejected 0x1041 (not implemented: unknown command) from `node` to `client`.
@@ -889,48 +924,21 @@ async fn a_lock_left_by_a_vanished_tool_does_not_hold_up_the_next_write() {
     assert_eq!(std::fs::read(&config).unwrap()[..200], data(200, 6));
 }
 
-/// A relay between one client and the hub that passes everything until the client has sent
-/// `writes` Write datagrams, then passes nothing more either way (the connection stays open):
-/// the client waits for an answer that never comes. `stalled` is told when it stops.
+/// A relay that passes everything until its client has sent `writes` Write datagrams, then
+/// stalls (see [`Route::PassThenStall`]); `stalled` is told when it stops.
 async fn relay_stalling_after(hub: &str, writes: usize, stalled: mpsc::UnboundedSender<()>) -> String {
-    use tokio::io::AsyncWriteExt as _;
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap().to_string();
-    let hub = hub.to_string();
-    tokio::spawn(async move {
-        let (client, _) = listener.accept().await.unwrap();
-        let upstream = tokio::net::TcpStream::connect(&hub).await.unwrap();
-        let (client_read, mut client_write) = client.into_split();
-        let (hub_read, mut hub_write) = upstream.into_split();
-        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let stopped = stop.clone();
-        tokio::spawn(async move {
-            let mut lines = BufReader::new(hub_read).lines();
-            while let Ok(Some(line)) = lines.next_line().await {
-                if !stopped.load(std::sync::atomic::Ordering::SeqCst) {
-                    let _ = client_write.write_all(format!("{line}\n").as_bytes()).await;
-                }
-            }
-        });
-        let mut lines = BufReader::new(client_read).lines();
-        let mut seen = 0;
-        while let Ok(Some(line)) = lines.next_line().await {
-            if stop.load(std::sync::atomic::Ordering::SeqCst) {
-                continue;
-            }
-            let _ = hub_write.write_all(format!("{line}\n").as_bytes()).await;
-            // The first (or only) frame of a datagram whose command is a Write (20 00..03).
-            let data = line.split_once('N').map_or("", |(_, d)| d);
-            if (line.starts_with(":X1A") || line.starts_with(":X1B")) && data.len() >= 4 && &data[..3] == "200" {
-                seen += 1;
-                if seen == writes {
-                    stop.store(true, std::sync::atomic::Ordering::SeqCst);
-                    let _ = stalled.send(());
-                }
-            }
+    let seen = std::sync::atomic::AtomicUsize::new(0);
+    relay(hub, move |line| {
+        // The first (or only) frame of a datagram whose command is a Write (20 00..03).
+        let data = line.split_once('N').map_or("", |(_, d)| d);
+        let write = (line.starts_with(":X1A") || line.starts_with(":X1B")) && data.len() >= 4 && &data[..3] == "200";
+        if write && seen.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1 == writes {
+            let _ = stalled.send(());
+            return Route::PassThenStall;
         }
-    });
-    addr
+        Route::Pass
+    })
+    .await
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -179,30 +179,46 @@ fn only_the_node_that_froze_may_write_the_firmware_space_or_unfreeze() {
     assert_eq!(space(&mut server, 0xEF)[..64], [1; 64]);
 }
 
-/// A firmware space that cannot store an image.
-struct BrokenFlash(RamSpace);
+/// A RAM space that counts its writes and commits (shared, to be read after the server
+/// took the space) and, as `broken_flash`, cannot store an image (its `complete` fails).
+struct TestSpace {
+    ram: RamSpace,
+    counts: std::sync::Arc<std::sync::Mutex<(usize, usize)>>,
+    broken_flash: bool,
+}
 
-impl MemorySpace for BrokenFlash {
+impl TestSpace {
+    fn new(len: u32) -> Self {
+        TestSpace { ram: RamSpace::new(len), counts: Default::default(), broken_flash: false }
+    }
+}
+
+impl MemorySpace for TestSpace {
     fn len(&self) -> u32 {
-        self.0.len()
+        self.ram.len()
     }
     fn read_only(&self) -> bool {
         false
     }
     fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
-        self.0.read(address, buf)
+        self.ram.read(address, buf)
     }
     fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
-        self.0.write(address, data)
+        self.counts.lock().unwrap().0 += 1;
+        self.ram.write(address, data)
+    }
+    fn commit(&mut self) -> Result<(), SpaceError> {
+        self.counts.lock().unwrap().1 += 1;
+        Ok(())
     }
     fn complete(&mut self, _len: u32) -> Result<(), SpaceError> {
-        Err(SpaceError::Failed(openlcb_stream::wire::ErrorCode(0x2088)))
+        if self.broken_flash { Err(SpaceError::Failed(openlcb_stream::wire::ErrorCode(0x2088))) } else { Ok(()) }
     }
 }
 
 #[test]
 fn an_image_the_space_cannot_store_refuses_the_unfreeze_with_its_code() {
-    let memory = MemoryServer::new().with_space(0xEF, BrokenFlash(RamSpace::new(4096)));
+    let memory = MemoryServer::new().with_space(0xEF, TestSpace { broken_flash: true, ..TestSpace::new(4096) });
     let mut server = Node::new(SERVER, NodeConfig::default()).with_memory_server(memory);
     let _ = std::iter::from_fn(|| server.poll_transmit()).count();
     assert!(answer(&command(&mut server, PEER, &Command::Freeze { space: 0xEF })).is_ok());
@@ -353,33 +369,11 @@ fn a_write_stream_source_past_its_window_gets_tde_and_nothing_past_the_window_is
     assert_eq!(space(&mut server, 0xFD)[..28_000], data[..]);
 }
 
-/// A space that counts its writes and commits (shared, to read them after the server took it).
-struct Counting(RamSpace, std::sync::Arc<std::sync::Mutex<(usize, usize)>>);
-
-impl MemorySpace for Counting {
-    fn len(&self) -> u32 {
-        self.0.len()
-    }
-    fn read_only(&self) -> bool {
-        false
-    }
-    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
-        self.0.read(address, buf)
-    }
-    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
-        self.1.lock().unwrap().0 += 1;
-        self.0.write(address, data)
-    }
-    fn commit(&mut self) -> Result<(), SpaceError> {
-        self.1.lock().unwrap().1 += 1;
-        Ok(())
-    }
-}
-
 #[test]
 fn a_space_commits_once_per_write_command_and_once_per_write_stream() {
-    let counts = std::sync::Arc::new(std::sync::Mutex::new((0, 0)));
-    let memory = MemoryServer::new().with_space(0xFD, Counting(RamSpace::new(SPACE_LEN), counts.clone()));
+    let watched = TestSpace::new(SPACE_LEN);
+    let counts = watched.counts.clone();
+    let memory = MemoryServer::new().with_space(0xFD, watched);
     let mut server = Node::new(SERVER, NodeConfig::default()).with_memory_server(memory);
     let _ = std::iter::from_fn(|| server.poll_transmit()).count();
     for address in [0, 64] {
