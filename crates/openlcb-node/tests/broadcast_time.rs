@@ -48,7 +48,7 @@ impl Bench {
             if self.node.poll_timeout().is_some_and(|d| d <= self.now) {
                 self.node.handle_timeout(self.now);
                 self.drain();
-                self.now = self.now + Duration::from_micros(1);
+                self.now += Duration::from_micros(1);
             }
         }
         self.now = end;
@@ -410,7 +410,7 @@ fn several_clocks_on_one_bus_stay_apart() {
     ];
     let mut now = Instant::ZERO;
     for _ in 0..1201 {
-        now = now + Duration::from_millis(100);
+        now += Duration::from_millis(100);
         for node in &mut nodes {
             node.handle_timeout(now);
         }

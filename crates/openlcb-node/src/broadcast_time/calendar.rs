@@ -80,7 +80,7 @@ pub(crate) fn clamp_to_calendar(ms: i64) -> i64 {
 
 /// A leap year of the Gregorian calendar (year 0 is one).
 pub(crate) fn is_leap(year: u16) -> bool {
-    year % 4 == 0 && (year % 100 != 0 || year % 400 == 0)
+    year.is_multiple_of(4) && (!year.is_multiple_of(100) || year.is_multiple_of(400))
 }
 
 /// Days in `month` (1 to 12) of `year`; 0 for a month out of range.

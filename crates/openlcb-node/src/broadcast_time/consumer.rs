@@ -173,11 +173,9 @@ impl Consumer {
                 model.set_ms(now, model.with_year(now, year));
                 self.set_told(now, bus, before, from);
             }
-            ClockMessage::ReportRate(rate) => {
-                if rate != model.rate {
-                    model.set_rate(now, rate);
-                    bus.tell(ClockChange::Rate(rate), Some(from));
-                }
+            ClockMessage::ReportRate(rate) if rate != model.rate => {
+                model.set_rate(now, rate);
+                bus.tell(ClockChange::Rate(rate), Some(from));
             }
             // Start and stop are not echoed by the generator: its command is the change (and
             // the sequence's first message confirms it).

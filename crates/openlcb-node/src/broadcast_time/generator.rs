@@ -117,12 +117,10 @@ impl Generator {
             }
             _ if message.is_report() => bus.stats.other_generators += 1,
             _ => {
-                if let Some(set) = ClockSet::of(message) {
-                    if !self.config.accept_sets {
-                        bus.stats.sets_refused += 1;
-                    } else if self.set(now, bus, set, Some(heard.from)).is_err() {
-                        bus.stats.sets_refused += 1;
-                    }
+                if let Some(set) = ClockSet::of(message)
+                    && (!self.config.accept_sets || self.set(now, bus, set, Some(heard.from)).is_err())
+                {
+                    bus.stats.sets_refused += 1;
                 }
             }
         }

@@ -103,6 +103,7 @@ mod generator;
 mod model;
 mod wire;
 
+use alloc::boxed::Box;
 use alloc::vec::Vec;
 
 use openlcb_stream::wire::ErrorReport;
@@ -445,7 +446,7 @@ pub(crate) struct Heard {
 /// A clock in its role.
 #[derive(Debug)]
 enum Role {
-    Generator(Generator),
+    Generator(Box<Generator>),
     Consumer(Consumer),
 }
 
@@ -473,7 +474,7 @@ impl ClockService {
             .map(|c| Clock {
                 id: c.id,
                 role: match &c.role {
-                    ClockRole::Generator(g) => Role::Generator(Generator::new(g.clone())),
+                    ClockRole::Generator(g) => Role::Generator(Box::new(Generator::new(g.clone()))),
                     ClockRole::Consumer(c) => Role::Consumer(Consumer::new(c.clone())),
                 },
             })

@@ -107,7 +107,12 @@ impl fmt::Display for Rate {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let sign = if self.0 < 0 { "-" } else { "" };
         let quarters = self.0.unsigned_abs();
-        let fraction = ["", ".25", ".5", ".75"][usize::from(quarters % 4)];
+        let fraction = match quarters % 4 {
+            1 => ".25",
+            2 => ".5",
+            3 => ".75",
+            _ => "",
+        };
         write!(f, "{sign}{}{fraction}", quarters / 4)
     }
 }
