@@ -6,6 +6,7 @@ mod stdout;
 
 mod args;
 mod cdi;
+mod clock;
 mod config;
 mod control;
 mod demo;
@@ -107,6 +108,9 @@ enum Command {
     Monitor(monitor::MonitorArgs),
     /// Watch event reports, send one, or ask who produces and consumes what.
     Events(events::EventsArgs),
+    /// The layout's fast clock (Broadcast Time): run a generator, follow a clock, or set,
+    /// start and stop one on the bus.
+    Clock(clock::ClockArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
     /// Print a shell completion script on stdout (e.g. `lcc-stream completions bash >
@@ -152,6 +156,7 @@ fn main() -> ExitCode {
         Command::Cdi(args) => cdi::run(&args),
         Command::Config(args) => config::run(&args),
         Command::Events(args) => events::run(&args),
+        Command::Clock(args) => clock::run(&args),
         Command::Reboot(args) => control::reboot(&args),
         Command::FactoryReset(args) => control::factory_reset(&args),
         Command::Monitor(args) => monitor::run(&args),

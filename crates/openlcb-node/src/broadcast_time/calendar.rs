@@ -40,6 +40,12 @@ impl ClockTime {
         valid.then_some(ClockTime { year, month, day, hour, minute, second })
     }
 
+    /// The moment `seconds` after 1970-01-01 00:00 (the Unix epoch, as a host's clock
+    /// counts; clamped to years 0 to 4095).
+    pub fn from_unix_seconds(seconds: i64) -> Self {
+        Self::from_ms(days_from_civil(1970, 1, 1) * DAY_MS + seconds.saturating_mul(1000))
+    }
+
     /// The moment `ms` milliseconds after 0000-01-01 00:00 (clamped to years 0 to 4095).
     pub(crate) fn from_ms(ms: i64) -> Self {
         let ms = clamp_to_calendar(ms);
@@ -148,5 +154,7 @@ mod tests {
         assert!(ClockTime::new(2023, 7, 22, 24, 0, 0).is_none());
         let new_year = ClockTime::new(2023, 12, 31, 23, 59, 59).unwrap().to_ms() + 1000;
         assert_eq!(ClockTime::from_ms(new_year), ClockTime::new(2024, 1, 1, 0, 0, 0).unwrap());
+        // 2026-12-04 21:33:11 UTC.
+        assert_eq!(ClockTime::from_unix_seconds(1_796_419_991), ClockTime::new(2026, 12, 4, 21, 33, 11).unwrap());
     }
 }
