@@ -17,6 +17,7 @@ use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome};
+use crate::peer::Peer;
 
 /// How long a command waits for the generator to confirm it: its echo of a set comes at
 /// once, its synchronization sequence (which confirms start and stop) 3 s after the last.
@@ -86,7 +87,9 @@ struct RunArgs {
     /// and OlcbChecker's bt10, bt20 and bt80 expect.
     #[arg(long, value_enum, default_value_t = Tail::WhenValid, conflicts_with = "follow")]
     sync_tail: Tail,
-    /// One JSON object per change (time, clock, change, clock_time, rate, running, from).
+    /// One JSON object per change: time (seconds since start), clock, change (minute, set,
+    /// rate, started, stopped, synchronized), clock_time, rate, running, and from (the Node ID
+    /// of the node that caused it) or, when only its CAN alias is known, from_alias.
     #[arg(long)]
     json: bool,
     #[command(flatten)]
@@ -248,9 +251,9 @@ async fn drive(node: &Node, clock: ClockId, sets: &[ClockSet]) -> Result<ExitCod
         let asked = set_text(*set);
         let got = message_text(message);
         if asked == got {
-            eprintln!("lcc-stream clock: {clock} {got} (generator {from})");
+            eprintln!("lcc-stream clock: {clock} {got} (generator {})", Peer::of(from));
         } else {
-            eprintln!("lcc-stream clock: {clock} asked {asked}, the generator {from} made it {got}");
+            eprintln!("lcc-stream clock: {clock} asked {asked}, the generator {} made it {got}", Peer::of(from));
         }
     }
     Ok(ExitCode::SUCCESS)
@@ -317,7 +320,10 @@ struct ChangeLine {
     clock_time: String,
     rate: String,
     running: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
     from: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from_alias: Option<String>,
 }
 
 /// Runs a generator (or follows the clock) until Ctrl-C.
@@ -408,7 +414,8 @@ fn print_change(json: bool, live: bool, started: Instant, event: &ClockEvent, st
         ClockChange::Synchronized => ("synchronized", Some("synchronized with its generator".to_string())),
         _ => ("other", None),
     };
-    let from = event.from.map(|n| n.to_string());
+    let peer = event.from.map(Peer::of);
+    let from = peer.map(|p| p.to_string());
     if json {
         let line = ChangeLine {
             time: started.elapsed().as_secs_f64(),
@@ -417,7 +424,8 @@ fn print_change(json: bool, live: bool, started: Instant, event: &ClockEvent, st
             clock_time: state.time.to_string(),
             rate: state.rate.to_string(),
             running: state.running,
-            from,
+            from: peer.and_then(Peer::node_field),
+            from_alias: peer.and_then(Peer::alias_field),
         };
         outln!("{}", serde_json::to_string(&line).unwrap_or_default());
     } else if live {
