@@ -5,6 +5,7 @@
 mod stdout;
 
 mod args;
+mod board;
 mod cdi;
 mod clock;
 mod config;

@@ -18,6 +18,7 @@ use openlcb_tokio::{
 };
 use serde::Serialize;
 
+use crate::board::{Board, Configured};
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome, net_outcome};
 use crate::peer::Peer;
@@ -36,6 +37,13 @@ const FIRMWARE_MAX: u32 = 16 * 1024 * 1024;
 macro_rules! serve_json_help {
     () => {
         "\
+The board: every eventid setting of space 0xFD (the built-in CDI's Port(i).Event On and
+Event Off) is produced and consumed as the configuration holds it; a tool's change takes
+effect at its Update Complete (which `config set` and `write` send), and the node identifies
+the new events at once. --input lines (`port 2 on`, or a setting's CDI key) produce them; a
+report of one drives its output: a line on stdout, `port 3 off (EVENT from NODE)`, or with
+--json {output, event, from or from_alias}.
+
 --json prints one object when the node stops: node, config_bytes (the size of space 0xFD),
 cdi_bytes, firmware (one object per image received: from (the loader's Node ID, or
 from_alias, its CAN alias in hex, when only that is known), bytes, file, and error when it
@@ -96,6 +104,12 @@ pub(crate) struct ServeArgs {
     /// Take no part in streams: every transfer goes by datagrams.
     #[arg(long)]
     no_streams: bool,
+    /// Read input lines from this file or FIFO (`-`: stdin), each naming an event setting of
+    /// space 0xFD as the board's input: `port 2 on` (the built-in CDI's ports), or the
+    /// setting's CDI key. The event the setting holds is produced (a Producer/Consumer Event
+    /// Report).
+    #[arg(long, value_name = "FILE")]
+    input: Option<PathBuf>,
     /// Print one JSON object (fields below) when the node stops, instead of text.
     #[arg(long)]
     json: bool,
@@ -203,19 +217,44 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
             eprintln!("lcc-stream serve: {verb} {}", crate::events::range_text(declared.range));
         }
     }
+    // The board's events, as the configuration holds them.
+    let mut configured = Configured::default();
+    if let Err(error) = apply_board(&node, &spaces, args, &mut configured, true).await {
+        return Ok(net::fail("serve", &Failure::Net(error)));
+    }
+    let mut input = match &args.input {
+        Some(path) => Some(input_lines(path)?),
+        None => None,
+    };
     // Notices lost by the listeners of earlier connections.
     let mut dropped_before = 0;
     let status = loop {
         let lost = tokio::select! {
             event = events.next() => match event {
                 Some(event) => {
+                    // A tool's change takes effect when it says it is done (or the node restarts).
+                    let applies = matches!(event, MemoryEvent::UpdateComplete { .. } | MemoryEvent::ResetRequested { .. });
                     on_event(event, args, &image, &mut report);
-                    continue;
+                    match applies {
+                        true => match apply_board(&node, &spaces, args, &mut configured, false).await {
+                            Ok(()) => continue,
+                            Err(error) => error,
+                        },
+                        false => continue,
+                    }
                 }
                 None => node.closed().await,
             },
             Some(notice) = notices.next() => {
+                drive_outputs(&notice, &configured, args.json);
                 on_notice(&notice, notices.dropped(), printer.as_mut(), &mut report);
+                continue;
+            }
+            line = next_line(&mut input) => {
+                match line {
+                    Some(line) => produce(&node, &configured, &line).await,
+                    None => input = None,
+                }
                 continue;
             }
             error = node.closed() => error,
@@ -238,6 +277,9 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
                 Ok((again, started)) => {
                     dropped_before += notices.dropped();
                     (node, (events, notices)) = (again, started);
+                    if let Err(error) = apply_board(&node, &spaces, args, &mut configured, true).await {
+                        eprintln!("lcc-stream serve: {error}");
+                    }
                     if let Some(printer) = printer.as_mut() {
                         printer.new_listener();
                     }
@@ -282,6 +324,100 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         eprintln!("lcc-stream serve: interrupted{reports}");
     }
     Ok(ExitCode::from(status))
+}
+
+/// Declares the board's events as space 0xFD holds them now, beside `--produces` and
+/// `--consumes`, when they differ from `configured` (or, `joined`, on a new connection that
+/// knows only those), and says what they are.
+async fn apply_board(
+    node: &Node,
+    spaces: &Spaces,
+    args: &ServeArgs,
+    configured: &mut Configured,
+    joined: bool,
+) -> Result<(), Error> {
+    let now = spaces.board.read(&mut *spaces.config.space());
+    if now == *configured && !(joined && now != Configured::default()) {
+        return Ok(());
+    }
+    node.set_events(now.declarations(&args.produces, &args.consumes)).await?;
+    if !args.json {
+        eprintln!("lcc-stream serve: the board's events: {}", now.text());
+    }
+    *configured = now;
+    Ok(())
+}
+
+/// The lines of `--input` (`-`: stdin), read beside the node; the channel ends with the input.
+/// A thread of its own reads them (not the runtime's blocking pool, which would hold the
+/// tool's exit until the input ends).
+fn input_lines(path: &Path) -> Result<tokio::sync::mpsc::Receiver<String>, String> {
+    use std::io::BufRead as _;
+    let (sink, lines) = tokio::sync::mpsc::channel(64);
+    let reader: Box<dyn std::io::Read + Send> = if path == Path::new("-") {
+        Box::new(std::io::stdin())
+    } else {
+        Box::new(std::fs::File::open(path).map_err(|e| format!("cannot open the input {}: {e}", path.display()))?)
+    };
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(reader).lines() {
+            let Ok(line) = line else { break };
+            if !line.trim().is_empty() && sink.blocking_send(line).is_err() {
+                break;
+            }
+        }
+    });
+    Ok(lines)
+}
+
+/// The next input line; never, without `--input` or once it has ended.
+async fn next_line(input: &mut Option<tokio::sync::mpsc::Receiver<String>>) -> Option<String> {
+    match input {
+        Some(lines) => lines.recv().await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Produces the event of the setting `line` names.
+async fn produce(node: &Node, configured: &Configured, line: &str) {
+    let event = match configured.input(line) {
+        Ok(event) => event,
+        Err(why) => return eprintln!("lcc-stream serve: input `{}`: {why}", line.trim()),
+    };
+    match node.send_event(event, Vec::new()).await {
+        Ok(()) => eprintln!("lcc-stream serve: input `{}`: produced {}", line.trim(), crate::events::event_text(event)),
+        Err(error) => eprintln!("lcc-stream serve: input `{}`: {error}", line.trim()),
+    }
+}
+
+/// One output driven, as `serve --json` prints it.
+#[derive(Debug, Serialize)]
+struct OutputLine<'a> {
+    output: &'a str,
+    event: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from_alias: Option<String>,
+}
+
+/// Drives (prints on stdout) every output a consumed report names.
+fn drive_outputs(notice: &EventNotice, configured: &Configured, json: bool) {
+    let EventNotice::Report { from, event, .. } = notice else { return };
+    let peer = Peer::of(*from);
+    for output in configured.outputs(*event) {
+        if json {
+            let line = OutputLine {
+                output,
+                event: event.to_string(),
+                from: peer.node_field(),
+                from_alias: peer.alias_field(),
+            };
+            outln!("{}", serde_json::to_string(&line).unwrap_or_default());
+        } else {
+            outln!("{output} ({event} from {peer})");
+        }
+    }
 }
 
 /// Serves `spaces` on `node` (a new connection's), and listens to its event reports.
@@ -405,6 +541,8 @@ fn check_writable(path: &Path) -> Result<(), String> {
 /// server is handed the same spaces.
 struct Spaces {
     cdi: ReadOnlySpace,
+    /// The board the CDI describes: its event settings.
+    board: Board,
     config: Shared<ConfigSpace>,
     image: Image,
 }
@@ -415,16 +553,14 @@ impl Spaces {
             Some(path) => ConfigSpace::open(path)?,
             None => ConfigSpace::Memory(RamSpace::new(DEFAULT_CONFIG_LEN)),
         };
-        let cdi = match &args.cdi {
-            Some(path) => {
-                let xml = std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-                ReadOnlySpace::cdi(&xml)
-            }
-            None => ReadOnlySpace::cdi(&builtin_cdi(config.len())),
+        let xml = match &args.cdi {
+            Some(path) => std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?,
+            None => builtin_cdi(config.len()),
         };
+        let (cdi, board) = (ReadOnlySpace::cdi(&xml), Board::new(&xml));
         let firmware_out = args.firmware_out.clone().unwrap_or_else(|| default_firmware_path(args.node_id));
         check_writable(&firmware_out)?;
-        Ok(Spaces { cdi, config: Shared::new(config), image: Image::new(firmware_out, args.force) })
+        Ok(Spaces { cdi, board, config: Shared::new(config), image: Image::new(firmware_out, args.force) })
     }
 
     /// A memory server for a new connection, over these spaces. A firmware image that was

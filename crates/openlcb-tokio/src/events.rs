@@ -10,7 +10,7 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use openlcb_node::{EventError, EventNotice, EventRole};
+use openlcb_node::{EventConfig, EventError, EventNotice, EventRole};
 use openlcb_stream::{EventId, NodeId};
 use tokio::sync::{mpsc, oneshot};
 
@@ -76,6 +76,10 @@ pub(crate) enum EventCommand {
         event: EventId,
         reply: oneshot::Sender<Result<(), Error>>,
     },
+    Declare {
+        events: EventConfig,
+        reply: oneshot::Sender<Result<(), Error>>,
+    },
 }
 
 impl EventCommand {
@@ -121,6 +125,10 @@ impl EventDriver {
             EventCommand::Report { event, payload, reply } => (stack.send_event(event, &payload), reply),
             EventCommand::IdentifyEvents { peer, reply } => (stack.identify_events(peer), reply),
             EventCommand::Identify { role, event, reply } => (stack.identify(role, event), reply),
+            EventCommand::Declare { events, reply } => {
+                stack.set_events(events);
+                (Ok(()), reply)
+            }
         };
         let _ = reply.send(result.map_err(|_: EventError| Error::Busy));
     }
