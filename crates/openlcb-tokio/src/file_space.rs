@@ -1,0 +1,157 @@
+//! [`FileSpace`]: a memory space kept in a file, for a node on a host (a board's space 0xFD):
+//! each write command reaches the file whole, once, at its end, so that the file holds the
+//! space as it was before or after every command, even when the program is killed.
+
+use std::io::{Seek as _, SeekFrom, Write as _};
+use std::path::{Path, PathBuf};
+
+use openlcb_node::{MemorySpace, RamSpace, SpaceError};
+use openlcb_stream::wire::ErrorCode;
+
+/// The unit of the file a single `write` of changed bytes never crosses.
+const PAGE: u32 = 4096;
+
+/// A memory space in a file. Reads come from memory; a write command's bytes reach the file
+/// at its [`commit`](MemorySpace::commit) (once per command or transfer): within one 4 KiB
+/// page (a Write datagram's) in place, with one `write` the kernel does at once or not at
+/// all; anything larger (a Write Stream's) by replacing the file, through `<file>.part` and
+/// a rename. A commit that fails puts the space back to what the file holds.
+///
+/// ```no_run
+/// use openlcb_tokio::FileSpace;
+/// use openlcb_tokio::openlcb_node::MemoryServer;
+///
+/// let config = FileSpace::open_or_create("board-config.bin", 256)?;
+/// let server = MemoryServer::new().with_space(0xFD, config);
+/// # Ok::<(), std::io::Error>(())
+/// ```
+#[derive(Debug)]
+pub struct FileSpace {
+    path: PathBuf,
+    bytes: RamSpace,
+    /// The addresses written since the last commit.
+    dirty: Option<(u32, u32)>,
+}
+
+impl FileSpace {
+    /// The space the file at `path` holds (1 byte to 4 GiB), checked writable by saving it
+    /// once.
+    pub fn open(path: impl AsRef<Path>) -> std::io::Result<FileSpace> {
+        let path = path.as_ref();
+        let bytes = std::fs::read(path)?;
+        if bytes.is_empty() || u32::try_from(bytes.len()).is_err() {
+            return Err(std::io::Error::new(std::io::ErrorKind::InvalidData, "a space file holds 1 byte to 4 GiB"));
+        }
+        save_whole(path, &bytes)?;
+        Ok(FileSpace { path: path.to_path_buf(), bytes: RamSpace::from_bytes(bytes), dirty: None })
+    }
+
+    /// The space of the file at `path`, or a new file of `len` zero bytes there. The bool
+    /// says whether it is new (a board then writes its factory defaults).
+    pub fn open_or_create(path: impl AsRef<Path>, len: u32) -> std::io::Result<FileSpace> {
+        let path = path.as_ref();
+        if !path.exists() {
+            save_whole(path, &vec![0; len as usize])?;
+        }
+        FileSpace::open(path)
+    }
+
+    /// The bytes of the space, as reads see them.
+    pub fn as_bytes(&self) -> &[u8] {
+        self.bytes.as_bytes()
+    }
+}
+
+impl MemorySpace for FileSpace {
+    fn len(&self) -> u32 {
+        self.bytes.len()
+    }
+    fn read_only(&self) -> bool {
+        false
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        self.bytes.read(address, buf)
+    }
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        self.bytes.write(address, data)?;
+        let end = address + data.len() as u32;
+        self.dirty = Some(self.dirty.map_or((address, end), |(low, high)| (low.min(address), high.max(end))));
+        Ok(())
+    }
+    fn commit(&mut self) -> Result<(), SpaceError> {
+        let Some((start, end)) = self.dirty else { return Ok(()) };
+        let whole = self.bytes.as_bytes();
+        let saved = match whole.get(start as usize..end as usize) {
+            Some(changed) if start / PAGE == end.saturating_sub(1) / PAGE => write_in_place(&self.path, start, changed),
+            _ => save_whole(&self.path, whole),
+        };
+        if saved.is_err() {
+            // Not saved: the space goes back to what the file holds, so that no read-back
+            // takes the failed command for done; a file that cannot be read either keeps the
+            // bytes marked for the next commit.
+            if let Ok(held) = std::fs::read(&self.path)
+                && held.len() == whole.len()
+            {
+                self.bytes = RamSpace::from_bytes(held);
+                self.dirty = None;
+            }
+            return Err(SpaceError::Failed(ErrorCode::PERMANENT));
+        }
+        self.dirty = None;
+        Ok(())
+    }
+}
+
+/// Writes `bytes` over the same range of the file at `path`, in one `write`.
+fn write_in_place(path: &Path, start: u32, bytes: &[u8]) -> std::io::Result<()> {
+    let mut file = std::fs::OpenOptions::new().write(true).open(path)?;
+    file.seek(SeekFrom::Start(u64::from(start)))?;
+    file.write_all(bytes)
+}
+
+/// Replaces the file at `path` with `bytes`: through `<path>.part`, synced, then renamed (a
+/// file replaced keeps its permissions).
+pub(crate) fn save_whole(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let mut part = path.as_os_str().to_owned();
+    part.push(".part");
+    let part = PathBuf::from(part);
+    let written = std::fs::File::create(&part).and_then(|mut file| {
+        if let Ok(meta) = std::fs::metadata(path) {
+            file.set_permissions(meta.permissions())?;
+        }
+        file.write_all(bytes)?;
+        file.sync_all()?;
+        std::fs::rename(&part, path)
+    });
+    if written.is_err() {
+        let _ = std::fs::remove_file(&part);
+    }
+    written
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_command_reaches_the_file_at_its_commit_and_a_new_file_is_zeros() {
+        let dir = std::env::temp_dir().join(format!("file-space-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("config.bin");
+        let mut space = FileSpace::open_or_create(&path, 8192).unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), vec![0; 8192]);
+        space.write(10, b"abc").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap()[10..13], [0, 0, 0], "not before the commit");
+        space.commit().unwrap();
+        assert_eq!(&std::fs::read(&path).unwrap()[10..13], b"abc");
+        // Across a page: the file is replaced whole.
+        space.write(4090, &[7; 12]).unwrap();
+        space.commit().unwrap();
+        assert_eq!(std::fs::read(&path).unwrap()[4090..4102], [7; 12]);
+        assert!(!dir.join("config.bin.part").exists());
+        let again = FileSpace::open(&path).unwrap();
+        assert_eq!(again.as_bytes()[10..13], *b"abc");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
