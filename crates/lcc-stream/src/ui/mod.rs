@@ -55,8 +55,17 @@ pub(crate) struct UiArgs {
     /// request needs the token printed in the URL.
     #[arg(long, value_name = "ADDR:PORT", default_value = "127.0.0.1:8080")]
     listen: SocketAddr,
+    /// Require the token on the loopback too (a computer whose other users should not
+    /// configure the layout); beyond the loopback it is always required.
+    #[arg(long)]
+    token: bool,
     #[command(flatten)]
     client: ClientArgs,
+}
+
+/// Does a page served on `listen` need a token? Beyond the loopback always.
+fn needs_token(listen: &SocketAddr, asked: bool) -> bool {
+    asked || !listen.ip().is_loopback()
 }
 
 fn after_help() -> String {
@@ -156,11 +165,6 @@ impl Shared {
     }
 }
 
-/// Is `addr` one of the loopback's?
-fn is_loopback(addr: &SocketAddr) -> bool {
-    addr.ip().is_loopback()
-}
-
 /// 128 random bits in hex.
 fn new_token() -> Result<String, String> {
     let mut bytes = [0u8; 16];
@@ -179,7 +183,7 @@ pub(crate) fn run(args: &UiArgs) -> Result<ExitCode, String> {
 
 async fn serve(args: &UiArgs) -> Result<ExitCode, String> {
     let mut interrupt = net::Interrupt::new()?;
-    let token = if is_loopback(&args.listen) { None } else { Some(new_token()?) };
+    let token = if needs_token(&args.listen, args.token) { Some(new_token()?) } else { None };
     let listener = match tokio::net::TcpListener::bind(args.listen).await {
         Ok(listener) => listener,
         Err(error) => {
@@ -204,7 +208,7 @@ async fn serve(args: &UiArgs) -> Result<ExitCode, String> {
         Err(failure) => return Ok(net::fail("ui", &failure)),
     };
     let port = local.port();
-    let hosts = if is_loopback(&local) {
+    let hosts = if local.ip().is_loopback() {
         vec![format!("127.0.0.1:{port}"), format!("localhost:{port}"), format!("[::1]:{port}")]
     } else {
         Vec::new()
@@ -407,6 +411,17 @@ mod tests {
         assert_eq!(offered_token(&Method::POST, &headers, Some("token=xyz")), None);
         headers.insert(UI_HEADER, HeaderValue::from_static("t"));
         assert_eq!(offered_token(&Method::POST, &headers, None), Some("t"));
+    }
+
+    #[test]
+    fn beyond_the_loopback_a_token_is_needed() {
+        let at = |text: &str| text.parse::<SocketAddr>().unwrap();
+        assert!(!needs_token(&at("127.0.0.1:8080"), false));
+        assert!(!needs_token(&at("[::1]:8080"), false));
+        assert!(needs_token(&at("127.0.0.1:8080"), true));
+        for beyond in ["0.0.0.0:8080", "192.168.1.20:8080", "[::]:8080"] {
+            assert!(needs_token(&at(beyond), false), "{beyond}");
+        }
     }
 
     #[test]
