@@ -485,7 +485,8 @@ impl Browser {
                let value; try {{ value = ({condition}); }} catch (e) {{ value = null; }} \
                if (value) return resolve(value); \
                if (++tries >= 1200) return reject(new Error('never: ' + {what:?} + '; the message: ' + \
-                 (document.getElementById('message') || {{}}).textContent)); \
+                 (document.getElementById('message') || {{}}).textContent + '; the page: ' + location.hash + ' ' + \
+                 (document.getElementById('view') || {{}}).textContent.slice(0, 300))); \
                setTimeout(check, 50); }}; check(); }})"
         );
         self.eval(&expression).await
