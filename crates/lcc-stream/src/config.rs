@@ -8,8 +8,8 @@
 //! Update Complete (`20 A8`) so that the node applies the change.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::process::ExitCode;
+use std::sync::Arc;
 
 use clap::{Args, Subcommand};
 use openlcb_cdi::backup::{self, Snapshot};
@@ -359,7 +359,11 @@ impl<'a> Session<'a> {
 
     /// The plan of a restore of `text` (a backup's): refused, as `config restore` refuses it,
     /// when a line is given twice or a value does not fit.
-    pub(crate) async fn restore_plan(&self, text: &str, interrupt: &mut net::Interrupt) -> Result<backup::Plan, Failure> {
+    pub(crate) async fn restore_plan(
+        &self,
+        text: &str,
+        interrupt: &mut net::Interrupt,
+    ) -> Result<backup::Plan, Failure> {
         let lines = backup::parse(text).map_err(|e| Failure::Invalid(format!("the backup: {e}")))?;
         let snapshot = self.read_spans(interrupt).await?;
         let plan = backup::plan(&self.layout, &snapshot, &lines).map_err(Failure::Cdi)?;
@@ -368,7 +372,11 @@ impl<'a> Session<'a> {
     }
 
     /// Writes a plan's changes, verified, then Update Complete (the warning if it failed).
-    pub(crate) async fn apply(&self, plan: &backup::Plan, interrupt: &mut net::Interrupt) -> Result<Option<String>, Failure> {
+    pub(crate) async fn apply(
+        &self,
+        plan: &backup::Plan,
+        interrupt: &mut net::Interrupt,
+    ) -> Result<Option<String>, Failure> {
         if plan.writes.is_empty() {
             return Ok(None);
         }
@@ -429,7 +437,7 @@ impl<'a> Session<'a> {
             self.node.read_memory(self.peer, space, address, Some(len), self.path(len)).await.map_err(Stop::Net)?;
         let moved = &mut Moved::default();
         Ok(memory::follow(
-            &self.node,
+            self.node,
             transfer,
             Some(u64::from(len)),
             self.client.json,
@@ -476,7 +484,7 @@ impl<'a> Session<'a> {
             .await
             .map_err(Stop::Net)?;
         memory::follow(
-            &self.node,
+            self.node,
             transfer,
             Some(u64::from(len)),
             self.client.json,
@@ -497,7 +505,7 @@ impl<'a> Session<'a> {
     /// Update Complete after a verified write: a node that refuses it or does not answer
     /// still holds what was written, so that is a warning (None: it said OK).
     async fn update_complete(&self, interrupt: &mut net::Interrupt) -> Result<Option<String>, Failure> {
-        match memory::update_complete(&self.node, self.peer, &self.client.pace, interrupt).await {
+        match memory::update_complete(self.node, self.peer, &self.client.pace, interrupt).await {
             Err(Stop::Interrupted) => Err(Failure::Stop(Stop::Interrupted)),
             Err(stop) => Ok(Some(memory::update_complete_warning(&stop))),
             Ok(()) => Ok(None),

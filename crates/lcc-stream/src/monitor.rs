@@ -711,7 +711,13 @@ fn leading_time(line: &str) -> Option<f64> {
 }
 
 /// Decodes every frame of `text` (one trace line, or what a connection gave), at `time`.
-pub(crate) fn decode_text(monitor: &mut Monitor, decoder: &mut GridConnectDecoder, time: f64, text: &[u8], out: &mut Vec<Line>) {
+pub(crate) fn decode_text(
+    monitor: &mut Monitor,
+    decoder: &mut GridConnectDecoder,
+    time: f64,
+    text: &[u8],
+    out: &mut Vec<Line>,
+) {
     let mut input = text;
     loop {
         let before = input;

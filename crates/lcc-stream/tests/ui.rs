@@ -120,8 +120,12 @@ impl Layout {
 
     /// The CLI with `args` and the hub: exit status, stdout, stderr.
     async fn cli(&self, args: &[&str]) -> (i32, String, String) {
-        let output =
-            Command::new(BIN).args(args).args(["--connect", &self.hub]).stdin(Stdio::null()).kill_on_drop(true).output();
+        let output = Command::new(BIN)
+            .args(args)
+            .args(["--connect", &self.hub])
+            .stdin(Stdio::null())
+            .kill_on_drop(true)
+            .output();
         let output = bounded(&args.join(" "), output).await.unwrap();
         let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
         (output.status.code().unwrap_or(-1), text(&output.stdout), text(&output.stderr))
@@ -164,7 +168,8 @@ impl Answer {
 async fn http(addr: &str, method: &str, path: &str, headers: &str, body: &[u8]) -> Answer {
     bounded(&format!("{method} {path}"), async {
         let mut socket = tokio::net::TcpStream::connect(addr).await.unwrap();
-        let host = if headers.to_ascii_lowercase().contains("host:") { String::new() } else { format!("Host: {addr}\r\n") };
+        let host =
+            if headers.to_ascii_lowercase().contains("host:") { String::new() } else { format!("Host: {addr}\r\n") };
         let head = format!(
             "{method} {path} HTTP/1.1\r\n{host}{headers}Content-Length: {}\r\nConnection: close\r\n\r\n",
             body.len()
@@ -436,11 +441,13 @@ impl Browser {
         })
         .await;
         tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
-        let (socket, _) = bounded("the DevTools connection", tokio_tungstenite::connect_async(url.as_str())).await.unwrap();
+        let (socket, _) =
+            bounded("the DevTools connection", tokio_tungstenite::connect_async(url.as_str())).await.unwrap();
         let mut browser = Browser { _child: child, socket, session: String::new(), next: 1 };
         let target = browser.call("Target.createTarget", json!({ "url": "about:blank" }), false).await;
         let target = target["targetId"].as_str().unwrap().to_string();
-        let attached = browser.call("Target.attachToTarget", json!({ "targetId": target, "flatten": true }), false).await;
+        let attached =
+            browser.call("Target.attachToTarget", json!({ "targetId": target, "flatten": true }), false).await;
         browser.session = attached["sessionId"].as_str().unwrap().to_string();
         browser.call("Page.enable", json!({}), true).await;
         browser.call("Runtime.enable", json!({}), true).await;
@@ -599,7 +606,9 @@ async fn in_a_browser_the_table_the_configuration_a_save_a_restore_and_the_monit
     assert_eq!(browser.eval("document.getElementById('save').textContent").await, "Save 1 change(s)");
     browser.eval("document.getElementById('save').click()").await;
     let message = "document.getElementById('message-text')";
-    let said = browser.wait_for("the save", &format!("{message} && {message}.textContent.includes('saved') && {message}.textContent")).await;
+    let said = browser
+        .wait_for("the save", &format!("{message} && {message}.textContent.includes('saved') && {message}.textContent"))
+        .await;
     assert!(said.as_str().unwrap().contains("1 setting(s) written and read back"), "{said}");
     assert_eq!(browser.eval(&format!("{label}.classList.contains('changed')")).await, false);
     assert_eq!(layout.get("Configuration.Label").await, "Branch");
@@ -631,9 +640,11 @@ async fn in_a_browser_the_table_the_configuration_a_save_a_restore_and_the_monit
     let (status, _, err) = layout.cli(&["events", "send", "05.01.01.01.22.00.00.2A"]).await;
     assert_eq!(status, 0, "{err}");
     let lines = "document.getElementById('lines').textContent";
-    let seen = browser.wait_for("the report in the monitor", &format!("{lines}.includes('05.01.01.01.22.00.00.2A') && {lines}")).await;
+    let seen = browser
+        .wait_for("the report in the monitor", &format!("{lines}.includes('05.01.01.01.22.00.00.2A') && {lines}"))
+        .await;
     assert!(seen.as_str().unwrap().contains("Producer/Consumer Event Report"), "{seen}");
-    browser.eval(&format!("document.getElementById('filter-kind').value = 'snip'; document.getElementById('filter-kind').dispatchEvent(new Event('change'))")).await;
+    browser.eval("document.getElementById('filter-kind').value = 'snip'; document.getElementById('filter-kind').dispatchEvent(new Event('change'))").await;
     assert_eq!(browser.eval(&format!("{lines}.includes('05.01.01.01.22.00.00.2A')")).await, false, "filtered out");
     let trace = browser.eval("fetch(document.getElementById('trace').href).then((r) => r.text())").await;
     let trace_file = layout.dir.join("trace.txt");
@@ -646,7 +657,12 @@ async fn in_a_browser_the_table_the_configuration_a_save_a_restore_and_the_monit
     assert!(decoded.contains("05.01.01.01.22.00.00.2A"), "the trace `monitor --from` reads: {decoded}");
     browser.navigate(&format!("{}/#/events", layout.base)).await;
     let reports = "document.getElementById('reports')";
-    browser.wait_for("the report on the events page", &format!("{reports} && {reports}.textContent.includes('05.01.01.01.22.00.00.2A')")).await;
+    browser
+        .wait_for(
+            "the report on the events page",
+            &format!("{reports} && {reports}.textContent.includes('05.01.01.01.22.00.00.2A')"),
+        )
+        .await;
 }
 
 /// The node of `serve` with a 16 KiB configuration (16 000 settings and more): its page
@@ -661,18 +677,27 @@ async fn in_a_browser_a_16_kib_configuration_renders_and_saves_100_changes() {
     let started = std::time::Instant::now();
     browser.navigate(&format!("{}/#/node/{SERVER}/config", layout.base)).await;
     let config = "document.getElementById('config')";
-    let entries = browser.wait_for("the page drawn", &format!("{config} && {config}.dataset.shownMs && Number({config}.dataset.entries)")).await;
+    let entries = browser
+        .wait_for(
+            "the page drawn",
+            &format!("{config} && {config}.dataset.shownMs && Number({config}.dataset.entries)"),
+        )
+        .await;
     let drawn = started.elapsed();
     let shown_ms = browser.eval(&format!("{config}.dataset.shownMs")).await;
     let entries = entries.as_u64().unwrap();
     assert!(entries > 16_000, "{entries} settings");
     let spare = "[...document.querySelectorAll('[data-key*=\"Spare\"]')].slice(0, 100)";
-    let set = format!("{spare}.forEach((i) => {{ i.value = '7'; i.dispatchEvent(new Event('input')); }}); document.getElementById('save').textContent");
+    let set = format!(
+        "{spare}.forEach((i) => {{ i.value = '7'; i.dispatchEvent(new Event('input')); }}); document.getElementById('save').textContent"
+    );
     assert_eq!(browser.eval(&set).await, "Save 100 change(s)");
     let saving = std::time::Instant::now();
     browser.eval("document.getElementById('save').click()").await;
     let message = "document.getElementById('message-text')";
-    let said = browser.wait_for("the save", &format!("{message} && {message}.textContent.includes('saved') && {message}.textContent")).await;
+    let said = browser
+        .wait_for("the save", &format!("{message} && {message}.textContent.includes('saved') && {message}.textContent"))
+        .await;
     let saved = saving.elapsed();
     assert!(said.as_str().unwrap().contains("100 setting(s) written and read back"), "{said}");
     // The spare bytes follow the 171 bytes of settings of serve's CDI.

@@ -193,7 +193,7 @@ async fn config_show(State(shared): Ctx, Path(node): Path<String>) -> Result<axu
     let what = format!("reading the configuration of {peer}");
     let shared: &Shared = &shared;
     job(shared, what, |mut interrupt| async move {
-        let layout = layout(&shared, peer, &mut interrupt).await?;
+        let layout = layout(shared, peer, &mut interrupt).await?;
         let session = Session::with_layout(&shared.node, &shared.client, peer, layout);
         let done = session.show(&mut interrupt).await?;
         Ok(axum::Json(done.fields))
@@ -215,19 +215,14 @@ struct Change {
 
 /// `config set` of every change at once: all checked before anything is written, each
 /// written read back and compared, then Update Complete.
-async fn config_save(
-    State(shared): Ctx,
-    Path(node): Path<String>,
-    body: Bytes,
-) -> Result<axum::Json<Json>, ApiError> {
+async fn config_save(State(shared): Ctx, Path(node): Path<String>, body: Bytes) -> Result<axum::Json<Json>, ApiError> {
     let peer = peer(&node)?;
-    let changes: Changes =
-        serde_json::from_slice(&body).map_err(|e| ApiError::usage(format!("the changes: {e}")))?;
+    let changes: Changes = serde_json::from_slice(&body).map_err(|e| ApiError::usage(format!("the changes: {e}")))?;
     let changes: Vec<(String, String)> = changes.changes.into_iter().map(|c| (c.key, c.value)).collect();
     let what = format!("writing {} setting(s) of {peer}", changes.len());
     let shared: &Shared = &shared;
     job(shared, what, |mut interrupt| async move {
-        let layout = layout(&shared, peer, &mut interrupt).await?;
+        let layout = layout(shared, peer, &mut interrupt).await?;
         let session = Session::with_layout(&shared.node, &shared.client, peer, layout);
         let (written, warning) = session.set_many(&changes, &mut interrupt).await?;
         Ok(axum::Json(json!({ "result": "ok", "written": written, "warning": warning })))
@@ -241,7 +236,7 @@ async fn backup(State(shared): Ctx, Path(node): Path<String>) -> Result<Response
     let what = format!("backing up {peer}");
     let shared: &Shared = &shared;
     let text = job(shared, what, |mut interrupt| async move {
-        let layout = layout(&shared, peer, &mut interrupt).await?;
+        let layout = layout(shared, peer, &mut interrupt).await?;
         let session = Session::with_layout(&shared.node, &shared.client, peer, layout);
         Ok(session.backup(&mut interrupt).await?)
     })
@@ -266,11 +261,12 @@ async fn restore(
     body: Bytes,
 ) -> Result<axum::Json<Json>, ApiError> {
     let peer = peer(&node)?;
-    let text = String::from_utf8(body.to_vec()).map_err(|e| ApiError::usage(format!("the backup: not UTF-8 text ({e})")))?;
+    let text =
+        String::from_utf8(body.to_vec()).map_err(|e| ApiError::usage(format!("the backup: not UTF-8 text ({e})")))?;
     let what = if query.apply { format!("restoring {peer}") } else { format!("comparing a backup with {peer}") };
     let shared: &Shared = &shared;
     job(shared, what, |mut interrupt| async move {
-        let layout = layout(&shared, peer, &mut interrupt).await?;
+        let layout = layout(shared, peer, &mut interrupt).await?;
         let most = openlcb_cdi::backup::max_backup_bytes(&layout);
         if text.len() > most {
             return Err(ApiError::usage(format!(
@@ -319,10 +315,9 @@ async fn command(
     let (sent, done) = match command.as_str() {
         "update-complete" => (NodeCommand::UpdateComplete, format!("{peer} accepted Update Complete")),
         "reboot" => (NodeCommand::Reboot, format!("{peer} accepted the reboot")),
-        "factory-reset" if confirm.yes => (
-            NodeCommand::FactoryReset,
-            format!("{peer} accepted the factory reset (its settings are not read back)"),
-        ),
+        "factory-reset" if confirm.yes => {
+            (NodeCommand::FactoryReset, format!("{peer} accepted the factory reset (its settings are not read back)"))
+        }
         "factory-reset" => {
             return Err(ApiError::usage(format!(
                 "nothing sent: a factory reset puts every setting of {peer} back to its default; confirm it"
@@ -362,8 +357,16 @@ async fn firmware(State(shared): Ctx, Path(node): Path<String>, body: Bytes) -> 
         let transfer = shared.node.upgrade_firmware(peer, body.to_vec(), shared.client.path()).await;
         let written = match transfer {
             Ok(transfer) => {
-                memory::follow(&shared.node, transfer, Some(total), true, &shared.client.pace, &mut interrupt, &mut moved)
-                    .await
+                memory::follow(
+                    &shared.node,
+                    transfer,
+                    Some(total),
+                    true,
+                    &shared.client.pace,
+                    &mut interrupt,
+                    &mut moved,
+                )
+                .await
             }
             Err(error) => Err(Failure::Net(error)),
         };

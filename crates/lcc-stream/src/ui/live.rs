@@ -139,7 +139,12 @@ fn hex(bytes: &[u8]) -> String {
 }
 
 /// A report or an identification as the page shows it.
-pub(crate) fn identified(from: NodeId, role: EventRole, range: openlcb_tokio::EventRange, state: Option<EventState>) -> Identified {
+pub(crate) fn identified(
+    from: NodeId,
+    role: EventRole,
+    range: openlcb_tokio::EventRange,
+    state: Option<EventState>,
+) -> Identified {
     Identified {
         node: Peer::of(from).to_string(),
         role: match role {
@@ -167,9 +172,9 @@ async fn watch_events(shared: Arc<Shared>, started: Instant) {
     };
     while let Some(notice) = notices.next().await {
         let from = match &notice {
-            EventNotice::Report { from, .. } | EventNotice::Learn { from, .. } | EventNotice::Identified { from, .. } => {
-                *from
-            }
+            EventNotice::Report { from, .. }
+            | EventNotice::Learn { from, .. }
+            | EventNotice::Identified { from, .. } => *from,
             _ => continue,
         };
         let known = shared.nodes().contains_key(&from);
