@@ -597,6 +597,13 @@ async fn in_a_browser_the_table_the_configuration_a_save_a_restore_and_the_monit
     assert_eq!(browser.eval(&format!("{label}.maxLength")).await, 31, "a string's size, less its NUL");
     browser.wait_for("the read to end", "document.getElementById('job').hidden").await;
     browser.screenshot(shots, "ui-configure.png").await;
+    if shots.is_some() {
+        // The same page on a phone's screen.
+        let phone = json!({ "width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": true });
+        browser.call("Emulation.setDeviceMetricsOverride", phone, true).await;
+        browser.screenshot(shots, "ui-configure-phone.png").await;
+        browser.call("Emulation.clearDeviceMetricsOverride", json!({}), true).await;
+    }
 
     // A change, marked; Save; the CLI reads it back.
     browser
