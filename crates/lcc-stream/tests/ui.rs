@@ -50,27 +50,7 @@ impl Layout {
         let addr = hub.local_addr().to_string();
         let config = dir.join("config.bin");
         std::fs::write(&config, vec![0; len]).unwrap();
-        let mut serve = Command::new(BIN)
-            .current_dir(&dir)
-            .args(["serve", "--connect", &addr, "--node-id", SERVER, "--name", "Yard", "--config"])
-            .arg(&config)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .kill_on_drop(true)
-            .spawn()
-            .unwrap();
-        let mut lines = BufReader::new(serve.stderr.take().unwrap()).lines();
-        bounded("serve to start", async {
-            while let Some(line) = lines.next_line().await.unwrap() {
-                if line.contains("serving spaces") {
-                    return;
-                }
-            }
-            panic!("serve ended before it served");
-        })
-        .await;
-        tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
+        let serve = serve(&dir, &addr, SERVER, "Yard", &config).await;
         let mut ui = Command::new(BIN)
             .args(["ui", "--connect", &addr, "--listen", "127.0.0.1:0", "--json"])
             .args(ui_args)
@@ -137,6 +117,32 @@ impl Layout {
         assert_eq!(status, 0, "{err}");
         out.trim_end_matches('\n').to_string()
     }
+}
+
+/// `serve` as `node_id` named `name` with the configuration file `config`, once it serves.
+async fn serve(dir: &Path, hub: &str, node_id: &str, name: &str, config: &Path) -> Child {
+    let mut serve = Command::new(BIN)
+        .current_dir(dir)
+        .args(["serve", "--connect", hub, "--node-id", node_id, "--name", name, "--config"])
+        .arg(config)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(serve.stderr.take().unwrap()).lines();
+    bounded("serve to start", async {
+        while let Some(line) = lines.next_line().await.unwrap() {
+            if line.contains("serving spaces") {
+                return;
+            }
+        }
+        panic!("serve ended before it served");
+    })
+    .await;
+    tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
+    serve
 }
 
 /// One HTTP answer.
@@ -670,6 +676,16 @@ async fn in_a_browser_the_table_the_configuration_a_save_a_restore_and_the_monit
             &format!("{reports} && {reports}.textContent.includes('05.01.01.01.22.00.00.2A')"),
         )
         .await;
+
+    // A node that joins appears in the open table by itself (its Initialization Complete).
+    browser.navigate(&format!("{}/#/", layout.base)).await;
+    browser.wait_for("the table", &row).await;
+    let config = layout.dir.join("second.bin");
+    std::fs::write(&config, vec![0; 256]).unwrap();
+    let _second = serve(&layout.dir, &layout.hub, "05.01.01.01.22.E3", "Spur", &config).await;
+    let second = "document.querySelector('tr[data-node=\"05.01.01.01.22.E3\"]')";
+    let text = browser.wait_for("the joined node", &format!("{second} && {second}.textContent.includes('Spur') && {second}.textContent")).await;
+    assert!(text.as_str().unwrap().contains("Spur"), "{text}");
 }
 
 /// The node of `serve` with a 16 KiB configuration (16 000 settings and more): its page
@@ -717,4 +733,46 @@ async fn in_a_browser_a_16_kib_configuration_renders_and_saves_100_changes() {
         drawn.as_secs_f64(),
         saved.as_secs_f64()
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_firmware_upgrade_goes_through_shows_its_progress_and_is_cancelled_by_cancel() {
+    let layout = Layout::start("ui-firmware", &[]).await;
+    let path = format!("/api/nodes/{SERVER}/firmware");
+    // A small image goes through whole: serve saves it.
+    let image: Vec<u8> = (0..5000u32).map(|i| (i * 7 % 251) as u8).collect();
+    let done = layout.page("POST", &path, &image).await;
+    assert_eq!(done.status, 200, "{}", done.text());
+    let message = done.json()["message"].as_str().unwrap().to_string();
+    assert!(message.starts_with(&format!("upgraded {SERVER} with 5000 bytes")), "{message}");
+    let saved = layout.dir.join(format!("firmware-{}.bin", SERVER.replace('.', "")));
+    assert_eq!(std::fs::read(&saved).unwrap(), image);
+    assert_eq!(layout.page("POST", &path, b"").await.status, 400, "an empty image is refused");
+
+    // A large one: its progress is shown, a second operation meanwhile is refused, and
+    // Cancel stops it in the CLI's words.
+    let big: Vec<u8> = (0..8 * 1024 * 1024u32).map(|i| (i % 253) as u8).collect();
+    let addr = layout.addr.clone();
+    let upload = tokio::spawn(async move { http(&addr, "POST", &path, "X-LCC-UI: 1\r\n", &big).await });
+    let mut running = Value::Null;
+    for _ in 0..6000 {
+        let state = layout.ok("GET", "/api/state", &Value::Null).await;
+        if state["job"]["bytes"].as_u64().unwrap_or(0) > 0 {
+            running = state["job"].clone();
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
+    assert_eq!(running["total"], 8 * 1024 * 1024, "the job and its progress: {running}");
+    assert!(running["what"].as_str().unwrap().starts_with("upgrading the firmware of"), "{running}");
+    let busy = layout.page("GET", &format!("/api/nodes/{SERVER}/config"), b"").await;
+    assert_eq!(busy.status, 409, "{}", busy.text());
+    assert!(busy.json()["error"].as_str().unwrap().contains("another operation is running"));
+    let cancelled = layout.ok("POST", "/api/cancel", &Value::Null).await;
+    assert_eq!(cancelled["cancelled"], true);
+    let answer = bounded("the cancelled upload", upload).await.unwrap();
+    assert_eq!(answer.status, 409, "{}", answer.text());
+    let error = answer.json()["error"].as_str().unwrap().to_string();
+    assert!(error.starts_with("cancelled; the node was left in firmware upgrade mode"), "{error}");
+    assert_eq!(layout.ok("GET", "/api/state", &Value::Null).await["job"], Value::Null, "nothing runs");
 }

@@ -182,8 +182,11 @@ async fn refresh(State(shared): Ctx) -> axum::Json<Json> {
 /// SNIP and PIP of one node, asked now.
 async fn node_info(State(shared): Ctx, Path(node): Path<String>) -> Result<axum::Json<Json>, ApiError> {
     let peer = peer(&node)?;
-    live::learn(Arc::clone(&shared), peer).await;
-    let report = shared.nodes().get(&peer).cloned();
+    let report = crate::nodes::describe(&shared.node, peer).await;
+    if report.snip.is_some() || report.protocols.is_some() {
+        // It answered: it is on the bus.
+        live::learn(Arc::clone(&shared), peer).await;
+    }
     Ok(axum::Json(json!(report)))
 }
 

@@ -126,6 +126,21 @@ pub(crate) async fn learn(shared: Arc<Shared>, peer: NodeId) {
     shared.push("nodes", &list);
 }
 
+/// Takes the node whose CAN alias is `alias` out of the table: its Alias Map Reset says that
+/// it has left (or is about to take another alias, and so to introduce itself again).
+fn forget(shared: &Shared, alias: &str) {
+    let list: Vec<_> = {
+        let mut table = shared.nodes();
+        let before = table.len();
+        table.retain(|_, report| report.alias.as_deref() != Some(alias));
+        if table.len() == before {
+            return;
+        }
+        table.values().cloned().collect()
+    };
+    shared.push("nodes", &list);
+}
+
 /// The name of `peer` in the table: its SNIP user name, else its model.
 fn name_of(shared: &Shared, peer: NodeId) -> Option<String> {
     let table = shared.nodes();
@@ -265,6 +280,9 @@ async fn watch_bus(shared: Arc<Shared>, connect: ConnectArgs, started: Instant) 
             }
         }
         for line in lines.drain(..) {
+            if line.message == "AMR" {
+                forget(&shared, &line.source_alias);
+            }
             if line.message.starts_with("Initialization Complete")
                 && let Ok(peer) = line.detail.parse::<NodeId>()
                 && peer != shared.node.node_id()

@@ -79,8 +79,9 @@ bus; the decoded bus (as `monitor`), with a download of the trace in the form `m
 reads.
 
 On 127.0.0.1 (the default) anyone who can open a connection to 127.0.0.1 on this computer can
-use the page. With --listen on another address, the URL carries a token (a new one each run):
-without it the API answers 403.
+use the page (--token asks for a token there too); pages of other sites cannot (a change needs
+the header X-LCC-UI, and the Host and Origin must be this page's). With --listen on another
+address, the URL carries a token (a new one each run): without it the API answers 403.
 
 {}",
         net::network_help(&[Outcome::Usage])

@@ -191,7 +191,15 @@ function nodesView() {
 }
 
 function nodeView(id) {
-  const n = state.nodes.find((x) => x.node_id === id) || { node_id: id };
+  const known = state.nodes.find((x) => x.node_id === id);
+  if (!known) {
+    // Not in the table (yet): ask the node itself.
+    api('GET', '/api/nodes/' + encodeURIComponent(id)).then((report) => {
+      if (report && !state.nodes.some((x) => x.node_id === id)) state.nodes.push(report);
+      if (report && route().view === 'node' && route().node === id) render();
+    }).catch(sayError);
+  }
+  const n = known || { node_id: id };
   const s = n.snip;
   const base = '/api/nodes/' + encodeURIComponent(id);
   const command = (name, words, body) => async (e) => {
