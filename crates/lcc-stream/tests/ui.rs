@@ -684,7 +684,12 @@ async fn in_a_browser_the_table_the_configuration_a_save_a_restore_and_the_monit
     std::fs::write(&config, vec![0; 256]).unwrap();
     let _second = serve(&layout.dir, &layout.hub, "05.01.01.01.22.E3", "Spur", &config).await;
     let second = "document.querySelector('tr[data-node=\"05.01.01.01.22.E3\"]')";
-    let text = browser.wait_for("the joined node", &format!("{second} && {second}.textContent.includes('Spur') && {second}.textContent")).await;
+    let text = browser
+        .wait_for(
+            "the joined node",
+            &format!("{second} && {second}.textContent.includes('Spur') && {second}.textContent"),
+        )
+        .await;
     assert!(text.as_str().unwrap().contains("Spur"), "{text}");
 }
 
