@@ -20,6 +20,8 @@ use tokio::process::{Child, Command};
 use tokio_tungstenite::tungstenite::Message;
 
 const SERVER: &str = "05.01.01.01.22.E2";
+/// The event SERVER produces.
+const PRODUCED: &str = "05.01.01.01.22.E2.00.01";
 /// A Node ID nobody has.
 const NOBODY: &str = "05.01.01.01.22.77";
 
@@ -50,7 +52,7 @@ impl Layout {
         let addr = hub.local_addr().to_string();
         let config = dir.join("config.bin");
         std::fs::write(&config, vec![0; len]).unwrap();
-        let serve = serve(&dir, &addr, SERVER, "Yard", &config).await;
+        let serve = serve(&dir, &addr, SERVER, "Yard", &config, &["--produces", PRODUCED]).await;
         let mut ui = Command::new(BIN)
             .args(["ui", "--connect", &addr, "--listen", "127.0.0.1:0", "--json"])
             .args(ui_args)
@@ -120,11 +122,12 @@ impl Layout {
 }
 
 /// `serve` as `node_id` named `name` with the configuration file `config`, once it serves.
-async fn serve(dir: &Path, hub: &str, node_id: &str, name: &str, config: &Path) -> Child {
+async fn serve(dir: &Path, hub: &str, node_id: &str, name: &str, config: &Path, extra: &[&str]) -> Child {
     let mut serve = Command::new(BIN)
         .current_dir(dir)
         .args(["serve", "--connect", hub, "--node-id", node_id, "--name", name, "--config"])
         .arg(config)
+        .args(extra)
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -317,6 +320,15 @@ async fn the_api_writes_verified_backs_up_as_the_cli_and_plans_a_restore() {
     assert_eq!(answer.status, 400);
     assert!(answer.json()["error"].as_str().unwrap().starts_with("nothing sent"));
     assert_eq!(layout.get("Configuration.Label").await, "Spur");
+    let done = layout.ok("POST", &format!("{path}/command/factory-reset"), &json!({ "yes": true })).await;
+    assert!(done["message"].as_str().unwrap().contains("accepted the factory reset"), "{done}");
+
+    // What it produces, by Identify Events.
+    let events = layout.ok("POST", &format!("{path}/events"), &Value::Null).await;
+    let produced: Vec<&Value> =
+        events["identified"].as_array().unwrap().iter().filter(|e| e["role"] == "producer").collect();
+    assert_eq!(produced.len(), 1, "{events}");
+    assert_eq!((&produced[0]["node"], &produced[0]["event"]), (&json!(SERVER), &json!(PRODUCED)));
 
     // A node that does not answer: the CLI's words.
     let answer = layout.page("GET", &format!("/api/nodes/{NOBODY}/config"), b"").await;
@@ -682,7 +694,7 @@ async fn in_a_browser_the_table_the_configuration_a_save_a_restore_and_the_monit
     browser.wait_for("the table", &row).await;
     let config = layout.dir.join("second.bin");
     std::fs::write(&config, vec![0; 256]).unwrap();
-    let _second = serve(&layout.dir, &layout.hub, "05.01.01.01.22.E3", "Spur", &config).await;
+    let _second = serve(&layout.dir, &layout.hub, "05.01.01.01.22.E3", "Spur", &config, &[]).await;
     let second = "document.querySelector('tr[data-node=\"05.01.01.01.22.E3\"]')";
     let text = browser
         .wait_for(
