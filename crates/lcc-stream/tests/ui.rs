@@ -32,7 +32,7 @@ struct Layout {
     dir: PathBuf,
     config: PathBuf,
     _serve: Child,
-    _ui: Child,
+    ui: Child,
     /// `http://127.0.0.1:PORT`.
     base: String,
     /// `127.0.0.1:PORT`.
@@ -79,7 +79,7 @@ impl Layout {
             dir,
             config,
             _serve: serve,
-            _ui: ui,
+            ui,
             base: format!("http://{listen}"),
             addr: listen,
             token,
@@ -792,4 +792,19 @@ async fn a_firmware_upgrade_goes_through_shows_its_progress_and_is_cancelled_by_
     let error = answer.json()["error"].as_str().unwrap().to_string();
     assert!(error.starts_with("cancelled; the node was left in firmware upgrade mode"), "{error}");
     assert_eq!(layout.ok("GET", "/api/state", &Value::Null).await["job"], Value::Null, "nothing runs");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ctrl_c_stops_the_page_with_a_page_open() {
+    let mut layout = Layout::start("ui-stop", &[]).await;
+    // An open page: its live updates stay open until the server goes.
+    let mut live = tokio::net::TcpStream::connect(&layout.addr).await.unwrap();
+    let request = format!("GET /api/live HTTP/1.1\r\nHost: {}\r\n\r\n", layout.addr);
+    live.write_all(request.as_bytes()).await.unwrap();
+    let mut head = [0u8; 12];
+    bounded("the live updates", live.read_exact(&mut head)).await.unwrap();
+    assert_eq!(&head, b"HTTP/1.1 200");
+    common::interrupt(&layout.ui).await;
+    let status = bounded("ui's exit", layout.ui.wait()).await.unwrap();
+    assert_eq!(status.code(), Some(130));
 }

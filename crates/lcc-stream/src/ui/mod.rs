@@ -41,6 +41,9 @@ use crate::outcome::Outcome;
 /// is never granted.
 pub(crate) const UI_HEADER: &str = "x-lcc-ui";
 
+/// How long requests still running at Ctrl-C may take to end.
+const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(2);
+
 /// The most bytes of a firmware image taken from the browser.
 pub(crate) const MAX_FIRMWARE_BYTES: usize = 16 * 1024 * 1024;
 /// The most bytes of any other request body (a list of changes, a backup).
@@ -248,8 +251,21 @@ async fn serve(args: &UiArgs) -> Result<ExitCode, String> {
         }
     }
     let app = api::router(Arc::clone(&shared));
-    let server = axum::serve(listener, app).with_graceful_shutdown(async move { interrupt.wait().await });
-    let served = server.await;
+    let (stop, stopped) = watch::channel(false);
+    let server = axum::serve(listener, app).with_graceful_shutdown(async move {
+        let mut stopped = stopped;
+        let _ = stopped.wait_for(|s| *s).await;
+    });
+    let server = server.into_future();
+    tokio::pin!(server);
+    let served = tokio::select! {
+        served = &mut server => served,
+        () = interrupt.wait() => {
+            stop.send_replace(true);
+            // An open page keeps its live updates open: requests get a moment, not forever.
+            tokio::time::timeout(SHUTDOWN_GRACE, &mut server).await.unwrap_or(Ok(()))
+        }
+    };
     for task in tasks {
         task.abort();
     }
