@@ -6,6 +6,7 @@ mod stdout;
 
 mod args;
 mod cdi;
+mod clock;
 mod config;
 mod control;
 mod demo;
@@ -108,6 +109,9 @@ enum Command {
     Monitor(monitor::MonitorArgs),
     /// Watch event reports, send one, or ask who produces and consumes what.
     Events(events::EventsArgs),
+    /// The layout's fast clock (Broadcast Time): run a generator, follow a clock, or set,
+    /// start and stop one on the bus.
+    Clock(clock::ClockArgs),
     /// Serve a web page (on 127.0.0.1:8080 by default) to see the nodes, configure them,
     /// back them up, upgrade them and watch the bus from a browser, until Ctrl-C.
     Ui(ui::UiArgs),
@@ -156,6 +160,7 @@ fn main() -> ExitCode {
         Command::Cdi(args) => cdi::run(&args),
         Command::Config(args) => config::run(&args),
         Command::Events(args) => events::run(&args),
+        Command::Clock(args) => clock::run(&args),
         Command::Reboot(args) => control::reboot(&args),
         Command::FactoryReset(args) => control::factory_reset(&args),
         Command::Monitor(args) => monitor::run(&args),

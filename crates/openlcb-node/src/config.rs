@@ -1,10 +1,12 @@
 //! [`NodeConfig`] and [`Protocols`], the Protocol Support Reply bits.
 
+use alloc::vec::Vec;
 use core::fmt;
 use core::ops::BitOr;
 
 use openlcb_stream::{Config, Duration};
 
+use crate::broadcast_time::ClockConfig;
 use crate::datagram::DatagramConfig;
 use crate::events::EventConfig;
 use crate::memconfig::MemoryConfigOptions;
@@ -30,6 +32,9 @@ pub struct NodeConfig {
     /// The events this node produces and consumes, and which event messages the application
     /// gets (Event Transport; the PIP announces Event Exchange when any are declared).
     pub events: EventConfig,
+    /// The Broadcast Time clocks this node generates or follows (the PIP announces Event
+    /// Exchange when there are any).
+    pub clocks: Vec<ClockConfig>,
     /// How long a SNIP request of this node waits for the reply.
     pub snip_timeout: Duration,
     /// SNIP requests of this node waiting at once.
@@ -55,6 +60,7 @@ impl Default for NodeConfig {
             snip: SnipInfo::default(),
             memory: MemoryConfigOptions::default(),
             events: EventConfig::default(),
+            clocks: Vec::new(),
             snip_timeout: Duration::from_secs(3),
             max_snip_requests: 8,
             extra_protocols: Protocols::NONE,

@@ -418,18 +418,9 @@ impl Node {
         self.send_event_message(Mti::LEARN_EVENT, None, event.to_bytes().to_vec())
     }
 
-    /// Identifies every declared event again, as after Initialization Complete. The node
-    /// does so by itself after its own Initialization Complete and after
-    /// [`link_lost`](Node::link_lost); call this after announcing the node by other means
-    /// (with [`NodeConfig::send_initialization_complete`](crate::NodeConfig::send_initialization_complete) off).
-    pub fn announce_events(&mut self) {
-        let declared = self.config().events.declared();
-        self.events.left = declared;
-    }
-
     /// The event service's counters.
     pub fn event_stats(&self) -> EventStats {
-        self.events.stats
+        self.services.events.stats
     }
 
     fn send_event_message(&mut self, mti: Mti, to: Option<NodeId>, payload: Vec<u8>) -> Result<(), EventError> {

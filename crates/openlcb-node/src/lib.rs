@@ -182,6 +182,7 @@ extern crate alloc;
 #[cfg(feature = "fuzzing")]
 extern crate std;
 
+pub mod broadcast_time;
 mod config;
 mod datagram;
 mod events;
@@ -194,6 +195,7 @@ mod snip;
 #[doc(hidden)]
 pub mod fuzzing;
 
+pub use broadcast_time::{ClockConfig, ClockEvent, ClockId, ClockSet, ClockStats, ClockTime};
 pub use config::{NodeConfig, Protocols};
 pub use datagram::{
     Datagram, DatagramAnswer, DatagramConfig, DatagramError, DatagramFailure, DatagramId, DatagramStats,

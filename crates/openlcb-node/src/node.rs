@@ -10,16 +10,17 @@ use openlcb_stream::{
     PeerChanges, Queue, Receiver, StreamEndpoint, StreamError, StreamHandle,
 };
 
+use crate::broadcast_time::ClockEvent;
 use crate::datagram::{
     Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramOwner, DatagramService, OkFlags,
 };
-use crate::events::{EventNotice, EventService};
+use crate::events::EventNotice;
 pub(crate) use crate::memconfig::Cx;
 use crate::memconfig::{MemoryConfig, MemoryEvent, MemoryLent, MemoryServer, acdi_user_strings};
 #[cfg(feature = "memory-client")]
 use crate::memconfig::{MemoryOperation, MemoryRequestError, NodeCommand, TransferPath};
-use crate::service::{Lent, Service, ServiceChange, earliest};
-use crate::snip::{SnipFailure, SnipInfo, SnipRequestError, SnipService};
+use crate::service::{Lent, Service, ServiceChange, Services, earliest};
+use crate::snip::{SnipFailure, SnipInfo, SnipRequestError};
 use crate::{DatagramStats, NodeConfig, Protocols};
 
 /// The well-known Event ID Duplicate Node ID Detected.
@@ -89,6 +90,8 @@ pub enum NodeEvent {
     /// Event Transport: a report, a Learn Event, or (when listening to everything) another
     /// node's Identified message.
     Events(EventNotice),
+    /// Broadcast Time: a clock of this node changed (see [`broadcast_time`](crate::broadcast_time)).
+    Clock(ClockEvent),
 }
 
 /// Counters of the node's own routing; each protocol has its own too.
@@ -198,21 +201,19 @@ pub struct Node {
     config: NodeConfig,
     protocols: Protocols,
     streams: StreamEndpoint,
-    datagrams: DatagramService,
-    snip: SnipService,
     memory: MemoryConfig,
-    pub(crate) events: EventService,
+    pub(crate) services: Services,
     pub(crate) out: Outputs,
     stats: NodeStats,
 }
 
 /// Lends the node's parts for one call: `$lent` is what every service gets, `$parts` binds
-/// the services (streams, datagrams, SNIP, Memory Configuration, events).
+/// the stream endpoint, Memory Configuration and the other services.
 macro_rules! lend {
     ($node:expr, $now:expr, |$lent:ident, $parts:pat_param| $body:expr) => {{
-        let Node { config, out, streams, datagrams, snip, memory, events, .. } = $node;
+        let Node { config, out, streams, memory, services, .. } = $node;
         let mut $lent = Lent { now: $now, out, config };
-        let $parts = (streams, datagrams, snip, memory, events);
+        let $parts = (streams, memory, services);
         $body
     }};
 }
@@ -242,20 +243,19 @@ impl Node {
         if config.send_initialization_complete {
             out.announce_start();
         }
-        let mut protocols = Protocols::DATAGRAM | Protocols::SIMPLE_NODE_INFORMATION | config.extra_protocols;
+        let services = Services::new(&config);
+        let mut protocols = Protocols::DATAGRAM
+            | Protocols::SIMPLE_NODE_INFORMATION
+            | config.extra_protocols
+            | services.protocols(&config);
         if config.streams_enabled {
             protocols = protocols | Protocols::STREAM;
-        }
-        if config.events.is_active() {
-            protocols = protocols | Protocols::EVENT_EXCHANGE;
         }
         Node {
             protocols,
             streams: StreamEndpoint::new(id, config.stream.clone()),
-            datagrams: DatagramService::new(config.datagrams.clone()),
-            snip: SnipService::new(&config.snip, config.max_snip_requests, config.snip_timeout),
             memory: MemoryConfig::default(),
-            events: EventService::new(&config.events, config.send_initialization_complete),
+            services,
             out,
             stats: NodeStats::default(),
             config,
@@ -324,9 +324,9 @@ impl Node {
     pub fn stats(&self) -> NodeStats {
         NodeStats {
             answers_dropped: self.out.answers_dropped,
-            snip_answered: self.snip.answered,
-            stray_snip_replies: self.snip.stray_replies,
-            datagrams: self.datagrams.stats,
+            snip_answered: self.services.snip.answered,
+            stray_snip_replies: self.services.snip.stray_replies,
+            datagrams: self.services.datagrams.stats,
             ..self.stats
         }
     }
@@ -340,7 +340,7 @@ impl Node {
         self.out
             .transmits
             .pop_front()
-            .or_else(|| self.events.poll_transmit(&self.config.events, node))
+            .or_else(|| self.services.poll_transmit(&self.config, node))
             .or_else(|| self.streams.poll_transmit())
     }
 
@@ -352,8 +352,8 @@ impl Node {
 
     /// When to call `handle_timeout` next.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let services = earliest(self.datagrams.poll_timeout(), self.snip.poll_timeout());
-        earliest(earliest(self.streams.poll_timeout(), services), self.memory.poll_timeout())
+        let services = earliest(self.services.poll_timeout(), self.memory.poll_timeout());
+        earliest(self.streams.poll_timeout(), services)
     }
 
     // ----- inputs -----
@@ -404,9 +404,9 @@ impl Node {
         match msg.mti {
             Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => {
                 self.streams.handle_message(now, msg);
-                // SNIP and Event Transport keep nothing that a restart ends.
-                lend!(self, now, |lent, (streams, datagrams, _, memory, _)| {
-                    datagrams.handle_message(&mut lent, msg);
+                lend!(self, now, |lent, (streams, memory, services)| {
+                    services.handle_message(&mut lent, msg);
+                    let datagrams = &mut services.datagrams;
                     memory.handle_message(&mut memory_lent(now, lent.out, lent.config, datagrams, streams), msg);
                 });
             }
@@ -415,7 +415,8 @@ impl Node {
                 let node = NodeId::from_slice(msg.payload).unwrap_or(msg.source);
                 out.event(NodeEvent::Verified { node });
                 // Memory Configuration may be asking whether a holder of its lock is here.
-                let Node { config, out, streams, datagrams, memory, .. } = self;
+                let Node { config, out, streams, services, memory, .. } = self;
+                let datagrams = &mut services.datagrams;
                 memory.handle_message(&mut memory_lent(now, out, config, datagrams, streams), msg);
             }
             // MN §3.3.2: a global Verify is answered when it names no node, or this one.
@@ -441,12 +442,11 @@ impl Node {
             self.streams.handle_message(now, msg);
             return true;
         }
-        lend!(self, now, |lent, (streams, datagrams, snip, memory, events)| {
+        lend!(self, now, |lent, (streams, memory, services)| {
             // Memory Configuration first: it takes the datagrams with its content ID.
+            let datagrams = &mut services.datagrams;
             memory.handle_message(&mut memory_lent(now, lent.out, lent.config, datagrams, streams), msg)
-                || datagrams.handle_message(&mut lent, msg)
-                || snip.handle_message(&mut lent, msg)
-                || events.handle_message(&mut lent, msg)
+                || services.handle_message(&mut lent, msg)
         })
     }
 
@@ -461,10 +461,9 @@ impl Node {
             self.streams.handle_message(now, msg);
             handled = self.streams.stats().stray_error_reports == before;
         }
-        lend!(self, now, |lent, (streams, datagrams, snip, memory, events)| {
-            handled |= datagrams.handle_error_report(&mut lent, peer, report);
-            handled |= snip.handle_error_report(&mut lent, peer, report);
-            handled |= events.handle_error_report(&mut lent, peer, report);
+        lend!(self, now, |lent, (streams, memory, services)| {
+            handled |= services.handle_error_report(&mut lent, peer, report);
+            let datagrams = &mut services.datagrams;
             let mut memory_lent = memory_lent(now, lent.out, lent.config, datagrams, streams);
             handled |= memory.handle_error_report(&mut memory_lent, peer, report);
         });
@@ -476,10 +475,9 @@ impl Node {
     /// Runs every timer due at `now`. Early or repeated calls are harmless.
     pub fn handle_timeout(&mut self, now: Instant) {
         self.streams.handle_timeout(now);
-        lend!(self, now, |lent, (streams, datagrams, snip, memory, events)| {
-            datagrams.handle_timeout(&mut lent);
-            snip.handle_timeout(&mut lent);
-            events.handle_timeout(&mut lent);
+        lend!(self, now, |lent, (streams, memory, services)| {
+            services.handle_timeout(&mut lent);
+            let datagrams = &mut services.datagrams;
             memory.handle_timeout(&mut memory_lent(now, lent.out, lent.config, datagrams, streams));
         });
         self.settle(now);
@@ -514,7 +512,7 @@ impl Node {
     /// The transport lost its link (e.g. this node's CAN alias): everything open ends.
     pub fn link_lost(&mut self) {
         // The transport announces the node again once it is back; its events follow.
-        self.events.announce(&self.config.events);
+        self.services.announce(&self.config);
         self.streams.link_lost();
         self.tell_services(ServiceChange::Lost(None));
     }
@@ -522,9 +520,7 @@ impl Node {
     /// Tells every service of `change` (the endpoint has been told). A lost peer's streams
     /// end with it: the application hears of its own, Memory Configuration has let go of its.
     fn tell_services(&mut self, change: ServiceChange) {
-        self.datagrams.peer_changed(&mut self.out, change);
-        self.snip.peer_changed(&mut self.out, change);
-        self.events.peer_changed(&mut self.out, change);
+        self.services.peer_changed(&mut self.out, change);
         self.memory.peer_changed(&mut self.out, change);
         while let Some(event) = self.streams.poll_event() {
             if !self.memory.forget_ended(&event) {
@@ -538,23 +534,32 @@ impl Node {
     /// Sends a datagram of at most 72 bytes to `to`. Datagrams to one node go one at a time
     /// (DG §6.1); later ones wait their turn. `DatagramDelivered` or `DatagramFailed` follows.
     pub fn send_datagram(&mut self, now: Instant, to: NodeId, payload: &[u8]) -> Result<DatagramId, DatagramError> {
-        self.datagrams.send(now, &mut self.out, to, payload, DatagramOwner::Application)
+        self.services.datagrams.send(now, &mut self.out, to, payload, DatagramOwner::Application)
     }
 
     /// Answers the datagram `from` sent (raised by `DatagramReceived`).
     pub fn answer_datagram(&mut self, from: NodeId, answer: DatagramAnswer) -> Result<(), DatagramError> {
-        self.datagrams.answer(&mut self.out, from, answer)
+        self.services.datagrams.answer(&mut self.out, from, answer)
     }
 
     /// Asks `peer` for its Simple Node Information. `SnipReceived` or `SnipFailed` follows.
     pub fn request_snip(&mut self, now: Instant, peer: NodeId) -> Result<(), SnipRequestError> {
-        self.snip.request(now, &mut self.out, peer)
+        self.services.snip.request(now, &mut self.out, peer)
     }
 
     /// Sends a global Verify Node ID: every node on the network answers with Verified Node
     /// ID (how a tool finds who is there).
     pub fn verify_all(&mut self) {
         self.out.transmit(Message::global(Mti::VERIFY_NODE_ID_GLOBAL, self.out.node, Vec::new()));
+    }
+
+    /// Identifies every declared event and clock again, as after Initialization Complete (a
+    /// generator sends its state too). The node does so by itself after its own
+    /// Initialization Complete and after [`link_lost`](Node::link_lost); call this after
+    /// announcing the node by other means (with
+    /// [`NodeConfig::send_initialization_complete`](crate::NodeConfig::send_initialization_complete) off).
+    pub fn announce_events(&mut self) {
+        self.services.announce(&self.config);
     }
 
     /// Tells the network that another node holds this node's Node ID, by the well-known
@@ -587,8 +592,8 @@ impl Node {
         // The application's policy, for the requests Memory Configuration did not claim (the
         // endpoint raises requests only when it asks: with a server, or with `Ask`).
         let unclaimed_streams = self.config.stream.accept_policy;
-        let Node { config, out, streams, datagrams, memory, .. } = self;
-        let mut lent = memory_lent(now, out, config, datagrams, streams);
+        let Node { config, out, streams, services, memory, .. } = self;
+        let mut lent = memory_lent(now, out, config, &mut services.datagrams, streams);
         loop {
             let mut moved = false;
             while cfg!(feature = "memory-client")
@@ -811,8 +816,8 @@ impl Node {
         now: Instant,
         f: impl FnOnce(&mut Cx<'_>, Option<&mut MemoryServer>, &mut crate::memconfig::MemoryClient) -> T,
     ) -> T {
-        let Node { config, out, datagrams, streams, memory, .. } = self;
-        memory.run(&mut memory_lent(now, out, config, datagrams, streams), f)
+        let Node { config, out, services, streams, memory, .. } = self;
+        memory.run(&mut memory_lent(now, out, config, &mut services.datagrams, streams), f)
     }
 
     /// Reset/Reboot (MC §4.24) of a library node: it starts again as after a power-up, as far
@@ -838,7 +843,7 @@ impl Node {
         let (name, description) = acdi_user_strings(server.acdi_user());
         self.config.snip.user_name = name;
         self.config.snip.user_description = description;
-        self.snip.set_info(&self.config.snip);
+        self.services.snip.set_info(&self.config.snip);
         self.out.event(NodeEvent::Memory(MemoryEvent::UserInfoChanged));
     }
 }

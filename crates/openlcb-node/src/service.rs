@@ -1,12 +1,18 @@
-//! The one shape of the node's services (datagrams, SNIP, Memory Configuration, events): the
-//! same few entry points, called by [`Node`](crate::Node) with static dispatch, each with what
-//! the node lends it for that call.
+//! The one shape of the node's services (datagrams, SNIP, Memory Configuration, events,
+//! Broadcast Time): the same few entry points, called by [`Node`](crate::Node) with static
+//! dispatch, each with what the node lends it for that call. The services that need only the
+//! node's loan are held together in [`Services`], which routes to each of them: a new
+//! protocol is one more field there, and nothing in the node changes.
 
 use openlcb_stream::wire::ErrorReport;
 use openlcb_stream::{Instant, MessageRef, NodeId, PeerChange};
 
-use crate::NodeConfig;
+use crate::broadcast_time::ClockService;
+use crate::datagram::DatagramService;
+use crate::events::EventService;
 use crate::node::Outputs;
+use crate::snip::SnipService;
+use crate::{NodeConfig, Protocols};
 
 /// A change of peer as the services take it: the transport's [`PeerChange`], or the loss of
 /// this node's own link (every peer lost). Neither change reads the clock: a lost peer is
@@ -72,6 +78,88 @@ pub(crate) trait Service<C> {
 
     /// The service's next deadline.
     fn poll_timeout(&self) -> Option<Instant>;
+}
+
+/// The services that need only the node's loan ([`Lent`]), routed to as one. Memory
+/// Configuration, built on the datagram service and the stream endpoint, is the node's own.
+#[derive(Debug)]
+pub(crate) struct Services {
+    pub(crate) datagrams: DatagramService,
+    pub(crate) snip: SnipService,
+    pub(crate) events: EventService,
+    pub(crate) clocks: ClockService,
+}
+
+impl Services {
+    /// The services of `config`.
+    pub(crate) fn new(config: &NodeConfig) -> Self {
+        let announce = config.send_initialization_complete;
+        Services {
+            datagrams: DatagramService::new(config.datagrams.clone()),
+            snip: SnipService::new(&config.snip, config.max_snip_requests, config.snip_timeout),
+            events: EventService::new(&config.events, announce),
+            clocks: ClockService::new(&config.clocks, announce),
+        }
+    }
+
+    /// What the services announce in the Protocol Support Reply.
+    pub(crate) fn protocols(&self, config: &NodeConfig) -> Protocols {
+        if config.events.is_active() || !config.clocks.is_empty() { Protocols::EVENT_EXCHANGE } else { Protocols::NONE }
+    }
+
+    /// The next message the services send by themselves (announcements), after the node's
+    /// queue is empty.
+    pub(crate) fn poll_transmit(&mut self, config: &NodeConfig, node: NodeId) -> Option<openlcb_stream::Message> {
+        self.events.poll_transmit(&config.events, node)
+    }
+
+    /// Everything is announced again once the link is back (its Initialization Complete).
+    pub(crate) fn announce(&mut self, config: &NodeConfig) {
+        self.events.announce(&config.events);
+        self.clocks.announce();
+    }
+}
+
+impl Service<Lent<'_>> for Services {
+    /// Datagrams and SNIP take their own messages; an Event Transport message concerns every
+    /// service built on events (the declared events and the clocks), so each of them sees it.
+    fn handle_message(&mut self, cx: &mut Lent<'_>, msg: MessageRef<'_>) -> bool {
+        if self.datagrams.handle_message(cx, msg) || self.snip.handle_message(cx, msg) {
+            return true;
+        }
+        let declared = self.events.handle_message(cx, msg);
+        self.clocks.handle_message(cx, msg) | declared
+    }
+
+    fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
+        // Every service hears it: one naming no MTI may concern several.
+        [
+            self.datagrams.handle_error_report(cx, peer, report),
+            self.snip.handle_error_report(cx, peer, report),
+            self.events.handle_error_report(cx, peer, report),
+            self.clocks.handle_error_report(cx, peer, report),
+        ]
+        .contains(&true)
+    }
+
+    fn peer_changed(&mut self, out: &mut Outputs, change: ServiceChange) {
+        self.datagrams.peer_changed(out, change);
+        self.snip.peer_changed(out, change);
+        self.events.peer_changed(out, change);
+        self.clocks.peer_changed(out, change);
+    }
+
+    fn handle_timeout(&mut self, cx: &mut Lent<'_>) {
+        self.datagrams.handle_timeout(cx);
+        self.snip.handle_timeout(cx);
+        self.events.handle_timeout(cx);
+        self.clocks.handle_timeout(cx);
+    }
+
+    fn poll_timeout(&self) -> Option<Instant> {
+        let messaging = earliest(self.datagrams.poll_timeout(), self.snip.poll_timeout());
+        earliest(messaging, earliest(self.events.poll_timeout(), self.clocks.poll_timeout()))
+    }
 }
 
 /// The earlier of two deadlines.

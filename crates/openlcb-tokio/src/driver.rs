@@ -11,6 +11,7 @@ use openlcb_stream::{Event, Instant, NodeId, Role, StreamError, StreamHandle, St
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
+use crate::clock::ClockDriver;
 use crate::events::EventDriver;
 use crate::io::{ByteReader, ByteWriter, try_write};
 use crate::memory::MemoryDriver;
@@ -72,6 +73,7 @@ pub(crate) struct Driver {
     memory: MemoryDriver,
     /// Listeners of event notices.
     events: EventDriver,
+    clocks: ClockDriver,
     wire: Wire,
     stats: WireStats,
     commands: mpsc::Receiver<Command>,
@@ -117,6 +119,7 @@ impl Driver {
             requests: Requests::default(),
             memory: MemoryDriver::default(),
             events: EventDriver::default(),
+            clocks: ClockDriver::default(),
             wire: Wire::new(protocol, Instant::ZERO, node_id, can),
             stats: WireStats::default(),
             commands,
@@ -428,6 +431,7 @@ impl Driver {
             }
             Command::Memory(command) => self.memory.command(now, &mut self.stack, command),
             Command::Events(command) => self.events.command(&mut self.stack, command),
+            Command::Clock(command) => self.clocks.command(now, &mut self.stack, command),
         }
     }
 
@@ -444,6 +448,10 @@ impl Driver {
                 }
                 NodeEvent::Events(notice) => {
                     self.events.notice(notice);
+                    continue;
+                }
+                NodeEvent::Clock(event) => {
+                    self.clocks.event(event);
                     continue;
                 }
                 event => {

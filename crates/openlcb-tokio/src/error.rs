@@ -95,6 +95,9 @@ pub enum Error {
     /// Too many questions of this kind wait for answers already.
     #[error("too many requests are waiting for answers; try again")]
     Busy,
+    /// A Broadcast Time command this node cannot give (no such clock, a time out of range).
+    #[error("{0}")]
+    Clock(openlcb_node::broadcast_time::ClockError),
     /// No node with this Node ID answered on the network.
     #[error("node {0} is not on the network (nobody answered for that Node ID)")]
     Unreachable(NodeId),

@@ -81,6 +81,7 @@
 
 mod bridge;
 pub mod can;
+pub mod clock;
 mod driver;
 mod error;
 pub mod events;
@@ -95,6 +96,7 @@ mod socket;
 mod trace;
 mod wire;
 
+pub use clock::ClockEvents;
 pub use error::Error;
 pub use events::EventNotices;
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};

@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use bytes::Bytes;
 use openlcb_can::CanConfig;
+use openlcb_node::broadcast_time::{ClockId, ClockSet, ClockState};
 use openlcb_node::{MemoryServer, NodeCommand, NodeConfig, NodeStats as StackStats, Protocols, SnipInfo, TransferPath};
 use openlcb_stream::wire::ErrorCode;
 use openlcb_stream::{NodeId, OpenOptions, Stats, StreamHandle, StreamInfo};
@@ -14,6 +15,7 @@ use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 use tracing::Instrument as _;
 
+use crate::clock::{ClockCommand, ClockEvents};
 use crate::driver::Driver;
 use crate::events::{EventCommand, EventNotices};
 use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents, TransferKey};
@@ -140,6 +142,8 @@ pub(crate) enum Command {
         reply: oneshot::Sender<Option<u16>>,
     },
     Events(EventCommand),
+    /// Broadcast Time: the node's clocks.
+    Clock(ClockCommand),
     /// Memory Configuration: serve spaces, or start a client operation.
     Memory(MemoryCommand),
 }
@@ -407,6 +411,35 @@ impl Node {
     /// Asks who produces or consumes `event` (Identify Producer or Identify Consumer).
     pub async fn identify(&self, role: EventRole, event: EventId) -> Result<(), Error> {
         self.control.call(|reply| Command::Events(EventCommand::Identify { role, event, reply })).await?
+    }
+
+    /// From now on, the changes of the node's clocks (declared in
+    /// [`NodeOptions::node`](crate::NodeOptions::node)`.clocks`): minutes begun, sets, rate,
+    /// start and stop.
+    pub async fn clock_events(&self) -> Result<ClockEvents, Error> {
+        let (listening, registered) = oneshot::channel();
+        let (command, events) = ClockCommand::listen(listening);
+        self.control.commands.send(Command::Clock(command)).await.map_err(|_| self.control.shared.error())?;
+        registered.await.map_err(|_| self.control.shared.error())?;
+        Ok(events)
+    }
+
+    /// Clock `clock` now (`None`: the node has no such clock).
+    pub async fn clock(&self, clock: ClockId) -> Result<Option<ClockState>, Error> {
+        self.control.call(|reply| Command::Clock(ClockCommand::State { clock, reply })).await
+    }
+
+    /// Changes clock `clock`: a generator of this node at once, a consumer's by the set
+    /// command on the bus (see [`openlcb_node::Node::set_clock`]).
+    pub async fn set_clock(&self, clock: ClockId, set: ClockSet) -> Result<(), Error> {
+        let result = self.control.call(|reply| Command::Clock(ClockCommand::Set { clock, set, reply })).await?;
+        result.map_err(crate::clock::clock_error)
+    }
+
+    /// Asks the generator of `clock` for its synchronization sequence.
+    pub async fn query_clock(&self, clock: ClockId) -> Result<(), Error> {
+        let result = self.control.call(|reply| Command::Clock(ClockCommand::Query { clock, reply })).await?;
+        result.map_err(crate::clock::clock_error)
     }
 
     /// Serves `server`'s address spaces from now on (Memory Configuration and, with space
