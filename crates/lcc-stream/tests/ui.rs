@@ -808,3 +808,52 @@ async fn ctrl_c_stops_the_page_with_a_page_open() {
     let status = bounded("ui's exit", layout.ui.wait()).await.unwrap();
     assert_eq!(status.code(), Some(130));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_clock_pane_follows_and_drives_the_generator() {
+    let layout = Layout::start("ui-clock", &[]).await;
+    // No generator yet: a set is not confirmed, in the words of `clock start`.
+    let answer = layout.page("POST", "/api/clock", b"\"start\"").await;
+    assert_eq!(answer.status, 504, "{}", answer.text());
+    assert!(answer.json()["error"].as_str().unwrap().starts_with("no generator of"), "{}", answer.text());
+    assert_eq!(layout.page("POST", "/api/clock", b"{\"rate\": \"fast\"}").await.status, 400);
+    assert_eq!(layout.page("POST", "/api/clock", b"{\"time\": \"25:00\"}").await.status, 400);
+    assert_eq!(layout.page("POST", "/api/clock", b"\"explode\"").await.status, 400);
+
+    let _generator = Command::new(BIN)
+        .args(["clock", "--connect", &layout.hub, "--rate", "4", "--time", "06:00", "--date", "1956-07-04"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .unwrap();
+    // Stop: the generator's synchronization sequence confirms it, and the pane shows it.
+    let mut stopped = Value::Null;
+    for _ in 0..60 {
+        let answer = layout.page("POST", "/api/clock", b"\"stop\"").await;
+        if answer.status == 200 {
+            stopped = answer.json();
+            break;
+        }
+        // The generator is still logging in: no confirmation came.
+        assert_eq!(answer.status, 504, "{}", answer.text());
+    }
+    assert!(stopped["message"].as_str().unwrap().contains("stopped"), "{stopped}");
+    let mut clock = layout.ok("GET", "/api/clock", &Value::Null).await;
+    assert_eq!(clock["synchronized"], true, "{clock}");
+    assert!(clock["time"].as_str().unwrap().starts_with("1956-07-04 0"), "{clock}");
+    let set = layout.ok("POST", "/api/clock", &json!({ "time": "08:30" })).await;
+    assert!(set["message"].as_str().unwrap().contains("time 08:30"), "{set}");
+    let set = layout.ok("POST", "/api/clock", &json!({ "rate": "8" })).await;
+    assert!(set["message"].as_str().unwrap().contains("rate 8"), "{set}");
+    for _ in 0..100 {
+        clock = layout.ok("GET", "/api/clock", &Value::Null).await;
+        if clock["rate"] == "8" {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    assert!(clock["time"].as_str().unwrap().starts_with("1956-07-04 08:30"), "{clock}");
+    assert_eq!(clock["rate"], "8", "{clock}");
+}

@@ -59,6 +59,7 @@ pub(super) fn router(shared: Arc<Shared>) -> Router {
         .route("/api/events/send", post(send_event))
         .route("/api/events/identify", post(identify_all))
         .route("/api/cancel", post(cancel))
+        .route("/api/clock", get(clock_state).post(clock_set))
         .route("/api/monitor/trace", get(trace))
         .fallback(|| async { ApiError::new(StatusCode::NOT_FOUND, "not_found", "no such page") })
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
@@ -460,4 +461,45 @@ async fn trace(State(shared): Ctx) -> Response {
     let disposition = "attachment; filename=\"lcc-trace.txt\"";
     ([(header::CONTENT_TYPE, "text/plain; charset=utf-8"), (header::CONTENT_DISPOSITION, disposition)], text)
         .into_response()
+}
+
+/// The fast clock now.
+async fn clock_state(State(shared): Ctx) -> axum::Json<Json> {
+    axum::Json(json!(live::clock_view(&shared).await))
+}
+
+/// What a clock button asks: exactly one of them.
+#[derive(Debug, Deserialize)]
+#[serde(rename_all = "lowercase", deny_unknown_fields)]
+enum ClockAsk {
+    Start,
+    Stop,
+    /// A rate, as `clock rate` takes it (`4`, `0.25`, `-2`).
+    Rate(String),
+    /// A time of day, `HH:MM`.
+    Time(String),
+}
+
+/// `clock start`, `stop`, `rate` and `set --time`: sent to the generator, whose
+/// confirmation is waited for.
+async fn clock_set(State(shared): Ctx, body: Bytes) -> Result<axum::Json<Json>, ApiError> {
+    use openlcb_tokio::openlcb_node::broadcast_time::ClockSet;
+    let ask: ClockAsk = serde_json::from_slice(&body).map_err(|e| ApiError::usage(format!("the request: {e}")))?;
+    let set = match ask {
+        ClockAsk::Start => ClockSet::Start,
+        ClockAsk::Stop => ClockSet::Stop,
+        ClockAsk::Rate(rate) => ClockSet::Rate(crate::clock::parse_rate(rate.trim()).map_err(ApiError::usage)?),
+        ClockAsk::Time(time) => {
+            let (hour, minute) = crate::clock::parse_time(time.trim()).map_err(ApiError::usage)?;
+            ClockSet::Time { hour, minute }
+        }
+    };
+    let mut notices = shared.node.event_notices().await.map_err(Failure::Net)?;
+    match crate::clock::set_confirmed(&shared.node, &mut notices, shared.clock, set).await {
+        Ok(message) => Ok(axum::Json(json!({ "result": "ok", "message": message }))),
+        Err(crate::clock::Unconfirmed::Net(failure)) => Err(failure.into()),
+        Err(crate::clock::Unconfirmed::NoGenerator(words)) => {
+            Err(ApiError::of(crate::outcome::Outcome::TimedOut, words))
+        }
+    }
 }

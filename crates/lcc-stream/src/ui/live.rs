@@ -90,6 +90,7 @@ pub(crate) fn start(shared: &Arc<Shared>, connect: &ConnectArgs) -> Vec<JoinHand
     tasks.push(tokio::spawn(watch_events(Arc::clone(shared), started)));
     let connect = connect.clone();
     tasks.push(tokio::spawn(watch_bus(Arc::clone(shared), connect, started)));
+    tasks.push(tokio::spawn(watch_clock(Arc::clone(shared))));
     tasks
 }
 
@@ -293,4 +294,44 @@ async fn watch_bus(shared: Arc<Shared>, connect: ConnectArgs, started: Instant) 
         }
     }
     shared.gathered().monitor_off = Some(format!("the monitor's connection to {} ended", connect.addr()));
+}
+
+/// The fast clock as the page shows it.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub(crate) struct ClockView {
+    /// Its name (`default-fast`, or its ID).
+    pub(crate) clock: String,
+    /// Its generator has been heard (else the rest is the consumer's guess).
+    pub(crate) synchronized: bool,
+    /// `1956-07-04 06:04:12`.
+    pub(crate) time: String,
+    pub(crate) rate: String,
+    pub(crate) running: bool,
+    /// As `clock --follow` prints it.
+    pub(crate) text: String,
+}
+
+/// The clock's state now, if the node has it.
+pub(crate) async fn clock_view(shared: &Shared) -> Option<ClockView> {
+    let state = shared.node.clock(shared.clock).await.ok()??;
+    Some(ClockView {
+        clock: shared.clock.to_string(),
+        synchronized: state.synchronized,
+        time: state.time.to_string(),
+        rate: state.rate.to_string(),
+        running: state.running,
+        text: crate::clock::state_text(shared.clock, &state),
+    })
+}
+
+/// Shows the clock on every change (a minute begun, a set, a start or stop), after asking
+/// its generator for its state.
+async fn watch_clock(shared: Arc<Shared>) {
+    let Ok(mut events) = shared.node.clock_events().await else { return };
+    let _ = shared.node.query_clock(shared.clock).await;
+    while events.next().await.is_some() {
+        if let Some(view) = clock_view(&shared).await {
+            shared.push("clock", &view);
+        }
+    }
 }

@@ -27,6 +27,7 @@ use axum::response::{IntoResponse, Response};
 use clap::Args;
 use openlcb_cdi::Layout;
 use openlcb_stream::{AcceptPolicy, NodeId, wire::ReplyCode};
+use openlcb_tokio::openlcb_node::broadcast_time::ClockId;
 use openlcb_tokio::{Listen, Node, NodeOptions};
 use serde::Serialize;
 use tokio::sync::{broadcast, watch};
@@ -62,6 +63,10 @@ pub(crate) struct UiArgs {
     /// configure the layout); beyond the loopback it is always required.
     #[arg(long)]
     token: bool,
+    /// The fast clock the page shows and drives: default-fast, default-realtime,
+    /// alternate-1, alternate-2 or six hex bytes.
+    #[arg(long, default_value = "default-fast", value_parser = crate::clock::parse_clock)]
+    clock: ClockId,
     #[command(flatten)]
     client: ClientArgs,
 }
@@ -143,6 +148,8 @@ pub(crate) struct Shared {
     pub(crate) push: broadcast::Sender<Push>,
     /// What the monitor and the event watch have gathered.
     pub(crate) live: Mutex<live::Gathered>,
+    /// The fast clock the page shows.
+    pub(crate) clock: ClockId,
 }
 
 impl Shared {
@@ -205,6 +212,7 @@ async fn serve(args: &UiArgs) -> Result<ExitCode, String> {
         options.node.snip = net::snip("ui");
         options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
         options.node.events.listen = Listen::Everything;
+        options.node.clocks = vec![crate::clock::controlling_consumer(args.clock)];
         options
     });
     let node = match node.await {
@@ -231,6 +239,7 @@ async fn serve(args: &UiArgs) -> Result<ExitCode, String> {
         cancel: watch::channel(false).0,
         push,
         live: Mutex::new(live::Gathered::default()),
+        clock: args.clock,
     });
     let host = match local.ip() {
         std::net::IpAddr::V6(ip) => format!("[{ip}]:{port}"),

@@ -17,6 +17,7 @@ const state = {
   skipped: 0,
   paused: false,
   job: null,
+  clock: null,
 };
 
 // ---- helpers ----
@@ -106,6 +107,7 @@ function connectLive() {
     state.skipped += Number(e.data) || 0;
     if (route().view === 'monitor') drawLines();
   });
+  source.addEventListener('clock', (e) => { state.clock = JSON.parse(e.data); drawClock(); });
   source.addEventListener('job', (e) => { state.job = JSON.parse(e.data); drawJob(); });
   source.addEventListener('notice', (e) => { const n = JSON.parse(e.data); if (n.error) say(n.error, 'error'); });
 }
@@ -133,6 +135,7 @@ function route() {
   if (parts[0] === 'node' && parts[1]) return { view: parts[2] === 'config' ? 'config' : 'node', node: parts[1] };
   if (parts[0] === 'events') return { view: 'events' };
   if (parts[0] === 'monitor') return { view: 'monitor' };
+  if (parts[0] === 'clock') return { view: 'clock' };
   return { view: 'nodes' };
 }
 
@@ -140,7 +143,7 @@ let configView = null;
 
 function render() {
   const r = route();
-  for (const [id, view] of [['nav-nodes', 'nodes'], ['nav-events', 'events'], ['nav-monitor', 'monitor']]) {
+  for (const [id, view] of [['nav-nodes', 'nodes'], ['nav-events', 'events'], ['nav-monitor', 'monitor'], ['nav-clock', 'clock']]) {
     document.getElementById(id).classList.toggle('here', r.view === view);
   }
   const main = document.getElementById('view');
@@ -155,6 +158,7 @@ function render() {
     }
   } else if (r.view === 'events') main.replaceChildren(eventsView());
   else if (r.view === 'monitor') main.replaceChildren(monitorView());
+  else if (r.view === 'clock') main.replaceChildren(clockView());
 }
 
 // ---- nodes ----
@@ -472,6 +476,40 @@ function monitorView() {
     el('p', { class: 'muted', id: 'skipped' }),
     el('div', { class: 'lines', id: 'lines' }));
   queueMicrotask(drawLines);
+  return view;
+}
+
+// ---- clock ----
+
+function drawClock() {
+  const time = document.getElementById('clock-time');
+  if (!time) return;
+  const c = state.clock;
+  if (!c) { time.textContent = '—'; document.getElementById('clock-status').textContent = 'no clock'; return; }
+  time.textContent = c.time;
+  document.getElementById('clock-status').textContent = !c.synchronized
+    ? `${c.clock}: waiting for its generator`
+    : (c.running ? `${c.clock}: running at ${c.rate}x` : `${c.clock}: stopped`);
+}
+
+function clockView() {
+  const ask = (body) => async (e) => {
+    if (e && e.preventDefault) e.preventDefault();
+    try { say((await api('POST', '/api/clock', body())).message); } catch (error) { sayError(error); }
+  };
+  const rate = el('input', { type: 'text', id: 'clock-rate', inputmode: 'decimal', placeholder: '4', size: '6', 'aria-label': 'Rate' });
+  const time = el('input', { type: 'time', id: 'clock-set-time', 'aria-label': 'Time of day' });
+  const view = el('section', {},
+    el('h1', {}, 'Clock'),
+    el('div', { id: 'clock-time' }, '—'),
+    el('p', { id: 'clock-status', class: 'muted' }),
+    el('div', { class: 'row' },
+      el('button', { type: 'button', id: 'clock-start', onclick: ask(() => 'start') }, 'Start'),
+      el('button', { type: 'button', id: 'clock-stop', onclick: ask(() => 'stop') }, 'Stop')),
+    el('form', { class: 'row', onsubmit: ask(() => ({ rate: rate.value })) }, rate, el('button', { type: 'submit', id: 'clock-rate-set' }, 'Set rate')),
+    el('form', { class: 'row', onsubmit: ask(() => ({ time: time.value })) }, time, el('button', { type: 'submit', id: 'clock-time-set' }, 'Set time')));
+  api('GET', '/api/clock').then((c) => { state.clock = c; drawClock(); }).catch(sayError);
+  queueMicrotask(drawClock);
   return view;
 }
 
