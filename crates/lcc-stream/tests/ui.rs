@@ -313,6 +313,21 @@ async fn the_api_writes_verified_backs_up_as_the_cli_and_plans_a_restore() {
     assert_eq!(answer.status, 400);
     assert!(answer.json()["error"].as_str().unwrap().contains("a setting given twice"), "{}", answer.text());
 
+    // A new name: the table shows it.
+    let renamed = json!({ "changes": [{ "key": "User identification.User name", "value": "Junction" }] });
+    layout.ok("POST", &format!("{path}/config"), &renamed).await;
+    let mut name = Value::Null;
+    for _ in 0..100 {
+        let state = layout.ok("GET", "/api/state", &Value::Null).await;
+        let nodes = state["nodes"].as_array().unwrap().clone();
+        name = nodes.iter().find(|n| n["node_id"] == SERVER).map_or(Value::Null, |n| n["snip"]["user_name"].clone());
+        if name == "Junction" {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    assert_eq!(name, "Junction");
+
     // Update Complete and a factory reset that is not confirmed.
     let done = layout.ok("POST", &format!("{path}/command/update-complete"), &Value::Null).await;
     assert!(done["message"].as_str().unwrap().contains("accepted Update Complete"));

@@ -224,14 +224,18 @@ async fn config_save(State(shared): Ctx, Path(node): Path<String>, body: Bytes) 
     let changes: Changes = serde_json::from_slice(&body).map_err(|e| ApiError::usage(format!("the changes: {e}")))?;
     let changes: Vec<(String, String)> = changes.changes.into_iter().map(|c| (c.key, c.value)).collect();
     let what = format!("writing {} setting(s) of {peer}", changes.len());
+    let owner = Arc::clone(&shared);
     let shared: &Shared = &shared;
-    job(shared, what, |mut interrupt| async move {
+    let answer = job(shared, what, |mut interrupt| async move {
         let layout = layout(shared, peer, &mut interrupt).await?;
         let session = Session::with_layout(&shared.node, &shared.client, peer, layout);
         let (written, warning) = session.set_many(&changes, &mut interrupt).await?;
         Ok(axum::Json(json!({ "result": "ok", "written": written, "warning": warning })))
     })
-    .await
+    .await;
+    // Its name may have changed: the table asks it again.
+    tokio::spawn(live::learn(Arc::clone(&owner), peer));
+    answer
 }
 
 /// `config backup`: the file, byte for byte.
@@ -268,8 +272,9 @@ async fn restore(
     let text =
         String::from_utf8(body.to_vec()).map_err(|e| ApiError::usage(format!("the backup: not UTF-8 text ({e})")))?;
     let what = if query.apply { format!("restoring {peer}") } else { format!("comparing a backup with {peer}") };
+    let owner = Arc::clone(&shared);
     let shared: &Shared = &shared;
-    job(shared, what, |mut interrupt| async move {
+    let answer = job(shared, what, |mut interrupt| async move {
         let layout = layout(shared, peer, &mut interrupt).await?;
         let most = openlcb_cdi::backup::max_backup_bytes(&layout);
         if text.len() > most {
@@ -294,7 +299,11 @@ async fn restore(
             "warning": warning,
         })))
     })
-    .await
+    .await;
+    if query.apply {
+        tokio::spawn(live::learn(owner, peer));
+    }
+    answer
 }
 
 #[derive(Debug, Default, Deserialize)]
