@@ -704,6 +704,37 @@ async fn in_a_browser_the_table_the_configuration_a_save_a_restore_and_the_monit
         )
         .await;
 
+    // A node that does not answer: the page says so in the CLI's words.
+    browser.navigate(&format!("{}/#/node/{NOBODY}/config", layout.base)).await;
+    let error = "document.getElementById('config-error')";
+    let said = browser.wait_for("the error", &format!("{error} && {error}.textContent")).await;
+    let (status, _, cli_err) = layout.cli(&["config", "show", NOBODY]).await;
+    assert_eq!(status, 5);
+    assert!(cli_err.contains(said.as_str().unwrap()), "the page says {said}, the CLI {cli_err:?}");
+
+    // The clock pane: a generator's time, and Stop confirmed by it.
+    let _generator = Command::new(BIN)
+        .args(["clock", "--connect", &layout.hub, "--rate", "4", "--time", "06:00", "--date", "1956-07-04"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .unwrap();
+    browser.navigate(&format!("{}/#/clock", layout.base)).await;
+    let time = "document.getElementById('clock-time').textContent";
+    browser.wait_for("the generator's time", &format!("{time}.startsWith('1956-07-04 06:')")).await;
+    let status = "document.getElementById('clock-status').textContent";
+    assert_eq!(browser.eval(status).await, "default-fast: running at 4x");
+    browser.eval("document.getElementById('clock-stop').click()").await;
+    let stopped = browser
+        .wait_for(
+            "the stop confirmed",
+            &format!("{message} && {message}.textContent.includes('stopped') && {message}.textContent"),
+        )
+        .await;
+    assert!(stopped.as_str().unwrap().starts_with("default-fast stopped (generator"), "{stopped}");
+
     // A node that joins appears in the open table by itself (its Initialization Complete).
     browser.navigate(&format!("{}/#/", layout.base)).await;
     browser.wait_for("the table", &row).await;

@@ -92,7 +92,7 @@ the header X-LCC-UI, and the Host and Origin must be this page's). With --listen
 address, the URL carries a token (a new one each run): without it the API answers 403.
 
 {}",
-        net::network_help(&[Outcome::Usage])
+        net::network_help(&[])
     )
 }
 
@@ -199,7 +199,7 @@ async fn serve(args: &UiArgs) -> Result<ExitCode, String> {
         Ok(listener) => listener,
         Err(error) => {
             eprintln!("lcc-stream ui: cannot listen on {}: {error}", args.listen);
-            return Ok(ExitCode::from(Outcome::Usage.status()));
+            return Ok(ExitCode::from(Outcome::Error.status()));
         }
     };
     let local = listener.local_addr().map_err(|e| format!("cannot listen on {}: {e}", args.listen))?;
