@@ -674,6 +674,30 @@ async fn in_a_browser_the_table_the_configuration_a_save_a_restore_and_the_monit
     browser.wait_for("the restore", &format!("{message} && {message}.textContent.startsWith('restored')")).await;
     assert_eq!(layout.get("Configuration.Label").await, "Spur");
 
+    // A firmware image uploaded from the page (the confirmation answered yes), with its
+    // outcome in words; serve saves it.
+    let image = layout.dir.join("image.bin");
+    std::fs::write(&image, (0..3000u32).map(|i| (i % 241) as u8).collect::<Vec<u8>>()).unwrap();
+    browser.eval("window.confirm = () => true").await;
+    browser.choose_file("#firmware-file", &image).await;
+    browser.eval("document.getElementById('firmware-upload').click()").await;
+    let upgraded = browser
+        .wait_for(
+            "the upgrade",
+            &format!("{message} && {message}.textContent.startsWith('upgraded') && {message}.textContent"),
+        )
+        .await;
+    assert!(upgraded.as_str().unwrap().contains("with 3000 bytes"), "{upgraded}");
+    let saved = layout.dir.join(format!("firmware-{}.bin", SERVER.replace('.', "")));
+    assert_eq!(std::fs::read(saved).unwrap(), std::fs::read(&image).unwrap());
+    browser.eval("document.getElementById('factory-reset').click()").await;
+    browser
+        .wait_for(
+            "the factory reset",
+            &format!("{message} && {message}.textContent.includes('accepted the factory reset')"),
+        )
+        .await;
+
     // The monitor and the events page show a report sent by `events send`.
     browser.navigate(&format!("{}/#/monitor", layout.base)).await;
     browser.wait_for("the monitor", "document.getElementById('lines')").await;

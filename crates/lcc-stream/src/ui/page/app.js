@@ -323,12 +323,19 @@ function entryHelp(entry) {
   return text ? el('div', { class: 'help' }, text) : null;
 }
 
-function groupNode(group, depth) {
-  const children = group.children.map((child) => child.children ? groupNode(child, depth + 1) : entryNode(child));
+// Groups are shown open, unless there are many of them side by side (a replication of
+// hundreds of copies): then each is a line to open, which keeps a large CDI quick to draw.
+const MOST_OPEN_GROUPS = 16;
+
+function groupNode(group, depth, open) {
+  const groups = group.children.filter((child) => child.children).length;
+  const children = group.children.map((child) => child.children
+    ? groupNode(child, depth + 1, groups <= MOST_OPEN_GROUPS && depth < 2)
+    : entryNode(child));
   const title = group.name || group.key;
   const body = [group.description ? el('p', { class: 'description' }, group.description) : null, children];
   if (depth === 0) return el('fieldset', { 'data-group': group.key }, el('legend', {}, title), body);
-  return el('details', { 'data-group': group.key, open: depth < 2 ? true : null }, el('summary', {}, title), body);
+  return el('details', { 'data-group': group.key, open: open ? true : null }, el('summary', {}, title), body);
 }
 
 function entryNode(entry) {
@@ -356,7 +363,7 @@ async function loadConfig(id) {
     if (!configView || configView.node !== id) return;
     const save = el('button', { type: 'button', class: 'primary', id: 'save', disabled: true, onclick: () => saveConfig(id) }, 'Save');
     const reload = el('button', { type: 'button', id: 'reload', onclick: () => { configView = null; render(); } }, 'Read again');
-    const segments = config.segments.map((s) => groupNode(s, 0));
+    const segments = config.segments.map((s) => groupNode(s, 0, true));
     main.replaceChildren(el('section', { id: 'config' },
       el('h1', {}, 'Configure ', el('a', { href: '#/node/' + encodeURIComponent(id) }, id)),
       segments,
