@@ -16,7 +16,9 @@ use openlcb_tokio::{EventNotice, EventNotices, EventState, Listen, Node, NodeOpt
 use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
-use crate::outcome::{Failure, Outcome};
+use crate::outcome::{Failure, Outcome, net_outcome};
+use crate::peer::Peer;
+use crate::reconnect::{self, RECONNECT_HELP, ReconnectArgs, Stop};
 
 /// How long a command waits for the generator to confirm it: its echo of a set comes at
 /// once, its synchronization sequence (which confirms start and stop) 3 s after the last.
@@ -27,7 +29,7 @@ const LIVE_REFRESH: Duration = Duration::from_millis(250);
 
 #[derive(Debug, Args)]
 #[command(args_conflicts_with_subcommands = true)]
-#[command(after_help = format!("{}{}", "\
+#[command(after_help = format!("{}{}{}", "\
 Clocks: default-fast (01.01.00.00.01.00), default-realtime, alternate-1, alternate-2, or a
 unique ID of six hex bytes. Rates are multiples of 0.25 from -512 to 511.75 (negative runs
 backwards). The generator answers queries, set commands, start and stop from any node, and
@@ -40,7 +42,10 @@ Examples:
   lcc-stream clock set --time 08:30                            any node's generator
   lcc-stream clock stop; lcc-stream clock rate 8; lcc-stream clock start
 
-", net::network_help(&[Outcome::TimedOut])))]
+A generator or a follower that loses the hub joins it again; a generator goes on from the
+time it had (run on for the time away).
+
+", RECONNECT_HELP, net::network_help(&[Outcome::TimedOut])))]
 pub(crate) struct ClockArgs {
     #[command(subcommand)]
     command: Option<ClockCommand>,
@@ -86,7 +91,11 @@ struct RunArgs {
     /// and OlcbChecker's bt10, bt20 and bt80 expect.
     #[arg(long, value_enum, default_value_t = Tail::WhenValid, conflicts_with = "follow")]
     sync_tail: Tail,
-    /// One JSON object per change (time, clock, change, clock_time, rate, running, from).
+    #[command(flatten)]
+    reconnect: ReconnectArgs,
+    /// One JSON object per change: time (seconds since start), clock, change (minute, set,
+    /// rate, started, stopped, synchronized), clock_time, rate, running, and from (the Node ID
+    /// of the node that caused it) or, when only its CAN alias is known, from_alias.
     #[arg(long)]
     json: bool,
     #[command(flatten)]
@@ -268,6 +277,7 @@ pub(crate) async fn set_confirmed(
     };
     let asked = set_text(set);
     let got = message_text(message);
+    let from = Peer::of(from);
     Ok(if asked == got {
         format!("{clock} {got} (generator {from})")
     } else {
@@ -346,66 +356,115 @@ struct ChangeLine {
     clock_time: String,
     rate: String,
     running: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
     from: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from_alias: Option<String>,
 }
 
-/// Runs a generator (or follows the clock) until Ctrl-C.
+/// The clock `args` asks for: a consumer, or a generator starting at `start` (its time, rate
+/// and whether it runs).
+fn clock_config(args: &RunArgs, start: Option<(ClockTime, Rate, bool)>) -> Result<ClockConfig, String> {
+    let clock = args.joining.clock;
+    if args.follow {
+        return Ok(ClockConfig::consumer(clock));
+    }
+    let mut generator = GeneratorConfig::default();
+    match start {
+        Some(state) => (generator.start, generator.rate, generator.running) = state,
+        None => {
+            let now = SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs() as i64);
+            let today = ClockTime::from_unix_seconds(now);
+            let (year, month, day) = args.date.unwrap_or((today.year, today.month, today.day));
+            let (hour, minute) = args.time.unwrap_or((today.hour, today.minute));
+            generator.start = ClockTime::new(year, month, day, hour, minute, 0).ok_or("no such date")?;
+            generator.rate = args.rate;
+            generator.running = !args.stopped;
+        }
+    }
+    generator.accept_sets = !args.refuse_sets;
+    generator.sync_tail = match args.sync_tail {
+        Tail::WhenValid => SyncTail::WhenValid,
+        Tail::AtOnce => SyncTail::AtOnce,
+    };
+    Ok(ClockConfig::generator(clock, generator))
+}
+
+/// Runs a generator (or follows the clock) until Ctrl-C, joining the hub again when it is
+/// lost: a generator goes on from the time it had.
 async fn run_clock(args: &RunArgs, interrupt: &mut net::Interrupt) -> Result<ExitCode, String> {
     let clock = args.joining.clock;
-    let role = if args.follow {
-        ClockConfig::consumer(clock)
-    } else {
-        let now = SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs() as i64);
-        let today = ClockTime::from_unix_seconds(now);
-        let (year, month, day) = args.date.unwrap_or((today.year, today.month, today.day));
-        let (hour, minute) = args.time.unwrap_or((today.hour, today.minute));
-        let mut generator = GeneratorConfig::default();
-        generator.start = ClockTime::new(year, month, day, hour, minute, 0).ok_or("no such date")?;
-        generator.rate = args.rate;
-        generator.running = !args.stopped;
-        generator.accept_sets = !args.refuse_sets;
-        generator.sync_tail = match args.sync_tail {
-            Tail::WhenValid => SyncTail::WhenValid,
-            Tail::AtOnce => SyncTail::AtOnce,
-        };
-        ClockConfig::generator(clock, generator)
-    };
     let command = if args.follow { "clock --follow" } else { "clock" };
-    let options = |id| {
+    let options = |id, config: &ClockConfig| {
         let mut options = node_options(id, command);
-        options.node.clocks = vec![role.clone()];
+        options.node.clocks = vec![config.clone()];
         options
     };
-    let node = match args.joining.connect.join(&args.joining.node_id, options).await {
+    let first = clock_config(args, None)?;
+    let mut node = match args.joining.connect.join(&args.joining.node_id, |id| options(id, &first)).await {
         Ok(node) => node,
         Err(failure) => return Ok(net::fail("clock", &failure)),
-    };
-    let mut events = match node.clock_events().await {
-        Ok(events) => events,
-        Err(error) => return Ok(net::fail("clock", &Failure::Net(error))),
     };
     let what = if args.follow { "following" } else { "generating" };
     eprintln!("lcc-stream clock: {what} {clock} as {} (Ctrl-C stops)", node.node_id());
     let live = !args.json && std::io::stdout().is_terminal();
     let started = Instant::now();
     let mut refresh = tokio::time::interval(LIVE_REFRESH);
-    let mut node = node;
-    let outcome = loop {
-        tokio::select! {
-            event = events.next() => {
-                let Some(event) = event else { break Outcome::ConnectionLost };
-                let Ok(Some(state)) = node.clock(clock).await else { break Outcome::ConnectionLost };
-                print_change(args.json, live, started, &event, &state);
+    // The clock's state as last seen, and when.
+    let mut last: Option<(ClockState, Instant)> = None;
+    let outcome = 'joined: loop {
+        let mut events = match node.clock_events().await {
+            Ok(events) => events,
+            Err(error) => break net_outcome(&error),
+        };
+        let lost = loop {
+            tokio::select! {
+                event = events.next() => {
+                    let Some(event) = event else { break node.closed().await };
+                    match node.clock(clock).await {
+                        Ok(Some(state)) => {
+                            print_change(args.json, live, started, &event, &state);
+                            last = Some((state, Instant::now()));
+                        }
+                        _ => break node.closed().await,
+                    }
+                }
+                _ = refresh.tick() => match node.clock(clock).await {
+                    Ok(Some(state)) => {
+                        if live {
+                            out!("\r\x1b[K{}", state_text(clock, &state));
+                        }
+                        last = Some((state, Instant::now()));
+                    }
+                    _ => break node.closed().await,
+                },
+                () = interrupt.wait() => break 'joined Outcome::Interrupted,
+                error = node.closed() => break error,
             }
-            _ = refresh.tick(), if live => {
-                let Ok(Some(state)) = node.clock(clock).await else { break Outcome::ConnectionLost };
-                out!("\r\x1b[K{}", state_text(clock, &state));
+        };
+        if live {
+            outln!("");
+        }
+        if !reconnect::is_lost(&lost) {
+            eprintln!("lcc-stream clock: {lost}");
+            break net_outcome(&lost);
+        }
+        // A generator goes on from where it was: its last state, run on for the time away.
+        let resumed = last.filter(|_| !args.follow).map(|(state, seen)| {
+            let away = i64::try_from(seen.elapsed().as_millis()).unwrap_or(i64::MAX);
+            let fast = if state.running { away.saturating_mul(i64::from(state.rate.quarters())) / 4 } else { 0 };
+            (state.time.advanced(fast), state.rate, state.running)
+        });
+        let config = clock_config(args, resumed)?;
+        let id = node.node_id();
+        let attempt = || args.joining.connect.join_again(options(id, &config));
+        match args.reconnect.rejoin("clock", args.joining.connect.addr(), &lost, interrupt, attempt).await {
+            Ok(again) => {
+                node = again;
+                reconnect::say_rejoined("clock", args.joining.connect.addr(), &node).await;
             }
-            () = interrupt.wait() => break Outcome::Interrupted,
-            error = node.closed() => {
-                eprintln!("lcc-stream clock: {error}");
-                break Outcome::ConnectionLost;
-            }
+            Err(Stop::Interrupted) => break Outcome::Interrupted,
+            Err(Stop::GaveUp) => break net_outcome(&lost),
         }
     };
     if live {
@@ -437,7 +496,8 @@ fn print_change(json: bool, live: bool, started: Instant, event: &ClockEvent, st
         ClockChange::Synchronized => ("synchronized", Some("synchronized with its generator".to_string())),
         _ => ("other", None),
     };
-    let from = event.from.map(|n| n.to_string());
+    let peer = event.from.map(Peer::of);
+    let from = peer.map(|p| p.to_string());
     if json {
         let line = ChangeLine {
             time: started.elapsed().as_secs_f64(),
@@ -446,7 +506,8 @@ fn print_change(json: bool, live: bool, started: Instant, event: &ClockEvent, st
             clock_time: state.time.to_string(),
             rate: state.rate.to_string(),
             running: state.running,
-            from,
+            from: peer.and_then(Peer::node_field),
+            from_alias: peer.and_then(Peer::alias_field),
         };
         outln!("{}", serde_json::to_string(&line).unwrap_or_default());
     } else if live {

@@ -679,3 +679,96 @@ pub fn event_ops(data: &[u8]) {
         }
     }
 }
+
+/// One step of [`clock_ops`].
+#[derive(Debug, Arbitrary)]
+enum ClockOp {
+    /// A clock event from a peer: which MTI (of a few), the low two bytes, of which clock.
+    Event { mti: u8, suffix: u16, other_clock: bool },
+    /// Time passes, in milliseconds.
+    Wait(u16),
+    /// The application sets the generator, or sends a set as the consumer.
+    Set { generator: bool, what: u8, value: u16 },
+}
+
+/// Broadcast Time: a generator and a consumer node back to back, and a peer that sends any
+/// clock event. The oracle: nothing panics, every state read back is a real moment, the
+/// generator's synchronization sequences stay within their bound (one a second for queries,
+/// one per three seconds for sets, and the start-up one), and the messages queued at once
+/// stay few.
+pub fn clock_ops(data: &[u8]) {
+    use crate::broadcast_time::{ClockConfig, ClockId, ClockSet, ClockTime, GeneratorConfig, Rate};
+
+    let mut u = Unstructured::new(data);
+    let Ok((rate, running, ops)) = <(i16, bool, Vec<ClockOp>)>::arbitrary(&mut u) else { return };
+    let clock = ClockId::DEFAULT_FAST;
+    let mut generator = GeneratorConfig::default();
+    generator.rate = Rate::from_quarters(rate.clamp(-2048, 2047)).unwrap_or(Rate::REAL_TIME);
+    generator.running = running;
+    let config =
+        |c: ClockConfig| NodeConfig { clocks: alloc::vec![c], transmit_queue_limit: 16, ..NodeConfig::default() };
+    let mut nodes = [
+        Node::new(NodeId::from_bytes([5, 1, 1, 1, 0x40, 1]), config(ClockConfig::generator(clock, generator))),
+        Node::new(NodeId::from_bytes([5, 1, 1, 1, 0x40, 2]), config(ClockConfig::consumer(clock))),
+    ];
+    let peer = PEERS[0];
+    let mut now = Instant::from_secs(1);
+    let start = now;
+    for op in ops.into_iter().take(2000) {
+        match op {
+            ClockOp::Event { mti, suffix, other_clock } => {
+                let mti = [
+                    Mti::PRODUCER_CONSUMER_EVENT_REPORT,
+                    Mti::PRODUCER_IDENTIFIED_VALID,
+                    Mti::CONSUMER_IDENTIFIED_VALID,
+                    Mti::CONSUMER_RANGE_IDENTIFIED,
+                    Mti::IDENTIFY_PRODUCER,
+                    Mti::IDENTIFY_CONSUMER,
+                    Mti::IDENTIFY_EVENTS_GLOBAL,
+                ][usize::from(mti % 7)];
+                let id = if other_clock { ClockId::ALTERNATE_1 } else { clock };
+                let message = Message::global(mti, peer, id.event(suffix).to_bytes());
+                for node in &mut nodes {
+                    node.handle_message(now, message.as_ref());
+                }
+            }
+            ClockOp::Wait(ms) => now += Duration::from_millis(u64::from(ms)),
+            ClockOp::Set { generator, what, value } => {
+                let set = match what % 6 {
+                    0 => ClockSet::Time { hour: (value % 24) as u8, minute: (value / 24 % 60) as u8 },
+                    1 => ClockSet::Date { month: (value % 12 + 1) as u8, day: (value / 12 % 31 + 1) as u8 },
+                    2 => ClockSet::Year(value % 4096),
+                    3 => ClockSet::Rate(Rate::from_quarters((value % 4096) as i16 - 2048).unwrap_or(Rate::REAL_TIME)),
+                    4 => ClockSet::Start,
+                    _ => ClockSet::Stop,
+                };
+                let _ = nodes[usize::from(!generator)].set_clock(now, clock, set);
+            }
+        }
+        // Each node's timers, then every message to the other, until quiet.
+        for _ in 0..64 {
+            let mut moved = false;
+            for i in 0..2 {
+                nodes[i].handle_timeout(now);
+                let sent: Vec<Message> = core::iter::from_fn(|| nodes[i].poll_transmit()).collect();
+                assert!(sent.len() <= 64, "{} messages at once", sent.len());
+                for m in &sent {
+                    nodes[1 - i].handle_message(now, m.as_ref());
+                    moved = true;
+                }
+                while nodes[i].poll_event().is_some() {}
+            }
+            if !moved {
+                break;
+            }
+        }
+        for node in &nodes {
+            let state = node.clock(clock, now).expect("the clock is there");
+            let t = state.time;
+            assert!(ClockTime::new(t.year, t.month, t.day, t.hour, t.minute, t.second).is_some(), "{t:?}");
+        }
+        let seconds = now.saturating_duration_since(start).as_millis() / 1000;
+        let syncs = nodes[0].clock_stats().syncs_sent;
+        assert!(syncs <= 2 + seconds + seconds / 3 + 1, "{syncs} sequences in {seconds} s");
+    }
+}

@@ -461,3 +461,52 @@ fn the_application_sets_a_clock_of_its_own_or_sends_the_command() {
     tool.drain();
     assert_eq!(tool.clock_messages(mark), [(PCER, 0xCFFA), (PCER, 0xAC19)]);
 }
+
+/// A report of the minute the consumer is well into (OpenMRN's generator sends one when an
+/// alarm set before a Set Time fires) leaves the computed time; a report at the minute's
+/// start puts it right; a sequence's time moves it only into that minute.
+#[test]
+fn a_consumer_keeps_its_seconds_against_late_reports_and_takes_the_minutes_start() {
+    let mut bench = Bench::new(vec![ClockConfig::consumer(CLOCK)]);
+    bench.pcer(0xF000);
+    for suffix in [0xF002, 0x40F0, 0x37A4, 0x2704, 0x0600] {
+        bench.hear(PID, suffix);
+    }
+    bench.pcer(0x0601); // 06:01 begins (60x)
+    bench.advance(Duration::from_millis(900));
+    bench.pcer(0x0601); // late: 54 fast seconds into 06:01
+    let shown = bench.node.clock(CLOCK, bench.now).unwrap().time;
+    assert_eq!((shown.minute, shown.second), (1, 54));
+    bench.advance(Duration::from_millis(50));
+    bench.pcer(0x0602); // 06:02 begins, 3 fast seconds before this consumer computed it
+    let shown = bench.node.clock(CLOCK, bench.now).unwrap().time;
+    assert_eq!((shown.minute, shown.second), (2, 0));
+    bench.advance(Duration::from_millis(100));
+    bench.pcer(0x0602); // 6 fast seconds late: within the delay, the start
+    assert_eq!(bench.node.clock(CLOCK, bench.now).unwrap().time.second, 0);
+    // A sequence identifying 06:02 while this consumer is at 06:02:30 keeps the seconds.
+    bench.advance(Duration::from_millis(500));
+    for suffix in [0xF002, 0x40F0, 0x37A4, 0x2704, 0x0602] {
+        bench.hear(PID, suffix);
+    }
+    assert_eq!(bench.node.clock(CLOCK, bench.now).unwrap().time.second, 30);
+}
+
+/// A set while stopped: the time is the one set and stays there, its echo and the sequence
+/// say so, and no minute is reported until it starts.
+#[test]
+fn a_set_while_stopped_holds_until_the_clock_starts() {
+    let mut bench = Bench::generator(GeneratorConfig::default());
+    bench.advance(Duration::from_secs(5));
+    let mark = bench.mark();
+    bench.pcer(0x8A0F); // 10:15
+    bench.advance(Duration::from_secs(120));
+    assert_eq!(bench.node.clock(CLOCK, bench.now).unwrap().time, at(2000, 1, 1, 10, 15));
+    let sent = bench.clock_messages(mark);
+    assert_eq!(sent[0], (PCER, 0x0A0F));
+    assert_eq!(sent[1..], [(PID, 0xF001), (PID, 0x4004), (PID, 0x37D0), (PID, 0x2101), (PID, 0x0A0F)]);
+    bench.pcer(0xF002);
+    bench.advance(Duration::from_secs(61));
+    assert_eq!(bench.node.clock(CLOCK, bench.now).unwrap().time, ClockTime::new(2000, 1, 1, 10, 16, 1).unwrap());
+    assert!(bench.time_reports(mark).iter().any(|(_, s)| *s == 0x0A10), "10:16 reported once it runs");
+}

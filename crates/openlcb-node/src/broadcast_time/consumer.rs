@@ -8,6 +8,10 @@ use super::model::Model;
 use super::wire::{ClockMessage, Rate};
 use super::{Bus, ClockChange, ClockState, ConsumerConfig, Heard};
 
+/// How late a report of a minute's start may arrive, in real milliseconds, and still be taken
+/// as that start.
+const REPORT_DELAY_MS: i64 = 500;
+
 #[derive(Debug)]
 pub(crate) struct Consumer {
     config: ConsumerConfig,
@@ -128,11 +132,11 @@ impl Consumer {
         let before = model.ms(now);
         match message {
             ClockMessage::ReportTime { hour, minute } if identified => {
-                let time = model.time(now);
-                if (time.hour, time.minute) != (hour, minute) {
-                    model.set_ms(now, model.with_time_of_day(now, hour, minute));
-                    self.set_told(now, bus, before, from);
-                }
+                // The generator's minute, its second unknown (TN §2.6): the nearest moment
+                // of that minute to the time computed here.
+                let start = model.with_time_of_day(now, hour, minute) - model.entry_ms();
+                model.set_ms(now, before.clamp(start, start + MINUTE_MS - 1));
+                self.set_told(now, bus, before, from);
                 self.identified_minute = Some(self.model.minute(now));
                 self.query_due = None;
                 if !core::mem::replace(&mut self.synchronized, true) {
@@ -153,6 +157,15 @@ impl Consumer {
                     Some(midnight) => midnight + (i64::from(hour) * 60 + i64::from(minute)) * MINUTE_MS,
                     None => model.with_time_of_day(now, hour, minute),
                 };
+                // A report of the minute this consumer is well into is late, or stale (OpenMRN's
+                // generator reports the minute it is in when an alarm set before a Set Time
+                // fires): the time computed here stands. Within the network's delay of the
+                // minute's start (half a real second, at most half a minute) it is the start.
+                let into = if model.rate.quarters() < 0 { ms - before } else { before - ms };
+                let delay = (i64::from(model.rate.quarters().unsigned_abs()) * REPORT_DELAY_MS / 4).min(MINUTE_MS / 2);
+                if into > delay && into < MINUTE_MS {
+                    return;
+                }
                 model.set_ms(now, ms);
                 // A report more than a minute away from the time computed here: out of step.
                 if (ms - before).abs() > MINUTE_MS + 1000 {
