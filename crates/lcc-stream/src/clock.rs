@@ -12,7 +12,7 @@ use openlcb_tokio::openlcb_node::broadcast_time::{
     ClockChange, ClockConfig, ClockEvent, ClockId, ClockMessage, ClockRole, ClockSet, ClockState, ClockTime,
     ConsumerConfig, GeneratorConfig, Rate, SyncTail,
 };
-use openlcb_tokio::{EventNotice, EventState, Listen, Node, NodeOptions};
+use openlcb_tokio::{EventNotice, EventNotices, EventState, Listen, Node, NodeOptions};
 use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
@@ -144,17 +144,17 @@ enum ClockCommand {
     },
 }
 
-fn parse_clock(text: &str) -> Result<ClockId, String> {
+pub(crate) fn parse_clock(text: &str) -> Result<ClockId, String> {
     text.parse().map_err(|_| {
         format!("`{text}` is no clock: default-fast, default-realtime, alternate-1, alternate-2 or six hex bytes")
     })
 }
 
-fn parse_rate(text: &str) -> Result<Rate, String> {
+pub(crate) fn parse_rate(text: &str) -> Result<Rate, String> {
     text.parse().map_err(|e| format!("`{text}`: {e}"))
 }
 
-fn parse_time(text: &str) -> Result<(u8, u8), String> {
+pub(crate) fn parse_time(text: &str) -> Result<(u8, u8), String> {
     let bad = || format!("`{text}` is no time of day: HH:MM, 00:00 to 23:59");
     let (hour, minute) = text.split_once(':').ok_or_else(bad)?;
     let (hour, minute): (u8, u8) = (hour.parse().map_err(|_| bad())?, minute.parse().map_err(|_| bad())?);
@@ -205,11 +205,7 @@ async fn clock(args: &ClockArgs) -> Result<ExitCode, String> {
     let clock = joining.clock;
     let options = |id| {
         let mut options = node_options(id, "clock");
-        let mut consumer = ConsumerConfig::default();
-        consumer.controls = true;
-        let mut config = ClockConfig::consumer(clock);
-        config.role = ClockRole::Consumer(consumer);
-        options.node.clocks = vec![config];
+        options.node.clocks = vec![controlling_consumer(clock)];
         options.node.events.listen = Listen::Everything;
         options
     };
@@ -232,37 +228,71 @@ async fn drive(node: &Node, clock: ClockId, sets: &[ClockSet]) -> Result<ExitCod
         Err(error) => return Ok(net::fail("clock", &Failure::Net(error))),
     };
     for set in sets {
-        if let Err(error) = node.set_clock(clock, *set).await {
-            return Ok(net::fail("clock", &Failure::Net(error)));
-        }
-        let deadline = tokio::time::Instant::now() + CONFIRM_WAIT;
-        let confirmed = loop {
-            let notice = match tokio::time::timeout_at(deadline, notices.next()).await {
-                Ok(Some(notice)) => notice,
-                Ok(None) => return Ok(net::fail("clock", &Failure::Net(openlcb_tokio::Error::Closed))),
-                Err(_) => break None,
-            };
-            if let Some((from, message)) = confirmation(clock, *set, &notice) {
-                break Some((from, message));
+        match set_confirmed(node, &mut notices, clock, *set).await {
+            Ok(words) => eprintln!("lcc-stream clock: {words}"),
+            Err(Unconfirmed::Net(failure)) => return Ok(net::fail("clock", &failure)),
+            Err(Unconfirmed::NoGenerator(words)) => {
+                eprintln!("lcc-stream clock: {words}");
+                return Ok(ExitCode::from(Outcome::TimedOut.status()));
             }
-        };
-        let Some((from, message)) = confirmed else {
-            eprintln!(
-                "lcc-stream clock: no generator of {clock} confirmed {} within {} s (is one on the bus, and does it take sets?)",
-                set_text(*set),
-                CONFIRM_WAIT.as_secs()
-            );
-            return Ok(ExitCode::from(Outcome::TimedOut.status()));
-        };
-        let asked = set_text(*set);
-        let got = message_text(message);
-        if asked == got {
-            eprintln!("lcc-stream clock: {clock} {got} (generator {})", Peer::of(from));
-        } else {
-            eprintln!("lcc-stream clock: {clock} asked {asked}, the generator {} made it {got}", Peer::of(from));
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Why a set was not confirmed.
+pub(crate) enum Unconfirmed {
+    /// The node could not send it, or stopped.
+    Net(Failure),
+    /// No generator confirmed it in time: the words for that.
+    NoGenerator(String),
+}
+
+/// Sends `set` to the generator of `clock` (by `node`, a consumer of it that controls) and
+/// waits for its confirmation in `notices` (taken before): the words of what it did.
+pub(crate) async fn set_confirmed(
+    node: &Node,
+    notices: &mut EventNotices,
+    clock: ClockId,
+    set: ClockSet,
+) -> Result<String, Unconfirmed> {
+    node.set_clock(clock, set).await.map_err(|e| Unconfirmed::Net(Failure::Net(e)))?;
+    let deadline = tokio::time::Instant::now() + CONFIRM_WAIT;
+    let confirmed = loop {
+        let notice = match tokio::time::timeout_at(deadline, notices.next()).await {
+            Ok(Some(notice)) => notice,
+            Ok(None) => return Err(Unconfirmed::Net(Failure::Net(openlcb_tokio::Error::Closed))),
+            Err(_) => break None,
+        };
+        if let Some((from, message)) = confirmation(clock, set, &notice) {
+            break Some((from, message));
+        }
+    };
+    let Some((from, message)) = confirmed else {
+        return Err(Unconfirmed::NoGenerator(format!(
+            "no generator of {clock} confirmed {} within {} s (is one on the bus, and does it take sets?)",
+            set_text(set),
+            CONFIRM_WAIT.as_secs()
+        )));
+    };
+    let asked = set_text(set);
+    let got = message_text(message);
+    let from = Peer::of(from);
+    Ok(if asked == got {
+        format!("{clock} {got} (generator {from})")
+    } else {
+        format!("{clock} asked {asked}, the generator {from} made it {got}")
+    })
+}
+
+/// A consumer of `clock` that may set it (set, start, stop and rate commands to its
+/// generator), listening to every event (the generator's answers).
+pub(crate) fn controlling_consumer(clock: ClockId) -> ClockConfig {
+    let mut consumer = ConsumerConfig::default();
+    consumer.controls = true;
+    let mut config = ClockConfig::consumer(clock);
+    config.role = ClockRole::Consumer(consumer);
+    config
 }
 
 /// The generator's confirmation of `set` in `notice`: the echo of a set (a report of the
@@ -448,7 +478,7 @@ async fn run_clock(args: &RunArgs, interrupt: &mut net::Interrupt) -> Result<Exi
 }
 
 /// `1956-07-04 06:04:12  running at 4x` (or `stopped`, and `waiting for the generator`).
-fn state_text(clock: ClockId, state: &ClockState) -> String {
+pub(crate) fn state_text(clock: ClockId, state: &ClockState) -> String {
     if !state.synchronized {
         return format!("{clock}: waiting for its generator");
     }

@@ -214,6 +214,14 @@ fn parse_hex(text: &str) -> Result<Payload, String> {
         .map(Payload)
 }
 
+/// The bytes of a report's payload in hex (empty: none), as `--payload` takes them.
+pub(crate) fn parse_payload(text: &str) -> Result<Vec<u8>, String> {
+    if text.trim().is_empty() {
+        return Ok(Vec::new());
+    }
+    parse_hex(text.trim()).map(|p| p.0)
+}
+
 pub(crate) fn run(args: &EventsArgs) -> Result<ExitCode, String> {
     net::runtime()?.block_on(events(args))
 }

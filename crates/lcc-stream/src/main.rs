@@ -31,6 +31,7 @@ mod send;
 mod serve;
 mod settings;
 mod sim;
+mod ui;
 mod watch;
 mod write;
 
@@ -112,6 +113,9 @@ enum Command {
     /// The layout's fast clock (Broadcast Time): run a generator, follow a clock, or set,
     /// start and stop one on the bus.
     Clock(clock::ClockArgs),
+    /// Serve a web page (on 127.0.0.1:8080 by default) to see the nodes, configure them,
+    /// back them up, upgrade them and watch the bus from a browser, until Ctrl-C.
+    Ui(ui::UiArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
     /// Print a shell completion script on stdout (e.g. `lcc-stream completions bash >
@@ -162,6 +166,7 @@ fn main() -> ExitCode {
         Command::FactoryReset(args) => control::factory_reset(&args),
         Command::Monitor(args) => monitor::run(&args),
         Command::Demo(args) => demo::run(&args),
+        Command::Ui(args) => ui::run(&args),
         Command::Completions { shell } => {
             let mut script = Vec::new();
             clap_complete::generate(shell, &mut Cli::command(), "lcc-stream", &mut script);
