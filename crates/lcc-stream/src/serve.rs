@@ -13,8 +13,8 @@ use openlcb_stream::wire::ReplyCode;
 use openlcb_stream::{AcceptPolicy, NodeId};
 use openlcb_tokio::openlcb_node::{MemorySpace, SpaceError};
 use openlcb_tokio::{
-    DeclaredEvents, Error, EventNotice, EventNotices, MemoryEvent, MemoryServer, Node, NodeOptions, RamSpace,
-    ReadOnlySpace, ServerEvents,
+    DeclaredEvents, Error, EventNotice, EventNotices, FileSpace, MemoryEvent, MemoryServer, Node, NodeOptions,
+    RamSpace, ReadOnlySpace, ServerEvents,
 };
 use serde::Serialize;
 
@@ -681,95 +681,48 @@ const BUILTIN_SETTINGS: &str = r#"<string size="32"><name>Label</name><descripti
 </group>
 "#;
 
-/// Space 0xFD: a file or bytes in memory. A write command reaches the file whole, once, at
-/// its end ([`MemorySpace::commit`]): bytes within one page of the file (a Write datagram's)
-/// in place, with one `write` the kernel does at once or not at all; anything larger (a
-/// Write Stream's) by replacing the file (through `<file>.part`, then a rename). So the file
-/// holds the space as it was before or after each command, never half of one, even when
-/// `serve` is killed, and a 1 MiB transfer costs one save, not one per 256 bytes.
+/// Space 0xFD: a file ([`FileSpace`]: each write command reaches it whole, once, so that it
+/// holds the space as it was before or after each command, even when `serve` is killed), or
+/// bytes in memory.
 enum ConfigSpace {
-    /// `dirty`: the addresses written since the last commit.
-    File {
-        path: PathBuf,
-        bytes: RamSpace,
-        dirty: Option<(u32, u32)>,
-    },
+    File(FileSpace),
     Memory(RamSpace),
 }
 
-/// The unit of the file a single `write` of changed bytes never crosses.
-const PAGE: u32 = 4096;
-
 impl ConfigSpace {
     fn open(path: &Path) -> Result<ConfigSpace, String> {
-        let bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-        if bytes.is_empty() || u32::try_from(bytes.len()).is_err() {
-            return Err(format!("{} must hold 1 byte to 4 GiB", path.display()));
-        }
-        save_whole(path, &bytes, true).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
-        Ok(ConfigSpace::File { path: path.to_path_buf(), bytes: RamSpace::from_bytes(bytes), dirty: None })
+        FileSpace::open(path).map(ConfigSpace::File).map_err(|e| match e.kind() {
+            std::io::ErrorKind::InvalidData => format!("{} must hold 1 byte to 4 GiB", path.display()),
+            _ => format!("cannot use {}: {e}", path.display()),
+        })
     }
 
-    fn ram(&self) -> &RamSpace {
+    fn space(&mut self) -> &mut dyn MemorySpace {
         match self {
-            ConfigSpace::File { bytes, .. } | ConfigSpace::Memory(bytes) => bytes,
+            ConfigSpace::File(file) => file,
+            ConfigSpace::Memory(bytes) => bytes,
         }
     }
-}
-
-/// Writes `bytes` over the same range of the file at `path`, in one `write`.
-fn write_in_place(path: &Path, start: u32, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::{Seek as _, SeekFrom};
-    let mut file = std::fs::OpenOptions::new().write(true).open(path)?;
-    file.seek(SeekFrom::Start(u64::from(start)))?;
-    file.write_all(bytes)
 }
 
 impl MemorySpace for ConfigSpace {
     fn len(&self) -> u32 {
-        self.ram().len()
+        match self {
+            ConfigSpace::File(file) => file.len(),
+            ConfigSpace::Memory(bytes) => bytes.len(),
+        }
     }
     fn read_only(&self) -> bool {
         false
     }
     fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
-        match self {
-            ConfigSpace::File { bytes, .. } | ConfigSpace::Memory(bytes) => bytes.read(address, buf),
-        }
+        self.space().read(address, buf)
     }
     fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
-        match self {
-            ConfigSpace::Memory(bytes) => bytes.write(address, data),
-            ConfigSpace::File { bytes, dirty, .. } => {
-                bytes.write(address, data)?;
-                let end = address + data.len() as u32;
-                *dirty = Some(dirty.map_or((address, end), |(low, high)| (low.min(address), high.max(end))));
-                Ok(())
-            }
-        }
+        self.space().write(address, data)
     }
     fn commit(&mut self) -> Result<(), SpaceError> {
-        let ConfigSpace::File { path, bytes, dirty } = self else { return Ok(()) };
-        let Some((start, end)) = *dirty else { return Ok(()) };
-        let whole = bytes.as_bytes();
-        let saved = match whole.get(start as usize..end as usize) {
-            Some(changed) if start / PAGE == end.saturating_sub(1) / PAGE => write_in_place(path, start, changed),
-            _ => save_whole(path, whole, true),
-        };
-        if saved.is_err() {
-            // Not saved: the space goes back to what the file holds, so that no read-back
-            // (`config set`'s, a tool's) takes the failed command for done; a file that
-            // cannot be read either keeps the bytes marked for the next commit.
-            if let Ok(held) = std::fs::read(path.as_path())
-                && held.len() == whole.len()
-            {
-                *bytes = RamSpace::from_bytes(held);
-                *dirty = None;
-            }
-            return Err(SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT));
-        }
-        *dirty = None;
-        Ok(())
+        self.space().commit()
     }
 }
 

@@ -171,7 +171,7 @@ impl BoardBuilder {
     /// The configuration segment (space 0xFD from address 0), named `name` in the CDI.
     pub fn new(name: &str) -> Self {
         let mut xml = String::new();
-        let _ = write!(xml, "<segment space=\"253\" origin=\"0\"><name>{}</name>\n", escape(name));
+        let _ = writeln!(xml, "<segment space=\"253\" origin=\"0\"><name>{}</name>", escape(name));
         BoardBuilder { xml, address: 0, defaults: Vec::new(), events: Vec::new(), quiet: false }
     }
 

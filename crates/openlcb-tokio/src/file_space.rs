@@ -21,7 +21,7 @@ const PAGE: u32 = 4096;
 /// use openlcb_tokio::FileSpace;
 /// use openlcb_tokio::openlcb_node::MemoryServer;
 ///
-/// let config = FileSpace::open_or_create("board-config.bin", 256)?;
+/// let (config, _new) = FileSpace::open_or_create("board-config.bin", 256)?;
 /// let server = MemoryServer::new().with_space(0xFD, config);
 /// # Ok::<(), std::io::Error>(())
 /// ```
@@ -46,14 +46,15 @@ impl FileSpace {
         Ok(FileSpace { path: path.to_path_buf(), bytes: RamSpace::from_bytes(bytes), dirty: None })
     }
 
-    /// The space of the file at `path`, or a new file of `len` zero bytes there. The bool
-    /// says whether it is new (a board then writes its factory defaults).
-    pub fn open_or_create(path: impl AsRef<Path>, len: u32) -> std::io::Result<FileSpace> {
+    /// The space of the file at `path`, or of a new file of `len` zero bytes there; `true`
+    /// when it is new (a board then writes its factory defaults).
+    pub fn open_or_create(path: impl AsRef<Path>, len: u32) -> std::io::Result<(FileSpace, bool)> {
         let path = path.as_ref();
-        if !path.exists() {
+        let new = !path.exists();
+        if new {
             save_whole(path, &vec![0; len as usize])?;
         }
-        FileSpace::open(path)
+        Ok((FileSpace::open(path)?, new))
     }
 
     /// The bytes of the space, as reads see them.
@@ -130,6 +131,7 @@ pub(crate) fn save_whole(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::indexing_slicing)] // a test's assertions
 mod tests {
     use super::*;
 
@@ -139,7 +141,8 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("config.bin");
-        let mut space = FileSpace::open_or_create(&path, 8192).unwrap();
+        let (mut space, new) = FileSpace::open_or_create(&path, 8192).unwrap();
+        assert!(new);
         assert_eq!(std::fs::read(&path).unwrap(), vec![0; 8192]);
         space.write(10, b"abc").unwrap();
         assert_eq!(std::fs::read(&path).unwrap()[10..13], [0, 0, 0], "not before the commit");
