@@ -6,7 +6,7 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex};
 
 use clap::Args;
 use openlcb_stream::wire::ReplyCode;
@@ -14,7 +14,7 @@ use openlcb_stream::{AcceptPolicy, NodeId};
 use openlcb_tokio::openlcb_node::{MemorySpace, SpaceError};
 use openlcb_tokio::{
     DeclaredEvents, Error, EventNotice, EventNotices, FileSpace, MemoryEvent, MemoryServer, Node, NodeOptions,
-    RamSpace, ReadOnlySpace, ServerEvents,
+    RamSpace, ReadOnlySpace, ServerEvents, SharedSpace,
 };
 use serde::Serialize;
 
@@ -336,7 +336,7 @@ async fn apply_board(
     configured: &mut Configured,
     joined: bool,
 ) -> Result<(), Error> {
-    let now = spaces.board.read(&mut *spaces.config.space());
+    let now = spaces.board.read(&mut *spaces.config.lock());
     if now == *configured && !(joined && now != Configured::default()) {
         return Ok(());
     }
@@ -543,7 +543,7 @@ struct Spaces {
     cdi: ReadOnlySpace,
     /// The board the CDI describes: its event settings.
     board: Board,
-    config: Shared<ConfigSpace>,
+    config: SharedSpace<ConfigSpace>,
     image: Image,
 }
 
@@ -560,7 +560,7 @@ impl Spaces {
         let (cdi, board) = (ReadOnlySpace::cdi(&xml), Board::new(&xml));
         let firmware_out = args.firmware_out.clone().unwrap_or_else(|| default_firmware_path(args.node_id));
         check_writable(&firmware_out)?;
-        Ok(Spaces { cdi, board, config: Shared::new(config), image: Image::new(firmware_out, args.force) })
+        Ok(Spaces { cdi, board, config: SharedSpace::new(config), image: Image::new(firmware_out, args.force) })
     }
 
     /// A memory server for a new connection, over these spaces. A firmware image that was
@@ -573,57 +573,6 @@ impl Spaces {
             .with_space(0xFD, self.config.clone())
             .with_space(0xEF, image)
             .with_acdi()
-    }
-}
-
-/// A space shared by the memory servers of successive connections.
-#[derive(Debug)]
-struct Shared<S>(Arc<Mutex<S>>);
-
-impl<S> Clone for Shared<S> {
-    fn clone(&self) -> Self {
-        Shared(self.0.clone())
-    }
-}
-
-impl<S> Shared<S> {
-    fn new(space: S) -> Self {
-        Shared(Arc::new(Mutex::new(space)))
-    }
-
-    /// The space; one that a panic left behind is used as it is (its bytes are all there).
-    fn space(&self) -> MutexGuard<'_, S> {
-        self.0.lock().unwrap_or_else(PoisonError::into_inner)
-    }
-}
-
-impl<S: MemorySpace> MemorySpace for Shared<S> {
-    fn len(&self) -> u32 {
-        self.space().len()
-    }
-    fn read_only(&self) -> bool {
-        self.space().read_only()
-    }
-    fn write_only(&self) -> bool {
-        self.space().write_only()
-    }
-    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
-        self.space().read(address, buf)
-    }
-    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
-        self.space().write(address, data)
-    }
-    fn commit(&mut self) -> Result<(), SpaceError> {
-        self.space().commit()
-    }
-    fn write_window(&self) -> Option<u16> {
-        self.space().write_window()
-    }
-    fn complete(&mut self, len: u32) -> Result<(), SpaceError> {
-        self.space().complete(len)
-    }
-    fn discard(&mut self) {
-        self.space().discard();
     }
 }
 

@@ -6,6 +6,9 @@
 //! what the node answers and reports is what the configuration holds; [`Board::factory_reset`]
 //! writes the declared defaults.
 //!
+//! A whole board on a host, with its file-backed space and its events following the
+//! configuration at Update Complete, is `openlcb-tokio`'s `examples/io_board.rs`.
+//!
 //! Why a builder and not a derive macro: a builder is plain code (no proc-macro crate, no
 //! `syn` in a firmware's build), its replicated groups come out as a `Vec` of the same
 //! struct, and the offsets are computed as the XML is written, by the same calls, so they

@@ -1,7 +1,7 @@
 //! Event Transport on a [`Node`](crate::Node): sending reports and Identify messages
 //! ([`Node::send_event`](crate::Node::send_event), [`Node::identify_events`](crate::Node::identify_events),
 //! [`Node::identify`](crate::Node::identify)) and receiving what the node's
-//! [`EventConfig`](openlcb_node::EventConfig) lets through ([`Node::event_notices`](crate::Node::event_notices)).
+//! [`EventConfig`] lets through ([`Node::event_notices`](crate::Node::event_notices)).
 //!
 //! The events the node produces and consumes are declared in
 //! [`NodeOptions::node`](crate::NodeOptions::node)`.events`; the node answers Identify

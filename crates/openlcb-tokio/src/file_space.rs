@@ -1,9 +1,11 @@
-//! [`FileSpace`]: a memory space kept in a file, for a node on a host (a board's space 0xFD):
-//! each write command reaches the file whole, once, at its end, so that the file holds the
-//! space as it was before or after every command, even when the program is killed.
+//! Spaces for a node on a host: [`FileSpace`], a memory space kept in a file (a board's space
+//! 0xFD: each write command reaches the file whole, once, at its end, so that the file holds
+//! the space as it was before or after every command, even when the program is killed), and
+//! [`SharedSpace`], one space for the memory server and the application.
 
 use std::io::{Seek as _, SeekFrom, Write as _};
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 
 use openlcb_node::{MemorySpace, RamSpace, SpaceError};
 use openlcb_stream::wire::ErrorCode;
@@ -100,6 +102,61 @@ impl MemorySpace for FileSpace {
         }
         self.dirty = None;
         Ok(())
+    }
+}
+
+/// A space shared between the memory server and the application: clones are handles to one
+/// space, so that the application reads what a tool wrote (a board's settings at Update
+/// Complete) and writes its own (a Factory Reset's defaults).
+#[derive(Debug)]
+pub struct SharedSpace<S>(Arc<Mutex<S>>);
+
+impl<S> Clone for SharedSpace<S> {
+    fn clone(&self) -> Self {
+        SharedSpace(self.0.clone())
+    }
+}
+
+impl<S> SharedSpace<S> {
+    /// A shared `space`.
+    pub fn new(space: S) -> Self {
+        SharedSpace(Arc::new(Mutex::new(space)))
+    }
+
+    /// The space, locked; one that a panic left behind is used as it is (its bytes are all
+    /// there).
+    pub fn lock(&self) -> MutexGuard<'_, S> {
+        self.0.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+impl<S: MemorySpace> MemorySpace for SharedSpace<S> {
+    fn len(&self) -> u32 {
+        self.lock().len()
+    }
+    fn read_only(&self) -> bool {
+        self.lock().read_only()
+    }
+    fn write_only(&self) -> bool {
+        self.lock().write_only()
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        self.lock().read(address, buf)
+    }
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        self.lock().write(address, data)
+    }
+    fn commit(&mut self) -> Result<(), SpaceError> {
+        self.lock().commit()
+    }
+    fn write_window(&self) -> Option<u16> {
+        self.lock().write_window()
+    }
+    fn complete(&mut self, len: u32) -> Result<(), SpaceError> {
+        self.lock().complete(len)
+    }
+    fn discard(&mut self) {
+        self.lock().discard();
     }
 }
 
