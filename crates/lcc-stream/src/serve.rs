@@ -772,39 +772,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_config_file_takes_each_write_command_whole_at_its_commit() {
-        let dir = std::env::temp_dir().join(format!("lcc-stream-serve-config-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("config.bin");
-        std::fs::write(&path, vec![0u8; 3 * PAGE as usize]).unwrap();
-        let mut space = ConfigSpace::open(&path).unwrap();
-        // A transfer in pieces across pages: the file keeps the old bytes until its commit.
-        for (i, address) in (0..2 * PAGE).step_by(256).enumerate() {
-            space.write(address, &[i as u8 + 1; 256]).unwrap();
-        }
-        assert!(std::fs::read(&path).unwrap().iter().all(|b| *b == 0), "nothing before the commit");
-        space.commit().unwrap();
-        let file = std::fs::read(&path).unwrap();
-        assert_eq!(file[..2 * PAGE as usize], space.ram().as_bytes()[..2 * PAGE as usize]);
-        assert!(!part_path(&path).exists());
-        // A datagram's bytes within one page: written in place.
-        space.write(PAGE * 2 + 10, &[0xAB; 64]).unwrap();
-        space.commit().unwrap();
-        assert_eq!(std::fs::read(&path).unwrap(), space.ram().as_bytes());
-        assert!(space.commit().is_ok(), "nothing left to store");
-        // A commit that cannot replace the file (a folder stands where its `.part` goes,
-        // which even root cannot create as a file) fails, and the space reads as the file
-        // still holds it.
-        let held = std::fs::read(&path).unwrap();
-        std::fs::create_dir(part_path(&path)).unwrap();
-        space.write(0, &[0x5A; 2 * PAGE as usize]).unwrap();
-        assert!(space.commit().is_err());
-        assert_eq!(space.ram().as_bytes(), &held[..], "the failed command is not read back as done");
-        assert_eq!(std::fs::read(&path).unwrap(), held);
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    #[test]
     fn image_space_keeps_what_was_written_and_reads_zeros_past_it() {
         let dir = std::env::temp_dir().join(format!("lcc-stream-image-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();

@@ -192,26 +192,54 @@ pub(crate) fn save_whole(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 mod tests {
     use super::*;
 
+    fn part_path(path: &Path) -> PathBuf {
+        let mut name = path.as_os_str().to_owned();
+        name.push(".part");
+        PathBuf::from(name)
+    }
+
     #[test]
-    fn a_command_reaches_the_file_at_its_commit_and_a_new_file_is_zeros() {
-        let dir = std::env::temp_dir().join(format!("file-space-{}", std::process::id()));
+    fn a_file_takes_each_write_command_whole_at_its_commit() {
+        let dir = std::env::temp_dir().join(format!("openlcb-file-space-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("config.bin");
-        let (mut space, new) = FileSpace::open_or_create(&path, 8192).unwrap();
-        assert!(new);
-        assert_eq!(std::fs::read(&path).unwrap(), vec![0; 8192]);
-        space.write(10, b"abc").unwrap();
-        assert_eq!(std::fs::read(&path).unwrap()[10..13], [0, 0, 0], "not before the commit");
+        let (mut space, new) = FileSpace::open_or_create(&path, 3 * PAGE).unwrap();
+        assert!(new && std::fs::read(&path).unwrap() == vec![0; 3 * PAGE as usize]);
+        // A transfer in pieces across pages: the file keeps the old bytes until its commit.
+        for (i, address) in (0..2 * PAGE).step_by(256).enumerate() {
+            space.write(address, &[i as u8 + 1; 256]).unwrap();
+        }
+        assert!(std::fs::read(&path).unwrap().iter().all(|b| *b == 0), "nothing before the commit");
         space.commit().unwrap();
-        assert_eq!(&std::fs::read(&path).unwrap()[10..13], b"abc");
-        // Across a page: the file is replaced whole.
-        space.write(4090, &[7; 12]).unwrap();
+        let file = std::fs::read(&path).unwrap();
+        assert_eq!(file[..2 * PAGE as usize], space.as_bytes()[..2 * PAGE as usize]);
+        assert!(!part_path(&path).exists());
+        // A datagram's bytes within one page: written in place.
+        space.write(PAGE * 2 + 10, &[0xAB; 64]).unwrap();
         space.commit().unwrap();
-        assert_eq!(std::fs::read(&path).unwrap()[4090..4102], [7; 12]);
-        assert!(!dir.join("config.bin.part").exists());
-        let again = FileSpace::open(&path).unwrap();
-        assert_eq!(again.as_bytes()[10..13], *b"abc");
+        assert_eq!(std::fs::read(&path).unwrap(), space.as_bytes());
+        assert!(space.commit().is_ok(), "nothing left to store");
+        assert!(!FileSpace::open_or_create(&path, 1).unwrap().1, "an existing file is not new");
+        // A commit that cannot replace the file (a folder stands where its `.part` goes,
+        // which even root cannot create as a file) fails, and the space reads as the file
+        // still holds it.
+        let held = std::fs::read(&path).unwrap();
+        std::fs::create_dir(part_path(&path)).unwrap();
+        space.write(0, &[0x5A; 2 * PAGE as usize]).unwrap();
+        assert!(space.commit().is_err());
+        assert_eq!(space.as_bytes(), &held[..], "the failed command is not read back as done");
+        assert_eq!(std::fs::read(&path).unwrap(), held);
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn clones_of_a_shared_space_are_one_space() {
+        let mut server = SharedSpace::new(RamSpace::new(16));
+        let mut application = server.clone();
+        server.write(3, &[7, 8]).unwrap();
+        let mut buf = [0; 2];
+        application.read(3, &mut buf).unwrap();
+        assert_eq!(buf, [7, 8]);
     }
 }
