@@ -1,11 +1,13 @@
 //! [`NodeConfig`] and [`Protocols`], the Protocol Support Reply bits.
 
+#[cfg(feature = "broadcast-time")]
 use alloc::vec::Vec;
 use core::fmt;
 use core::ops::BitOr;
 
 use openlcb_stream::{Config, Duration};
 
+#[cfg(feature = "broadcast-time")]
 use crate::broadcast_time::ClockConfig;
 use crate::datagram::DatagramConfig;
 use crate::events::EventConfig;
@@ -34,6 +36,7 @@ pub struct NodeConfig {
     pub events: EventConfig,
     /// The Broadcast Time clocks this node generates or follows (the PIP announces Event
     /// Exchange when there are any).
+    #[cfg(feature = "broadcast-time")]
     pub clocks: Vec<ClockConfig>,
     /// How long a SNIP request of this node waits for the reply.
     pub snip_timeout: Duration,
@@ -60,6 +63,7 @@ impl Default for NodeConfig {
             snip: SnipInfo::default(),
             memory: MemoryConfigOptions::default(),
             events: EventConfig::default(),
+            #[cfg(feature = "broadcast-time")]
             clocks: Vec::new(),
             snip_timeout: Duration::from_secs(3),
             max_snip_requests: 8,

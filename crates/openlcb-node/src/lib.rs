@@ -5,7 +5,7 @@
 //! endpoint of [`openlcb_stream`], the datagram service, Memory Configuration (server and
 //! client, [`memconfig`]), Simple Node Information (SNIP), Event Transport (events
 //! produced and consumed, see below), Broadcast Time (the layout's fast clocks,
-//! [`broadcast_time`]), and
+//! `broadcast_time`, feature `broadcast-time`), and
 //! the message-network basics it answers itself (Verify Node ID, Protocol Support Inquiry, and
 //! Optional Interaction Rejected for addressed messages of protocols it lacks). Each
 //! Optional Interaction Rejected or Terminate Due To Error goes to the protocol its MTI names,
@@ -184,6 +184,7 @@ extern crate alloc;
 extern crate std;
 
 pub mod board;
+#[cfg(feature = "broadcast-time")]
 pub mod broadcast_time;
 mod config;
 mod datagram;
@@ -197,6 +198,7 @@ mod snip;
 #[doc(hidden)]
 pub mod fuzzing;
 
+#[cfg(feature = "broadcast-time")]
 pub use broadcast_time::{ClockConfig, ClockEvent, ClockId, ClockSet, ClockStats, ClockTime};
 pub use config::{NodeConfig, Protocols};
 pub use datagram::{

@@ -10,6 +10,7 @@ use openlcb_stream::{
     PeerChanges, Queue, Receiver, StreamEndpoint, StreamError, StreamHandle,
 };
 
+#[cfg(feature = "broadcast-time")]
 use crate::broadcast_time::ClockEvent;
 use crate::datagram::{
     Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramOwner, DatagramService, OkFlags,
@@ -91,6 +92,7 @@ pub enum NodeEvent {
     /// node's Identified message.
     Events(EventNotice),
     /// Broadcast Time: a clock of this node changed (see [`broadcast_time`](crate::broadcast_time)).
+    #[cfg(feature = "broadcast-time")]
     Clock(ClockEvent),
 }
 

@@ -7,6 +7,7 @@
 use openlcb_stream::wire::ErrorReport;
 use openlcb_stream::{Instant, MessageRef, NodeId, PeerChange};
 
+#[cfg(feature = "broadcast-time")]
 use crate::broadcast_time::ClockService;
 use crate::datagram::DatagramService;
 use crate::events::EventService;
@@ -87,6 +88,7 @@ pub(crate) struct Services {
     pub(crate) datagrams: DatagramService,
     pub(crate) snip: SnipService,
     pub(crate) events: EventService,
+    #[cfg(feature = "broadcast-time")]
     pub(crate) clocks: ClockService,
 }
 
@@ -98,13 +100,18 @@ impl Services {
             datagrams: DatagramService::new(config.datagrams.clone()),
             snip: SnipService::new(&config.snip, config.max_snip_requests, config.snip_timeout),
             events: EventService::new(&config.events, announce),
+            #[cfg(feature = "broadcast-time")]
             clocks: ClockService::new(&config.clocks, announce),
         }
     }
 
     /// What the services announce in the Protocol Support Reply.
     pub(crate) fn protocols(&self, config: &NodeConfig) -> Protocols {
-        if config.events.is_active() || !config.clocks.is_empty() { Protocols::EVENT_EXCHANGE } else { Protocols::NONE }
+        #[cfg(feature = "broadcast-time")]
+        let clocks = !config.clocks.is_empty();
+        #[cfg(not(feature = "broadcast-time"))]
+        let clocks = false;
+        if config.events.is_active() || clocks { Protocols::EVENT_EXCHANGE } else { Protocols::NONE }
     }
 
     /// The next message the services send by themselves (announcements), after the node's
@@ -116,6 +123,7 @@ impl Services {
     /// Everything is announced again once the link is back (its Initialization Complete).
     pub(crate) fn announce(&mut self, config: &NodeConfig) {
         self.events.announce(&config.events);
+        #[cfg(feature = "broadcast-time")]
         self.clocks.announce();
     }
 }
@@ -128,7 +136,9 @@ impl Service<Lent<'_>> for Services {
             return true;
         }
         let declared = self.events.handle_message(cx, msg);
-        self.clocks.handle_message(cx, msg) | declared
+        #[cfg(feature = "broadcast-time")]
+        let declared = self.clocks.handle_message(cx, msg) | declared;
+        declared
     }
 
     fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
@@ -137,6 +147,7 @@ impl Service<Lent<'_>> for Services {
             self.datagrams.handle_error_report(cx, peer, report),
             self.snip.handle_error_report(cx, peer, report),
             self.events.handle_error_report(cx, peer, report),
+            #[cfg(feature = "broadcast-time")]
             self.clocks.handle_error_report(cx, peer, report),
         ]
         .contains(&true)
@@ -146,6 +157,7 @@ impl Service<Lent<'_>> for Services {
         self.datagrams.peer_changed(out, change);
         self.snip.peer_changed(out, change);
         self.events.peer_changed(out, change);
+        #[cfg(feature = "broadcast-time")]
         self.clocks.peer_changed(out, change);
     }
 
@@ -153,12 +165,16 @@ impl Service<Lent<'_>> for Services {
         self.datagrams.handle_timeout(cx);
         self.snip.handle_timeout(cx);
         self.events.handle_timeout(cx);
+        #[cfg(feature = "broadcast-time")]
         self.clocks.handle_timeout(cx);
     }
 
     fn poll_timeout(&self) -> Option<Instant> {
         let messaging = earliest(self.datagrams.poll_timeout(), self.snip.poll_timeout());
-        earliest(messaging, earliest(self.events.poll_timeout(), self.clocks.poll_timeout()))
+        let events = self.events.poll_timeout();
+        #[cfg(feature = "broadcast-time")]
+        let events = earliest(events, self.clocks.poll_timeout());
+        earliest(messaging, events)
     }
 }
 

@@ -2,6 +2,8 @@
 //! consumer driven by hand-made messages on a virtual clock (the checks OlcbChecker's
 //! `control_broadcasttime` makes, and the bounds), and the two roles against each other.
 
+#![cfg(feature = "broadcast-time")]
+
 use openlcb_node::broadcast_time::{
     ClockChange, ClockConfig, ClockEvent, ClockId, ClockRole, ClockSet, ClockTime, ConsumerConfig, GeneratorConfig,
     Rate, SyncTail,
