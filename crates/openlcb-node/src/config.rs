@@ -11,6 +11,7 @@ use crate::datagram::DatagramConfig;
 use crate::events::EventConfig;
 use crate::memconfig::MemoryConfigOptions;
 use crate::snip::SnipInfo;
+use crate::traction::TrainConfig;
 
 /// Bounds, timers and identity of a [`Node`](crate::Node). Every table and buffer it keeps
 /// is sized from here (the stream endpoint's from [`NodeConfig::stream`]).
@@ -35,6 +36,9 @@ pub struct NodeConfig {
     /// The Broadcast Time clocks this node generates or follows (the PIP announces Event
     /// Exchange when there are any).
     pub clocks: Vec<ClockConfig>,
+    /// This node is a train (Traction Control, Train Search; the PIP announces Train
+    /// Control and Event Exchange).
+    pub train: Option<TrainConfig>,
     /// How long a SNIP request of this node waits for the reply.
     pub snip_timeout: Duration,
     /// SNIP requests of this node waiting at once.
@@ -61,6 +65,7 @@ impl Default for NodeConfig {
             memory: MemoryConfigOptions::default(),
             events: EventConfig::default(),
             clocks: Vec::new(),
+            train: None,
             snip_timeout: Duration::from_secs(3),
             max_snip_requests: 8,
             extra_protocols: Protocols::NONE,

@@ -191,6 +191,7 @@ pub mod memconfig;
 mod node;
 mod service;
 mod snip;
+pub mod traction;
 
 #[cfg(feature = "fuzzing")]
 #[doc(hidden)]
@@ -198,6 +199,7 @@ pub mod fuzzing;
 
 pub use broadcast_time::{ClockConfig, ClockEvent, ClockId, ClockSet, ClockStats, ClockTime};
 pub use config::{NodeConfig, Protocols};
+pub use traction::{Speed, TrainConfig, TrainEvent};
 pub use datagram::{
     Datagram, DatagramAnswer, DatagramConfig, DatagramError, DatagramFailure, DatagramId, DatagramStats,
     MAX_DATAGRAM_LEN, OkFlags, rejection_code,

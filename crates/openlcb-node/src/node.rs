@@ -92,6 +92,9 @@ pub enum NodeEvent {
     Events(EventNotice),
     /// Broadcast Time: a clock of this node changed (see [`broadcast_time`](crate::broadcast_time)).
     Clock(ClockEvent),
+    /// Traction Control, Train Search: the train changed, or a command station is asked to
+    /// create one (see [`traction`](crate::traction)).
+    Train(crate::traction::TrainEvent),
 }
 
 /// Counters of the node's own routing; each protocol has its own too.

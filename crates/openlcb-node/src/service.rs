@@ -12,6 +12,7 @@ use crate::datagram::DatagramService;
 use crate::events::EventService;
 use crate::node::Outputs;
 use crate::snip::SnipService;
+use crate::traction::TrainService;
 use crate::{NodeConfig, Protocols};
 
 /// A change of peer as the services take it: the transport's [`PeerChange`], or the loss of
@@ -88,6 +89,7 @@ pub(crate) struct Services {
     pub(crate) snip: SnipService,
     pub(crate) events: EventService,
     pub(crate) clocks: ClockService,
+    pub(crate) trains: TrainService,
 }
 
 impl Services {
@@ -99,12 +101,20 @@ impl Services {
             snip: SnipService::new(&config.snip, config.max_snip_requests, config.snip_timeout),
             events: EventService::new(&config.events, announce),
             clocks: ClockService::new(&config.clocks, announce),
+            trains: TrainService::new(config.train.as_ref(), announce),
         }
     }
 
     /// What the services announce in the Protocol Support Reply.
     pub(crate) fn protocols(&self, config: &NodeConfig) -> Protocols {
-        if config.events.is_active() || !config.clocks.is_empty() { Protocols::EVENT_EXCHANGE } else { Protocols::NONE }
+        let mut protocols = Protocols::NONE;
+        if config.events.is_active() || !config.clocks.is_empty() {
+            protocols = protocols | Protocols::EVENT_EXCHANGE;
+        }
+        if self.trains.is_train() {
+            protocols = protocols | Protocols::EVENT_EXCHANGE | Protocols::TRAIN_CONTROL;
+        }
+        protocols
     }
 
     /// The next message the services send by themselves (announcements), after the node's
@@ -117,18 +127,21 @@ impl Services {
     pub(crate) fn announce(&mut self, config: &NodeConfig) {
         self.events.announce(&config.events);
         self.clocks.announce();
+        self.trains.announce();
     }
 }
 
 impl Service<Lent<'_>> for Services {
     /// Datagrams and SNIP take their own messages; an Event Transport message concerns every
-    /// service built on events (the declared events and the clocks), so each of them sees it.
+    /// service built on events (the declared events, the clocks and the train), so each of
+    /// them sees it. The train takes Traction Control.
     fn handle_message(&mut self, cx: &mut Lent<'_>, msg: MessageRef<'_>) -> bool {
         if self.datagrams.handle_message(cx, msg) || self.snip.handle_message(cx, msg) {
             return true;
         }
         let declared = self.events.handle_message(cx, msg);
-        self.clocks.handle_message(cx, msg) | declared
+        let clocks = self.clocks.handle_message(cx, msg);
+        self.trains.handle_message(cx, msg) | clocks | declared
     }
 
     fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
@@ -138,6 +151,7 @@ impl Service<Lent<'_>> for Services {
             self.snip.handle_error_report(cx, peer, report),
             self.events.handle_error_report(cx, peer, report),
             self.clocks.handle_error_report(cx, peer, report),
+            self.trains.handle_error_report(cx, peer, report),
         ]
         .contains(&true)
     }
@@ -147,6 +161,7 @@ impl Service<Lent<'_>> for Services {
         self.snip.peer_changed(out, change);
         self.events.peer_changed(out, change);
         self.clocks.peer_changed(out, change);
+        self.trains.peer_changed(out, change);
     }
 
     fn handle_timeout(&mut self, cx: &mut Lent<'_>) {
@@ -154,11 +169,13 @@ impl Service<Lent<'_>> for Services {
         self.snip.handle_timeout(cx);
         self.events.handle_timeout(cx);
         self.clocks.handle_timeout(cx);
+        self.trains.handle_timeout(cx);
     }
 
     fn poll_timeout(&self) -> Option<Instant> {
         let messaging = earliest(self.datagrams.poll_timeout(), self.snip.poll_timeout());
-        earliest(messaging, earliest(self.events.poll_timeout(), self.clocks.poll_timeout()))
+        let events = earliest(self.events.poll_timeout(), self.clocks.poll_timeout());
+        earliest(messaging, earliest(events, self.trains.poll_timeout()))
     }
 }
 
