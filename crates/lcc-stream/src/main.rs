@@ -30,6 +30,7 @@ mod send;
 mod serve;
 mod settings;
 mod sim;
+mod train;
 mod watch;
 mod write;
 
@@ -111,6 +112,9 @@ enum Command {
     /// The layout's fast clock (Broadcast Time): run a generator, follow a clock, or set,
     /// start and stop one on the bus.
     Clock(clock::ClockArgs),
+    /// A virtual command station and train (Traction Control, Train Search, FDI): prints
+    /// every command its trains get, and creates trains for the addresses throttles allocate.
+    Train(train::TrainArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
     /// Print a shell completion script on stdout (e.g. `lcc-stream completions bash >
@@ -157,6 +161,7 @@ fn main() -> ExitCode {
         Command::Config(args) => config::run(&args),
         Command::Events(args) => events::run(&args),
         Command::Clock(args) => clock::run(&args),
+        Command::Train(args) => train::run(&args),
         Command::Reboot(args) => control::reboot(&args),
         Command::FactoryReset(args) => control::factory_reset(&args),
         Command::Monitor(args) => monitor::run(&args),

@@ -94,9 +94,11 @@ mod requests;
 pub mod serial;
 mod socket;
 mod trace;
+pub mod train;
 mod wire;
 
 pub use clock::ClockEvents;
+pub use train::TrainEvents;
 pub use error::Error;
 pub use events::EventNotices;
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};

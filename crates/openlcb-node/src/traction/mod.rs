@@ -112,6 +112,10 @@ pub struct TrainConfig {
     /// This node is a command station: an allocate search that matches no train of it is
     /// handed to the application ([`TrainChange::Allocate`]).
     pub allocate: bool,
+    /// Produce Is Train (Producer Identified Valid) once the node has started. A train a
+    /// command station creates for a search answers that search instead: a Producer
+    /// Identified of Is Train in between is taken by OlcbChecker's `ts10` as a wrong answer.
+    pub announce: bool,
 }
 
 impl TrainConfig {
@@ -123,6 +127,7 @@ impl TrainConfig {
             functions: 69,
             heartbeat: Some(Duration::from_secs(3)),
             allocate: false,
+            announce: true,
         }
     }
 }
@@ -683,7 +688,7 @@ impl TrainService {
     pub(crate) fn new(config: Option<&TrainConfig>, announce: bool) -> Self {
         TrainService {
             train: config.cloned().map(Train::new),
-            announce: announce && config.is_some(),
+            announce: announce && config.is_some_and(|c| c.announce),
             stats: TrainStats::default(),
         }
     }
@@ -694,7 +699,7 @@ impl TrainService {
 
     /// Produce Is Train again (after the node's Initialization Complete).
     pub(crate) fn announce(&mut self) {
-        self.announce = self.train.is_some();
+        self.announce = self.train.as_ref().is_some_and(|t| t.config.announce);
     }
 }
 
