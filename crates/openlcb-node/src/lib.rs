@@ -199,7 +199,6 @@ pub mod fuzzing;
 
 pub use broadcast_time::{ClockConfig, ClockEvent, ClockId, ClockSet, ClockStats, ClockTime};
 pub use config::{NodeConfig, Protocols};
-pub use traction::{Speed, TrainConfig, TrainEvent};
 pub use datagram::{
     Datagram, DatagramAnswer, DatagramConfig, DatagramError, DatagramFailure, DatagramId, DatagramStats,
     MAX_DATAGRAM_LEN, OkFlags, rejection_code,
@@ -213,3 +212,4 @@ pub use memconfig::{
 };
 pub use node::{DUPLICATE_NODE_ID_DETECTED, Node, NodeEvent, NodeStats, Streams};
 pub use snip::{MAX_REPLY_LEN, SnipFailure, SnipField, SnipInfo, SnipRequestError, SnipTooLong};
+pub use traction::{Speed, TrainConfig, TrainEvent};

@@ -12,12 +12,12 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::clock::ClockDriver;
-use crate::train::TrainDriver;
 use crate::events::EventDriver;
 use crate::io::{ByteReader, ByteWriter, try_write};
 use crate::memory::MemoryDriver;
 use crate::node::{Command, Control, NodeStats, SentBytes, Shared};
 use crate::requests::Requests;
+use crate::train::TrainDriver;
 use crate::wire::{Wire, WireStats};
 use crate::{Error, Framing, NodeOptions, RecvStream};
 

@@ -98,13 +98,13 @@ pub mod train;
 mod wire;
 
 pub use clock::ClockEvents;
-pub use train::TrainEvents;
 pub use error::Error;
 pub use events::EventNotices;
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};
 pub use io::ByteStream;
 pub use memory::{MemoryTransfer, ServerEvents};
 pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStream, SentBytes};
+pub use train::TrainEvents;
 
 // What a user of this crate needs from the ones below it, so that sending a stream takes
 // this crate alone.

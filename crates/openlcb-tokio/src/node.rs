@@ -16,10 +16,10 @@ use tokio::task::JoinHandle;
 use tracing::Instrument as _;
 
 use crate::clock::{ClockCommand, ClockEvents};
-use crate::train::{TrainCommand, TrainEvents};
 use crate::driver::Driver;
 use crate::events::{EventCommand, EventNotices};
 use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents, TransferKey};
+use crate::train::{TrainCommand, TrainEvents};
 use crate::{Error, Framing, WireStats};
 use openlcb_node::EventRole;
 use openlcb_stream::EventId;

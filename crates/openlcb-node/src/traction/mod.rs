@@ -497,7 +497,8 @@ impl Train {
                 }
             }
             TractionCommand::QueryController => {
-                let mut reply = alloc::vec![wire::CONTROLLER, wire::CONTROLLER_QUERY, u8::from(self.controller.is_some())];
+                let mut reply =
+                    alloc::vec![wire::CONTROLLER, wire::CONTROLLER_QUERY, u8::from(self.controller.is_some())];
                 reply.extend_from_slice(&self.controller.map_or([0; 6], NodeId::to_bytes));
                 bus.reply(from, reply);
             }

@@ -196,9 +196,7 @@ impl SearchQuery {
         let Some(value) = self.address() else { return false };
         let long_asked = matches!(self.protocol, SearchProtocol::Dcc { long: true });
         let space = match train.protocol {
-            TrainProtocol::Dcc { long } => {
-                value >= 128 || long_asked == long || (!long_asked && !self.allocate())
-            }
+            TrainProtocol::Dcc { long } => value >= 128 || long_asked == long || (!long_asked && !self.allocate()),
             _ => true,
         };
         if !space {
@@ -306,10 +304,11 @@ mod tests {
         assert!(plain.matches(&long3) && plain.matches(&short));
         let alloc = q(SearchQuery::event_for(3, 0xC0).unwrap().0).unwrap();
         assert!(!alloc.matches(&long3) && alloc.matches(&short));
-        assert!(!q(SearchQuery::event_for(3, 0x4A).unwrap().0).unwrap().matches(&TrainIdentity {
-            protocol: TrainProtocol::Mfx,
-            ..short.clone()
-        }));
+        assert!(
+            !q(SearchQuery::event_for(3, 0x4A).unwrap().0)
+                .unwrap()
+                .matches(&TrainIdentity { protocol: TrainProtocol::Mfx, ..short.clone() })
+        );
     }
 
     #[test]

@@ -277,7 +277,9 @@ impl TractionCommand {
             QUERY_FUNCTION => TractionCommand::QueryFunction { address: u24_at(payload, 1)? },
             CONTROLLER => match sub()? {
                 CONTROLLER_ASSIGN => TractionCommand::AssignController { flags: flags()?, node: node_at(payload, 3)? },
-                CONTROLLER_RELEASE => TractionCommand::ReleaseController { flags: flags()?, node: node_at(payload, 3)? },
+                CONTROLLER_RELEASE => {
+                    TractionCommand::ReleaseController { flags: flags()?, node: node_at(payload, 3)? }
+                }
                 CONTROLLER_QUERY => TractionCommand::QueryController,
                 CONTROLLER_CHANGING => {
                     TractionCommand::ControllerChanging { flags: flags()?, node: node_at(payload, 3)? }
