@@ -95,8 +95,8 @@ impl SearchQuery {
             return Err(SearchError::NotSearch);
         }
         let mut nibbles = [0u8; 6];
-        for (i, nibble) in nibbles.iter_mut().enumerate() {
-            *nibble = ((raw >> (28 - 4 * i as u32)) & 0xF) as u8;
+        for (i, nibble) in (0u32..).zip(nibbles.iter_mut()) {
+            *nibble = ((raw >> (28 - 4 * i)) & 0xF) as u8;
             if (0xA..=0xE).contains(nibble) {
                 return Err(SearchError::Reserved);
             }
@@ -154,41 +154,28 @@ impl SearchQuery {
     /// The query's one number, when it holds exactly one run of digits.
     pub fn address(&self) -> Option<u32> {
         let mut runs = self.runs();
-        let (first, len) = runs.next()?;
-        if runs.next().is_some() || len > 6 {
+        let run = runs.next()?;
+        if runs.next().is_some() {
             return None;
         }
-        Some(self.nibbles[first..first + len].iter().fold(0, |v, d| v * 10 + u32::from(*d)))
+        Some(run.iter().fold(0, |v, d| v * 10 + u32::from(*d)))
     }
 
-    /// The maximal runs of digits, as (start, length).
-    fn runs(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
-        let mut at = 0;
-        core::iter::from_fn(move || {
-            while at < 6 && self.nibbles[at] == 0xF {
-                at += 1;
-            }
-            if at >= 6 {
-                return None;
-            }
-            let start = at;
-            while at < 6 && self.nibbles[at] != 0xF {
-                at += 1;
-            }
-            Some((start, at - start))
-        })
+    /// The maximal runs of digits.
+    fn runs(&self) -> impl Iterator<Item = &[u8]> + '_ {
+        self.nibbles.split(|n| *n == 0xF).filter(|run| !run.is_empty())
     }
 
     /// Whether `train` matches (§6.3).
     pub fn matches(&self, train: &TrainIdentity) -> bool {
-        let protocol = match (self.protocol, train.protocol) {
+        let protocol = matches!(
+            (self.protocol, train.protocol),
             (SearchProtocol::Any, _)
-            | (SearchProtocol::Native, TrainProtocol::Native)
-            | (SearchProtocol::Mfx, TrainProtocol::Mfx)
-            | (SearchProtocol::MarklinMotorola, TrainProtocol::MarklinMotorola)
-            | (SearchProtocol::Dcc { .. }, TrainProtocol::Dcc { .. }) => true,
-            _ => false,
-        };
+                | (SearchProtocol::Native, TrainProtocol::Native)
+                | (SearchProtocol::Mfx, TrainProtocol::Mfx)
+                | (SearchProtocol::MarklinMotorola, TrainProtocol::MarklinMotorola)
+                | (SearchProtocol::Dcc { .. }, TrainProtocol::Dcc { .. })
+        );
         protocol && (self.matches_address(train) || (self.flags & SEARCH_ADDRESS_ONLY == 0 && self.matches_name(train)))
     }
 
@@ -205,17 +192,15 @@ impl SearchQuery {
         if self.flags & SEARCH_EXACT != 0 {
             return value == train.address;
         }
-        let mut digits = [0u8; 10];
-        let count = decimal(train.address, &mut digits);
-        let (first, len) = self.runs().next().unwrap_or((0, 0));
-        len <= count && self.nibbles[first..first + len] == digits[..len]
+        let run = self.runs().next().unwrap_or_default();
+        is_decimal_prefix(run, train.address)
     }
 
     fn matches_name(&self, train: &TrainIdentity) -> bool {
         let mut any = false;
-        for (first, len) in self.runs() {
+        for run in self.runs() {
             any = true;
-            if !name_has(&train.name, &self.nibbles[first..first + len], self.flags & SEARCH_EXACT != 0) {
+            if !name_has(&train.name, run, self.flags & SEARCH_EXACT != 0) {
                 return false;
             }
         }
@@ -223,22 +208,16 @@ impl SearchQuery {
     }
 }
 
-/// The decimal digits of `value` into `out`, most significant first; their count.
-fn decimal(mut value: u32, out: &mut [u8; 10]) -> usize {
-    let mut tmp = [0u8; 10];
-    let mut n = 0;
-    loop {
-        tmp[n] = (value % 10) as u8;
-        value /= 10;
-        n += 1;
-        if value == 0 || n == 10 {
-            break;
-        }
+/// Whether the digits `run` begin the decimal representation of `value`.
+fn is_decimal_prefix(run: &[u8], value: u32) -> bool {
+    let count = value.checked_ilog10().unwrap_or(0) + 1;
+    if run.len() > count as usize {
+        return false;
     }
-    for i in 0..n {
-        out[i] = tmp[n - 1 - i];
-    }
-    n
+    run.iter().enumerate().all(|(i, digit)| {
+        let power = 10u32.checked_pow(count - 1 - i as u32).unwrap_or(1);
+        (value / power % 10) as u8 == *digit
+    })
 }
 
 /// §6.3: a run of digits matches the name when, from a position with no digit just before
@@ -246,21 +225,22 @@ fn decimal(mut value: u32, out: &mut [u8; 10]) -> usize {
 fn name_has(name: &str, run: &[u8], exact: bool) -> bool {
     let bytes = name.as_bytes();
     (0..bytes.len()).any(|p| {
-        if p > 0 && bytes[p - 1].is_ascii_digit() {
+        if p > 0 && bytes.get(p - 1).is_some_and(u8::is_ascii_digit) {
             return false;
         }
-        let mut matched = 0;
+        let mut wanted = run.iter();
+        let mut next = wanted.next();
         let mut at = p;
-        while matched < run.len() && at < bytes.len() {
-            if bytes[at].is_ascii_digit() {
-                if bytes[at] - b'0' != run[matched] {
+        while let (Some(digit), Some(byte)) = (next, bytes.get(at)) {
+            if byte.is_ascii_digit() {
+                if byte - b'0' != *digit {
                     return false;
                 }
-                matched += 1;
+                next = wanted.next();
             }
             at += 1;
         }
-        matched == run.len() && (!exact || !bytes.get(at).is_some_and(u8::is_ascii_digit))
+        next.is_none() && (!exact || !bytes.get(at).is_some_and(u8::is_ascii_digit))
     })
 }
 

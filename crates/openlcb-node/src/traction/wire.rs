@@ -358,7 +358,7 @@ mod tests {
             assert_eq!(Speed::from_f32(value).to_bits(), bits, "{value}");
             assert_eq!(Speed::from_bits(bits).to_f32().to_bits(), value.to_bits());
         }
-        assert_eq!(Speed::from_bits(0x3E4C).to_f32(), 1.57421875);
+        assert_eq!(Speed::from_bits(0x3E4C).to_f32(), 1.574_218_8);
         assert!(Speed::NAN.is_nan());
         assert!(Speed::ZERO_REVERSE.is_zero() && Speed::ZERO_REVERSE.is_reverse());
         assert_eq!(Speed::from_bits(0xBE4C).stopped(), Speed::ZERO_REVERSE);
