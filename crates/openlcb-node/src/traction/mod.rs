@@ -17,7 +17,11 @@
 //!   (§6.5): never back to the sender, speeds reversed for a listener with
 //!   [`LISTENER_REVERSE`], F0 only with [`LISTENER_LINK_F0`], other functions only with
 //!   [`LISTENER_LINK_FN`]; a forwarded command (P set) is carried out and forwarded the same
-//!   way, so a consist of consists works and no message goes straight back;
+//!   way, so a consist of consists works and no message goes straight back. A listener loop
+//!   (A listens to B, B to C, C to A) is cut where it closes: a forwarded command that
+//!   changes nothing, or a speed this train forwarded in the last two seconds coming back
+//!   (the same or reversed, as a loop with a reversed listener returns it), is dropped and
+//!   counted ([`TrainStats::loops_cut`]), so no loop circulates, whatever the flags;
 //! - asks its controller for a heartbeat (§6.6) while it is set moving: the request goes out
 //!   half of [`TrainConfig::heartbeat`] after the controller last sent anything, and when
 //!   nothing comes within the deadline the train takes it as Set Speed 0 (forwarded to every
@@ -238,6 +242,8 @@ pub struct TrainStats {
     pub heartbeats_sent: u64,
     /// Heartbeats the controller let pass.
     pub heartbeat_timeouts: u64,
+    /// Forwarded commands that came back round a listener loop, dropped.
+    pub loops_cut: u64,
     /// Train Search queries answered.
     pub searches_answered: u64,
     /// Train Search queries with reserved values, ignored.
@@ -283,7 +289,12 @@ struct Train {
     heartbeat_at: Option<Instant>,
     /// When an unanswered request expires.
     heartbeat_deadline: Option<Instant>,
+    /// The last speed this train forwarded, and when: its echo round a loop is cut.
+    last_forward: Option<(Instant, Speed)>,
 }
+
+/// How long a forwarded speed's echo is recognised (see the module docs, listener loops).
+const ECHO_WINDOW: Duration = Duration::from_secs(2);
 
 /// The traction service of a node (nothing when the node is no train).
 #[derive(Debug)]
@@ -348,6 +359,7 @@ impl Train {
             listeners: Vec::new(),
             heartbeat_at: None,
             heartbeat_deadline: None,
+            last_forward: None,
         }
     }
 
@@ -430,11 +442,16 @@ impl Train {
         };
         bus.stats.commands += 1;
         let heard = self.controller == Some(from);
+        if self.is_echo(now, command) {
+            bus.stats.loops_cut += 1;
+            return self.rearm(now, heard);
+        }
         match command {
             TractionCommand::SetSpeed { speed, .. } => {
                 self.set_speed = speed;
                 self.estop = false;
                 self.tell_speed(bus, Some(from));
+                self.last_forward = Some((now, speed));
                 self.forward(bus, Some(from), command);
             }
             TractionCommand::SetFunction { address, value, .. } => {
@@ -569,6 +586,22 @@ impl Train {
         self.rearm(now, heard);
     }
 
+    /// A forwarded command that changes nothing, or the echo of a speed this train
+    /// forwarded (the same, or reversed by a listener's flag) within [`ECHO_WINDOW`]: a
+    /// listener loop brought it back, and it goes no further.
+    fn is_echo(&self, now: Instant, command: TractionCommand) -> bool {
+        match command {
+            TractionCommand::SetSpeed { speed, forwarded: true } => self
+                .last_forward
+                .is_some_and(|(at, sent)| now < at + ECHO_WINDOW && (speed == sent || speed == sent.reversed())),
+            TractionCommand::SetFunction { address, value, forwarded: true } => {
+                self.functions.get(address as usize) == Some(&value)
+            }
+            TractionCommand::EmergencyStop { forwarded: true } => self.estop,
+            _ => false,
+        }
+    }
+
     fn on_timeout(&mut self, now: Instant, bus: &mut Bus<'_>) {
         if self.heartbeat_deadline.is_some_and(|d| d <= now) {
             self.heartbeat_deadline = None;
@@ -576,6 +609,7 @@ impl Train {
             bus.stats.heartbeat_timeouts += 1;
             let stop = TractionCommand::SetSpeed { speed: self.set_speed.stopped(), forwarded: true };
             self.set_speed = self.set_speed.stopped();
+            self.last_forward = Some((now, self.set_speed));
             if let Some(controller) = self.controller {
                 bus.tell(TrainChange::HeartbeatTimedOut(controller), None);
             }
