@@ -825,7 +825,8 @@ pub fn traction_ops(data: &[u8]) {
                     payload
                 } else {
                     let first = payload.first().copied().unwrap_or(0);
-                    let mut built = alloc::vec![[0x00, 0x01, 0x02, 0x10, 0x11, 0x20, 0x30, 0x40][usize::from(first % 8)]];
+                    let mut built =
+                        alloc::vec![[0x00, 0x01, 0x02, 0x10, 0x11, 0x20, 0x30, 0x40][usize::from(first % 8)]];
                     built.extend(payload.iter().skip(1).take(8));
                     built
                 };
