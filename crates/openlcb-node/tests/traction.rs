@@ -508,3 +508,49 @@ fn a_train_that_does_not_allocate_ignores_allocate_searches() {
     assert!(bench.global(Mti::IDENTIFY_PRODUCER, EventId(0x090099FF_FFFF12E0)).is_empty());
     assert!(bench.events.is_empty());
 }
+
+#[test]
+fn a_listener_loop_with_a_reversed_listener_settles() {
+    // A listens to B (reversed), B to C, C to A: a throttle's speed goes round once.
+    let ids = [LISTENER_A, LISTENER_B, OTHER];
+    let mut nodes: Vec<Node> = ids
+        .iter()
+        .map(|id| {
+            let mut config = NodeConfig::default();
+            config.train = Some(TrainConfig::dcc(3));
+            Node::new(*id, config)
+        })
+        .collect();
+    let now = Instant::from_secs(1);
+    for (i, flags) in [(0, LISTENER_REVERSE), (1, 0), (2, 0)] {
+        let attach = Message::addressed(
+            Mti::TRACTION_CONTROL_COMMAND,
+            TOOL,
+            ids[i],
+            with_node(&[0x30, 0x01, flags], ids[(i + 1) % 3]),
+        );
+        nodes[i].handle_message(now, attach.as_ref());
+    }
+    let set = Message::addressed(Mti::TRACTION_CONTROL_COMMAND, TOOL, ids[0], vec![0x00, 0x3E, 0x4C]);
+    nodes[0].handle_message(now, set.as_ref());
+    let mut rounds = 0;
+    loop {
+        let mut moved = false;
+        for i in 0..3 {
+            while let Some(m) = nodes[i].poll_transmit() {
+                if let Some(j) = ids.iter().position(|id| Some(*id) == m.destination) {
+                    nodes[j].handle_message(now, m.as_ref());
+                    moved = true;
+                }
+            }
+        }
+        rounds += 1;
+        assert!(rounds < 10, "the loop circulates");
+        if !moved {
+            break;
+        }
+    }
+    let speeds: Vec<u16> = nodes.iter().map(|n| n.train().unwrap().set_speed.to_bits()).collect();
+    assert_eq!(speeds, vec![0x3E4C, 0xBE4C, 0xBE4C]);
+    assert_eq!(nodes[0].train_stats().loops_cut, 1);
+}
