@@ -11,7 +11,7 @@ use crate::datagram::DatagramConfig;
 use crate::events::EventConfig;
 use crate::memconfig::MemoryConfigOptions;
 use crate::snip::SnipInfo;
-use crate::traction::TrainConfig;
+use crate::traction::{ThrottleConfig, TrainConfig};
 
 /// Bounds, timers and identity of a [`Node`](crate::Node). Every table and buffer it keeps
 /// is sized from here (the stream endpoint's from [`NodeConfig::stream`]).
@@ -39,6 +39,8 @@ pub struct NodeConfig {
     /// This node is a train (Traction Control, Train Search; the PIP announces Train
     /// Control and Event Exchange).
     pub train: Option<TrainConfig>,
+    /// This node drives trains (Traction Control's throttle side).
+    pub throttle: Option<ThrottleConfig>,
     /// How long a SNIP request of this node waits for the reply.
     pub snip_timeout: Duration,
     /// SNIP requests of this node waiting at once.
@@ -66,6 +68,7 @@ impl Default for NodeConfig {
             events: EventConfig::default(),
             clocks: Vec::new(),
             train: None,
+            throttle: None,
             snip_timeout: Duration::from_secs(3),
             max_snip_requests: 8,
             extra_protocols: Protocols::NONE,

@@ -95,6 +95,8 @@ pub enum NodeEvent {
     /// Traction Control, Train Search: the train changed, or a command station is asked to
     /// create one (see [`traction`](crate::traction)).
     Train(crate::traction::TrainEvent),
+    /// Traction Control: a train answered this node's throttle, or took it off a train.
+    Throttle(crate::traction::ThrottleEvent),
 }
 
 /// Counters of the node's own routing; each protocol has its own too.

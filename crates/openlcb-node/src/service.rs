@@ -101,7 +101,7 @@ impl Services {
             snip: SnipService::new(&config.snip, config.max_snip_requests, config.snip_timeout),
             events: EventService::new(&config.events, announce),
             clocks: ClockService::new(&config.clocks, announce),
-            trains: TrainService::new(config.train.as_ref(), announce),
+            trains: TrainService::new(config.train.as_ref(), config.throttle.as_ref(), announce),
         }
     }
 

@@ -554,3 +554,164 @@ fn a_listener_loop_with_a_reversed_listener_settles() {
     assert_eq!(speeds, vec![0x3E4C, 0xBE4C, 0xBE4C]);
     assert_eq!(nodes[0].train_stats().loops_cut, 1);
 }
+
+// ----- the throttle side -----
+
+use openlcb_node::traction::{ThrottleConfig, ThrottleError, ThrottleEvent, TractionCommand};
+
+/// A train and throttles back to back, on a virtual clock.
+struct Layout {
+    nodes: Vec<Node>,
+    now: Instant,
+    events: Vec<(usize, ThrottleEvent)>,
+}
+
+impl Layout {
+    /// Node 0 is a DCC 3 train; nodes 1.. are throttles.
+    fn new(throttles: usize, config: ThrottleConfig) -> Self {
+        let mut nodes = vec![Node::new(DUT, {
+            let mut c = NodeConfig::default();
+            c.train = Some(TrainConfig::dcc(3));
+            c
+        })];
+        for i in 0..throttles {
+            let mut c = NodeConfig::default();
+            c.throttle = Some(config.clone());
+            nodes.push(Node::new(NodeId::new(0x0501_0101_2250 + i as u64).unwrap(), c));
+        }
+        let mut layout = Layout { nodes, now: Instant::from_secs(1), events: Vec::new() };
+        layout.run(Duration::ZERO);
+        layout
+    }
+
+    fn id(&self, i: usize) -> NodeId {
+        self.nodes[i].node_id()
+    }
+
+    fn send(&mut self, from: usize, command: TractionCommand) -> Result<(), ThrottleError> {
+        let train = self.id(0);
+        let result = self.nodes[from].throttle_command(train, command);
+        self.run(Duration::ZERO);
+        result
+    }
+
+    /// Passes every message to its destination (or everyone), with the timers, for `span`.
+    fn run(&mut self, span: Duration) {
+        let end = self.now + span;
+        loop {
+            for _ in 0..32 {
+                let mut moved = false;
+                for i in 0..self.nodes.len() {
+                    self.nodes[i].handle_timeout(self.now);
+                    while let Some(m) = self.nodes[i].poll_transmit() {
+                        for j in 0..self.nodes.len() {
+                            if j != i && m.destination.is_none_or(|d| d == self.nodes[j].node_id()) {
+                                self.nodes[j].handle_message(self.now, m.as_ref());
+                                moved = true;
+                            }
+                        }
+                    }
+                    while let Some(e) = self.nodes[i].poll_event() {
+                        if let NodeEvent::Throttle(e) = e {
+                            self.events.push((i, e));
+                        }
+                    }
+                }
+                if !moved {
+                    break;
+                }
+            }
+            let next = self.nodes.iter().filter_map(Node::poll_timeout).min();
+            match next {
+                Some(due) if due <= end && due > self.now => self.now = due,
+                _ => break,
+            }
+        }
+        self.now = end;
+    }
+}
+
+#[test]
+fn a_throttle_assigns_drives_and_keeps_its_train_alive_with_heartbeats() {
+    let mut layout = Layout::new(1, ThrottleConfig::default());
+    let me = layout.id(1);
+    layout.send(1, TractionCommand::AssignController { flags: 0, node: me }).unwrap();
+    assert!(layout.events.contains(&(1, ThrottleEvent::Assigned { train: DUT })));
+    assert_eq!(layout.nodes[1].controlled_trains(), &[DUT]);
+    layout.send(1, TractionCommand::SetSpeed { speed: Speed::from_f32(-1.5), forwarded: false }).unwrap();
+    layout.send(1, TractionCommand::SetFunction { address: 0, value: 1, forwarded: false }).unwrap();
+    // Twenty silent seconds: the throttle answers every heartbeat request, the train runs on.
+    layout.run(Duration::from_secs(20));
+    let requests = layout.events.iter().filter(|(_, e)| matches!(e, ThrottleEvent::HeartbeatRequested { .. })).count();
+    assert!(requests >= 10, "{requests} heartbeat requests");
+    assert_eq!(layout.nodes[0].train_stats().heartbeat_timeouts, 0);
+    layout.events.clear();
+    layout.send(1, TractionCommand::QuerySpeeds).unwrap();
+    layout.send(1, TractionCommand::QueryFunction { address: 0 }).unwrap();
+    layout.send(1, TractionCommand::QueryController).unwrap();
+    let speed = Speed::from_f32(-1.5);
+    assert_eq!(
+        layout.events,
+        vec![
+            (
+                1,
+                ThrottleEvent::Speeds {
+                    train: DUT,
+                    set: speed,
+                    emergency_stop: false,
+                    commanded: speed,
+                    actual: Speed::NAN
+                }
+            ),
+            (1, ThrottleEvent::Function { train: DUT, address: 0, value: 1 }),
+            (1, ThrottleEvent::Controller { train: DUT, controller: Some(me) }),
+        ]
+    );
+    layout.send(1, TractionCommand::ReleaseController { flags: 0, node: me }).unwrap();
+    assert!(layout.nodes[1].controlled_trains().is_empty());
+    assert_eq!(layout.nodes[0].train().unwrap().controller, None);
+}
+
+#[test]
+fn a_throttle_without_heartbeat_answers_loses_the_train_and_one_taken_over_is_told() {
+    let mut quiet = ThrottleConfig::default();
+    quiet.answer_heartbeats = false;
+    let mut layout = Layout::new(2, quiet);
+    let (first, second) = (layout.id(1), layout.id(2));
+    layout.send(1, TractionCommand::AssignController { flags: 0, node: first }).unwrap();
+    layout.send(1, TractionCommand::SetSpeed { speed: Speed::from_f32(2.0), forwarded: false }).unwrap();
+    layout.run(Duration::from_secs(6));
+    assert_eq!(layout.nodes[0].train().unwrap().set_speed, Speed::ZERO_FORWARD, "stopped by the heartbeat");
+    // The second throttle takes over: the first is told and lets go.
+    layout.send(2, TractionCommand::AssignController { flags: 0, node: second }).unwrap();
+    assert!(layout.events.contains(&(1, ThrottleEvent::ControllerLost { train: DUT, to: second })));
+    assert!(layout.events.contains(&(2, ThrottleEvent::Assigned { train: DUT })));
+    assert!(layout.nodes[1].controlled_trains().is_empty());
+    // Consist edits and rejects reach the throttle.
+    layout.events.clear();
+    layout.send(2, TractionCommand::AttachListener { flags: LISTENER_REVERSE, node: LISTENER_A }).unwrap();
+    layout.send(2, TractionCommand::QueryListeners { index: Some(0) }).unwrap();
+    layout.send(2, TractionCommand::QueryFunction { address: 500 }).unwrap();
+    assert_eq!(
+        layout.events,
+        vec![
+            (2, ThrottleEvent::ListenerChanged { train: DUT, listener: LISTENER_A, attached: true, code: 0 }),
+            (2, ThrottleEvent::Listener { train: DUT, count: 1, entry: Some((0, LISTENER_REVERSE, LISTENER_A)) }),
+            (2, ThrottleEvent::Rejected { train: DUT, code: openlcb_stream::wire::ErrorCode::INVALID_ARGUMENTS }),
+        ]
+    );
+}
+
+#[test]
+fn a_throttle_controls_no_more_trains_than_its_bound() {
+    let mut one = ThrottleConfig::default();
+    one.max_trains = 1;
+    let mut layout = Layout::new(1, one);
+    let me = layout.id(1);
+    layout.send(1, TractionCommand::AssignController { flags: 0, node: me }).unwrap();
+    let other = NodeId::new(0x0501_0101_2299).unwrap();
+    let assign = TractionCommand::AssignController { flags: 0, node: me };
+    assert_eq!(layout.nodes[1].throttle_command(other, assign), Err(ThrottleError::TooManyTrains));
+    let mut plain = Node::new(TOOL, NodeConfig::default());
+    assert_eq!(plain.throttle_command(DUT, TractionCommand::QuerySpeeds), Err(ThrottleError::NotAThrottle));
+}

@@ -40,6 +40,14 @@
 //! holds), the function to switch, the controller that changed; the service answers queries
 //! from the state it keeps ([`Node::train`], [`Node::train_function`]).
 //!
+//! A node is a throttle when [`NodeConfig::throttle`](crate::NodeConfig::throttle) holds a
+//! [`ThrottleConfig`]: [`Node::throttle_command`] sends any [`TractionCommand`] to a train
+//! (an Assign counts the train as controlled, up to [`ThrottleConfig::max_trains`]), and the
+//! train's replies, rejects, heartbeat requests (answered with a No-op at once unless
+//! [`ThrottleConfig::answer_heartbeats`] is off) and a Controller Changing Notify (accepted:
+//! the train is another's now) come as [`NodeEvent::Throttle`](crate::NodeEvent::Throttle)
+//! ([`ThrottleEvent`]). A node may be both.
+//!
 //! Space 0xFA, the FDI, is a read-only space of the application's memory server
 //! ([`fdi_space`] builds it from the function names); a node with it announces FDI in its
 //! PIP.
@@ -63,6 +71,7 @@
 
 mod fdi;
 mod search;
+mod throttle;
 mod wire;
 
 use alloc::vec::Vec;
@@ -75,6 +84,7 @@ pub use search::{
     SEARCH_ADDRESS_ONLY, SEARCH_ALLOCATE, SEARCH_EXACT, SEARCH_PREFIX, SearchError, SearchProtocol, SearchQuery,
     TrainIdentity, TrainProtocol,
 };
+pub use throttle::{ThrottleConfig, ThrottleError, ThrottleEvent};
 pub use wire::{
     LISTENER_HIDE, LISTENER_LINK_F0, LISTENER_LINK_FN, LISTENER_RESERVED, LISTENER_REVERSE, Speed, TractionCommand,
 };
@@ -82,6 +92,7 @@ pub use wire::{
 use crate::node::Outputs;
 use crate::service::{Lent, Service, ServiceChange, earliest};
 use crate::{Node, NodeEvent};
+use throttle::Throttle;
 use wire::CommandError;
 
 /// Is Train (Train Control Standard §4.1, §6.4).
@@ -300,6 +311,7 @@ const ECHO_WINDOW: Duration = Duration::from_secs(2);
 #[derive(Debug)]
 pub(crate) struct TrainService {
     train: Option<Train>,
+    throttle: Option<Throttle>,
     announce: bool,
     stats: TrainStats,
 }
@@ -720,9 +732,10 @@ fn allocate(bus: &mut Bus<'_>, query: SearchQuery, event: EventId, from: NodeId)
 }
 
 impl TrainService {
-    pub(crate) fn new(config: Option<&TrainConfig>, announce: bool) -> Self {
+    pub(crate) fn new(config: Option<&TrainConfig>, throttle: Option<&ThrottleConfig>, announce: bool) -> Self {
         TrainService {
             train: config.cloned().map(Train::new),
+            throttle: throttle.cloned().map(Throttle::new),
             announce: announce && config.is_some_and(|c| c.announce),
             stats: TrainStats::default(),
         }
@@ -740,6 +753,22 @@ impl TrainService {
 
 impl Service<Lent<'_>> for TrainService {
     fn handle_message(&mut self, cx: &mut Lent<'_>, msg: MessageRef<'_>) -> bool {
+        if let Some(throttle) = &mut self.throttle {
+            let event = match msg.mti {
+                Mti::TRACTION_CONTROL_COMMAND => throttle.on_command(cx.out, msg.source, msg.payload),
+                Mti::TRACTION_CONTROL_REPLY => throttle.on_reply(cx.out, msg.source, msg.payload),
+                _ => None,
+            };
+            if let Some(event) = event {
+                if !cx.out.notify(NodeEvent::Throttle(event)) {
+                    self.stats.notices_dropped += 1;
+                }
+                return true;
+            }
+            if msg.mti == Mti::TRACTION_CONTROL_REPLY {
+                return true;
+            }
+        }
         let Some(train) = &mut self.train else { return false };
         let mut bus = Bus { out: &mut *cx.out, stats: &mut self.stats };
         match msg.mti {
@@ -769,11 +798,22 @@ impl Service<Lent<'_>> for TrainService {
         }
     }
 
-    fn handle_error_report(&mut self, _: &mut Lent<'_>, _: NodeId, _: ErrorReport) -> bool {
-        false
+    /// A train's reject of a command of this throttle.
+    fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
+        let Some(throttle) = &self.throttle else { return false };
+        if report.mti != Some(Mti::TRACTION_CONTROL_COMMAND) && !(report.mti.is_none() && throttle.controls(peer)) {
+            return false;
+        }
+        if !cx.out.notify(NodeEvent::Throttle(ThrottleEvent::Rejected { train: peer, code: report.code })) {
+            self.stats.notices_dropped += 1;
+        }
+        true
     }
 
     fn peer_changed(&mut self, _: &mut Outputs, change: ServiceChange) {
+        if let Some(throttle) = &mut self.throttle {
+            throttle.peer_changed(change);
+        }
         let Some(train) = &mut self.train else { return };
         if let Some(holder) = train.reserved_by
             && change.loses(holder)
@@ -827,6 +867,19 @@ impl Node {
     /// The traction service's counters (zero for a node that is no train).
     pub fn train_stats(&self) -> TrainStats {
         self.services.trains.stats
+    }
+
+    /// Sends `command` to `train` as this node's throttle; the answers come as
+    /// [`NodeEvent::Throttle`](crate::NodeEvent::Throttle). An Assign Controller counts the
+    /// train as controlled (until refused, released or taken over).
+    pub fn throttle_command(&mut self, train: NodeId, command: TractionCommand) -> Result<(), ThrottleError> {
+        let throttle = self.services.trains.throttle.as_mut().ok_or(ThrottleError::NotAThrottle)?;
+        throttle.send(&mut self.out, train, command)
+    }
+
+    /// The trains this node's throttle controls (or has asked to).
+    pub fn controlled_trains(&self) -> &[NodeId] {
+        self.services.trains.throttle.as_ref().map_or(&[], |t| t.controlled())
     }
 
     /// Answers the Train Search `event` with Producer Identified Valid, as a train a command
