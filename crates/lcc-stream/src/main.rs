@@ -30,6 +30,7 @@ mod send;
 mod serve;
 mod settings;
 mod sim;
+mod throttle;
 mod train;
 mod watch;
 mod write;
@@ -115,6 +116,9 @@ enum Command {
     /// A virtual command station and train (Traction Control, Train Search, FDI): prints
     /// every command its trains get, and creates trains for the addresses throttles allocate.
     Train(train::TrainArgs),
+    /// Find a train by its DCC address, take control of it and drive it (speed, direction,
+    /// functions, emergency stop), then release it.
+    Throttle(throttle::ThrottleArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
     /// Print a shell completion script on stdout (e.g. `lcc-stream completions bash >
@@ -162,6 +166,7 @@ fn main() -> ExitCode {
         Command::Events(args) => events::run(&args),
         Command::Clock(args) => clock::run(&args),
         Command::Train(args) => train::run(&args),
+        Command::Throttle(args) => throttle::run(&args),
         Command::Reboot(args) => control::reboot(&args),
         Command::FactoryReset(args) => control::factory_reset(&args),
         Command::Monitor(args) => monitor::run(&args),

@@ -138,3 +138,61 @@ async fn a_throttle_drives_the_train_and_has_a_second_one_allocated() {
     assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
     let _ = hub.kill().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn our_throttle_finds_allocates_drives_and_releases_a_train() {
+    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0"]);
+    let mut hub_err: Lines<BufReader<ChildStderr>> = BufReader::new(hub.stderr.take().unwrap()).lines();
+    let line = until(&mut hub_err, "GridConnect on").await;
+    let gridconnect = line.split_whitespace().nth(4).unwrap().trim_end_matches(',').to_string();
+    tokio::spawn(async move { while let Ok(Some(_)) = hub_err.next_line().await {} });
+    let mut train = spawn(&["train", "--connect", &gridconnect, "--node-id", "05.01.01.01.22.01", "--json"]);
+    let mut said: Lines<BufReader<ChildStderr>> = BufReader::new(train.stderr.take().unwrap()).lines();
+    let mut printed: Lines<BufReader<ChildStdout>> = BufReader::new(train.stdout.take().unwrap()).lines();
+    until(&mut said, "DCC 3 as").await;
+
+    // DCC 3 is the station's own train.
+    let out = bounded(
+        "the throttle",
+        common::command(&[
+            "throttle",
+            "3",
+            "--speed",
+            "36",
+            "--reverse",
+            "--function",
+            "0=on",
+            "--release",
+            "--json",
+            "--connect",
+            &gridconnect,
+        ])
+        .output(),
+    )
+    .await
+    .unwrap();
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "{stderr}");
+    assert!(stdout.contains("\"event\":\"assigned\""), "{stdout}");
+    assert!(stdout.contains("\"event\":\"speeds\"") && stdout.contains("\"set_speed\":-36"), "{stdout}");
+    assert!(stderr.contains("released"), "{stderr}");
+    let line = until(&mut printed, "\"speed\"").await;
+    assert!(line.contains("\"set_speed\":-10"), "{line}");
+    until(&mut printed, "\"function\"").await;
+    until(&mut printed, "\"controller-released\"").await;
+
+    // DCC 44 is not there: the throttle's allocating search has it created.
+    let out = bounded(
+        "the throttle",
+        common::command(&["throttle", "44", "--speed", "10", "--release", "--connect", &gridconnect]).output(),
+    )
+    .await
+    .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    until(&mut said, "created DCC 44").await;
+    until(&mut printed, "\"train\":44").await;
+
+    interrupt(&train).await;
+    assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
+    let _ = hub.kill().await;
+}

@@ -462,6 +462,10 @@ impl Driver {
                     self.trains.event(event);
                     continue;
                 }
+                NodeEvent::Throttle(event) => {
+                    self.trains.throttle_event(event);
+                    continue;
+                }
                 event => {
                     self.requests.answer(event);
                     continue;

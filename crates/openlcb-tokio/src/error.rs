@@ -101,6 +101,9 @@ pub enum Error {
     /// A train command this node cannot give (it is no train, the search is not its).
     #[error("{0}")]
     Train(openlcb_node::traction::TrainError),
+    /// A throttle command this node cannot give (it is no throttle, it controls enough).
+    #[error("{0}")]
+    Throttle(openlcb_node::traction::ThrottleError),
     /// No node with this Node ID answered on the network.
     #[error("node {0} is not on the network (nobody answered for that Node ID)")]
     Unreachable(NodeId),

@@ -19,7 +19,7 @@ use crate::clock::{ClockCommand, ClockEvents};
 use crate::driver::Driver;
 use crate::events::{EventCommand, EventNotices};
 use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents, TransferKey};
-use crate::train::{TrainCommand, TrainEvents};
+use crate::train::{ThrottleEvents, TrainCommand, TrainEvents};
 use crate::{Error, Framing, WireStats};
 use openlcb_node::EventRole;
 use openlcb_stream::EventId;
@@ -471,6 +471,28 @@ impl Node {
     pub async fn answer_train_search(&self, event: EventId) -> Result<(), Error> {
         let result = self.control.call(|reply| Command::Train(TrainCommand::AnswerSearch { event, reply })).await?;
         result.map_err(crate::train::train_error)
+    }
+
+    /// From now on, what trains answer the node's throttle (declared in
+    /// [`NodeOptions::node`](crate::NodeOptions::node)`.throttle`).
+    pub async fn throttle_events(&self) -> Result<ThrottleEvents, Error> {
+        let (listening, registered) = oneshot::channel();
+        let (command, events) = TrainCommand::listen_throttle(listening);
+        self.control.commands.send(Command::Train(command)).await.map_err(|_| self.control.shared.error())?;
+        registered.await.map_err(|_| self.control.shared.error())?;
+        Ok(events)
+    }
+
+    /// Sends `command` to `train` as the node's throttle (see
+    /// [`openlcb_node::Node::throttle_command`]).
+    pub async fn throttle_command(
+        &self,
+        train: NodeId,
+        command: openlcb_node::traction::TractionCommand,
+    ) -> Result<(), Error> {
+        let result =
+            self.control.call(|reply| Command::Train(TrainCommand::Throttle { train, command, reply })).await?;
+        result.map_err(crate::train::throttle_error)
     }
 
     /// Serves `server`'s address spaces from now on (Memory Configuration and, with space

@@ -7,8 +7,9 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use openlcb_node::traction::{TrainError, TrainEvent, TrainState};
+use openlcb_node::traction::{ThrottleError, ThrottleEvent, TractionCommand, TrainError, TrainEvent, TrainState};
 use openlcb_stream::EventId;
+use openlcb_stream::NodeId;
 use tokio::sync::{mpsc, oneshot};
 
 use crate::Error;
@@ -42,6 +43,28 @@ pub(crate) enum TrainCommand {
     State { reply: oneshot::Sender<Option<TrainState>> },
     Function { address: u32, reply: oneshot::Sender<Option<u16>> },
     AnswerSearch { event: EventId, reply: oneshot::Sender<Result<(), TrainError>> },
+    ListenThrottle { sink: mpsc::Sender<ThrottleEvent>, dropped: Arc<AtomicU64>, listening: oneshot::Sender<()> },
+    Throttle { train: NodeId, command: TractionCommand, reply: oneshot::Sender<Result<(), ThrottleError>> },
+}
+
+/// What the node's throttle hears from trains, from
+/// [`Node::throttle_events`](crate::Node::throttle_events).
+#[derive(Debug)]
+pub struct ThrottleEvents {
+    events: mpsc::Receiver<ThrottleEvent>,
+    dropped: Arc<AtomicU64>,
+}
+
+impl ThrottleEvents {
+    /// The next event; `None` once the node has stopped.
+    pub async fn next(&mut self) -> Option<ThrottleEvent> {
+        self.events.recv().await
+    }
+
+    /// Events this listener lost because it left [`TRAIN_EVENT_QUEUE`] waiting.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
 }
 
 impl TrainCommand {
@@ -51,12 +74,21 @@ impl TrainCommand {
         let dropped = Arc::new(AtomicU64::new(0));
         (TrainCommand::Listen { sink, dropped: dropped.clone(), listening }, TrainEvents { events, dropped })
     }
+
+    /// A new throttle listener, as [`TrainCommand::listen`].
+    pub(crate) fn listen_throttle(listening: oneshot::Sender<()>) -> (TrainCommand, ThrottleEvents) {
+        let (sink, events) = mpsc::channel(TRAIN_EVENT_QUEUE);
+        let dropped = Arc::new(AtomicU64::new(0));
+        let command = TrainCommand::ListenThrottle { sink, dropped: dropped.clone(), listening };
+        (command, ThrottleEvents { events, dropped })
+    }
 }
 
 /// The driver's side: the listeners.
 #[derive(Debug, Default)]
 pub(crate) struct TrainDriver {
     listeners: Vec<(mpsc::Sender<TrainEvent>, Arc<AtomicU64>)>,
+    throttle_listeners: Vec<(mpsc::Sender<ThrottleEvent>, Arc<AtomicU64>)>,
 }
 
 impl TrainDriver {
@@ -75,6 +107,13 @@ impl TrainDriver {
             TrainCommand::AnswerSearch { event, reply } => {
                 let _ = reply.send(stack.answer_train_search(event));
             }
+            TrainCommand::ListenThrottle { sink, dropped, listening } => {
+                self.throttle_listeners.push((sink, dropped));
+                let _ = listening.send(());
+            }
+            TrainCommand::Throttle { train, command, reply } => {
+                let _ = reply.send(stack.throttle_command(train, command));
+            }
         }
     }
 
@@ -86,6 +125,26 @@ impl TrainDriver {
                 dropped.fetch_add(1, Ordering::Relaxed);
             }
         }
+    }
+}
+
+impl TrainDriver {
+    /// Hands `event` to every throttle listener still there.
+    pub(crate) fn throttle_event(&mut self, event: ThrottleEvent) {
+        self.throttle_listeners.retain(|(sink, _)| !sink.is_closed());
+        for (sink, dropped) in &self.throttle_listeners {
+            if sink.try_send(event).is_err() {
+                dropped.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+}
+
+/// A throttle command's error as the driver's.
+pub(crate) fn throttle_error(error: ThrottleError) -> Error {
+    match error {
+        ThrottleError::QueueFull => Error::Busy,
+        error => Error::Throttle(error),
     }
 }
 
