@@ -7,8 +7,8 @@ use std::time::Duration;
 use clap::Args;
 use openlcb_stream::NodeId;
 use openlcb_tokio::openlcb_node::traction::{
-    SEARCH_ADDRESS_ONLY, SEARCH_ALLOCATE, SEARCH_EXACT, SearchQuery, Speed, ThrottleConfig, ThrottleEvent,
-    TractionCommand,
+    LISTENER_HIDE, LISTENER_LINK_F0, LISTENER_LINK_FN, LISTENER_REVERSE, SEARCH_ADDRESS_ONLY, SEARCH_ALLOCATE,
+    SEARCH_EXACT, SearchQuery, Speed, ThrottleConfig, ThrottleEvent, TractionCommand,
 };
 use openlcb_tokio::{EventNotice, EventRole, EventState, Listen, Node, NodeOptions, ThrottleEvents};
 use serde::Serialize;
@@ -29,6 +29,7 @@ heartbeat requests, until Ctrl-C releases it.
 Examples:
   lcc-stream throttle 3 --speed 40 --forward --function 0=on --release
   lcc-stream throttle 1234 --long --estop --release --json
+  lcc-stream throttle 3 --attach 05.01.01.01.22.02:reverse,f0 --release     a consist
 
 ", net::network_help(&[Outcome::TimedOut])))]
 pub(crate) struct ThrottleArgs {
@@ -53,6 +54,13 @@ pub(crate) struct ThrottleArgs {
     /// Emergency stop.
     #[arg(long)]
     estop: bool,
+    /// Add a train to the consist as a listener: NODE_ID, optionally with :reverse, :f0,
+    /// :fn, :hide (comma-separated), e.g. 05.01.01.01.22.02:reverse,f0 (repeat it).
+    #[arg(long = "attach", value_name = "NODE_ID[:FLAGS]", value_parser = parse_listener)]
+    attach: Vec<(NodeId, u8)>,
+    /// Take a listener out of the consist (repeat it).
+    #[arg(long = "detach", value_name = "NODE_ID", value_parser = crate::args::node_id)]
+    detach: Vec<NodeId>,
     /// Release the train when done (else keep it until Ctrl-C).
     #[arg(long)]
     release: bool,
@@ -75,6 +83,22 @@ fn parse_function(text: &str) -> Result<(u32, bool), String> {
         _ => return Err(bad()),
     };
     Ok((number, on))
+}
+
+fn parse_listener(text: &str) -> Result<(NodeId, u8), String> {
+    let (node, flags) = text.split_once(':').unwrap_or((text, ""));
+    let node = crate::args::node_id(node)?;
+    let mut bits = 0;
+    for flag in flags.split(',').filter(|f| !f.is_empty()) {
+        bits |= match flag {
+            "reverse" => LISTENER_REVERSE,
+            "f0" => LISTENER_LINK_F0,
+            "fn" => LISTENER_LINK_FN,
+            "hide" => LISTENER_HIDE,
+            _ => return Err(format!("`{flag}` is no listener flag: reverse, f0, fn, hide")),
+        };
+    }
+    Ok((node, bits))
 }
 
 pub(crate) fn run(args: &ThrottleArgs) -> Result<ExitCode, String> {
@@ -112,6 +136,15 @@ fn print(json: bool, event: &ThrottleEvent) {
         ThrottleEvent::Rejected { train, code } => {
             let code = format!("0x{:04X}", code.0);
             (train, "rejected", None, None, Some(code.clone()), format!("rejected a command ({code})"))
+        }
+        ThrottleEvent::ListenerChanged { train, listener, attached, code } => {
+            let done = if attached { "attached" } else { "detached" };
+            let text = match code {
+                0 => format!("listener {listener} {done}"),
+                code => format!("listener {listener} not {done} (0x{code:04X})"),
+            };
+            let name = if attached { "listener-attached" } else { "listener-detached" };
+            (train, name, None, None, Some(format!("{listener} 0x{code:04X}")), text)
         }
         ThrottleEvent::HeartbeatRequested { train, deadline_secs } => {
             (train, "heartbeat", None, None, Some(deadline_secs.to_string()), "heartbeat answered".into())
@@ -213,6 +246,14 @@ async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt)
             return Ok(Outcome::TimedOut);
         }
     }
+    for (listener, flags) in &args.attach {
+        send(node, train, TractionCommand::AttachListener { flags: *flags, node: *listener }).await?;
+        answer_of_listener(args.json, &mut events, train, *listener).await;
+    }
+    for listener in &args.detach {
+        send(node, train, TractionCommand::DetachListener { flags: 0, node: *listener }).await?;
+        answer_of_listener(args.json, &mut events, train, *listener).await;
+    }
     if let Some(kmh) = args.speed {
         let magnitude = Speed::from_f32((kmh / 3.6).abs());
         let speed = if args.reverse { magnitude.reversed() } else { magnitude };
@@ -262,6 +303,20 @@ async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt)
     // The release is queued; give the driver a moment to send it before the node closes.
     tokio::time::sleep(Duration::from_millis(100)).await;
     Ok(outcome)
+}
+
+/// Prints the train's answer to an attach or detach of `listener`.
+async fn answer_of_listener(json: bool, events: &mut ThrottleEvents, train: NodeId, listener: NodeId) {
+    let answer = wait_for(events, |e| match e {
+        ThrottleEvent::ListenerChanged { train: t, listener: l, .. } if *t == train && *l == listener => Some(*e),
+        ThrottleEvent::Rejected { train: t, .. } if *t == train => Some(*e),
+        _ => None,
+    })
+    .await;
+    match answer {
+        Some(event) => print(json, &event),
+        None => eprintln!("lcc-stream throttle: {train} did not answer about listener {listener}"),
+    }
 }
 
 async fn send(node: &Node, train: NodeId, command: TractionCommand) -> Result<(), Failure> {

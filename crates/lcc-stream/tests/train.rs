@@ -192,6 +192,31 @@ async fn our_throttle_finds_allocates_drives_and_releases_a_train() {
     until(&mut said, "created DCC 44").await;
     until(&mut printed, "\"train\":44").await;
 
+    // A consist: DCC 44 (the station's first created train, the next Node ID) listens to
+    // DCC 3, reversed; a speed for 3 reaches 44 the other way round.
+    let out = bounded(
+        "the throttle",
+        common::command(&[
+            "throttle",
+            "3",
+            "--attach",
+            "05.01.01.01.22.02:reverse",
+            "--speed",
+            "18",
+            "--forward",
+            "--release",
+            "--connect",
+            &gridconnect,
+        ])
+        .output(),
+    )
+    .await
+    .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && stdout.contains("listener 05.01.01.01.22.02 attached"), "{stdout}");
+    let line = until(&mut printed, "\"set_speed\":-5").await;
+    assert!(line.contains("\"train\":44"), "{line}");
+
     interrupt(&train).await;
     assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
     let _ = hub.kill().await;
