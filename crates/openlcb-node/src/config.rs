@@ -11,6 +11,7 @@ use crate::datagram::DatagramConfig;
 use crate::events::EventConfig;
 use crate::memconfig::MemoryConfigOptions;
 use crate::snip::SnipInfo;
+#[cfg(feature = "traction")]
 use crate::traction::{ThrottleConfig, TrainConfig};
 
 /// Bounds, timers and identity of a [`Node`](crate::Node). Every table and buffer it keeps
@@ -38,8 +39,10 @@ pub struct NodeConfig {
     pub clocks: Vec<ClockConfig>,
     /// This node is a train (Traction Control, Train Search; the PIP announces Train
     /// Control and Event Exchange).
+    #[cfg(feature = "traction")]
     pub train: Option<TrainConfig>,
     /// This node drives trains (Traction Control's throttle side).
+    #[cfg(feature = "traction")]
     pub throttle: Option<ThrottleConfig>,
     /// How long a SNIP request of this node waits for the reply.
     pub snip_timeout: Duration,
@@ -67,7 +70,9 @@ impl Default for NodeConfig {
             memory: MemoryConfigOptions::default(),
             events: EventConfig::default(),
             clocks: Vec::new(),
+            #[cfg(feature = "traction")]
             train: None,
+            #[cfg(feature = "traction")]
             throttle: None,
             snip_timeout: Duration::from_secs(3),
             max_snip_requests: 8,

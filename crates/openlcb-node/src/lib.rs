@@ -191,6 +191,7 @@ pub mod memconfig;
 mod node;
 mod service;
 mod snip;
+#[cfg(feature = "traction")]
 pub mod traction;
 
 #[cfg(feature = "fuzzing")]
@@ -212,4 +213,5 @@ pub use memconfig::{
 };
 pub use node::{DUPLICATE_NODE_ID_DETECTED, Node, NodeEvent, NodeStats, Streams};
 pub use snip::{MAX_REPLY_LEN, SnipFailure, SnipField, SnipInfo, SnipRequestError, SnipTooLong};
+#[cfg(feature = "traction")]
 pub use traction::{Speed, TrainConfig, TrainEvent};

@@ -94,8 +94,10 @@ pub enum NodeEvent {
     Clock(ClockEvent),
     /// Traction Control, Train Search: the train changed, or a command station is asked to
     /// create one (see [`traction`](crate::traction)).
+    #[cfg(feature = "traction")]
     Train(crate::traction::TrainEvent),
     /// Traction Control: a train answered this node's throttle, or took it off a train.
+    #[cfg(feature = "traction")]
     Throttle(crate::traction::ThrottleEvent),
 }
 

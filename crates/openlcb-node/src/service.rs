@@ -12,6 +12,7 @@ use crate::datagram::DatagramService;
 use crate::events::EventService;
 use crate::node::Outputs;
 use crate::snip::SnipService;
+#[cfg(feature = "traction")]
 use crate::traction::TrainService;
 use crate::{NodeConfig, Protocols};
 
@@ -89,6 +90,7 @@ pub(crate) struct Services {
     pub(crate) snip: SnipService,
     pub(crate) events: EventService,
     pub(crate) clocks: ClockService,
+    #[cfg(feature = "traction")]
     pub(crate) trains: TrainService,
 }
 
@@ -101,6 +103,7 @@ impl Services {
             snip: SnipService::new(&config.snip, config.max_snip_requests, config.snip_timeout),
             events: EventService::new(&config.events, announce),
             clocks: ClockService::new(&config.clocks, announce),
+            #[cfg(feature = "traction")]
             trains: TrainService::new(config.train.as_ref(), config.throttle.as_ref(), announce),
         }
     }
@@ -111,6 +114,7 @@ impl Services {
         if config.events.is_active() || !config.clocks.is_empty() {
             protocols = protocols | Protocols::EVENT_EXCHANGE;
         }
+        #[cfg(feature = "traction")]
         if self.trains.is_train() {
             protocols = protocols | Protocols::EVENT_EXCHANGE | Protocols::TRAIN_CONTROL;
         }
@@ -127,6 +131,7 @@ impl Services {
     pub(crate) fn announce(&mut self, config: &NodeConfig) {
         self.events.announce(&config.events);
         self.clocks.announce();
+        #[cfg(feature = "traction")]
         self.trains.announce();
     }
 }
@@ -139,21 +144,27 @@ impl Service<Lent<'_>> for Services {
         if self.datagrams.handle_message(cx, msg) || self.snip.handle_message(cx, msg) {
             return true;
         }
-        let declared = self.events.handle_message(cx, msg);
-        let clocks = self.clocks.handle_message(cx, msg);
-        self.trains.handle_message(cx, msg) | clocks | declared
+        let mut taken = self.events.handle_message(cx, msg);
+        taken |= self.clocks.handle_message(cx, msg);
+        #[cfg(feature = "traction")]
+        {
+            taken |= self.trains.handle_message(cx, msg);
+        }
+        taken
     }
 
     fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
         // Every service hears it: one naming no MTI may concern several.
-        [
+        let taken = [
             self.datagrams.handle_error_report(cx, peer, report),
             self.snip.handle_error_report(cx, peer, report),
             self.events.handle_error_report(cx, peer, report),
             self.clocks.handle_error_report(cx, peer, report),
-            self.trains.handle_error_report(cx, peer, report),
         ]
-        .contains(&true)
+        .contains(&true);
+        #[cfg(feature = "traction")]
+        let taken = self.trains.handle_error_report(cx, peer, report) | taken;
+        taken
     }
 
     fn peer_changed(&mut self, out: &mut Outputs, change: ServiceChange) {
@@ -161,6 +172,7 @@ impl Service<Lent<'_>> for Services {
         self.snip.peer_changed(out, change);
         self.events.peer_changed(out, change);
         self.clocks.peer_changed(out, change);
+        #[cfg(feature = "traction")]
         self.trains.peer_changed(out, change);
     }
 
@@ -169,13 +181,16 @@ impl Service<Lent<'_>> for Services {
         self.snip.handle_timeout(cx);
         self.events.handle_timeout(cx);
         self.clocks.handle_timeout(cx);
+        #[cfg(feature = "traction")]
         self.trains.handle_timeout(cx);
     }
 
     fn poll_timeout(&self) -> Option<Instant> {
         let messaging = earliest(self.datagrams.poll_timeout(), self.snip.poll_timeout());
         let events = earliest(self.events.poll_timeout(), self.clocks.poll_timeout());
-        earliest(messaging, earliest(events, self.trains.poll_timeout()))
+        #[cfg(feature = "traction")]
+        let events = earliest(events, self.trains.poll_timeout());
+        earliest(messaging, events)
     }
 }
 

@@ -2,6 +2,8 @@
 //! clock: what OlcbChecker's `control_traincontrol`, `control_trainsearch` and `control_fdi`
 //! check, and the bounds, forwarding and heartbeat rules of the standard beyond them.
 
+#![cfg(feature = "traction")]
+
 use openlcb_node::memconfig::MemoryServer;
 use openlcb_node::traction::{
     CLEAR_EMERGENCY_OFF, CLEAR_EMERGENCY_STOP, EMERGENCY_OFF, EMERGENCY_STOP, FunctionKind, FunctionName, IS_TRAIN,

@@ -317,6 +317,7 @@ pub mod exercise {
     }
 
     /// [`node`], and a DCC train (Traction Control, Train Search) at an opaque address.
+    #[cfg(feature = "traction")]
     pub fn train_node() -> Node {
         let mut config = NodeConfig::default();
         config.train = Some(openlcb_node::traction::TrainConfig::dcc(input() % 10_240));
@@ -324,6 +325,7 @@ pub mod exercise {
     }
 
     /// [`node_turn`], and the train's state read back.
+    #[cfg(feature = "traction")]
     pub fn train_turn(node: &mut Node) {
         node_turn(node);
         output(node.train().map_or(0, |t| u32::from(t.commanded_speed.to_bits())));
