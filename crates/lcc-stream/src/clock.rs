@@ -12,12 +12,13 @@ use openlcb_tokio::openlcb_node::broadcast_time::{
     ClockChange, ClockConfig, ClockEvent, ClockId, ClockMessage, ClockRole, ClockSet, ClockState, ClockTime,
     ConsumerConfig, GeneratorConfig, Rate, SyncTail,
 };
-use openlcb_tokio::{EventNotice, EventState, Listen, Node, NodeOptions};
+use openlcb_tokio::{EventNotice, EventNotices, EventState, Listen, Node, NodeOptions};
 use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
-use crate::outcome::{Failure, Outcome};
+use crate::outcome::{Failure, Outcome, net_outcome};
 use crate::peer::Peer;
+use crate::reconnect::{self, RECONNECT_HELP, ReconnectArgs, Stop};
 
 /// How long a command waits for the generator to confirm it: its echo of a set comes at
 /// once, its synchronization sequence (which confirms start and stop) 3 s after the last.
@@ -28,7 +29,7 @@ const LIVE_REFRESH: Duration = Duration::from_millis(250);
 
 #[derive(Debug, Args)]
 #[command(args_conflicts_with_subcommands = true)]
-#[command(after_help = format!("{}{}", "\
+#[command(after_help = format!("{}{}{}", "\
 Clocks: default-fast (01.01.00.00.01.00), default-realtime, alternate-1, alternate-2, or a
 unique ID of six hex bytes. Rates are multiples of 0.25 from -512 to 511.75 (negative runs
 backwards). The generator answers queries, set commands, start and stop from any node, and
@@ -41,7 +42,10 @@ Examples:
   lcc-stream clock set --time 08:30                            any node's generator
   lcc-stream clock stop; lcc-stream clock rate 8; lcc-stream clock start
 
-", net::network_help(&[Outcome::TimedOut])))]
+A generator or a follower that loses the hub joins it again; a generator goes on from the
+time it had (run on for the time away).
+
+", RECONNECT_HELP, net::network_help(&[Outcome::TimedOut])))]
 pub(crate) struct ClockArgs {
     #[command(subcommand)]
     command: Option<ClockCommand>,
@@ -87,6 +91,8 @@ struct RunArgs {
     /// and OlcbChecker's bt10, bt20 and bt80 expect.
     #[arg(long, value_enum, default_value_t = Tail::WhenValid, conflicts_with = "follow")]
     sync_tail: Tail,
+    #[command(flatten)]
+    reconnect: ReconnectArgs,
     /// One JSON object per change: time (seconds since start), clock, change (minute, set,
     /// rate, started, stopped, synchronized), clock_time, rate, running, and from (the Node ID
     /// of the node that caused it) or, when only its CAN alias is known, from_alias.
@@ -138,17 +144,17 @@ enum ClockCommand {
     },
 }
 
-fn parse_clock(text: &str) -> Result<ClockId, String> {
+pub(crate) fn parse_clock(text: &str) -> Result<ClockId, String> {
     text.parse().map_err(|_| {
         format!("`{text}` is no clock: default-fast, default-realtime, alternate-1, alternate-2 or six hex bytes")
     })
 }
 
-fn parse_rate(text: &str) -> Result<Rate, String> {
+pub(crate) fn parse_rate(text: &str) -> Result<Rate, String> {
     text.parse().map_err(|e| format!("`{text}`: {e}"))
 }
 
-fn parse_time(text: &str) -> Result<(u8, u8), String> {
+pub(crate) fn parse_time(text: &str) -> Result<(u8, u8), String> {
     let bad = || format!("`{text}` is no time of day: HH:MM, 00:00 to 23:59");
     let (hour, minute) = text.split_once(':').ok_or_else(bad)?;
     let (hour, minute): (u8, u8) = (hour.parse().map_err(|_| bad())?, minute.parse().map_err(|_| bad())?);
@@ -199,11 +205,7 @@ async fn clock(args: &ClockArgs) -> Result<ExitCode, String> {
     let clock = joining.clock;
     let options = |id| {
         let mut options = node_options(id, "clock");
-        let mut consumer = ConsumerConfig::default();
-        consumer.controls = true;
-        let mut config = ClockConfig::consumer(clock);
-        config.role = ClockRole::Consumer(consumer);
-        options.node.clocks = vec![config];
+        options.node.clocks = vec![controlling_consumer(clock)];
         options.node.events.listen = Listen::Everything;
         options
     };
@@ -226,37 +228,71 @@ async fn drive(node: &Node, clock: ClockId, sets: &[ClockSet]) -> Result<ExitCod
         Err(error) => return Ok(net::fail("clock", &Failure::Net(error))),
     };
     for set in sets {
-        if let Err(error) = node.set_clock(clock, *set).await {
-            return Ok(net::fail("clock", &Failure::Net(error)));
-        }
-        let deadline = tokio::time::Instant::now() + CONFIRM_WAIT;
-        let confirmed = loop {
-            let notice = match tokio::time::timeout_at(deadline, notices.next()).await {
-                Ok(Some(notice)) => notice,
-                Ok(None) => return Ok(net::fail("clock", &Failure::Net(openlcb_tokio::Error::Closed))),
-                Err(_) => break None,
-            };
-            if let Some((from, message)) = confirmation(clock, *set, &notice) {
-                break Some((from, message));
+        match set_confirmed(node, &mut notices, clock, *set).await {
+            Ok(words) => eprintln!("lcc-stream clock: {words}"),
+            Err(Unconfirmed::Net(failure)) => return Ok(net::fail("clock", &failure)),
+            Err(Unconfirmed::NoGenerator(words)) => {
+                eprintln!("lcc-stream clock: {words}");
+                return Ok(ExitCode::from(Outcome::TimedOut.status()));
             }
-        };
-        let Some((from, message)) = confirmed else {
-            eprintln!(
-                "lcc-stream clock: no generator of {clock} confirmed {} within {} s (is one on the bus, and does it take sets?)",
-                set_text(*set),
-                CONFIRM_WAIT.as_secs()
-            );
-            return Ok(ExitCode::from(Outcome::TimedOut.status()));
-        };
-        let asked = set_text(*set);
-        let got = message_text(message);
-        if asked == got {
-            eprintln!("lcc-stream clock: {clock} {got} (generator {})", Peer::of(from));
-        } else {
-            eprintln!("lcc-stream clock: {clock} asked {asked}, the generator {} made it {got}", Peer::of(from));
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Why a set was not confirmed.
+pub(crate) enum Unconfirmed {
+    /// The node could not send it, or stopped.
+    Net(Failure),
+    /// No generator confirmed it in time: the words for that.
+    NoGenerator(String),
+}
+
+/// Sends `set` to the generator of `clock` (by `node`, a consumer of it that controls) and
+/// waits for its confirmation in `notices` (taken before): the words of what it did.
+pub(crate) async fn set_confirmed(
+    node: &Node,
+    notices: &mut EventNotices,
+    clock: ClockId,
+    set: ClockSet,
+) -> Result<String, Unconfirmed> {
+    node.set_clock(clock, set).await.map_err(|e| Unconfirmed::Net(Failure::Net(e)))?;
+    let deadline = tokio::time::Instant::now() + CONFIRM_WAIT;
+    let confirmed = loop {
+        let notice = match tokio::time::timeout_at(deadline, notices.next()).await {
+            Ok(Some(notice)) => notice,
+            Ok(None) => return Err(Unconfirmed::Net(Failure::Net(openlcb_tokio::Error::Closed))),
+            Err(_) => break None,
+        };
+        if let Some((from, message)) = confirmation(clock, set, &notice) {
+            break Some((from, message));
+        }
+    };
+    let Some((from, message)) = confirmed else {
+        return Err(Unconfirmed::NoGenerator(format!(
+            "no generator of {clock} confirmed {} within {} s (is one on the bus, and does it take sets?)",
+            set_text(set),
+            CONFIRM_WAIT.as_secs()
+        )));
+    };
+    let asked = set_text(set);
+    let got = message_text(message);
+    let from = Peer::of(from);
+    Ok(if asked == got {
+        format!("{clock} {got} (generator {from})")
+    } else {
+        format!("{clock} asked {asked}, the generator {from} made it {got}")
+    })
+}
+
+/// A consumer of `clock` that may set it (set, start, stop and rate commands to its
+/// generator), listening to every event (the generator's answers).
+pub(crate) fn controlling_consumer(clock: ClockId) -> ClockConfig {
+    let mut consumer = ConsumerConfig::default();
+    consumer.controls = true;
+    let mut config = ClockConfig::consumer(clock);
+    config.role = ClockRole::Consumer(consumer);
+    config
 }
 
 /// The generator's confirmation of `set` in `notice`: the echo of a set (a report of the
@@ -326,63 +362,109 @@ struct ChangeLine {
     from_alias: Option<String>,
 }
 
-/// Runs a generator (or follows the clock) until Ctrl-C.
+/// The clock `args` asks for: a consumer, or a generator starting at `start` (its time, rate
+/// and whether it runs).
+fn clock_config(args: &RunArgs, start: Option<(ClockTime, Rate, bool)>) -> Result<ClockConfig, String> {
+    let clock = args.joining.clock;
+    if args.follow {
+        return Ok(ClockConfig::consumer(clock));
+    }
+    let mut generator = GeneratorConfig::default();
+    match start {
+        Some(state) => (generator.start, generator.rate, generator.running) = state,
+        None => {
+            let now = SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs() as i64);
+            let today = ClockTime::from_unix_seconds(now);
+            let (year, month, day) = args.date.unwrap_or((today.year, today.month, today.day));
+            let (hour, minute) = args.time.unwrap_or((today.hour, today.minute));
+            generator.start = ClockTime::new(year, month, day, hour, minute, 0).ok_or("no such date")?;
+            generator.rate = args.rate;
+            generator.running = !args.stopped;
+        }
+    }
+    generator.accept_sets = !args.refuse_sets;
+    generator.sync_tail = match args.sync_tail {
+        Tail::WhenValid => SyncTail::WhenValid,
+        Tail::AtOnce => SyncTail::AtOnce,
+    };
+    Ok(ClockConfig::generator(clock, generator))
+}
+
+/// Runs a generator (or follows the clock) until Ctrl-C, joining the hub again when it is
+/// lost: a generator goes on from the time it had.
 async fn run_clock(args: &RunArgs, interrupt: &mut net::Interrupt) -> Result<ExitCode, String> {
     let clock = args.joining.clock;
-    let role = if args.follow {
-        ClockConfig::consumer(clock)
-    } else {
-        let now = SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs() as i64);
-        let today = ClockTime::from_unix_seconds(now);
-        let (year, month, day) = args.date.unwrap_or((today.year, today.month, today.day));
-        let (hour, minute) = args.time.unwrap_or((today.hour, today.minute));
-        let mut generator = GeneratorConfig::default();
-        generator.start = ClockTime::new(year, month, day, hour, minute, 0).ok_or("no such date")?;
-        generator.rate = args.rate;
-        generator.running = !args.stopped;
-        generator.accept_sets = !args.refuse_sets;
-        generator.sync_tail = match args.sync_tail {
-            Tail::WhenValid => SyncTail::WhenValid,
-            Tail::AtOnce => SyncTail::AtOnce,
-        };
-        ClockConfig::generator(clock, generator)
-    };
     let command = if args.follow { "clock --follow" } else { "clock" };
-    let options = |id| {
+    let options = |id, config: &ClockConfig| {
         let mut options = node_options(id, command);
-        options.node.clocks = vec![role.clone()];
+        options.node.clocks = vec![config.clone()];
         options
     };
-    let node = match args.joining.connect.join(&args.joining.node_id, options).await {
+    let first = clock_config(args, None)?;
+    let mut node = match args.joining.connect.join(&args.joining.node_id, |id| options(id, &first)).await {
         Ok(node) => node,
         Err(failure) => return Ok(net::fail("clock", &failure)),
-    };
-    let mut events = match node.clock_events().await {
-        Ok(events) => events,
-        Err(error) => return Ok(net::fail("clock", &Failure::Net(error))),
     };
     let what = if args.follow { "following" } else { "generating" };
     eprintln!("lcc-stream clock: {what} {clock} as {} (Ctrl-C stops)", node.node_id());
     let live = !args.json && std::io::stdout().is_terminal();
     let started = Instant::now();
     let mut refresh = tokio::time::interval(LIVE_REFRESH);
-    let mut node = node;
-    let outcome = loop {
-        tokio::select! {
-            event = events.next() => {
-                let Some(event) = event else { break Outcome::ConnectionLost };
-                let Ok(Some(state)) = node.clock(clock).await else { break Outcome::ConnectionLost };
-                print_change(args.json, live, started, &event, &state);
+    // The clock's state as last seen, and when.
+    let mut last: Option<(ClockState, Instant)> = None;
+    let outcome = 'joined: loop {
+        let mut events = match node.clock_events().await {
+            Ok(events) => events,
+            Err(error) => break net_outcome(&error),
+        };
+        let lost = loop {
+            tokio::select! {
+                event = events.next() => {
+                    let Some(event) = event else { break node.closed().await };
+                    match node.clock(clock).await {
+                        Ok(Some(state)) => {
+                            print_change(args.json, live, started, &event, &state);
+                            last = Some((state, Instant::now()));
+                        }
+                        _ => break node.closed().await,
+                    }
+                }
+                _ = refresh.tick() => match node.clock(clock).await {
+                    Ok(Some(state)) => {
+                        if live {
+                            out!("\r\x1b[K{}", state_text(clock, &state));
+                        }
+                        last = Some((state, Instant::now()));
+                    }
+                    _ => break node.closed().await,
+                },
+                () = interrupt.wait() => break 'joined Outcome::Interrupted,
+                error = node.closed() => break error,
             }
-            _ = refresh.tick(), if live => {
-                let Ok(Some(state)) = node.clock(clock).await else { break Outcome::ConnectionLost };
-                out!("\r\x1b[K{}", state_text(clock, &state));
+        };
+        if live {
+            outln!("");
+        }
+        if !reconnect::is_lost(&lost) {
+            eprintln!("lcc-stream clock: {lost}");
+            break net_outcome(&lost);
+        }
+        // A generator goes on from where it was: its last state, run on for the time away.
+        let resumed = last.filter(|_| !args.follow).map(|(state, seen)| {
+            let away = i64::try_from(seen.elapsed().as_millis()).unwrap_or(i64::MAX);
+            let fast = if state.running { away.saturating_mul(i64::from(state.rate.quarters())) / 4 } else { 0 };
+            (state.time.advanced(fast), state.rate, state.running)
+        });
+        let config = clock_config(args, resumed)?;
+        let id = node.node_id();
+        let attempt = || args.joining.connect.join_again(options(id, &config));
+        match args.reconnect.rejoin("clock", args.joining.connect.addr(), &lost, interrupt, attempt).await {
+            Ok(again) => {
+                node = again;
+                reconnect::say_rejoined("clock", args.joining.connect.addr(), &node).await;
             }
-            () = interrupt.wait() => break Outcome::Interrupted,
-            error = node.closed() => {
-                eprintln!("lcc-stream clock: {error}");
-                break Outcome::ConnectionLost;
-            }
+            Err(Stop::Interrupted) => break Outcome::Interrupted,
+            Err(Stop::GaveUp) => break net_outcome(&lost),
         }
     };
     if live {
@@ -396,7 +478,7 @@ async fn run_clock(args: &RunArgs, interrupt: &mut net::Interrupt) -> Result<Exi
 }
 
 /// `1956-07-04 06:04:12  running at 4x` (or `stopped`, and `waiting for the generator`).
-fn state_text(clock: ClockId, state: &ClockState) -> String {
+pub(crate) fn state_text(clock: ClockId, state: &ClockState) -> String {
     if !state.synchronized {
         return format!("{clock}: waiting for its generator");
     }

@@ -9,6 +9,7 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 
 use clap::{Args, Subcommand};
 use openlcb_cdi::backup::{self, Snapshot};
@@ -133,8 +134,8 @@ fn after_help() -> String {
     format!("{}{cdi}{}{}", config_json_help!(), crate::pace::PACE_HELP, net::network_help(&outcomes))
 }
 
-/// Why a config command stopped.
-enum Failure {
+/// Why a config command stopped (also an operation of `ui`).
+pub(crate) enum Failure {
     /// Joining, reading, writing or a file.
     Stop(Stop),
     /// The node's CDI cannot be used.
@@ -154,7 +155,7 @@ impl From<Stop> for Failure {
 }
 
 impl Failure {
-    fn outcome(&self) -> Outcome {
+    pub(crate) fn outcome(&self) -> Outcome {
         match self {
             Failure::Stop(stop) => stop.outcome(),
             Failure::Cdi(_) => Outcome::Error,
@@ -181,12 +182,12 @@ impl std::fmt::Display for Failure {
 }
 
 /// A command's result: the text for a person and the fields for `--json`.
-struct Done {
-    text: String,
-    fields: Json,
+pub(crate) struct Done {
+    pub(crate) text: String,
+    pub(crate) fields: Json,
     /// What went wrong after the work was done (Update Complete refused): printed, and in
     /// `--json` as `warning`, with exit status 0.
-    warning: Option<String>,
+    pub(crate) warning: Option<String>,
 }
 
 pub(crate) fn run(args: &ConfigArgs) -> Result<ExitCode, String> {
@@ -202,14 +203,17 @@ pub(crate) fn run(args: &ConfigArgs) -> Result<ExitCode, String> {
         if let Action::Backup { out: Some(out), .. } = &args.action {
             memory::refuse_existing(out).await?;
         }
-        let session = Session::open(client, node, &mut interrupt).await?;
-        let done = session.act(&args.action, &mut interrupt).await;
-        if let Ok(done) = &done
-            && let Action::Backup { out: Some(out), .. } = &args.action
-        {
-            memory::save_new(out, done.text.as_bytes()).await?;
+        let joined = memory::join(client, "config", node).await?;
+        let done = async {
+            let session = Session::open(&joined, client, node, &mut interrupt).await?;
+            let done = session.act(&args.action, &mut interrupt).await?;
+            if let Action::Backup { out: Some(out), .. } = &args.action {
+                memory::save_new(out, done.text.as_bytes()).await?;
+            }
+            Ok(done)
         }
-        session.node.close().await;
+        .await;
+        joined.close().await;
         done
     });
     Ok(finish(node, name, client.json, outcome, &args.action))
@@ -256,38 +260,128 @@ fn merge(object: &mut Json, fields: Json) {
 }
 
 /// A joined client node, the target and its laid-out CDI.
-struct Session<'a> {
-    node: Node,
+pub(crate) struct Session<'a> {
+    node: &'a Node,
     peer: NodeId,
     client: &'a ClientArgs,
-    layout: Layout,
+    layout: Arc<Layout>,
+}
+
+/// `peer`'s CDI, read by `node` and laid out.
+pub(crate) async fn read_layout(
+    node: &Node,
+    peer: NodeId,
+    client: &ClientArgs,
+    interrupt: &mut net::Interrupt,
+) -> Result<Layout, Failure> {
+    let xml = read_cdi(node, peer, client, interrupt, &mut Moved::default()).await?;
+    match std::str::from_utf8(&xml) {
+        Ok(xml) => Layout::parse(xml).map_err(Failure::Cdi),
+        Err(_) => Err(Failure::Cdi(openlcb_cdi::Error::Xml { line: 0, column: 0 })),
+    }
 }
 
 impl<'a> Session<'a> {
+    /// Reads `peer`'s CDI through `node`, which stays open when this ends.
     async fn open(
+        node: &'a Node,
         client: &'a ClientArgs,
         peer: NodeId,
         interrupt: &mut net::Interrupt,
     ) -> Result<Session<'a>, Failure> {
-        let node = memory::join(client, "config", peer).await?;
-        let xml = match read_cdi(&node, peer, client, interrupt, &mut Moved::default()).await {
-            Ok(xml) => xml,
-            Err(stop) => {
-                node.close().await;
-                return Err(stop.into());
-            }
-        };
-        let layout = match std::str::from_utf8(&xml) {
-            Ok(xml) => Layout::parse(xml).map_err(Failure::Cdi),
-            Err(_) => Err(Failure::Cdi(openlcb_cdi::Error::Xml { line: 0, column: 0 })),
-        };
-        match layout {
-            Ok(layout) => Ok(Session { node, peer, client, layout }),
-            Err(failure) => {
-                node.close().await;
-                Err(failure)
+        let layout = read_layout(node, peer, client, interrupt).await?;
+        Ok(Session { node, peer, client, layout: Arc::new(layout) })
+    }
+
+    /// A session on `peer` whose CDI was read already.
+    pub(crate) fn with_layout(node: &'a Node, client: &'a ClientArgs, peer: NodeId, layout: Arc<Layout>) -> Self {
+        Session { node, peer, client, layout }
+    }
+
+    /// `config show` (the tree with every value, as JSON in `fields`).
+    pub(crate) async fn show(&self, interrupt: &mut net::Interrupt) -> Result<Done, Failure> {
+        let snapshot = self.read_spans(interrupt).await?;
+        show(&self.layout, &snapshot)
+    }
+
+    /// `config backup`: the file's text.
+    pub(crate) async fn backup(&self, interrupt: &mut net::Interrupt) -> Result<String, Failure> {
+        let snapshot = self.read_spans(interrupt).await?;
+        backup::write(&self.layout, &snapshot).map_err(Failure::Cdi)
+    }
+
+    /// Writes `changes` (key and value as `config set` takes them), each checked first (a
+    /// bad one writes nothing), only those that differ from what the node holds, by runs of
+    /// neighbours, each read back and compared, then Update Complete: the keys written.
+    pub(crate) async fn set_many(
+        &self,
+        changes: &[(String, String)],
+        interrupt: &mut net::Interrupt,
+    ) -> Result<(Vec<String>, Option<String>), Failure> {
+        let mut checked = Vec::with_capacity(changes.len());
+        for (key, text) in changes {
+            let entry = self.entry(key)?;
+            let (value, bytes) = entry.parse_strict(text).map_err(|e| Failure::Invalid(format!("{key}: {e}")))?;
+            checked.push((entry, value, bytes));
+        }
+        if checked.is_empty() {
+            return Ok((Vec::new(), None));
+        }
+        let snapshot = self.read_spans(interrupt).await?;
+        let mut writes = Vec::new();
+        for (entry, new, bytes) in checked {
+            let old = snapshot.value(entry).map_err(Failure::Cdi)?;
+            if old != new {
+                writes.push(backup::Change { entry: entry.clone(), old, new, bytes });
             }
         }
+        self.write_changes(&writes, interrupt).await?;
+        let warning = if writes.is_empty() { None } else { self.update_complete(interrupt).await? };
+        Ok((writes.iter().map(|c| c.entry.key.clone()).collect(), warning))
+    }
+
+    /// Writes `writes` by runs of neighbours, each verified; the count written.
+    async fn write_changes(&self, writes: &[backup::Change], interrupt: &mut net::Interrupt) -> Result<(), Failure> {
+        let mut written = 0;
+        for (space, address, bytes) in backup::coalesce(writes) {
+            let mut moved = Moved::default();
+            let len = bytes.len() as u64;
+            let result = self.write_verified((space, address), bytes, interrupt, &mut moved).await;
+            // A stopped write took its first `moved.bytes` bytes: the settings inside them.
+            let took = if result.is_ok() { len } else { moved.bytes };
+            written += settings_within(writes, (space, address), took);
+            if let Err(cause) = result {
+                return Err(Failure::Partial { cause: Box::new(cause), written, of: writes.len() });
+            }
+        }
+        Ok(())
+    }
+
+    /// The plan of a restore of `text` (a backup's): refused, as `config restore` refuses it,
+    /// when a line is given twice or a value does not fit.
+    pub(crate) async fn restore_plan(
+        &self,
+        text: &str,
+        interrupt: &mut net::Interrupt,
+    ) -> Result<backup::Plan, Failure> {
+        let lines = backup::parse(text).map_err(|e| Failure::Invalid(format!("the backup: {e}")))?;
+        let snapshot = self.read_spans(interrupt).await?;
+        let plan = backup::plan(&self.layout, &snapshot, &lines).map_err(Failure::Cdi)?;
+        refuse_bad_plan(&plan, "the backup")?;
+        Ok(plan)
+    }
+
+    /// Writes a plan's changes, verified, then Update Complete (the warning if it failed).
+    pub(crate) async fn apply(
+        &self,
+        plan: &backup::Plan,
+        interrupt: &mut net::Interrupt,
+    ) -> Result<Option<String>, Failure> {
+        if plan.writes.is_empty() {
+            return Ok(None);
+        }
+        self.write_changes(&plan.writes, interrupt).await?;
+        self.update_complete(interrupt).await
     }
 
     async fn act(&self, action: &Action, interrupt: &mut net::Interrupt) -> Result<Done, Failure> {
@@ -343,7 +437,7 @@ impl<'a> Session<'a> {
             self.node.read_memory(self.peer, space, address, Some(len), self.path(len)).await.map_err(Stop::Net)?;
         let moved = &mut Moved::default();
         Ok(memory::follow(
-            &self.node,
+            self.node,
             transfer,
             Some(u64::from(len)),
             self.client.json,
@@ -390,7 +484,7 @@ impl<'a> Session<'a> {
             .await
             .map_err(Stop::Net)?;
         memory::follow(
-            &self.node,
+            self.node,
             transfer,
             Some(u64::from(len)),
             self.client.json,
@@ -411,7 +505,7 @@ impl<'a> Session<'a> {
     /// Update Complete after a verified write: a node that refuses it or does not answer
     /// still holds what was written, so that is a warning (None: it said OK).
     async fn update_complete(&self, interrupt: &mut net::Interrupt) -> Result<Option<String>, Failure> {
-        match memory::update_complete(&self.node, self.peer, &self.client.pace, interrupt).await {
+        match memory::update_complete(self.node, self.peer, &self.client.pace, interrupt).await {
             Err(Stop::Interrupted) => Err(Failure::Stop(Stop::Interrupted)),
             Err(stop) => Ok(Some(memory::update_complete_warning(&stop))),
             Ok(()) => Ok(None),
@@ -443,22 +537,7 @@ impl<'a> Session<'a> {
         let lines = backup::parse(&text).map_err(|e| Failure::Invalid(format!("{}: {e}", file.display())))?;
         let snapshot = self.read_spans(interrupt).await?;
         let plan = backup::plan(&self.layout, &snapshot, &lines).map_err(Failure::Cdi)?;
-        if !plan.duplicates.is_empty() {
-            let lines: Vec<String> = plan
-                .duplicates
-                .iter()
-                .map(|d| format!("{} on line {} and again on line {}", d.key, d.first_line, d.line))
-                .collect();
-            return Err(Failure::Invalid(format!(
-                "nothing written; {}: a setting given twice: {}",
-                file.display(),
-                lines.join("; ")
-            )));
-        }
-        if !plan.invalid.is_empty() {
-            let reasons: Vec<String> = plan.invalid.iter().map(|(key, e)| format!("{key}: {e}")).collect();
-            return Err(Failure::Invalid(format!("nothing written; the backup does not fit: {}", reasons.join("; "))));
-        }
+        refuse_bad_plan(&plan, &file.display().to_string())?;
         let mut out = String::new();
         for change in &plan.writes {
             let verb = if dry_run { "would set" } else { "set" };
@@ -469,18 +548,7 @@ impl<'a> Session<'a> {
         }
         let mut warning = None;
         if !dry_run && !plan.writes.is_empty() {
-            let mut written = 0;
-            for (space, address, bytes) in backup::coalesce(&plan.writes) {
-                let mut moved = Moved::default();
-                let len = bytes.len() as u64;
-                let result = self.write_verified((space, address), bytes, interrupt, &mut moved).await;
-                // A stopped write took its first `moved.bytes` bytes: the settings inside them.
-                let took = if result.is_ok() { len } else { moved.bytes };
-                written += settings_within(&plan.writes, (space, address), took);
-                if let Err(cause) = result {
-                    return Err(Failure::Partial { cause: Box::new(cause), written, of: plan.writes.len() });
-                }
-            }
+            self.write_changes(&plan.writes, interrupt).await?;
             warning = self.update_complete(interrupt).await?;
         }
         out.push_str(&format!(
@@ -504,6 +572,24 @@ impl<'a> Session<'a> {
             warning,
         })
     }
+}
+
+/// Refuses a plan with a setting given twice or a value that does not fit (`file` names the
+/// backup): nothing is written.
+fn refuse_bad_plan(plan: &backup::Plan, file: &str) -> Result<(), Failure> {
+    if !plan.duplicates.is_empty() {
+        let lines: Vec<String> = plan
+            .duplicates
+            .iter()
+            .map(|d| format!("{} on line {} and again on line {}", d.key, d.first_line, d.line))
+            .collect();
+        return Err(Failure::Invalid(format!("nothing written; {file}: a setting given twice: {}", lines.join("; "))));
+    }
+    if !plan.invalid.is_empty() {
+        let reasons: Vec<String> = plan.invalid.iter().map(|(key, e)| format!("{key}: {e}")).collect();
+        return Err(Failure::Invalid(format!("nothing written; the backup does not fit: {}", reasons.join("; "))));
+    }
+    Ok(())
 }
 
 /// How many of `changes` lie wholly in the `len` bytes from `address` of `space`.
@@ -533,7 +619,8 @@ async fn read_backup(file: &std::path::Path, max_bytes: usize) -> Result<String,
     String::from_utf8(bytes).map_err(|e| Failure::Invalid(format!("{}: not UTF-8 text ({e})", file.display())))
 }
 
-fn value_json(value: &Value) -> Json {
+/// A value as `--json` prints it.
+pub(crate) fn value_json(value: &Value) -> Json {
     match value {
         Value::Int(v) => json!(v),
         Value::Float(v) => json!(v),

@@ -78,10 +78,34 @@ pub(crate) fn range_text(range: EventRange) -> String {
 
 /// An Event ID, with its name if it is well known.
 pub(crate) fn event_text(event: EventId) -> String {
-    match well_known(event) {
-        Some(name) => format!("{event} ({name})"),
-        None => event.to_string(),
+    match (well_known(event), clock_event(event)) {
+        (Some(name), _) => format!("{event} ({name})"),
+        (None, Some(clock)) => format!("{event} ({clock})"),
+        (None, None) => event.to_string(),
     }
+}
+
+/// An event of one of the well-known Broadcast Time clocks in words: `default-fast: Report
+/// Time 06:01`.
+fn clock_event(event: EventId) -> Option<String> {
+    use openlcb_tokio::openlcb_node::broadcast_time::{ClockId, ClockMessage};
+    let (clock, suffix) = ClockId::of(event)?;
+    ClockId::WELL_KNOWN.iter().find(|(id, _)| *id == clock)?;
+    let what = match ClockMessage::decode(suffix)? {
+        ClockMessage::ReportTime { hour, minute } => format!("Report Time {hour:02}:{minute:02}"),
+        ClockMessage::ReportDate { month, day } => format!("Report Date {month:02}-{day:02}"),
+        ClockMessage::ReportYear(year) => format!("Report Year {year}"),
+        ClockMessage::ReportRate(rate) => format!("Report Rate {rate}"),
+        ClockMessage::SetTime { hour, minute } => format!("Set Time {hour:02}:{minute:02}"),
+        ClockMessage::SetDate { month, day } => format!("Set Date {month:02}-{day:02}"),
+        ClockMessage::SetYear(year) => format!("Set Year {year}"),
+        ClockMessage::SetRate(rate) => format!("Set Rate {rate}"),
+        ClockMessage::Query => "Query".into(),
+        ClockMessage::Stop => "Stop".into(),
+        ClockMessage::Start => "Start".into(),
+        ClockMessage::DateRollover => "Date Rollover".into(),
+    };
+    Some(format!("{clock}: {what}"))
 }
 
 /// Options of `lcc-stream events`.
@@ -188,6 +212,14 @@ fn parse_hex(text: &str) -> Result<Payload, String> {
         .map(|i| u8::from_str_radix(digits.get(2 * i..2 * i + 2).unwrap_or_default(), 16).map_err(|e| e.to_string()))
         .collect::<Result<_, _>>()
         .map(Payload)
+}
+
+/// The bytes of a report's payload in hex (empty: none), as `--payload` takes them.
+pub(crate) fn parse_payload(text: &str) -> Result<Vec<u8>, String> {
+    if text.trim().is_empty() {
+        return Ok(Vec::new());
+    }
+    parse_hex(text.trim()).map(|p| p.0)
 }
 
 pub(crate) fn run(args: &EventsArgs) -> Result<ExitCode, String> {
@@ -349,6 +381,22 @@ mod tests {
         assert_eq!(declared("05.01.01.01.22.00.01.00/0x10").unwrap().range.bits(), 4);
         assert!(declared("05.01.01.01.22.00.01.00/0").is_err());
         assert!(declared("05.01.01.01.22.00.01.00/x").is_err());
+    }
+
+    #[test]
+    fn clock_events_of_the_well_known_clocks_are_in_words() {
+        assert_eq!(
+            event_text(EventId(0x0101_0000_0100_0601)),
+            "01.01.00.00.01.00.06.01 (default-fast: Report Time 06:01)"
+        );
+        assert_eq!(event_text(EventId(0x0101_0000_0102_C010)), "01.01.00.00.01.02.C0.10 (alternate-1: Set Rate 4)");
+        assert_eq!(
+            event_text(EventId(0x0101_0000_0101_F003)),
+            "01.01.00.00.01.01.F0.03 (default-realtime: Date Rollover)"
+        );
+        // A reserved code, and a clock that is not well known, stay plain.
+        assert_eq!(event_text(EventId(0x0101_0000_0100_1800)), "01.01.00.00.01.00.18.00");
+        assert_eq!(event_text(EventId(0x0501_0101_2200_0601)), "05.01.01.01.22.00.06.01");
     }
 
     #[test]

@@ -5,6 +5,7 @@
 mod stdout;
 
 mod args;
+mod board;
 mod cdi;
 mod clock;
 mod config;
@@ -32,6 +33,7 @@ mod settings;
 mod sim;
 mod throttle;
 mod train;
+mod ui;
 mod watch;
 mod write;
 
@@ -119,6 +121,9 @@ enum Command {
     /// Find a train by its DCC address, take control of it and drive it (speed, direction,
     /// functions, emergency stop), then release it.
     Throttle(throttle::ThrottleArgs),
+    /// Serve a web page (on 127.0.0.1:8080 by default) to see the nodes, configure them,
+    /// back them up, upgrade them and watch the bus from a browser, until Ctrl-C.
+    Ui(ui::UiArgs),
     /// Start a hub and two nodes on 127.0.0.1, move generated data through real sockets, verify it.
     Demo(demo::DemoArgs),
     /// Print a shell completion script on stdout (e.g. `lcc-stream completions bash >
@@ -171,6 +176,7 @@ fn main() -> ExitCode {
         Command::FactoryReset(args) => control::factory_reset(&args),
         Command::Monitor(args) => monitor::run(&args),
         Command::Demo(args) => demo::run(&args),
+        Command::Ui(args) => ui::run(&args),
         Command::Completions { shell } => {
             let mut script = Vec::new();
             clap_complete::generate(shell, &mut Cli::command(), "lcc-stream", &mut script);

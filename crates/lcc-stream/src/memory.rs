@@ -47,7 +47,7 @@ pub(crate) fn after_help(extra: &str) -> String {
 }
 
 /// Options every client command takes.
-#[derive(Debug, Args)]
+#[derive(Debug, Clone, Args)]
 pub(crate) struct ClientArgs {
     /// Use datagrams only (64-byte chunks), never a stream.
     #[arg(long)]
@@ -133,11 +133,17 @@ pub(crate) async fn join(args: &ClientArgs, command: &str, peer: NodeId) -> Resu
         options
     });
     let node = node.await?;
+    find(&node, peer).await?;
+    Ok(node)
+}
+
+/// Makes sure `peer` is there and has Memory Configuration (exit 5 if it is not there).
+pub(crate) async fn find(node: &Node, peer: NodeId) -> Result<(), Failure> {
     tracing::info!(%peer, "asking for the node's protocols (PIP)");
     match node.protocols(peer, FIND_TIMEOUT).await {
         Ok(protocols) if protocols.contains(Protocols::MEMORY_CONFIGURATION) => {
             tracing::info!(%peer, protocols = %protocols.names().collect::<Vec<_>>().join(" "), "found the node");
-            Ok(node)
+            Ok(())
         }
         Ok(_) => Err(Failure::Lacks { peer, missing: Missing::Configuration, code: None }),
         Err(Error::NoAnswer { .. }) => Err(Failure::Net(Error::Unreachable(peer))),
@@ -185,6 +191,7 @@ pub(crate) async fn follow<T>(
                 Ok(()) = progress.changed() => {
                     moved.bytes = *progress.borrow_and_update();
                     bar.set(moved.bytes);
+                    interrupt.progress(moved.bytes, total);
                 }
                 slow = &mut slow => break Err(Failure::TooSlow(slow)),
                 () = interrupt.wait() => break Err(Failure::Interrupted),
@@ -349,7 +356,7 @@ pub(crate) fn finish(report: Report, outcome: Result<String, Failure>, json: boo
 }
 
 /// What an interrupted firmware upgrade leaves behind, and how to finish it.
-const FIRMWARE_INTERRUPTED: &str = "the node was left in firmware upgrade mode (frozen, space 0xEF \
+pub(crate) const FIRMWARE_INTERRUPTED: &str = "the node was left in firmware upgrade mode (frozen, space 0xEF \
 partly written); run the same `lcc-stream firmware` command again to finish, or power-cycle the \
 node if its bootloader falls back to the old image";
 

@@ -116,15 +116,15 @@ impl GapLine<'_> {
 /// One decoded message.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub(crate) struct Line {
-    time: f64,
-    kind: Kind,
-    source_alias: String,
-    source: Option<String>,
-    destination_alias: Option<String>,
-    destination: Option<String>,
-    message: String,
-    detail: String,
-    raw: Option<String>,
+    pub(crate) time: f64,
+    pub(crate) kind: Kind,
+    pub(crate) source_alias: String,
+    pub(crate) source: Option<String>,
+    pub(crate) destination_alias: Option<String>,
+    pub(crate) destination: Option<String>,
+    pub(crate) message: String,
+    pub(crate) detail: String,
+    pub(crate) raw: Option<String>,
 }
 
 impl Line {
@@ -711,7 +711,13 @@ fn leading_time(line: &str) -> Option<f64> {
 }
 
 /// Decodes every frame of `text` (one trace line, or what a connection gave), at `time`.
-fn decode_text(monitor: &mut Monitor, decoder: &mut GridConnectDecoder, time: f64, text: &[u8], out: &mut Vec<Line>) {
+pub(crate) fn decode_text(
+    monitor: &mut Monitor,
+    decoder: &mut GridConnectDecoder,
+    time: f64,
+    text: &[u8],
+    out: &mut Vec<Line>,
+) {
     let mut input = text;
     loop {
         let before = input;

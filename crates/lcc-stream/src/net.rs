@@ -62,7 +62,7 @@ const TRANSIENT_TRIES: u64 = 8;
 const TCP_SETTLE: std::time::Duration = std::time::Duration::from_millis(200);
 
 /// `--node-id` of a command that comes and goes.
-#[derive(Debug, Args)]
+#[derive(Debug, Clone, Args)]
 pub(crate) struct TransientId {
     /// This node's Node ID [default: a free one of 05.01.01.01.22.80 to 05.01.01.01.22.BF;
     /// over GridConnect, serial and CAN each is checked on the bus before it is claimed].
@@ -107,7 +107,7 @@ impl From<ProtocolArg> for Framing {
 }
 
 /// `--connect` or `--serial`, and `--protocol`.
-#[derive(Debug, Args)]
+#[derive(Debug, Clone, Args)]
 pub(crate) struct ConnectArgs {
     /// The hub, HOST:PORT, also set once for every command by the environment variable
     /// LCC_HUB or by `hub = "HOST:PORT"` in the settings file (`~/.config/lcc-stream/config.toml`
@@ -311,10 +311,15 @@ impl ConnectArgs {
 }
 
 /// SIGINT (Ctrl-C), SIGTERM and SIGHUP (a closed terminal, a dropped ssh), listened for from
-/// the moment this is made (so that none kills the process outright while a stream runs).
+/// the moment this is made (so that none kills the process outright while a stream runs);
+/// or, for an operation that `ui` runs, its Cancel button.
 pub(crate) struct Interrupt {
     #[cfg(unix)]
-    signals: [tokio::signal::unix::Signal; 3],
+    signals: Option<[tokio::signal::unix::Signal; 3]>,
+    /// Set to true to cancel (the Cancel button of `ui`).
+    cancel: Option<tokio::sync::watch::Receiver<bool>>,
+    /// Where `ui` shows an operation's progress: bytes moved, of how many if known.
+    progress: Option<tokio::sync::watch::Sender<(u64, Option<u64>)>>,
 }
 
 impl Interrupt {
@@ -325,17 +330,45 @@ impl Interrupt {
             let listen = |kind| signal(kind).map_err(|e| format!("cannot listen for signals: {e}"));
             let signals =
                 [listen(SignalKind::interrupt())?, listen(SignalKind::terminate())?, listen(SignalKind::hangup())?];
-            Ok(Interrupt { signals })
+            Ok(Interrupt { signals: Some(signals), cancel: None, progress: None })
         }
         #[cfg(not(unix))]
-        Ok(Interrupt {})
+        Ok(Interrupt { cancel: None, progress: None })
     }
 
-    /// Waits for the next SIGINT, SIGTERM or SIGHUP.
+    /// An interrupt that comes only when `cancel` turns true (no signals: the process that
+    /// serves `ui` handles its own); each transfer's progress goes to `progress`.
+    pub(crate) fn on(
+        cancel: tokio::sync::watch::Receiver<bool>,
+        progress: tokio::sync::watch::Sender<(u64, Option<u64>)>,
+    ) -> Self {
+        Interrupt {
+            #[cfg(unix)]
+            signals: None,
+            cancel: Some(cancel),
+            progress: Some(progress),
+        }
+    }
+
+    /// A transfer has moved `bytes` of `total`.
+    pub(crate) fn progress(&self, bytes: u64, total: Option<u64>) {
+        if let Some(progress) = &self.progress {
+            progress.send_replace((bytes, total));
+        }
+    }
+
+    /// Waits for the next SIGINT, SIGTERM or SIGHUP, or the cancel.
     pub(crate) async fn wait(&mut self) {
+        if let Some(cancel) = &mut self.cancel {
+            // A dropped sender never cancels.
+            if cancel.wait_for(|c| *c).await.is_err() {
+                std::future::pending::<()>().await;
+            }
+            return;
+        }
         #[cfg(unix)]
         {
-            let [int, term, hup] = &mut self.signals;
+            let Some([int, term, hup]) = &mut self.signals else { return std::future::pending().await };
             tokio::select! {
                 _ = int.recv() => {}
                 _ = term.recv() => {}

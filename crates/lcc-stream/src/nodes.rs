@@ -12,7 +12,7 @@ use crate::net::{self, ConnectArgs};
 use crate::outcome::Failure;
 
 /// The most nodes listed.
-const MOST_NODES: usize = 1024;
+pub(crate) const MOST_NODES: usize = 1024;
 /// How long each node may take to answer the Protocol Support Inquiry.
 const PIP_TIMEOUT: Duration = Duration::from_secs(3);
 
@@ -48,29 +48,30 @@ fn parse_wait(text: &str) -> Result<f64, String> {
     if (0.05..=30.0).contains(&secs) { Ok(secs) } else { Err("the quiet period must be 0.05 to 30 seconds".into()) }
 }
 
-/// One node as `--json` prints it.
-#[derive(Debug, Serialize)]
-struct NodeReport {
+/// One node as `--json` prints it (and `ui` shows it).
+#[derive(Debug, Clone, Serialize)]
+pub(crate) struct NodeReport {
     /// `05.01.01.01.22.F1`.
-    node_id: String,
+    pub(crate) node_id: String,
     /// The CAN alias in hex (`"3B2"`), or null over OpenLCB-TCP.
-    alias: Option<String>,
+    pub(crate) alias: Option<String>,
     /// The SNIP strings, or null when the node did not answer.
-    snip: Option<SnipReport>,
+    pub(crate) snip: Option<SnipReport>,
     /// The names of the protocols it announces, or null when it did not answer.
-    protocols: Option<Vec<&'static str>>,
+    pub(crate) protocols: Option<Vec<&'static str>>,
     /// Why SNIP or PIP gave nothing, if either did.
-    errors: Vec<String>,
+    pub(crate) errors: Vec<String>,
 }
 
-#[derive(Debug, Serialize)]
-struct SnipReport {
-    manufacturer: String,
-    model: String,
-    hardware_version: String,
-    software_version: String,
-    user_name: String,
-    user_description: String,
+/// The SNIP strings of a node.
+#[derive(Debug, Clone, Serialize)]
+pub(crate) struct SnipReport {
+    pub(crate) manufacturer: String,
+    pub(crate) model: String,
+    pub(crate) hardware_version: String,
+    pub(crate) software_version: String,
+    pub(crate) user_name: String,
+    pub(crate) user_description: String,
 }
 
 impl From<SnipInfo> for SnipReport {
@@ -146,7 +147,7 @@ async fn discover(args: &NodesArgs) -> Result<Vec<NodeReport>, Failure> {
 }
 
 /// Asks one node for its SNIP and PIP at once.
-async fn describe(node: &Node, peer: NodeId) -> NodeReport {
+pub(crate) async fn describe(node: &Node, peer: NodeId) -> NodeReport {
     let (snip, protocols, alias) =
         tokio::join!(node.snip(peer), node.protocols(peer, PIP_TIMEOUT), node.alias_of(peer));
     let mut errors = Vec::new();

@@ -6,18 +6,19 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex};
 
 use clap::Args;
 use openlcb_stream::wire::ReplyCode;
 use openlcb_stream::{AcceptPolicy, NodeId};
 use openlcb_tokio::openlcb_node::{MemorySpace, SpaceError};
 use openlcb_tokio::{
-    DeclaredEvents, Error, EventNotice, EventNotices, MemoryEvent, MemoryServer, Node, NodeOptions, RamSpace,
-    ReadOnlySpace, ServerEvents,
+    DeclaredEvents, Error, EventNotice, EventNotices, FileSpace, MemoryEvent, MemoryServer, Node, NodeOptions,
+    RamSpace, ReadOnlySpace, ServerEvents, SharedSpace,
 };
 use serde::Serialize;
 
+use crate::board::{Board, Configured};
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome, net_outcome};
 use crate::peer::Peer;
@@ -36,6 +37,13 @@ const FIRMWARE_MAX: u32 = 16 * 1024 * 1024;
 macro_rules! serve_json_help {
     () => {
         "\
+The board: every eventid setting of space 0xFD (the built-in CDI's Port(i).Event On and
+Event Off) is produced and consumed as the configuration holds it; a tool's change takes
+effect at its Update Complete (which `config set` and `write` send), and the node identifies
+the new events at once. --input lines (`port 2 on`, or a setting's CDI key) produce them; a
+report of one drives its output: a line on stdout, `port 3 off (EVENT from NODE)`, or with
+--json {output, event, from or from_alias}.
+
 --json prints one object when the node stops: node, config_bytes (the size of space 0xFD),
 cdi_bytes, firmware (one object per image received: from (the loader's Node ID, or
 from_alias, its CAN alias in hex, when only that is known), bytes, file, and error when it
@@ -96,6 +104,12 @@ pub(crate) struct ServeArgs {
     /// Take no part in streams: every transfer goes by datagrams.
     #[arg(long)]
     no_streams: bool,
+    /// Read input lines from this file or FIFO (`-`: stdin), each naming an event setting of
+    /// space 0xFD as the board's input: `port 2 on` (the built-in CDI's ports), or the
+    /// setting's CDI key. The event the setting holds is produced (a Producer/Consumer Event
+    /// Report).
+    #[arg(long, value_name = "FILE")]
+    input: Option<PathBuf>,
     /// Print one JSON object (fields below) when the node stops, instead of text.
     #[arg(long)]
     json: bool,
@@ -203,19 +217,44 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
             eprintln!("lcc-stream serve: {verb} {}", crate::events::range_text(declared.range));
         }
     }
+    // The board's events, as the configuration holds them.
+    let mut configured = Configured::default();
+    if let Err(error) = apply_board(&node, &spaces, args, &mut configured, true).await {
+        return Ok(net::fail("serve", &Failure::Net(error)));
+    }
+    let mut input = match &args.input {
+        Some(path) => Some(input_lines(path)?),
+        None => None,
+    };
     // Notices lost by the listeners of earlier connections.
     let mut dropped_before = 0;
     let status = loop {
         let lost = tokio::select! {
             event = events.next() => match event {
                 Some(event) => {
+                    // A tool's change takes effect when it says it is done (or the node restarts).
+                    let applies = matches!(event, MemoryEvent::UpdateComplete { .. } | MemoryEvent::ResetRequested { .. });
                     on_event(event, args, &image, &mut report);
-                    continue;
+                    match applies {
+                        true => match apply_board(&node, &spaces, args, &mut configured, false).await {
+                            Ok(()) => continue,
+                            Err(error) => error,
+                        },
+                        false => continue,
+                    }
                 }
                 None => node.closed().await,
             },
             Some(notice) = notices.next() => {
+                drive_outputs(&notice, &configured, args.json);
                 on_notice(&notice, notices.dropped(), printer.as_mut(), &mut report);
+                continue;
+            }
+            line = next_line(&mut input) => {
+                match line {
+                    Some(line) => produce(&node, &configured, &line).await,
+                    None => input = None,
+                }
                 continue;
             }
             error = node.closed() => error,
@@ -238,6 +277,9 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
                 Ok((again, started)) => {
                     dropped_before += notices.dropped();
                     (node, (events, notices)) = (again, started);
+                    if let Err(error) = apply_board(&node, &spaces, args, &mut configured, true).await {
+                        eprintln!("lcc-stream serve: {error}");
+                    }
                     if let Some(printer) = printer.as_mut() {
                         printer.new_listener();
                     }
@@ -282,6 +324,100 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         eprintln!("lcc-stream serve: interrupted{reports}");
     }
     Ok(ExitCode::from(status))
+}
+
+/// Declares the board's events as space 0xFD holds them now, beside `--produces` and
+/// `--consumes`, when they differ from `configured` (or, `joined`, on a new connection that
+/// knows only those), and says what they are.
+async fn apply_board(
+    node: &Node,
+    spaces: &Spaces,
+    args: &ServeArgs,
+    configured: &mut Configured,
+    joined: bool,
+) -> Result<(), Error> {
+    let now = spaces.board.read(&mut *spaces.config.lock());
+    if now == *configured && !(joined && now != Configured::default()) {
+        return Ok(());
+    }
+    node.set_events(now.declarations(&args.produces, &args.consumes)).await?;
+    if !args.json {
+        eprintln!("lcc-stream serve: the board's events: {}", now.text());
+    }
+    *configured = now;
+    Ok(())
+}
+
+/// The lines of `--input` (`-`: stdin), read beside the node; the channel ends with the input.
+/// A thread of its own reads them (not the runtime's blocking pool, which would hold the
+/// tool's exit until the input ends).
+fn input_lines(path: &Path) -> Result<tokio::sync::mpsc::Receiver<String>, String> {
+    use std::io::BufRead as _;
+    let (sink, lines) = tokio::sync::mpsc::channel(64);
+    let reader: Box<dyn std::io::Read + Send> = if path == Path::new("-") {
+        Box::new(std::io::stdin())
+    } else {
+        Box::new(std::fs::File::open(path).map_err(|e| format!("cannot open the input {}: {e}", path.display()))?)
+    };
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(reader).lines() {
+            let Ok(line) = line else { break };
+            if !line.trim().is_empty() && sink.blocking_send(line).is_err() {
+                break;
+            }
+        }
+    });
+    Ok(lines)
+}
+
+/// The next input line; never, without `--input` or once it has ended.
+async fn next_line(input: &mut Option<tokio::sync::mpsc::Receiver<String>>) -> Option<String> {
+    match input {
+        Some(lines) => lines.recv().await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Produces the event of the setting `line` names.
+async fn produce(node: &Node, configured: &Configured, line: &str) {
+    let event = match configured.input(line) {
+        Ok(event) => event,
+        Err(why) => return eprintln!("lcc-stream serve: input `{}`: {why}", line.trim()),
+    };
+    match node.send_event(event, Vec::new()).await {
+        Ok(()) => eprintln!("lcc-stream serve: input `{}`: produced {}", line.trim(), crate::events::event_text(event)),
+        Err(error) => eprintln!("lcc-stream serve: input `{}`: {error}", line.trim()),
+    }
+}
+
+/// One output driven, as `serve --json` prints it.
+#[derive(Debug, Serialize)]
+struct OutputLine<'a> {
+    output: &'a str,
+    event: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from_alias: Option<String>,
+}
+
+/// Drives (prints on stdout) every output a consumed report names.
+fn drive_outputs(notice: &EventNotice, configured: &Configured, json: bool) {
+    let EventNotice::Report { from, event, .. } = notice else { return };
+    let peer = Peer::of(*from);
+    for output in configured.outputs(*event) {
+        if json {
+            let line = OutputLine {
+                output,
+                event: event.to_string(),
+                from: peer.node_field(),
+                from_alias: peer.alias_field(),
+            };
+            outln!("{}", serde_json::to_string(&line).unwrap_or_default());
+        } else {
+            outln!("{output} ({event} from {peer})");
+        }
+    }
 }
 
 /// Serves `spaces` on `node` (a new connection's), and listens to its event reports.
@@ -405,7 +541,9 @@ fn check_writable(path: &Path) -> Result<(), String> {
 /// server is handed the same spaces.
 struct Spaces {
     cdi: ReadOnlySpace,
-    config: Shared<ConfigSpace>,
+    /// The board the CDI describes: its event settings.
+    board: Board,
+    config: SharedSpace<ConfigSpace>,
     image: Image,
 }
 
@@ -415,16 +553,14 @@ impl Spaces {
             Some(path) => ConfigSpace::open(path)?,
             None => ConfigSpace::Memory(RamSpace::new(DEFAULT_CONFIG_LEN)),
         };
-        let cdi = match &args.cdi {
-            Some(path) => {
-                let xml = std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-                ReadOnlySpace::cdi(&xml)
-            }
-            None => ReadOnlySpace::cdi(&builtin_cdi(config.len())),
+        let xml = match &args.cdi {
+            Some(path) => std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?,
+            None => builtin_cdi(config.len()),
         };
+        let (cdi, board) = (ReadOnlySpace::cdi(&xml), Board::new(&xml));
         let firmware_out = args.firmware_out.clone().unwrap_or_else(|| default_firmware_path(args.node_id));
         check_writable(&firmware_out)?;
-        Ok(Spaces { cdi, config: Shared::new(config), image: Image::new(firmware_out, args.force) })
+        Ok(Spaces { cdi, board, config: SharedSpace::new(config), image: Image::new(firmware_out, args.force) })
     }
 
     /// A memory server for a new connection, over these spaces. A firmware image that was
@@ -437,57 +573,6 @@ impl Spaces {
             .with_space(0xFD, self.config.clone())
             .with_space(0xEF, image)
             .with_acdi()
-    }
-}
-
-/// A space shared by the memory servers of successive connections.
-#[derive(Debug)]
-struct Shared<S>(Arc<Mutex<S>>);
-
-impl<S> Clone for Shared<S> {
-    fn clone(&self) -> Self {
-        Shared(self.0.clone())
-    }
-}
-
-impl<S> Shared<S> {
-    fn new(space: S) -> Self {
-        Shared(Arc::new(Mutex::new(space)))
-    }
-
-    /// The space; one that a panic left behind is used as it is (its bytes are all there).
-    fn space(&self) -> MutexGuard<'_, S> {
-        self.0.lock().unwrap_or_else(PoisonError::into_inner)
-    }
-}
-
-impl<S: MemorySpace> MemorySpace for Shared<S> {
-    fn len(&self) -> u32 {
-        self.space().len()
-    }
-    fn read_only(&self) -> bool {
-        self.space().read_only()
-    }
-    fn write_only(&self) -> bool {
-        self.space().write_only()
-    }
-    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
-        self.space().read(address, buf)
-    }
-    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
-        self.space().write(address, data)
-    }
-    fn commit(&mut self) -> Result<(), SpaceError> {
-        self.space().commit()
-    }
-    fn write_window(&self) -> Option<u16> {
-        self.space().write_window()
-    }
-    fn complete(&mut self, len: u32) -> Result<(), SpaceError> {
-        self.space().complete(len)
-    }
-    fn discard(&mut self) {
-        self.space().discard();
     }
 }
 
@@ -545,95 +630,48 @@ const BUILTIN_SETTINGS: &str = r#"<string size="32"><name>Label</name><descripti
 </group>
 "#;
 
-/// Space 0xFD: a file or bytes in memory. A write command reaches the file whole, once, at
-/// its end ([`MemorySpace::commit`]): bytes within one page of the file (a Write datagram's)
-/// in place, with one `write` the kernel does at once or not at all; anything larger (a
-/// Write Stream's) by replacing the file (through `<file>.part`, then a rename). So the file
-/// holds the space as it was before or after each command, never half of one, even when
-/// `serve` is killed, and a 1 MiB transfer costs one save, not one per 256 bytes.
+/// Space 0xFD: a file ([`FileSpace`]: each write command reaches it whole, once, so that it
+/// holds the space as it was before or after each command, even when `serve` is killed), or
+/// bytes in memory.
 enum ConfigSpace {
-    /// `dirty`: the addresses written since the last commit.
-    File {
-        path: PathBuf,
-        bytes: RamSpace,
-        dirty: Option<(u32, u32)>,
-    },
+    File(FileSpace),
     Memory(RamSpace),
 }
 
-/// The unit of the file a single `write` of changed bytes never crosses.
-const PAGE: u32 = 4096;
-
 impl ConfigSpace {
     fn open(path: &Path) -> Result<ConfigSpace, String> {
-        let bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-        if bytes.is_empty() || u32::try_from(bytes.len()).is_err() {
-            return Err(format!("{} must hold 1 byte to 4 GiB", path.display()));
-        }
-        save_whole(path, &bytes, true).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
-        Ok(ConfigSpace::File { path: path.to_path_buf(), bytes: RamSpace::from_bytes(bytes), dirty: None })
+        FileSpace::open(path).map(ConfigSpace::File).map_err(|e| match e.kind() {
+            std::io::ErrorKind::InvalidData => format!("{} must hold 1 byte to 4 GiB", path.display()),
+            _ => format!("cannot use {}: {e}", path.display()),
+        })
     }
 
-    fn ram(&self) -> &RamSpace {
+    fn space(&mut self) -> &mut dyn MemorySpace {
         match self {
-            ConfigSpace::File { bytes, .. } | ConfigSpace::Memory(bytes) => bytes,
+            ConfigSpace::File(file) => file,
+            ConfigSpace::Memory(bytes) => bytes,
         }
     }
-}
-
-/// Writes `bytes` over the same range of the file at `path`, in one `write`.
-fn write_in_place(path: &Path, start: u32, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::{Seek as _, SeekFrom};
-    let mut file = std::fs::OpenOptions::new().write(true).open(path)?;
-    file.seek(SeekFrom::Start(u64::from(start)))?;
-    file.write_all(bytes)
 }
 
 impl MemorySpace for ConfigSpace {
     fn len(&self) -> u32 {
-        self.ram().len()
+        match self {
+            ConfigSpace::File(file) => file.len(),
+            ConfigSpace::Memory(bytes) => bytes.len(),
+        }
     }
     fn read_only(&self) -> bool {
         false
     }
     fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
-        match self {
-            ConfigSpace::File { bytes, .. } | ConfigSpace::Memory(bytes) => bytes.read(address, buf),
-        }
+        self.space().read(address, buf)
     }
     fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
-        match self {
-            ConfigSpace::Memory(bytes) => bytes.write(address, data),
-            ConfigSpace::File { bytes, dirty, .. } => {
-                bytes.write(address, data)?;
-                let end = address + data.len() as u32;
-                *dirty = Some(dirty.map_or((address, end), |(low, high)| (low.min(address), high.max(end))));
-                Ok(())
-            }
-        }
+        self.space().write(address, data)
     }
     fn commit(&mut self) -> Result<(), SpaceError> {
-        let ConfigSpace::File { path, bytes, dirty } = self else { return Ok(()) };
-        let Some((start, end)) = *dirty else { return Ok(()) };
-        let whole = bytes.as_bytes();
-        let saved = match whole.get(start as usize..end as usize) {
-            Some(changed) if start / PAGE == end.saturating_sub(1) / PAGE => write_in_place(path, start, changed),
-            _ => save_whole(path, whole, true),
-        };
-        if saved.is_err() {
-            // Not saved: the space goes back to what the file holds, so that no read-back
-            // (`config set`'s, a tool's) takes the failed command for done; a file that
-            // cannot be read either keeps the bytes marked for the next commit.
-            if let Ok(held) = std::fs::read(path.as_path())
-                && held.len() == whole.len()
-            {
-                *bytes = RamSpace::from_bytes(held);
-                *dirty = None;
-            }
-            return Err(SpaceError::Failed(openlcb_stream::wire::ErrorCode::PERMANENT));
-        }
-        *dirty = None;
-        Ok(())
+        self.space().commit()
     }
 }
 
@@ -732,39 +770,6 @@ impl MemorySpace for Image {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_config_file_takes_each_write_command_whole_at_its_commit() {
-        let dir = std::env::temp_dir().join(format!("lcc-stream-serve-config-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("config.bin");
-        std::fs::write(&path, vec![0u8; 3 * PAGE as usize]).unwrap();
-        let mut space = ConfigSpace::open(&path).unwrap();
-        // A transfer in pieces across pages: the file keeps the old bytes until its commit.
-        for (i, address) in (0..2 * PAGE).step_by(256).enumerate() {
-            space.write(address, &[i as u8 + 1; 256]).unwrap();
-        }
-        assert!(std::fs::read(&path).unwrap().iter().all(|b| *b == 0), "nothing before the commit");
-        space.commit().unwrap();
-        let file = std::fs::read(&path).unwrap();
-        assert_eq!(file[..2 * PAGE as usize], space.ram().as_bytes()[..2 * PAGE as usize]);
-        assert!(!part_path(&path).exists());
-        // A datagram's bytes within one page: written in place.
-        space.write(PAGE * 2 + 10, &[0xAB; 64]).unwrap();
-        space.commit().unwrap();
-        assert_eq!(std::fs::read(&path).unwrap(), space.ram().as_bytes());
-        assert!(space.commit().is_ok(), "nothing left to store");
-        // A commit that cannot replace the file (a folder stands where its `.part` goes,
-        // which even root cannot create as a file) fails, and the space reads as the file
-        // still holds it.
-        let held = std::fs::read(&path).unwrap();
-        std::fs::create_dir(part_path(&path)).unwrap();
-        space.write(0, &[0x5A; 2 * PAGE as usize]).unwrap();
-        assert!(space.commit().is_err());
-        assert_eq!(space.ram().as_bytes(), &held[..], "the failed command is not read back as done");
-        assert_eq!(std::fs::read(&path).unwrap(), held);
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
 
     #[test]
     fn image_space_keeps_what_was_written_and_reads_zeros_past_it() {

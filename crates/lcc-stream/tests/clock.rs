@@ -79,3 +79,41 @@ async fn bad_times_dates_and_rates_are_usage_errors() {
         assert_eq!(code, 2, "{args:?}: {said}");
     }
 }
+
+/// A generator that loses its hub joins the next one on the same address and goes on from
+/// the time it had (not from its start): a new follower sees the time run on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_generator_goes_on_from_its_time_through_a_lost_hub() {
+    let hub = Hub::bind("127.0.0.1:0", None, HubOptions::default()).await.unwrap();
+    let addr = hub.local_addr().to_string();
+    let mut generator =
+        spawn(&["clock", "--connect", &addr, "--rate", "60", "--time", "06:00", "--date", "1956-07-04"]);
+    let mut said: Lines<BufReader<ChildStderr>> = BufReader::new(generator.stderr.take().unwrap()).lines();
+    until(&mut said, "generating default-fast").await;
+    let mut generated: Lines<BufReader<ChildStdout>> = BufReader::new(generator.stdout.take().unwrap()).lines();
+    until(&mut generated, "06:03:00").await;
+    drop(hub);
+    until(&mut said, "lost the hub").await;
+    let hub = bounded("the address free again", async {
+        loop {
+            match Hub::bind(&addr, None, HubOptions::default()).await {
+                Ok(hub) => return hub,
+                Err(_) => tokio::time::sleep(std::time::Duration::from_millis(50)).await,
+            }
+        }
+    })
+    .await;
+    until(&mut said, "rejoined the hub").await;
+    let mut follower = spawn(&["clock", "--follow", "--json", "--connect", &addr]);
+    let mut followed: Lines<BufReader<ChildStdout>> = BufReader::new(follower.stdout.take().unwrap()).lines();
+    let synced = until(&mut followed, "\"synchronized\"").await;
+    let shown: serde_json::Value = serde_json::from_str(&synced).unwrap();
+    let time = shown["clock_time"].as_str().unwrap().to_string();
+    assert!(time.as_str() >= "1956-07-04 06:03:00" && time.as_str() < "1956-07-04 07:00:00", "{time}");
+    interrupt(&follower).await;
+    interrupt(&generator).await;
+    for child in [&mut follower, &mut generator] {
+        assert!(bounded("the clock to stop", child.wait()).await.unwrap().success());
+    }
+    drop(hub);
+}

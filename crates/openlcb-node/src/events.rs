@@ -418,6 +418,16 @@ impl Node {
         self.send_event_message(Mti::LEARN_EVENT, None, event.to_bytes().to_vec())
     }
 
+    /// Produces and consumes what `events` declares from now on (a board whose events a tool
+    /// has just configured), and identifies every declaration again, as after Initialization
+    /// Complete, so that the network learns the new Event IDs (and Identify answers and
+    /// reports follow them at once).
+    pub fn set_events(&mut self, events: EventConfig) {
+        let Node { config, services, .. } = self;
+        config.events = events;
+        services.events.announce(&config.events);
+    }
+
     /// The event service's counters.
     pub fn event_stats(&self) -> EventStats {
         self.services.events.stats

@@ -183,6 +183,7 @@ extern crate alloc;
 #[cfg(feature = "fuzzing")]
 extern crate std;
 
+pub mod board;
 pub mod broadcast_time;
 mod config;
 mod datagram;

@@ -205,7 +205,7 @@ impl Outputs {
 /// `MemoryEvent::ResetRequested` and may do more (a firmware resets its processor).
 #[derive(Debug)]
 pub struct Node {
-    config: NodeConfig,
+    pub(crate) config: NodeConfig,
     protocols: Protocols,
     streams: StreamEndpoint,
     memory: MemoryConfig,
@@ -284,9 +284,10 @@ impl Node {
     /// The protocols this node announces in its Protocol Support Reply: exactly what it
     /// implements, and with a memory server what it serves ([`MemoryServer::protocols`]).
     pub fn protocols(&self) -> Protocols {
+        let own = self.protocols | self.services.protocols(&self.config);
         match &self.memory.server {
-            None => self.protocols,
-            Some(server) => self.protocols | server.protocols(),
+            None => own,
+            Some(server) => own | server.protocols(),
         }
     }
 

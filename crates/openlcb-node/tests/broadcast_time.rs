@@ -491,3 +491,42 @@ fn a_consumer_keeps_its_seconds_against_late_reports_and_takes_the_minutes_start
     }
     assert_eq!(bench.node.clock(CLOCK, bench.now).unwrap().time.second, 30);
 }
+
+/// A set while stopped: the time is the one set and stays there, its echo and the sequence
+/// say so, and no minute is reported until it starts.
+#[test]
+fn a_set_while_stopped_holds_until_the_clock_starts() {
+    let mut bench = Bench::generator(GeneratorConfig::default());
+    bench.advance(Duration::from_secs(5));
+    let mark = bench.mark();
+    bench.pcer(0x8A0F); // 10:15
+    bench.advance(Duration::from_secs(120));
+    assert_eq!(bench.node.clock(CLOCK, bench.now).unwrap().time, at(2000, 1, 1, 10, 15));
+    let sent = bench.clock_messages(mark);
+    assert_eq!(sent[0], (PCER, 0x0A0F));
+    assert_eq!(sent[1..], [(PID, 0xF001), (PID, 0x4004), (PID, 0x37D0), (PID, 0x2101), (PID, 0x0A0F)]);
+    bench.pcer(0xF002);
+    bench.advance(Duration::from_secs(61));
+    assert_eq!(bench.node.clock(CLOCK, bench.now).unwrap().time, ClockTime::new(2000, 1, 1, 10, 16, 1).unwrap());
+    assert!(bench.time_reports(mark).iter().any(|(_, s)| *s == 0x0A10), "10:16 reported once it runs");
+}
+
+/// A consumer that stops the clock itself (it does not hear its own command) stands once the
+/// generator's sequence says so.
+#[test]
+fn a_consumer_that_sends_stop_stands_when_the_generator_says_it_stopped() {
+    let mut bench = Bench::new(vec![ClockConfig::consumer(CLOCK)]);
+    bench.pcer(0xF000);
+    for suffix in [0xF002, 0x4010, 0x37E7, 0x2716, 0x0117] {
+        bench.hear(PID, suffix);
+    }
+    bench.advance(Duration::from_secs(2));
+    bench.node.set_clock(bench.now, CLOCK, ClockSet::Stop).unwrap();
+    bench.drain();
+    assert!(bench.node.clock(CLOCK, bench.now).unwrap().running, "not before the generator says so");
+    bench.advance(Duration::from_secs(3));
+    for suffix in [0xF001, 0x4010, 0x37E7, 0x2716, 0x0117] {
+        bench.hear(PID, suffix);
+    }
+    assert!(!bench.node.clock(CLOCK, bench.now).unwrap().running);
+}

@@ -6,7 +6,7 @@ use openlcb_node::{
     DeclaredEvents, EventConfig, EventError, EventNotice, EventRange, EventRole, EventState, Listen, Node, NodeConfig,
     NodeEvent, Protocols,
 };
-use openlcb_stream::{EventId, Instant, MessageRef, Mti, NodeId};
+use openlcb_stream::{EventId, Instant, Message, MessageRef, Mti, NodeId};
 
 const LOCAL: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x40, 0x02]);
 const PEER: NodeId = NodeId::from_bytes([0x05, 0x01, 0x01, 0x01, 0x40, 0x01]);
@@ -248,4 +248,39 @@ fn a_request_during_a_pass_is_answered_with_everything_from_then_on() {
     let mut expected = everything()[3..].to_vec();
     expected.extend(everything()[..3].iter().cloned());
     assert_eq!(rest, expected);
+}
+
+/// Events changed while the node runs (a board a tool has just configured): the new ones are
+/// identified at once, Identify answers follow them, the old ones are no longer answered, and
+/// a node that had no events gains the Event Exchange bit.
+#[test]
+fn events_set_at_run_time_are_identified_and_answered_at_once() {
+    let mut config = NodeConfig::default();
+    config.send_initialization_complete = false;
+    let mut node = Node::new(NodeId::new(0x05_01_01_01_22_30).unwrap(), config);
+    let tool = NodeId::new(0x05_01_01_01_22_31).unwrap();
+    assert!(!node.protocols().contains(Protocols::EVENT_EXCHANGE));
+    let old = EventId(0x0501_0101_2230_0001);
+    let new = EventId(0x0501_0101_2230_0002);
+    let mut events = EventConfig::default();
+    events.produced = vec![DeclaredEvents::single(old, EventState::Unknown)];
+    node.set_events(events.clone());
+    while node.poll_transmit().is_some() {}
+    events.produced = vec![DeclaredEvents::single(new, EventState::Unknown)];
+    events.consumed = vec![DeclaredEvents::single(old, EventState::Unknown)];
+    node.set_events(events);
+    let sent: Vec<(Mti, Vec<u8>)> = std::iter::from_fn(|| node.poll_transmit()).map(|m| (m.mti, m.payload)).collect();
+    assert_eq!(
+        sent,
+        [
+            (Mti::PRODUCER_IDENTIFIED_UNKNOWN, new.to_bytes().to_vec()),
+            (Mti::CONSUMER_IDENTIFIED_UNKNOWN, old.to_bytes().to_vec())
+        ]
+    );
+    assert!(node.protocols().contains(Protocols::EVENT_EXCHANGE));
+    for (event, answered) in [(old, false), (new, true)] {
+        let ask = Message::global(Mti::IDENTIFY_PRODUCER, tool, event.to_bytes());
+        node.handle_message(Instant::ZERO, ask.as_ref());
+        assert_eq!(node.poll_transmit().is_some(), answered, "{event}");
+    }
 }

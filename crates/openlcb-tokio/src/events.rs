@@ -1,7 +1,7 @@
 //! Event Transport on a [`Node`](crate::Node): sending reports and Identify messages
 //! ([`Node::send_event`](crate::Node::send_event), [`Node::identify_events`](crate::Node::identify_events),
 //! [`Node::identify`](crate::Node::identify)) and receiving what the node's
-//! [`EventConfig`](openlcb_node::EventConfig) lets through ([`Node::event_notices`](crate::Node::event_notices)).
+//! [`EventConfig`] lets through ([`Node::event_notices`](crate::Node::event_notices)).
 //!
 //! The events the node produces and consumes are declared in
 //! [`NodeOptions::node`](crate::NodeOptions::node)`.events`; the node answers Identify
@@ -10,7 +10,7 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use openlcb_node::{EventError, EventNotice, EventRole};
+use openlcb_node::{EventConfig, EventError, EventNotice, EventRole};
 use openlcb_stream::{EventId, NodeId};
 use tokio::sync::{mpsc, oneshot};
 
@@ -76,6 +76,10 @@ pub(crate) enum EventCommand {
         event: EventId,
         reply: oneshot::Sender<Result<(), Error>>,
     },
+    Declare {
+        events: EventConfig,
+        reply: oneshot::Sender<Result<(), Error>>,
+    },
 }
 
 impl EventCommand {
@@ -121,6 +125,10 @@ impl EventDriver {
             EventCommand::Report { event, payload, reply } => (stack.send_event(event, &payload), reply),
             EventCommand::IdentifyEvents { peer, reply } => (stack.identify_events(peer), reply),
             EventCommand::Identify { role, event, reply } => (stack.identify(role, event), reply),
+            EventCommand::Declare { events, reply } => {
+                stack.set_events(events);
+                (Ok(()), reply)
+            }
         };
         let _ = reply.send(result.map_err(|_: EventError| Error::Busy));
     }

@@ -8,6 +8,11 @@
 //! - Memory Configuration ([`memory`]): [`Node::set_memory_server`] serves address spaces,
 //!   [`Node::read_memory`], [`Node::write_memory`] and [`Node::upgrade_firmware`] configure
 //!   and upgrade other nodes, with progress.
+//! - A board ([`openlcb_node::board`], [`FileSpace`], [`SharedSpace`], [`Node::set_events`]):
+//!   its configuration declared once, kept in a file, its events those the configuration
+//!   holds. `examples/io_board.rs` is a complete 8-line I/O board in under 200 lines
+//!   (`cargo run -p openlcb-tokio --example io_board -- HUB:PORT`).
+//! - Broadcast Time ([`clock`]): the node's fast clocks.
 //! - [`Hub`]: a hub that relays every frame from a client to every other client, with bounded
 //!   per-client queues; [`Hub::attach`] adds a serial adapter or CAN interface,
 //!   [`Hub::link_upstream`] joins another hub.
@@ -85,6 +90,7 @@ pub mod clock;
 mod driver;
 mod error;
 pub mod events;
+mod file_space;
 pub mod hub;
 mod io;
 pub mod memory;
@@ -100,6 +106,7 @@ mod wire;
 pub use clock::ClockEvents;
 pub use error::Error;
 pub use events::EventNotices;
+pub use file_space::{FileSpace, SharedSpace};
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};
 pub use io::ByteStream;
 pub use memory::{MemoryTransfer, ServerEvents};

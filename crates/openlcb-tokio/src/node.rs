@@ -21,7 +21,7 @@ use crate::events::{EventCommand, EventNotices};
 use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents, TransferKey};
 use crate::train::{ThrottleEvents, TrainCommand, TrainEvents};
 use crate::{Error, Framing, WireStats};
-use openlcb_node::EventRole;
+use openlcb_node::{EventConfig, EventRole};
 use openlcb_stream::EventId;
 
 /// How a [`Node`] joins the network.
@@ -493,6 +493,14 @@ impl Node {
         let result =
             self.control.call(|reply| Command::Train(TrainCommand::Throttle { train, command, reply })).await?;
         result.map_err(crate::train::throttle_error)
+    }
+
+    /// Produces and consumes what `events` declares from now on (in place of
+    /// [`NodeOptions::node`](crate::NodeOptions::node)`.events`), identifying every declaration
+    /// at once: a board whose events a tool has configured (see
+    /// [`openlcb_node::Node::set_events`]).
+    pub async fn set_events(&self, events: EventConfig) -> Result<(), Error> {
+        self.control.call(|reply| Command::Events(EventCommand::Declare { events, reply })).await?
     }
 
     /// Serves `server`'s address spaces from now on (Memory Configuration and, with space

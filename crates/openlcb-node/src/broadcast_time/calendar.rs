@@ -46,6 +46,12 @@ impl ClockTime {
         Self::from_ms(days_from_civil(1970, 1, 1) * DAY_MS + seconds.saturating_mul(1000))
     }
 
+    /// The moment `millis` fast milliseconds later (earlier when negative), to the second,
+    /// within years 0 to 4095.
+    pub fn advanced(self, millis: i64) -> Self {
+        Self::from_ms(self.to_ms().saturating_add(millis))
+    }
+
     /// The moment `ms` milliseconds after 0000-01-01 00:00 (clamped to years 0 to 4095).
     pub(crate) fn from_ms(ms: i64) -> Self {
         let ms = clamp_to_calendar(ms);
@@ -154,6 +160,7 @@ mod tests {
         assert!(ClockTime::new(2023, 7, 22, 24, 0, 0).is_none());
         let new_year = ClockTime::new(2023, 12, 31, 23, 59, 59).unwrap().to_ms() + 1000;
         assert_eq!(ClockTime::from_ms(new_year), ClockTime::new(2024, 1, 1, 0, 0, 0).unwrap());
+        assert_eq!(t.advanced(-(6 * 3600 + 31 * 60) * 1000), ClockTime::new(1956, 7, 3, 23, 59, 15).unwrap());
         // 2026-12-04 21:33:11 UTC.
         assert_eq!(ClockTime::from_unix_seconds(1_796_419_991), ClockTime::new(2026, 12, 4, 21, 33, 11).unwrap());
     }

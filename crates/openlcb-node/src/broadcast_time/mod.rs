@@ -20,7 +20,7 @@
 //!   shows it out of step or when a running clock has said nothing for longer than the
 //!   standard allows. It may also drive the generator ([`Node::set_clock`]).
 //!
-//! Both roles tell the application what changed with [`NodeEvent::Clock`](crate::NodeEvent::Clock)
+//! Both roles tell the application what changed with [`NodeEvent::Clock`]
 //! ([`ClockEvent`]): a minute begun, a time set, the rate, start and stop; and answer
 //! [`Node::clock`] with the time now, to the millisecond.
 //!

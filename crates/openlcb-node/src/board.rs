@@ -1,0 +1,326 @@
+//! The application-node kit: a board's configuration declared once, in code, giving both its
+//! CDI (the XML a tool reads from space 0xFF) and the place of every setting in space 0xFD,
+//! so that a firmware author writes neither XML nor offsets. The settings are typed handles
+//! ([`IntSetting`], [`StringSetting`], [`EventSetting`]) that read and write the space; event
+//! settings marked produced or consumed become the node's events ([`Board::events`]), so that
+//! what the node answers and reports is what the configuration holds; [`Board::factory_reset`]
+//! writes the declared defaults.
+//!
+//! A whole board on a host, with its file-backed space and its events following the
+//! configuration at Update Complete, is `openlcb-tokio`'s `examples/io_board.rs`.
+//!
+//! Why a builder and not a derive macro: a builder is plain code (no proc-macro crate, no
+//! `syn` in a firmware's build), its replicated groups come out as a `Vec` of the same
+//! struct, and the offsets are computed as the XML is written, by the same calls, so they
+//! cannot disagree.
+//!
+//! ```
+//! use openlcb_node::board::{BoardBuilder, EventRole};
+//! use openlcb_node::{MemorySpace, RamSpace, SnipInfo};
+//! use openlcb_stream::EventId;
+//!
+//! struct Line { mode: openlcb_node::board::IntSetting, on: openlcb_node::board::EventSetting }
+//! let mut config = BoardBuilder::new("Settings");
+//! let name = config.string("Board name", 16, "north yard");
+//! let lines: Vec<Line> = config.group("Line", 4, |g, i| Line {
+//!     mode: g.int("Mode", 1, 0, &[(0, "Input"), (1, "Output")]),
+//!     on: g.event("Event On", EventRole::Produced, EventId(0x0501_0101_2200_0000 + i as u64)),
+//! });
+//! let board = config.finish(&SnipInfo::default());
+//! assert!(board.cdi().contains("<group replication=\"4\"><name>Line</name>"));
+//! assert_eq!(lines[2].on.address(), 16 + 2 * 9 + 1);
+//!
+//! let mut space = RamSpace::new(board.len());
+//! board.factory_reset(&mut space).unwrap();
+//! assert_eq!(name.read(&mut space).unwrap(), "north yard");
+//! assert_eq!(lines[3].on.read(&mut space).unwrap(), EventId(0x0501_0101_2200_0003));
+//! lines[1].mode.write(&mut space, 1).unwrap();
+//! assert_eq!(board.events(&mut space).produced.len(), 4);
+//! ```
+
+use alloc::format;
+use alloc::string::String;
+use alloc::vec::Vec;
+use core::fmt::Write as _;
+
+use openlcb_stream::EventId;
+
+use crate::memconfig::{MemorySpace, SpaceError};
+use crate::{DeclaredEvents, EventConfig, EventState, SnipInfo};
+
+/// What the node does with an event setting's Event ID.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum EventRole {
+    /// It produces it (an input's event).
+    Produced,
+    /// It consumes it (an output's event).
+    Consumed,
+}
+
+/// An integer setting of `size` bytes (1, 2, 4 or 8), big-endian.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct IntSetting {
+    address: u32,
+    size: u8,
+}
+
+/// A string setting of `size` bytes, NUL-padded UTF-8.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StringSetting {
+    address: u32,
+    size: u32,
+}
+
+/// An Event ID setting (8 bytes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EventSetting {
+    address: u32,
+}
+
+impl IntSetting {
+    /// Its address in space 0xFD.
+    pub fn address(self) -> u32 {
+        self.address
+    }
+
+    /// The value the space holds.
+    pub fn read(self, space: &mut impl MemorySpace) -> Result<u64, SpaceError> {
+        let mut bytes = [0u8; 8];
+        let len = usize::from(self.size);
+        let got = space.read(self.address, bytes.get_mut(..len).unwrap_or_default())?;
+        if got != len {
+            return Err(SpaceError::OutOfBounds);
+        }
+        Ok(bytes.get(..len).unwrap_or_default().iter().fold(0, |v, b| v << 8 | u64::from(*b)))
+    }
+
+    /// Writes `value` (its low bytes, as many as the setting has).
+    pub fn write(self, space: &mut impl MemorySpace, value: u64) -> Result<(), SpaceError> {
+        let bytes = value.to_be_bytes();
+        space.write(self.address, bytes.get(8 - usize::from(self.size)..).unwrap_or_default())
+    }
+}
+
+impl StringSetting {
+    /// Its address in space 0xFD.
+    pub fn address(self) -> u32 {
+        self.address
+    }
+
+    /// The text the space holds, to its first NUL (bytes that are not UTF-8 are replaced).
+    pub fn read(self, space: &mut impl MemorySpace) -> Result<String, SpaceError> {
+        let mut bytes = alloc::vec![0u8; self.size as usize];
+        let got = space.read(self.address, &mut bytes)?;
+        bytes.truncate(got);
+        let end = bytes.iter().position(|b| *b == 0).unwrap_or(bytes.len());
+        Ok(String::from_utf8_lossy(bytes.get(..end).unwrap_or_default()).into_owned())
+    }
+
+    /// Writes `text`, cut to the setting's size less its NUL, NUL-padded.
+    pub fn write(self, space: &mut impl MemorySpace, text: &str) -> Result<(), SpaceError> {
+        space.write(self.address, &padded(text, self.size))
+    }
+}
+
+impl EventSetting {
+    /// Its address in space 0xFD.
+    pub fn address(self) -> u32 {
+        self.address
+    }
+
+    /// The Event ID the space holds.
+    pub fn read(self, space: &mut impl MemorySpace) -> Result<EventId, SpaceError> {
+        let mut bytes = [0u8; 8];
+        if space.read(self.address, &mut bytes)? != 8 {
+            return Err(SpaceError::OutOfBounds);
+        }
+        Ok(EventId::from_bytes(bytes))
+    }
+
+    /// Writes `event`.
+    pub fn write(self, space: &mut impl MemorySpace, event: EventId) -> Result<(), SpaceError> {
+        space.write(self.address, &event.to_bytes())
+    }
+}
+
+/// `text` in `size` bytes: cut at a character boundary to leave room for a NUL, NUL-padded.
+fn padded(text: &str, size: u32) -> Vec<u8> {
+    let room = (size as usize).saturating_sub(1);
+    let mut end = text.len().min(room);
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    let mut bytes = alloc::vec![0u8; size as usize];
+    if let Some(into) = bytes.get_mut(..end) {
+        into.copy_from_slice(text.as_bytes().get(..end).unwrap_or_default());
+    }
+    bytes
+}
+
+/// Writes the settings of the configuration segment (and of a group, inside it) and works
+/// out their addresses.
+#[derive(Debug)]
+pub struct BoardBuilder {
+    xml: String,
+    address: u32,
+    /// The factory value of each setting that has one: its address and bytes.
+    defaults: Vec<(u32, Vec<u8>)>,
+    events: Vec<(EventSetting, EventRole)>,
+    /// While a group's second and later replications are laid out, their XML is not written.
+    quiet: bool,
+}
+
+impl BoardBuilder {
+    /// The configuration segment (space 0xFD from address 0), named `name` in the CDI.
+    pub fn new(name: &str) -> Self {
+        let mut xml = String::new();
+        let _ = writeln!(xml, "<segment space=\"253\" origin=\"0\"><name>{}</name>", escape(name));
+        BoardBuilder { xml, address: 0, defaults: Vec::new(), events: Vec::new(), quiet: false }
+    }
+
+    fn element(&mut self, text: &str) {
+        if !self.quiet {
+            self.xml.push_str(text);
+            self.xml.push('\n');
+        }
+    }
+
+    /// An integer of `size` bytes (1, 2, 4 or 8) with its factory value and, if not empty, a
+    /// map of values to labels (a select in a tool).
+    pub fn int(&mut self, name: &str, size: u8, default: u64, map: &[(u64, &str)]) -> IntSetting {
+        let size = match size {
+            1 | 2 | 4 | 8 => size,
+            _ => 1,
+        };
+        let mut relations = String::new();
+        for (value, label) in map {
+            let _ =
+                write!(relations, "<relation><property>{value}</property><value>{}</value></relation>", escape(label));
+        }
+        let map = if relations.is_empty() { String::new() } else { format!("<map>{relations}</map>") };
+        self.element(&format!(
+            "<int size=\"{size}\"><name>{}</name><default>{default}</default>{map}</int>",
+            escape(name)
+        ));
+        let setting = IntSetting { address: self.address, size };
+        let bytes = default.to_be_bytes();
+        self.defaults.push((self.address, bytes.get(8 - usize::from(size)..).unwrap_or_default().to_vec()));
+        self.address += u32::from(size);
+        setting
+    }
+
+    /// A string of `size` bytes (its NUL included) with its factory value.
+    pub fn string(&mut self, name: &str, size: u32, default: &str) -> StringSetting {
+        self.element(&format!("<string size=\"{size}\"><name>{}</name></string>", escape(name)));
+        let setting = StringSetting { address: self.address, size };
+        self.defaults.push((self.address, padded(default, size)));
+        self.address += size;
+        setting
+    }
+
+    /// An Event ID the node produces or consumes, with its factory value.
+    pub fn event(&mut self, name: &str, role: EventRole, default: EventId) -> EventSetting {
+        self.element(&format!("<eventid><name>{}</name></eventid>", escape(name)));
+        let setting = EventSetting { address: self.address };
+        self.defaults.push((self.address, default.to_bytes().to_vec()));
+        self.events.push((setting, role));
+        self.address += 8;
+        setting
+    }
+
+    /// A group replicated `count` times (`count` 1: a plain group), its settings declared by
+    /// `settings` (called once per replication, with its index): the handles of each.
+    pub fn group<T>(&mut self, name: &str, count: u32, mut settings: impl FnMut(&mut Self, u32) -> T) -> Vec<T> {
+        let count = count.max(1);
+        let repname = if count > 1 { format!("<repname>{} 1</repname>", escape(name)) } else { String::new() };
+        self.element(&format!("<group replication=\"{count}\"><name>{}</name>{repname}", escape(name)));
+        let outer = self.quiet;
+        let mut groups = Vec::with_capacity(count as usize);
+        for index in 0..count {
+            groups.push(settings(self, index));
+            self.quiet = true;
+        }
+        self.quiet = outer;
+        self.element("</group>");
+        groups
+    }
+
+    /// The board: the whole CDI (identification from `snip`, ACDI, the user name and
+    /// description, this segment), its size and defaults.
+    pub fn finish(mut self, snip: &SnipInfo) -> Board {
+        self.xml.push_str("</segment>\n");
+        let cdi = format!(
+            "<?xml version=\"1.0\" encoding=\"utf-8\"?>\n<cdi xmlns:xsi=\"http://www.w3.org/2001/XMLSchema-instance\" \
+             xsi:noNamespaceSchemaLocation=\"http://openlcb.org/schema/cdi/1/4/cdi.xsd\">\n<identification>\
+             <manufacturer>{}</manufacturer><model>{}</model><hardwareVersion>{}</hardwareVersion>\
+             <softwareVersion>{}</softwareVersion></identification>\n<acdi/>\n\
+             <segment space=\"251\" origin=\"1\"><name>User identification</name>\
+             <string size=\"63\"><name>User name</name></string>\
+             <string size=\"64\"><name>User description</name></string></segment>\n{}</cdi>\n",
+            escape(&snip.manufacturer),
+            escape(&snip.model),
+            escape(&snip.hardware_version),
+            escape(&snip.software_version),
+            self.xml
+        );
+        Board { cdi, len: self.address, defaults: self.defaults, events: self.events }
+    }
+}
+
+/// `text` for XML character data.
+fn escape(text: &str) -> String {
+    text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+/// A board's configuration: its CDI, the size of its space 0xFD, its defaults and its event
+/// settings ([`BoardBuilder::finish`]).
+#[derive(Debug, Clone)]
+pub struct Board {
+    cdi: String,
+    len: u32,
+    defaults: Vec<(u32, Vec<u8>)>,
+    events: Vec<(EventSetting, EventRole)>,
+}
+
+impl Board {
+    /// The CDI XML (serve it as space 0xFF: [`ReadOnlySpace::cdi`](crate::ReadOnlySpace::cdi)).
+    pub fn cdi(&self) -> &str {
+        &self.cdi
+    }
+
+    /// The bytes of space 0xFD the settings take.
+    pub fn len(&self) -> u32 {
+        self.len
+    }
+
+    /// No settings at all.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Writes every setting's factory value (a Factory Reset), then commits the space.
+    pub fn factory_reset(&self, space: &mut impl MemorySpace) -> Result<(), SpaceError> {
+        for (address, bytes) in &self.defaults {
+            space.write(*address, bytes)?;
+        }
+        space.commit()
+    }
+
+    /// The node's events as `space` holds them now: each event setting produced or consumed
+    /// as declared (settings of all zeros or all ones are unset, and left out).
+    pub fn events(&self, space: &mut impl MemorySpace) -> EventConfig {
+        let mut events = EventConfig::default();
+        for (setting, role) in &self.events {
+            let Ok(event) = setting.read(space) else { continue };
+            if event.0 == 0 || event.0 == u64::MAX {
+                continue;
+            }
+            let declared = DeclaredEvents::single(event, EventState::Unknown);
+            match role {
+                EventRole::Produced => events.produced.push(declared),
+                EventRole::Consumed => events.consumed.push(declared),
+            }
+        }
+        events
+    }
+}
