@@ -31,6 +31,8 @@ mod send;
 mod serve;
 mod settings;
 mod sim;
+mod throttle;
+mod train;
 mod ui;
 mod watch;
 mod write;
@@ -113,6 +115,12 @@ enum Command {
     /// The layout's fast clock (Broadcast Time): run a generator, follow a clock, or set,
     /// start and stop one on the bus.
     Clock(clock::ClockArgs),
+    /// A virtual command station and train (Traction Control, Train Search, FDI): prints
+    /// every command its trains get, and creates trains for the addresses throttles allocate.
+    Train(train::TrainArgs),
+    /// Find a train by its DCC address, take control of it and drive it (speed, direction,
+    /// functions, emergency stop), then release it.
+    Throttle(throttle::ThrottleArgs),
     /// Serve a web page (on 127.0.0.1:8080 by default) to see the nodes, configure them,
     /// back them up, upgrade them and watch the bus from a browser, until Ctrl-C.
     Ui(ui::UiArgs),
@@ -162,6 +170,8 @@ fn main() -> ExitCode {
         Command::Config(args) => config::run(&args),
         Command::Events(args) => events::run(&args),
         Command::Clock(args) => clock::run(&args),
+        Command::Train(args) => train::run(&args),
+        Command::Throttle(args) => throttle::run(&args),
         Command::Reboot(args) => control::reboot(&args),
         Command::FactoryReset(args) => control::factory_reset(&args),
         Command::Monitor(args) => monitor::run(&args),

@@ -13,6 +13,8 @@ use crate::datagram::DatagramConfig;
 use crate::events::EventConfig;
 use crate::memconfig::MemoryConfigOptions;
 use crate::snip::SnipInfo;
+#[cfg(feature = "traction")]
+use crate::traction::{ThrottleConfig, TrainConfig};
 
 /// Bounds, timers and identity of a [`Node`](crate::Node). Every table and buffer it keeps
 /// is sized from here (the stream endpoint's from [`NodeConfig::stream`]).
@@ -38,6 +40,13 @@ pub struct NodeConfig {
     /// Exchange when there are any).
     #[cfg(feature = "broadcast-time")]
     pub clocks: Vec<ClockConfig>,
+    /// This node is a train (Traction Control, Train Search; the PIP announces Train
+    /// Control and Event Exchange).
+    #[cfg(feature = "traction")]
+    pub train: Option<TrainConfig>,
+    /// This node drives trains (Traction Control's throttle side).
+    #[cfg(feature = "traction")]
+    pub throttle: Option<ThrottleConfig>,
     /// How long a SNIP request of this node waits for the reply.
     pub snip_timeout: Duration,
     /// SNIP requests of this node waiting at once.
@@ -65,6 +74,10 @@ impl Default for NodeConfig {
             events: EventConfig::default(),
             #[cfg(feature = "broadcast-time")]
             clocks: Vec::new(),
+            #[cfg(feature = "traction")]
+            train: None,
+            #[cfg(feature = "traction")]
+            throttle: None,
             snip_timeout: Duration::from_secs(3),
             max_snip_requests: 8,
             extra_protocols: Protocols::NONE,

@@ -772,3 +772,150 @@ pub fn clock_ops(data: &[u8]) {
         assert!(syncs <= 2 + seconds + seconds / 3 + 1, "{syncs} sequences in {seconds} s");
     }
 }
+
+/// One step of [`traction_ops`].
+#[derive(Debug, Arbitrary)]
+enum TrainOp {
+    /// A Traction Control Command from the throttle to train `train % 3`: the payload as
+    /// given, or (when `raw` is off) a well-formed command built from it.
+    Command { train: u8, raw: bool, payload: Vec<u8> },
+    /// One train attaches another as its listener, with flags.
+    Attach { train: u8, listener: u8, flags: u8 },
+    /// A global event (the emergency ones, or a search) from the throttle.
+    Event { which: u8, query: u32 },
+    /// Time passes, in milliseconds.
+    Wait(u16),
+}
+
+/// Traction Control: three train nodes, which may list each other as listeners (loops and
+/// reversed listeners included), and a throttle that sends any command. The oracle: nothing
+/// panics; every query gets its reply (or a reject) and a malformed command a reject; a Set
+/// Speed from the throttle leaves its train at exactly that speed once the messages settle;
+/// forwarding settles (no listener loop circulates); tables stay within their bounds.
+pub fn traction_ops(data: &[u8]) {
+    use crate::traction::{EMERGENCY_OFF, EMERGENCY_STOP, SearchQuery, Speed, TrainConfig};
+
+    let mut u = Unstructured::new(data);
+    let Ok(ops) = <Vec<TrainOp>>::arbitrary(&mut u) else { return };
+    let throttle = PEERS[0];
+    let ids = [
+        NodeId::from_bytes([5, 1, 1, 1, 0x41, 1]),
+        NodeId::from_bytes([5, 1, 1, 1, 0x41, 2]),
+        NodeId::from_bytes([5, 1, 1, 1, 0x41, 3]),
+    ];
+    let mut nodes: Vec<Node> = ids
+        .iter()
+        .zip([3u32, 1234, 77])
+        .map(|(id, address)| {
+            let mut train = TrainConfig::dcc(address);
+            train.max_listeners = 2;
+            train.allocate = address == 3;
+            Node::new(*id, NodeConfig { train: Some(train), transmit_queue_limit: 32, ..NodeConfig::default() })
+        })
+        .collect();
+    let mut now = Instant::from_secs(1);
+    for op in ops.into_iter().take(500) {
+        let mut to_throttle = Vec::new();
+        let mut expect_answer = None;
+        let mut expect_speed = None;
+        match op {
+            TrainOp::Command { train, raw, payload } => {
+                let i = usize::from(train % 3);
+                let payload = if raw {
+                    payload
+                } else {
+                    let first = payload.first().copied().unwrap_or(0);
+                    let mut built =
+                        alloc::vec![[0x00, 0x01, 0x02, 0x10, 0x11, 0x20, 0x30, 0x40][usize::from(first % 8)]];
+                    built.extend(payload.iter().skip(1).take(8));
+                    built
+                };
+                let answered = match payload.as_slice() {
+                    [] => true,
+                    [0x10, ..] | [0x20, 0x03, ..] | [0x30, 0x03, ..] | [0x40, 0x01, ..] => true,
+                    [0x11, _, _, _, ..] | [0x20, 0x01, _, _, _, _, _, _, _, ..] => true,
+                    [0x30, 0x01 | 0x02, _, _, _, _, _, _, _, ..] => true,
+                    _ => false,
+                };
+                if answered {
+                    expect_answer = Some(ids[i]);
+                }
+                if let [0x00, hi, lo, ..] = payload.as_slice() {
+                    expect_speed = Some((i, Speed::from_bits(u16::from_be_bytes([*hi, *lo]))));
+                }
+                let message = Message::addressed(Mti::TRACTION_CONTROL_COMMAND, throttle, ids[i], payload);
+                nodes[i].handle_message(now, message.as_ref());
+            }
+            TrainOp::Attach { train, listener, flags } => {
+                let (i, j) = (usize::from(train % 3), usize::from(listener % 3));
+                let mut payload = alloc::vec![0x30, 0x01, flags];
+                payload.extend_from_slice(&ids[j].to_bytes());
+                let message = Message::addressed(Mti::TRACTION_CONTROL_COMMAND, throttle, ids[i], payload);
+                nodes[i].handle_message(now, message.as_ref());
+                expect_answer = Some(ids[i]);
+            }
+            TrainOp::Event { which, query } => {
+                let event = match which % 6 {
+                    0 => EMERGENCY_STOP,
+                    1 => openlcb_stream::EventId(EMERGENCY_STOP.0 - 1),
+                    2 => EMERGENCY_OFF,
+                    3 => openlcb_stream::EventId(EMERGENCY_OFF.0 - 1),
+                    4 => SearchQuery::event_for(query % 20_000, (query >> 24) as u8)
+                        .unwrap_or(openlcb_stream::EventId(0)),
+                    _ => openlcb_stream::EventId(0x0900_99FF_0000_0000 | u64::from(query)),
+                };
+                let message = Message::global(Mti::PRODUCER_CONSUMER_EVENT_REPORT, throttle, event.to_bytes());
+                let search = Message::global(Mti::IDENTIFY_PRODUCER, throttle, event.to_bytes());
+                for node in &mut nodes {
+                    node.handle_message(now, message.as_ref());
+                    node.handle_message(now, search.as_ref());
+                }
+            }
+            TrainOp::Wait(ms) => now += Duration::from_millis(u64::from(ms)),
+        }
+        // Every train's timers, then each message to its destination, until quiet.
+        let mut settled = false;
+        for _ in 0..16 {
+            let mut moved = false;
+            for i in 0..3 {
+                nodes[i].handle_timeout(now);
+                let sent: Vec<Message> = core::iter::from_fn(|| nodes[i].poll_transmit()).collect();
+                assert!(sent.len() <= 40, "{} messages at once", sent.len());
+                for m in sent {
+                    match m.destination {
+                        Some(d) if d == throttle => to_throttle.push(m),
+                        Some(d) => {
+                            if let Some(j) = ids.iter().position(|id| *id == d) {
+                                nodes[j].handle_message(now, m.as_ref());
+                                moved = true;
+                            }
+                        }
+                        None => {}
+                    }
+                }
+                while nodes[i].poll_event().is_some() {}
+            }
+            if !moved {
+                settled = true;
+                break;
+            }
+        }
+        assert!(settled, "forwarding between the trains did not settle");
+        if let Some(train) = expect_answer {
+            let answered = to_throttle.iter().any(|m| {
+                m.source == train && matches!(m.mti, Mti::TRACTION_CONTROL_REPLY | Mti::OPTIONAL_INTERACTION_REJECTED)
+            });
+            assert!(answered, "no answer from {train}");
+        }
+        if let Some((i, speed)) = expect_speed {
+            assert_eq!(nodes[i].train().map(|t| t.set_speed), Some(speed), "the Set Speed holds");
+        }
+        for node in &nodes {
+            let state = node.train().expect("a train");
+            assert!(state.listeners <= 2);
+            if state.emergency_stop || state.global_stop || state.global_off {
+                assert!(state.commanded_speed.is_zero());
+            }
+        }
+    }
+}

@@ -5,7 +5,8 @@
 //! endpoint of [`openlcb_stream`], the datagram service, Memory Configuration (server and
 //! client, [`memconfig`]), Simple Node Information (SNIP), Event Transport (events
 //! produced and consumed, see below), Broadcast Time (the layout's fast clocks,
-//! `broadcast_time`, feature `broadcast-time`), and
+//! `broadcast_time`, feature `broadcast-time`), trains (Traction Control, Train Search and
+//! FDI, `traction`, feature `traction`), and
 //! the message-network basics it answers itself (Verify Node ID, Protocol Support Inquiry, and
 //! Optional Interaction Rejected for addressed messages of protocols it lacks). Each
 //! Optional Interaction Rejected or Terminate Due To Error goes to the protocol its MTI names,
@@ -27,7 +28,7 @@
 //! driver that takes only the transmits (a firmware's) loses nothing: the events wait.
 //!
 //! Inside, each service (the datagram service, SNIP, Memory Configuration, Event
-//! Transport, Broadcast Time) has the same few entry points: a message, an error report, a peer change, a
+//! Transport, Broadcast Time, trains) has the same few entry points: a message, an error report, a peer change, a
 //! timeout, its next deadline. The node answers the message-network basics itself, gives
 //! every other message to the first service that takes it, and offers an OIR or TDE to each
 //! service it may concern. A datagram carries its owner: its outcome (OK, Rejected, timed
@@ -193,6 +194,8 @@ pub mod memconfig;
 mod node;
 mod service;
 mod snip;
+#[cfg(feature = "traction")]
+pub mod traction;
 
 #[cfg(feature = "fuzzing")]
 #[doc(hidden)]
@@ -214,3 +217,5 @@ pub use memconfig::{
 };
 pub use node::{DUPLICATE_NODE_ID_DETECTED, Node, NodeEvent, NodeStats, Streams};
 pub use snip::{MAX_REPLY_LEN, SnipFailure, SnipField, SnipInfo, SnipRequestError, SnipTooLong};
+#[cfg(feature = "traction")]
+pub use traction::{Speed, TrainConfig, TrainEvent};

@@ -94,6 +94,13 @@ pub enum NodeEvent {
     /// Broadcast Time: a clock of this node changed (see [`broadcast_time`](crate::broadcast_time)).
     #[cfg(feature = "broadcast-time")]
     Clock(ClockEvent),
+    /// Traction Control, Train Search: the train changed, or a command station is asked to
+    /// create one (see [`traction`](crate::traction)).
+    #[cfg(feature = "traction")]
+    Train(crate::traction::TrainEvent),
+    /// Traction Control: a train answered this node's throttle, or took it off a train.
+    #[cfg(feature = "traction")]
+    Throttle(crate::traction::ThrottleEvent),
 }
 
 /// Counters of the node's own routing; each protocol has its own too.

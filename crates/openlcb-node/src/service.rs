@@ -13,6 +13,8 @@ use crate::datagram::DatagramService;
 use crate::events::EventService;
 use crate::node::Outputs;
 use crate::snip::SnipService;
+#[cfg(feature = "traction")]
+use crate::traction::TrainService;
 use crate::{NodeConfig, Protocols};
 
 /// A change of peer as the services take it: the transport's [`PeerChange`], or the loss of
@@ -90,6 +92,8 @@ pub(crate) struct Services {
     pub(crate) events: EventService,
     #[cfg(feature = "broadcast-time")]
     pub(crate) clocks: ClockService,
+    #[cfg(feature = "traction")]
+    pub(crate) trains: TrainService,
 }
 
 impl Services {
@@ -102,6 +106,8 @@ impl Services {
             events: EventService::new(&config.events, announce),
             #[cfg(feature = "broadcast-time")]
             clocks: ClockService::new(&config.clocks, announce),
+            #[cfg(feature = "traction")]
+            trains: TrainService::new(config.train.as_ref(), config.throttle.as_ref(), announce),
         }
     }
 
@@ -111,7 +117,15 @@ impl Services {
         let clocks = !config.clocks.is_empty();
         #[cfg(not(feature = "broadcast-time"))]
         let clocks = false;
-        if config.events.is_active() || clocks { Protocols::EVENT_EXCHANGE } else { Protocols::NONE }
+        let mut protocols = Protocols::NONE;
+        if config.events.is_active() || clocks {
+            protocols = protocols | Protocols::EVENT_EXCHANGE;
+        }
+        #[cfg(feature = "traction")]
+        if self.trains.is_train() {
+            protocols = protocols | Protocols::EVENT_EXCHANGE | Protocols::TRAIN_CONTROL;
+        }
+        protocols
     }
 
     /// The next message the services send by themselves (announcements), after the node's
@@ -125,32 +139,40 @@ impl Services {
         self.events.announce(&config.events);
         #[cfg(feature = "broadcast-time")]
         self.clocks.announce();
+        #[cfg(feature = "traction")]
+        self.trains.announce();
     }
 }
 
 impl Service<Lent<'_>> for Services {
     /// Datagrams and SNIP take their own messages; an Event Transport message concerns every
-    /// service built on events (the declared events and the clocks), so each of them sees it.
+    /// service built on events (the declared events, the clocks and the train), so each of
+    /// them sees it. The train takes Traction Control.
     fn handle_message(&mut self, cx: &mut Lent<'_>, msg: MessageRef<'_>) -> bool {
         if self.datagrams.handle_message(cx, msg) || self.snip.handle_message(cx, msg) {
             return true;
         }
-        let declared = self.events.handle_message(cx, msg);
+        let taken = self.events.handle_message(cx, msg);
         #[cfg(feature = "broadcast-time")]
-        let declared = self.clocks.handle_message(cx, msg) | declared;
-        declared
+        let taken = self.clocks.handle_message(cx, msg) | taken;
+        #[cfg(feature = "traction")]
+        let taken = self.trains.handle_message(cx, msg) | taken;
+        taken
     }
 
     fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
         // Every service hears it: one naming no MTI may concern several.
-        [
+        let taken = [
             self.datagrams.handle_error_report(cx, peer, report),
             self.snip.handle_error_report(cx, peer, report),
             self.events.handle_error_report(cx, peer, report),
             #[cfg(feature = "broadcast-time")]
             self.clocks.handle_error_report(cx, peer, report),
         ]
-        .contains(&true)
+        .contains(&true);
+        #[cfg(feature = "traction")]
+        let taken = self.trains.handle_error_report(cx, peer, report) | taken;
+        taken
     }
 
     fn peer_changed(&mut self, out: &mut Outputs, change: ServiceChange) {
@@ -159,6 +181,8 @@ impl Service<Lent<'_>> for Services {
         self.events.peer_changed(out, change);
         #[cfg(feature = "broadcast-time")]
         self.clocks.peer_changed(out, change);
+        #[cfg(feature = "traction")]
+        self.trains.peer_changed(out, change);
     }
 
     fn handle_timeout(&mut self, cx: &mut Lent<'_>) {
@@ -167,6 +191,8 @@ impl Service<Lent<'_>> for Services {
         self.events.handle_timeout(cx);
         #[cfg(feature = "broadcast-time")]
         self.clocks.handle_timeout(cx);
+        #[cfg(feature = "traction")]
+        self.trains.handle_timeout(cx);
     }
 
     fn poll_timeout(&self) -> Option<Instant> {
@@ -174,6 +200,8 @@ impl Service<Lent<'_>> for Services {
         let events = self.events.poll_timeout();
         #[cfg(feature = "broadcast-time")]
         let events = earliest(events, self.clocks.poll_timeout());
+        #[cfg(feature = "traction")]
+        let events = earliest(events, self.trains.poll_timeout());
         earliest(messaging, events)
     }
 }

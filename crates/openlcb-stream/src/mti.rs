@@ -82,6 +82,10 @@ impl Mti {
     /// Producer/Consumer Event Report: an Event ID, and with more than 8 bytes a payload
     /// after it (on CAN the frames of CAN-MTIs 0xF16, 0xF15, 0xF14).
     pub const PRODUCER_CONSUMER_EVENT_REPORT: Mti = Mti(0x05B4);
+    /// Traction Control Command (Train Control Standard §4.3), addressed.
+    pub const TRACTION_CONTROL_COMMAND: Mti = Mti(0x05EB);
+    /// Traction Control Reply (Train Control Standard §4.4), addressed.
+    pub const TRACTION_CONTROL_REPLY: Mti = Mti(0x01E9);
 
     /// The raw value.
     pub const fn as_raw(self) -> u16 {
@@ -159,6 +163,8 @@ impl Mti {
             0x0968 | 0x0970 => "Identify Events",
             0x0594 => "Learn Event",
             0x05B4 => "Producer/Consumer Event Report",
+            0x05EB => "Traction Control Command",
+            0x01E9 => "Traction Control Reply",
             _ => return None,
         })
     }

@@ -17,6 +17,7 @@ use crate::io::{ByteReader, ByteWriter, try_write};
 use crate::memory::MemoryDriver;
 use crate::node::{Command, Control, NodeStats, SentBytes, Shared};
 use crate::requests::Requests;
+use crate::train::TrainDriver;
 use crate::wire::{Wire, WireStats};
 use crate::{Error, Framing, NodeOptions, RecvStream};
 
@@ -74,6 +75,7 @@ pub(crate) struct Driver {
     /// Listeners of event notices.
     events: EventDriver,
     clocks: ClockDriver,
+    trains: TrainDriver,
     wire: Wire,
     stats: WireStats,
     commands: mpsc::Receiver<Command>,
@@ -120,6 +122,7 @@ impl Driver {
             memory: MemoryDriver::default(),
             events: EventDriver::default(),
             clocks: ClockDriver::default(),
+            trains: TrainDriver::default(),
             wire: Wire::new(protocol, Instant::ZERO, node_id, can),
             stats: WireStats::default(),
             commands,
@@ -432,6 +435,7 @@ impl Driver {
             Command::Memory(command) => self.memory.command(now, &mut self.stack, command),
             Command::Events(command) => self.events.command(&mut self.stack, command),
             Command::Clock(command) => self.clocks.command(now, &mut self.stack, command),
+            Command::Train(command) => self.trains.command(&mut self.stack, command),
         }
     }
 
@@ -452,6 +456,14 @@ impl Driver {
                 }
                 NodeEvent::Clock(event) => {
                     self.clocks.event(event);
+                    continue;
+                }
+                NodeEvent::Train(event) => {
+                    self.trains.event(event);
+                    continue;
+                }
+                NodeEvent::Throttle(event) => {
+                    self.trains.throttle_event(event);
                     continue;
                 }
                 event => {

@@ -98,6 +98,12 @@ pub enum Error {
     /// A Broadcast Time command this node cannot give (no such clock, a time out of range).
     #[error("{0}")]
     Clock(openlcb_node::broadcast_time::ClockError),
+    /// A train command this node cannot give (it is no train, the search is not its).
+    #[error("{0}")]
+    Train(openlcb_node::traction::TrainError),
+    /// A throttle command this node cannot give (it is no throttle, it controls enough).
+    #[error("{0}")]
+    Throttle(openlcb_node::traction::ThrottleError),
     /// No node with this Node ID answered on the network.
     #[error("node {0} is not on the network (nobody answered for that Node ID)")]
     Unreachable(NodeId),

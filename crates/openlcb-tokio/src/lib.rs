@@ -100,6 +100,7 @@ mod requests;
 pub mod serial;
 mod socket;
 mod trace;
+pub mod train;
 mod wire;
 
 pub use clock::ClockEvents;
@@ -110,6 +111,7 @@ pub use hub::{Hub, HubEvent, HubOptions, HubStats};
 pub use io::ByteStream;
 pub use memory::{MemoryTransfer, ServerEvents};
 pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStream, SentBytes};
+pub use train::{ThrottleEvents, TrainEvents};
 
 // What a user of this crate needs from the ones below it, so that sending a stream takes
 // this crate alone.

@@ -19,6 +19,7 @@ use crate::clock::{ClockCommand, ClockEvents};
 use crate::driver::Driver;
 use crate::events::{EventCommand, EventNotices};
 use crate::memory::{Done, MemoryCommand, MemoryTransfer, Operation, SERVER_EVENT_QUEUE, ServerEvents, TransferKey};
+use crate::train::{ThrottleEvents, TrainCommand, TrainEvents};
 use crate::{Error, Framing, WireStats};
 use openlcb_node::{EventConfig, EventRole};
 use openlcb_stream::EventId;
@@ -144,6 +145,8 @@ pub(crate) enum Command {
     Events(EventCommand),
     /// Broadcast Time: the node's clocks.
     Clock(ClockCommand),
+    /// Traction: the node's train.
+    Train(TrainCommand),
     /// Memory Configuration: serve spaces, or start a client operation.
     Memory(MemoryCommand),
 }
@@ -440,6 +443,56 @@ impl Node {
     pub async fn query_clock(&self, clock: ClockId) -> Result<(), Error> {
         let result = self.control.call(|reply| Command::Clock(ClockCommand::Query { clock, reply })).await?;
         result.map_err(crate::clock::clock_error)
+    }
+
+    /// From now on, what the node's train (declared in
+    /// [`NodeOptions::node`](crate::NodeOptions::node)`.train`) is told: speeds, functions,
+    /// emergency stops, controllers, listeners, allocate searches.
+    pub async fn train_events(&self) -> Result<TrainEvents, Error> {
+        let (listening, registered) = oneshot::channel();
+        let (command, events) = TrainCommand::listen(listening);
+        self.control.commands.send(Command::Train(command)).await.map_err(|_| self.control.shared.error())?;
+        registered.await.map_err(|_| self.control.shared.error())?;
+        Ok(events)
+    }
+
+    /// The train's state (`None`: the node is no train).
+    pub async fn train(&self) -> Result<Option<openlcb_node::traction::TrainState>, Error> {
+        self.control.call(|reply| Command::Train(TrainCommand::State { reply })).await
+    }
+
+    /// The value of the train's function `address` (`None`: no train, or not kept).
+    pub async fn train_function(&self, address: u32) -> Result<Option<u16>, Error> {
+        self.control.call(|reply| Command::Train(TrainCommand::Function { address, reply })).await
+    }
+
+    /// Answers the Train Search `event` with Producer Identified Valid (a train created for
+    /// it, see [`openlcb_node::Node::answer_train_search`]).
+    pub async fn answer_train_search(&self, event: EventId) -> Result<(), Error> {
+        let result = self.control.call(|reply| Command::Train(TrainCommand::AnswerSearch { event, reply })).await?;
+        result.map_err(crate::train::train_error)
+    }
+
+    /// From now on, what trains answer the node's throttle (declared in
+    /// [`NodeOptions::node`](crate::NodeOptions::node)`.throttle`).
+    pub async fn throttle_events(&self) -> Result<ThrottleEvents, Error> {
+        let (listening, registered) = oneshot::channel();
+        let (command, events) = TrainCommand::listen_throttle(listening);
+        self.control.commands.send(Command::Train(command)).await.map_err(|_| self.control.shared.error())?;
+        registered.await.map_err(|_| self.control.shared.error())?;
+        Ok(events)
+    }
+
+    /// Sends `command` to `train` as the node's throttle (see
+    /// [`openlcb_node::Node::throttle_command`]).
+    pub async fn throttle_command(
+        &self,
+        train: NodeId,
+        command: openlcb_node::traction::TractionCommand,
+    ) -> Result<(), Error> {
+        let result =
+            self.control.call(|reply| Command::Train(TrainCommand::Throttle { train, command, reply })).await?;
+        result.map_err(crate::train::throttle_error)
     }
 
     /// Produces and consumes what `events` declares from now on (in place of

@@ -316,6 +316,21 @@ pub mod exercise {
         Node::new(node_id(), config).with_memory_server(MemoryServer::new().with_space(0xFD, RamSpace::new(256)))
     }
 
+    /// [`node`], and a DCC train (Traction Control, Train Search) at an opaque address.
+    #[cfg(feature = "traction")]
+    pub fn train_node() -> Node {
+        let mut config = NodeConfig::default();
+        config.train = Some(openlcb_node::traction::TrainConfig::dcc(input() % 10_240));
+        Node::new(node_id(), config).with_memory_server(MemoryServer::new().with_space(0xFD, RamSpace::new(256)))
+    }
+
+    /// [`node_turn`], and the train's state read back.
+    #[cfg(feature = "traction")]
+    pub fn train_turn(node: &mut Node) {
+        node_turn(node);
+        output(node.train().map_or(0, |t| u32::from(t.commanded_speed.to_bits())));
+    }
+
     /// One opaque input or command into the node: a received message (every MTI reaches one
     /// of its protocols), a timeout, a transport event, a datagram sent or answered, a SNIP
     /// request, or a stream command on its endpoint.

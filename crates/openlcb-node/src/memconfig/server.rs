@@ -11,7 +11,7 @@ use openlcb_stream::{AcceptOptions, Event, Instant, Message, Mti, NodeId, OpenOp
 use super::Cx;
 use super::space::{MemorySpace, SpaceError, acdi_manufacturer_bytes, acdi_user_bytes, read_slice};
 use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceForm, SpaceInfoReply, codes};
-use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FIRMWARE};
+use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FDI, SPACE_FIRMWARE};
 use super::{MemoryEvent, MemoryEvent as E};
 use crate::service::{ServiceChange, earliest};
 use crate::{OkFlags, Protocols, SnipInfo};
@@ -212,6 +212,9 @@ impl MemoryServer {
         let mut protocols = Protocols::MEMORY_CONFIGURATION;
         if self.space(SPACE_CDI).is_some() {
             protocols = protocols | Protocols::CDI;
+        }
+        if self.space(SPACE_FDI).is_some() {
+            protocols = protocols | Protocols::FDI;
         }
         if self.acdi {
             protocols = protocols | Protocols::ACDI;

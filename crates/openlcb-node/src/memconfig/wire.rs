@@ -22,6 +22,10 @@ pub const SPACE_CONFIG: u8 = 0xFD;
 pub const SPACE_ACDI_MANUFACTURER: u8 = 0xFC;
 /// Space 0xFB: ACDI user data (read/write, node-protocols.md §5.4).
 pub const SPACE_ACDI_USER: u8 = 0xFB;
+/// Space 0xFA: the Function Description Information of a train (read-only XML).
+pub const SPACE_FDI: u8 = 0xFA;
+/// Space 0xF9: a train's function values.
+pub const SPACE_FUNCTIONS: u8 = 0xF9;
 /// Space 0xEF: the firmware, writable only while frozen (FWU §6.1).
 pub const SPACE_FIRMWARE: u8 = 0xEF;
 

@@ -1,0 +1,324 @@
+//! `lcc-stream throttle`: find a train by its DCC address (Train Search, allocating it when
+//! a command station offers to), take control of it, and drive it from the command line.
+
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::Args;
+use openlcb_stream::NodeId;
+use openlcb_tokio::openlcb_node::traction::{
+    LISTENER_HIDE, LISTENER_LINK_F0, LISTENER_LINK_FN, LISTENER_REVERSE, SEARCH_ADDRESS_ONLY, SEARCH_ALLOCATE,
+    SEARCH_EXACT, SearchQuery, Speed, ThrottleConfig, ThrottleEvent, TractionCommand,
+};
+use openlcb_tokio::{EventNotice, EventRole, EventState, Listen, Node, NodeOptions, ThrottleEvents};
+use serde::Serialize;
+
+use crate::net::{self, ConnectArgs};
+use crate::outcome::{Failure, Outcome};
+
+/// How long the train search, the assign and each query wait.
+const ANSWER_WAIT: Duration = Duration::from_secs(3);
+
+#[derive(Debug, Args)]
+#[command(after_help = format!("{}{}", "\
+The throttle searches for the train (allocating it, so a command station creates it when it
+has none), assigns itself as its controller, gives the commands in the order below, reads
+back the train's speed, and then releases it (--release) or keeps it, answering its
+heartbeat requests, until Ctrl-C releases it.
+
+Examples:
+  lcc-stream throttle 3 --speed 40 --forward --function 0=on --release
+  lcc-stream throttle 1234 --long --estop --release --json
+  lcc-stream throttle 3 --attach 05.01.01.01.22.02:reverse,f0 --release     a consist
+
+", net::network_help(&[Outcome::TimedOut])))]
+pub(crate) struct ThrottleArgs {
+    /// The train's DCC address.
+    #[arg(value_parser = clap::value_parser!(u32).range(1..=10239))]
+    address: u32,
+    /// Ask for the long (14-bit) address.
+    #[arg(long)]
+    long: bool,
+    /// Set the speed, in km/h (scale).
+    #[arg(long, value_name = "KM_H")]
+    speed: Option<f32>,
+    /// Run forwards (the default).
+    #[arg(long, conflicts_with = "reverse")]
+    forward: bool,
+    /// Run in reverse.
+    #[arg(long)]
+    reverse: bool,
+    /// Switch a function, NUMBER=on|off (repeat it).
+    #[arg(long = "function", value_name = "NUMBER=on|off", value_parser = parse_function)]
+    functions: Vec<(u32, bool)>,
+    /// Emergency stop.
+    #[arg(long)]
+    estop: bool,
+    /// Add a train to the consist as a listener: NODE_ID, optionally with :reverse, :f0,
+    /// :fn, :hide (comma-separated), e.g. 05.01.01.01.22.02:reverse,f0 (repeat it).
+    #[arg(long = "attach", value_name = "NODE_ID[:FLAGS]", value_parser = parse_listener)]
+    attach: Vec<(NodeId, u8)>,
+    /// Take a listener out of the consist (repeat it).
+    #[arg(long = "detach", value_name = "NODE_ID", value_parser = crate::args::node_id)]
+    detach: Vec<NodeId>,
+    /// Release the train when done (else keep it until Ctrl-C).
+    #[arg(long)]
+    release: bool,
+    /// One JSON object per answer of the train.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    node_id: net::TransientId,
+    #[command(flatten)]
+    connect: ConnectArgs,
+}
+
+fn parse_function(text: &str) -> Result<(u32, bool), String> {
+    let bad = || format!("`{text}` is no function: NUMBER=on or NUMBER=off, e.g. 0=on");
+    let (number, state) = text.split_once('=').ok_or_else(bad)?;
+    let number: u32 = number.trim().parse().map_err(|_| bad())?;
+    let on = match state {
+        "on" | "1" => true,
+        "off" | "0" => false,
+        _ => return Err(bad()),
+    };
+    Ok((number, on))
+}
+
+fn parse_listener(text: &str) -> Result<(NodeId, u8), String> {
+    let (node, flags) = text.split_once(':').unwrap_or((text, ""));
+    let node = crate::args::node_id(node)?;
+    let mut bits = 0;
+    for flag in flags.split(',').filter(|f| !f.is_empty()) {
+        bits |= match flag {
+            "reverse" => LISTENER_REVERSE,
+            "f0" => LISTENER_LINK_F0,
+            "fn" => LISTENER_LINK_FN,
+            "hide" => LISTENER_HIDE,
+            _ => return Err(format!("`{flag}` is no listener flag: reverse, f0, fn, hide")),
+        };
+    }
+    Ok((node, bits))
+}
+
+pub(crate) fn run(args: &ThrottleArgs) -> Result<ExitCode, String> {
+    net::runtime()?.block_on(throttle(args))
+}
+
+/// One answer as `--json` prints it.
+#[derive(Debug, Serialize)]
+struct AnswerLine {
+    train: String,
+    event: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    set_speed: Option<f32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    emergency_stop: Option<bool>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    other: Option<String>,
+}
+
+fn print(json: bool, event: &ThrottleEvent) {
+    let (train, name, speed, estop, other, text) = match *event {
+        ThrottleEvent::Assigned { train } => {
+            (train, "assigned", None, None, None, "controlled by this throttle".into())
+        }
+        ThrottleEvent::AssignRefused { train, result } => {
+            (train, "refused", None, None, Some(format!("0x{result:02X}")), format!("refused us (0x{result:02X})"))
+        }
+        ThrottleEvent::Speeds { train, set, emergency_stop, .. } => {
+            let text = format!("speed {set}{}", if emergency_stop { ", emergency stop" } else { "" });
+            (train, "speeds", Some(set.to_f32() * 3.6), Some(emergency_stop), None, text)
+        }
+        ThrottleEvent::ControllerLost { train, to } => {
+            (train, "controller-lost", None, None, Some(to.to_string()), format!("taken over by {to}"))
+        }
+        ThrottleEvent::Rejected { train, code } => {
+            let code = format!("0x{:04X}", code.0);
+            (train, "rejected", None, None, Some(code.clone()), format!("rejected a command ({code})"))
+        }
+        ThrottleEvent::ListenerChanged { train, listener, attached, code } => {
+            let done = if attached { "attached" } else { "detached" };
+            let text = match code {
+                0 => format!("listener {listener} {done}"),
+                code => format!("listener {listener} not {done} (0x{code:04X})"),
+            };
+            let name = if attached { "listener-attached" } else { "listener-detached" };
+            (train, name, None, None, Some(format!("{listener} 0x{code:04X}")), text)
+        }
+        ThrottleEvent::HeartbeatRequested { train, deadline_secs } => {
+            (train, "heartbeat", None, None, Some(deadline_secs.to_string()), "heartbeat answered".into())
+        }
+        _ => return,
+    };
+    if json {
+        let line = AnswerLine { train: train.to_string(), event: name, set_speed: speed, emergency_stop: estop, other };
+        outln!("{}", serde_json::to_string(&line).unwrap_or_default());
+    } else if name != "heartbeat" {
+        outln!("train {train}: {text}");
+    }
+}
+
+async fn throttle(args: &ThrottleArgs) -> Result<ExitCode, String> {
+    let mut interrupt = net::Interrupt::new()?;
+    let options = |id| {
+        let mut options = NodeOptions::new(id);
+        options.node.snip = net::snip("throttle");
+        options.node.throttle = Some(ThrottleConfig::default());
+        options.node.events.listen = Listen::Everything;
+        options
+    };
+    let node = match args.connect.join(&args.node_id, options).await {
+        Ok(node) => node,
+        Err(failure) => return Ok(net::fail("throttle", &failure)),
+    };
+    // Every wait before the train is driven is bounded (ANSWER_WAIT); then Ctrl-C releases.
+    let result = drive(args, &node, &mut interrupt).await;
+    node.close().await;
+    Ok(ExitCode::from(match result {
+        Ok(Outcome::Interrupted) => Outcome::Ok.status(),
+        Ok(outcome) => outcome.status(),
+        Err(failure) => return Ok(net::fail("throttle", &failure)),
+    }))
+}
+
+/// Waits for the first event `pick` takes.
+async fn wait_for<T>(events: &mut ThrottleEvents, pick: impl Fn(&ThrottleEvent) -> Option<T>) -> Option<T> {
+    tokio::time::timeout(ANSWER_WAIT, async {
+        while let Some(event) = events.next().await {
+            if let Some(found) = pick(&event) {
+                return Some(found);
+            }
+        }
+        None
+    })
+    .await
+    .ok()
+    .flatten()
+}
+
+async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt) -> Result<Outcome, Failure> {
+    let mut notices = node.event_notices().await.map_err(Failure::Net)?;
+    let mut events = node.throttle_events().await.map_err(Failure::Net)?;
+    // DCC, long when asked: allocate, exact, address only.
+    let mut flags = SEARCH_ALLOCATE | SEARCH_EXACT | SEARCH_ADDRESS_ONLY;
+    if args.long {
+        flags |= 0x08 | 0x04;
+    }
+    let Some(search) = SearchQuery::event_for(args.address, flags) else { return Ok(Outcome::Error) };
+    node.identify(EventRole::Producer, search).await.map_err(Failure::Net)?;
+    let found = tokio::time::timeout(ANSWER_WAIT, async {
+        while let Some(notice) = notices.next().await {
+            if let EventNotice::Identified { from, role: EventRole::Producer, range, state: Some(EventState::Valid) } =
+                notice
+                && range.is_single()
+                && range.first() == search
+            {
+                return Some(from);
+            }
+        }
+        None
+    })
+    .await
+    .ok()
+    .flatten();
+    let Some(train) = found else {
+        eprintln!("lcc-stream throttle: no train or command station answered for DCC {}", args.address);
+        return Ok(Outcome::TimedOut);
+    };
+    eprintln!("lcc-stream throttle: DCC {} is {train}", args.address);
+    let me = node.node_id();
+    send(node, train, TractionCommand::AssignController { flags: 0, node: me }).await?;
+    let assigned = wait_for(&mut events, |e| match e {
+        ThrottleEvent::Assigned { train: t } if *t == train => Some(true),
+        ThrottleEvent::AssignRefused { train: t, .. } if *t == train => Some(false),
+        _ => None,
+    })
+    .await;
+    match assigned {
+        Some(true) => print(args.json, &ThrottleEvent::Assigned { train }),
+        Some(false) => {
+            eprintln!("lcc-stream throttle: {train} refused this throttle as its controller");
+            return Ok(Outcome::Error);
+        }
+        None => {
+            eprintln!("lcc-stream throttle: {train} did not answer the assign");
+            return Ok(Outcome::TimedOut);
+        }
+    }
+    for (listener, flags) in &args.attach {
+        send(node, train, TractionCommand::AttachListener { flags: *flags, node: *listener }).await?;
+        answer_of_listener(args.json, &mut events, train, *listener).await;
+    }
+    for listener in &args.detach {
+        send(node, train, TractionCommand::DetachListener { flags: 0, node: *listener }).await?;
+        answer_of_listener(args.json, &mut events, train, *listener).await;
+    }
+    if let Some(kmh) = args.speed {
+        let magnitude = Speed::from_f32((kmh / 3.6).abs());
+        let speed = if args.reverse { magnitude.reversed() } else { magnitude };
+        send(node, train, TractionCommand::SetSpeed { speed, forwarded: false }).await?;
+    } else if args.reverse || args.forward {
+        let stopped = if args.reverse { Speed::ZERO_REVERSE } else { Speed::ZERO_FORWARD };
+        send(node, train, TractionCommand::SetSpeed { speed: stopped, forwarded: false }).await?;
+    }
+    for (address, on) in &args.functions {
+        let command = TractionCommand::SetFunction { address: *address, value: u16::from(*on), forwarded: false };
+        send(node, train, command).await?;
+    }
+    if args.estop {
+        send(node, train, TractionCommand::EmergencyStop { forwarded: false }).await?;
+    }
+    send(node, train, TractionCommand::QuerySpeeds).await?;
+    let speeds = wait_for(&mut events, |e| match e {
+        ThrottleEvent::Speeds { train: t, .. } if *t == train => Some(*e),
+        ThrottleEvent::Rejected { train: t, .. } if *t == train => Some(*e),
+        _ => None,
+    })
+    .await;
+    if let Some(event) = speeds {
+        print(args.json, &event);
+    }
+    let outcome = if args.release {
+        Outcome::Ok
+    } else {
+        eprintln!("lcc-stream throttle: driving {train}; Ctrl-C releases it");
+        loop {
+            tokio::select! {
+                event = events.next() => match event {
+                    Some(event) => {
+                        print(args.json, &event);
+                        if matches!(event, ThrottleEvent::ControllerLost { train: t, .. } if t == train) {
+                            return Ok(Outcome::Ok);
+                        }
+                    }
+                    None => break Outcome::ConnectionLost,
+                },
+                () = interrupt.wait() => break Outcome::Ok,
+            }
+        }
+    };
+    send(node, train, TractionCommand::ReleaseController { flags: 0, node: me }).await?;
+    eprintln!("lcc-stream throttle: released {train}");
+    // The release is queued; give the driver a moment to send it before the node closes.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    Ok(outcome)
+}
+
+/// Prints the train's answer to an attach or detach of `listener`.
+async fn answer_of_listener(json: bool, events: &mut ThrottleEvents, train: NodeId, listener: NodeId) {
+    let answer = wait_for(events, |e| match e {
+        ThrottleEvent::ListenerChanged { train: t, listener: l, .. } if *t == train && *l == listener => Some(*e),
+        ThrottleEvent::Rejected { train: t, .. } if *t == train => Some(*e),
+        _ => None,
+    })
+    .await;
+    match answer {
+        Some(event) => print(json, &event),
+        None => eprintln!("lcc-stream throttle: {train} did not answer about listener {listener}"),
+    }
+}
+
+async fn send(node: &Node, train: NodeId, command: TractionCommand) -> Result<(), Failure> {
+    node.throttle_command(train, command).await.map_err(Failure::Net)
+}

@@ -1,0 +1,223 @@
+//! `lcc-stream train` as a separate process through `lcc-stream hub`, driven by a scripted
+//! OpenLCB-TCP throttle: controller, speed, functions, and a train created for an allocate
+//! search, each printed as a JSON line. Every wait is bounded.
+
+mod common;
+
+use common::{bounded, interrupt, spawn};
+use openlcb_stream::{Message, Mti, NodeId};
+use tokio::io::{AsyncBufReadExt, AsyncReadExt as _, AsyncWriteExt as _, BufReader, Lines};
+use tokio::process::{ChildStderr, ChildStdout};
+
+/// A scripted OpenLCB-TCP peer.
+struct Throttle {
+    socket: tokio::net::TcpStream,
+    decoder: openlcb_tcp::Decoder,
+    me: NodeId,
+    held: Vec<u8>,
+}
+
+impl Throttle {
+    async fn send(&mut self, message: Message) {
+        let prefix = openlcb_tcp::LinkPrefix { gateway: self.me, capture_time: openlcb_tcp::CaptureTime::wrapping(0) };
+        let mut out = bytes::BytesMut::new();
+        openlcb_tcp::TcpFrame::new(prefix, message.as_ref()).encode_to(&mut out).unwrap();
+        self.socket.write_all(&out).await.unwrap();
+    }
+
+    async fn command(&mut self, to: NodeId, payload: &[u8]) {
+        self.send(Message::addressed(Mti::TRACTION_CONTROL_COMMAND, self.me, to, payload.to_vec())).await;
+    }
+
+    /// The next message with `mti` that `wanted` takes.
+    async fn expect(&mut self, mti: Mti, wanted: impl Fn(&Message) -> bool) -> Message {
+        bounded("a message", async {
+            let mut buf = vec![0; 4096];
+            loop {
+                let mut input = &self.held[..];
+                let mut found = None;
+                while let Some(frame) = self.decoder.decode(&mut input) {
+                    let m = frame.unwrap().message;
+                    let message = match m.destination {
+                        Some(to) => Message::addressed(m.mti, m.source, to, m.payload.to_vec()),
+                        None => Message::global(m.mti, m.source, m.payload.to_vec()),
+                    };
+                    if message.mti == mti && wanted(&message) {
+                        found = Some(message);
+                        break;
+                    }
+                }
+                self.held = input.to_vec();
+                if let Some(message) = found {
+                    return message;
+                }
+                let n = self.socket.read(&mut buf).await.unwrap();
+                assert!(n > 0, "the hub closed the connection");
+                self.held.extend_from_slice(&buf[..n]);
+            }
+        })
+        .await
+    }
+}
+
+async fn until<R: tokio::io::AsyncRead + Unpin>(lines: &mut Lines<BufReader<R>>, needle: &str) -> String {
+    bounded(needle, async {
+        while let Some(line) = lines.next_line().await.unwrap() {
+            if line.contains(needle) {
+                return line;
+            }
+        }
+        panic!("the output ended before `{needle}`");
+    })
+    .await
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_throttle_drives_the_train_and_has_a_second_one_allocated() {
+    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0", "--tcp-listen", "127.0.0.1:0"]);
+    let mut hub_err: Lines<BufReader<ChildStderr>> = BufReader::new(hub.stderr.take().unwrap()).lines();
+    let line = until(&mut hub_err, "GridConnect on").await;
+    let words: Vec<&str> = line.split_whitespace().collect();
+    let (gridconnect, tcp) = (words[4].trim_end_matches(',').to_string(), words[7].to_string());
+    tokio::spawn(async move { while let Ok(Some(_)) = hub_err.next_line().await {} });
+
+    let train_id: NodeId = "05.01.01.01.22.01".parse().unwrap();
+    let mut train = spawn(&[
+        "train",
+        "--connect",
+        &gridconnect,
+        "--node-id",
+        "05.01.01.01.22.01",
+        "--json",
+        "--function",
+        "0=Headlight",
+        "--function",
+        "2=Horn",
+        "--momentary",
+        "2",
+    ]);
+    let mut said: Lines<BufReader<ChildStderr>> = BufReader::new(train.stderr.take().unwrap()).lines();
+    let mut printed: Lines<BufReader<ChildStdout>> = BufReader::new(train.stdout.take().unwrap()).lines();
+    until(&mut said, "DCC 3 as 05.01.01.01.22.01").await;
+
+    let me: NodeId = "05.01.01.01.22.C0".parse().unwrap();
+    let socket = bounded("connect", tokio::net::TcpStream::connect(&tcp)).await.unwrap();
+    let mut throttle = Throttle { socket, decoder: openlcb_tcp::Decoder::default(), me, held: Vec::new() };
+    let to_me = move |m: &Message| m.destination == Some(me);
+
+    let mut assign = vec![0x20, 0x01, 0x00];
+    assign.extend_from_slice(&me.to_bytes());
+    throttle.command(train_id, &assign).await;
+    let reply = throttle.expect(Mti::TRACTION_CONTROL_REPLY, to_me).await;
+    assert_eq!(reply.payload, vec![0x20, 0x01, 0x00]);
+    let line = until(&mut printed, "\"controller-assigned\"").await;
+    assert!(line.contains("\"train\":3") && line.contains("05.01.01.01.22.C0"), "{line}");
+
+    throttle.command(train_id, &[0x00, 0xBE, 0x4C]).await;
+    let line = until(&mut printed, "\"speed\"").await;
+    assert!(line.contains("\"set_speed\":-1.57"), "{line}");
+    throttle.command(train_id, &[0x01, 0, 0, 2, 0, 1]).await;
+    let line = until(&mut printed, "\"function\"").await;
+    assert!(line.contains("\"function\":2") && line.contains("\"value\":1"), "{line}");
+    throttle.command(train_id, &[0x10]).await;
+    let reply = throttle.expect(Mti::TRACTION_CONTROL_REPLY, to_me).await;
+    assert_eq!(reply.payload[..4], [0x10, 0xBE, 0x4C, 0x00]);
+
+    // An allocate search for DCC 12: a train node of its own is created and answers it.
+    let search = 0x0900_99FF_FFFF_12E0u64.to_be_bytes();
+    throttle.send(Message::global(Mti::IDENTIFY_PRODUCER, me, search.to_vec())).await;
+    let answer = throttle.expect(Mti::PRODUCER_IDENTIFIED_VALID, |m| m.payload == search).await;
+    assert_ne!(answer.source, train_id);
+    until(&mut said, "created DCC 12").await;
+    // The new train takes commands too, and says so with its own address.
+    throttle.command(answer.source, &[0x00, 0x3C, 0x00]).await;
+    let line = until(&mut printed, "\"train\":12").await;
+    assert!(line.contains("\"set_speed\":1.0"), "{line}");
+
+    interrupt(&train).await;
+    assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
+    let _ = hub.kill().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn our_throttle_finds_allocates_drives_and_releases_a_train() {
+    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0"]);
+    let mut hub_err: Lines<BufReader<ChildStderr>> = BufReader::new(hub.stderr.take().unwrap()).lines();
+    let line = until(&mut hub_err, "GridConnect on").await;
+    let gridconnect = line.split_whitespace().nth(4).unwrap().trim_end_matches(',').to_string();
+    tokio::spawn(async move { while let Ok(Some(_)) = hub_err.next_line().await {} });
+    let mut train = spawn(&["train", "--connect", &gridconnect, "--node-id", "05.01.01.01.22.01", "--json"]);
+    let mut said: Lines<BufReader<ChildStderr>> = BufReader::new(train.stderr.take().unwrap()).lines();
+    let mut printed: Lines<BufReader<ChildStdout>> = BufReader::new(train.stdout.take().unwrap()).lines();
+    until(&mut said, "DCC 3 as").await;
+
+    // DCC 3 is the station's own train.
+    let out = bounded(
+        "the throttle",
+        common::command(&[
+            "throttle",
+            "3",
+            "--speed",
+            "36",
+            "--reverse",
+            "--function",
+            "0=on",
+            "--release",
+            "--json",
+            "--connect",
+            &gridconnect,
+        ])
+        .output(),
+    )
+    .await
+    .unwrap();
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "{stderr}");
+    assert!(stdout.contains("\"event\":\"assigned\""), "{stdout}");
+    assert!(stdout.contains("\"event\":\"speeds\"") && stdout.contains("\"set_speed\":-36"), "{stdout}");
+    assert!(stderr.contains("released"), "{stderr}");
+    let line = until(&mut printed, "\"speed\"").await;
+    assert!(line.contains("\"set_speed\":-10"), "{line}");
+    until(&mut printed, "\"function\"").await;
+    until(&mut printed, "\"controller-released\"").await;
+
+    // DCC 44 is not there: the throttle's allocating search has it created.
+    let out = bounded(
+        "the throttle",
+        common::command(&["throttle", "44", "--speed", "10", "--release", "--connect", &gridconnect]).output(),
+    )
+    .await
+    .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    until(&mut said, "created DCC 44").await;
+    until(&mut printed, "\"train\":44").await;
+
+    // A consist: DCC 44 (the station's first created train, the next Node ID) listens to
+    // DCC 3, reversed; a speed for 3 reaches 44 the other way round.
+    let out = bounded(
+        "the throttle",
+        common::command(&[
+            "throttle",
+            "3",
+            "--attach",
+            "05.01.01.01.22.02:reverse",
+            "--speed",
+            "18",
+            "--forward",
+            "--release",
+            "--connect",
+            &gridconnect,
+        ])
+        .output(),
+    )
+    .await
+    .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && stdout.contains("listener 05.01.01.01.22.02 attached"), "{stdout}");
+    let line = until(&mut printed, "\"set_speed\":-5").await;
+    assert!(line.contains("\"train\":44"), "{line}");
+
+    interrupt(&train).await;
+    assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
+    let _ = hub.kill().await;
+}
