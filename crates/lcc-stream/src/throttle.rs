@@ -197,16 +197,34 @@ async fn wait_for<T>(events: &mut ThrottleEvents, pick: impl Fn(&ThrottleEvent) 
     .flatten()
 }
 
-async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt) -> Result<Outcome, Failure> {
-    let mut notices = node.event_notices().await.map_err(Failure::Net)?;
-    let mut events = node.throttle_events().await.map_err(Failure::Net)?;
+/// Why a train could not be taken.
+#[derive(Debug)]
+pub(crate) enum NotAcquired {
+    /// Nobody answered the search, or the train did not answer the assign.
+    TimedOut(String),
+    /// The train refused this throttle as its controller.
+    Refused(String),
+    /// The node's connection.
+    Net(Failure),
+}
+
+/// Finds the train of DCC `address` (long when `long`) by Train Search, allocating it, and
+/// takes it as its controller: its Node ID.
+pub(crate) async fn acquire(
+    node: &Node,
+    notices: &mut openlcb_tokio::EventNotices,
+    events: &mut ThrottleEvents,
+    address: u32,
+    long: bool,
+) -> Result<NodeId, NotAcquired> {
     // DCC, long when asked: allocate, exact, address only.
     let mut flags = SEARCH_ALLOCATE | SEARCH_EXACT | SEARCH_ADDRESS_ONLY;
-    if args.long {
+    if long {
         flags |= 0x08 | 0x04;
     }
-    let Some(search) = SearchQuery::event_for(args.address, flags) else { return Ok(Outcome::Error) };
-    node.identify(EventRole::Producer, search).await.map_err(Failure::Net)?;
+    let search = SearchQuery::event_for(address, flags)
+        .ok_or_else(|| NotAcquired::TimedOut(format!("DCC {address} cannot be searched for")))?;
+    node.identify(EventRole::Producer, search).await.map_err(|e| NotAcquired::Net(Failure::Net(e)))?;
     let found = tokio::time::timeout(ANSWER_WAIT, async {
         while let Some(notice) = notices.next().await {
             if let EventNotice::Identified { from, role: EventRole::Producer, range, state: Some(EventState::Valid) } =
@@ -223,29 +241,41 @@ async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt)
     .ok()
     .flatten();
     let Some(train) = found else {
-        eprintln!("lcc-stream throttle: no train or command station answered for DCC {}", args.address);
-        return Ok(Outcome::TimedOut);
+        return Err(NotAcquired::TimedOut(format!("no train or command station answered for DCC {address}")));
     };
-    eprintln!("lcc-stream throttle: DCC {} is {train}", args.address);
     let me = node.node_id();
-    send(node, train, TractionCommand::AssignController { flags: 0, node: me }).await?;
-    let assigned = wait_for(&mut events, |e| match e {
+    send(node, train, TractionCommand::AssignController { flags: 0, node: me }).await.map_err(NotAcquired::Net)?;
+    let assigned = wait_for(events, |e| match e {
         ThrottleEvent::Assigned { train: t } if *t == train => Some(true),
         ThrottleEvent::AssignRefused { train: t, .. } if *t == train => Some(false),
         _ => None,
     })
     .await;
     match assigned {
-        Some(true) => print(args.json, &ThrottleEvent::Assigned { train }),
-        Some(false) => {
-            eprintln!("lcc-stream throttle: {train} refused this throttle as its controller");
+        Some(true) => Ok(train),
+        Some(false) => Err(NotAcquired::Refused(format!("{train} refused this throttle as its controller"))),
+        None => Err(NotAcquired::TimedOut(format!("{train} did not answer the assign"))),
+    }
+}
+
+async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt) -> Result<Outcome, Failure> {
+    let mut notices = node.event_notices().await.map_err(Failure::Net)?;
+    let mut events = node.throttle_events().await.map_err(Failure::Net)?;
+    let train = match acquire(node, &mut notices, &mut events, args.address, args.long).await {
+        Ok(train) => train,
+        Err(NotAcquired::Net(failure)) => return Err(failure),
+        Err(NotAcquired::Refused(why)) => {
+            eprintln!("lcc-stream throttle: {why}");
             return Ok(Outcome::Error);
         }
-        None => {
-            eprintln!("lcc-stream throttle: {train} did not answer the assign");
+        Err(NotAcquired::TimedOut(why)) => {
+            eprintln!("lcc-stream throttle: {why}");
             return Ok(Outcome::TimedOut);
         }
-    }
+    };
+    eprintln!("lcc-stream throttle: DCC {} is {train}", args.address);
+    print(args.json, &ThrottleEvent::Assigned { train });
+    let me = node.node_id();
     for (listener, flags) in &args.attach {
         send(node, train, TractionCommand::AttachListener { flags: *flags, node: *listener }).await?;
         answer_of_listener(args.json, &mut events, train, *listener).await;
@@ -319,6 +349,6 @@ async fn answer_of_listener(json: bool, events: &mut ThrottleEvents, train: Node
     }
 }
 
-async fn send(node: &Node, train: NodeId, command: TractionCommand) -> Result<(), Failure> {
+pub(crate) async fn send(node: &Node, train: NodeId, command: TractionCommand) -> Result<(), Failure> {
     node.throttle_command(train, command).await.map_err(Failure::Net)
 }

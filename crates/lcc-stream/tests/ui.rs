@@ -927,3 +927,60 @@ async fn the_clock_pane_follows_and_drives_the_generator() {
     assert!(clock["time"].as_str().unwrap().starts_with("1956-07-04 08:30"), "{clock}");
     assert_eq!(clock["rate"], "8", "{clock}");
 }
+
+/// The throttle pane takes a train by its DCC address (as `throttle` does), drives it, and
+/// gives it back; `lcc-stream train` says what it got.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_throttle_pane_acquires_drives_and_releases_a_train() {
+    let layout = Layout::start("ui-throttle", &[]).await;
+    let answer = layout.page("POST", "/api/throttle", b"{\"speed\": 10}").await;
+    assert_eq!(answer.status, 400, "nothing held: {}", answer.text());
+    assert_eq!(layout.page("POST", "/api/throttle", b"{\"acquire\": {\"address\": 0}}").await.status, 400);
+    let mut train = Command::new(BIN)
+        .args(["train", "--connect", &layout.hub, "--node-id", "05.01.01.01.22.C7", "--json"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .unwrap();
+    let mut printed = BufReader::new(train.stdout.take().unwrap()).lines();
+    let mut acquired = Value::Null;
+    for _ in 0..60 {
+        let answer = layout.page("POST", "/api/throttle", b"{\"acquire\": {\"address\": 3}}").await;
+        if answer.status == 200 {
+            acquired = answer.json();
+            break;
+        }
+        // The train is still logging in: nobody answered the search.
+        assert_eq!(answer.status, 504, "{}", answer.text());
+    }
+    assert_eq!(acquired["train"], "05.01.01.01.22.C7", "{acquired}");
+    let held = layout.ok("GET", "/api/throttle", &Value::Null).await;
+    assert_eq!((held["train"].as_str(), held["address"].as_u64()), (Some("05.01.01.01.22.C7"), Some(3)));
+    let mut until = async |needle: &str| {
+        bounded(needle, async {
+            while let Some(line) = printed.next_line().await.unwrap() {
+                if line.contains(needle) {
+                    return line;
+                }
+            }
+            panic!("the train ended before {needle}");
+        })
+        .await
+    };
+    until("\"controller-assigned\"").await;
+    layout.ok("POST", "/api/throttle", &json!({ "speed": -36 })).await;
+    let line = until("\"set_speed\"").await;
+    assert!(line.contains("\"set_speed\":-10"), "{line}");
+    layout.ok("POST", "/api/throttle", &json!({ "function": { "number": 2, "on": true } })).await;
+    let line = until("\"function\"").await;
+    assert!(line.contains("\"function\":2") && line.contains("\"value\":1"), "{line}");
+    assert_eq!(
+        layout.page("POST", "/api/throttle", b"{\"function\": {\"number\": 69, \"on\": true}}").await.status,
+        400
+    );
+    layout.ok("POST", "/api/throttle", &json!("release")).await;
+    until("\"controller-released\"").await;
+    assert_eq!(layout.ok("GET", "/api/throttle", &Value::Null).await["train"], Value::Null);
+}

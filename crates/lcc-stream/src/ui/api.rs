@@ -60,6 +60,7 @@ pub(super) fn router(shared: Arc<Shared>) -> Router {
         .route("/api/events/identify", post(identify_all))
         .route("/api/cancel", post(cancel))
         .route("/api/clock", get(clock_state).post(clock_set))
+        .route("/api/throttle", get(throttle_state).post(throttle_ask))
         .route("/api/monitor/trace", get(trace))
         .fallback(|| async { ApiError::new(StatusCode::NOT_FOUND, "not_found", "no such page") })
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
@@ -511,4 +512,88 @@ async fn clock_set(State(shared): Ctx, body: Bytes) -> Result<axum::Json<Json>, 
             Err(ApiError::of(crate::outcome::Outcome::TimedOut, words))
         }
     }
+}
+
+/// The train the throttle pane holds.
+async fn throttle_state(State(shared): Ctx) -> axum::Json<Json> {
+    let held = *shared.train.lock().await;
+    axum::Json(match held {
+        Some((train, address)) => json!({ "train": train.to_string(), "address": address }),
+        None => json!({ "train": null }),
+    })
+}
+
+/// What a throttle control asks: exactly one of them.
+#[derive(Debug, Deserialize)]
+#[serde(rename_all = "lowercase", deny_unknown_fields)]
+enum ThrottleAsk {
+    /// Find the train of this DCC address (allocating it) and take it, as `throttle` does.
+    Acquire {
+        /// 1 to 10239.
+        address: u32,
+        /// The long (14-bit) address.
+        #[serde(default)]
+        long: bool,
+    },
+    /// The speed in km/h (scale); negative runs in reverse.
+    Speed(f32),
+    /// A function and its state.
+    Function { number: u32, on: bool },
+    /// Emergency stop.
+    Estop,
+    /// Give the train back.
+    Release,
+}
+
+/// The throttle pane's controls: the same commands as `lcc-stream throttle`.
+async fn throttle_ask(State(shared): Ctx, body: Bytes) -> Result<axum::Json<Json>, ApiError> {
+    use crate::throttle::{NotAcquired, acquire, send};
+    use openlcb_tokio::openlcb_node::traction::{Speed, TractionCommand};
+    let ask: ThrottleAsk = serde_json::from_slice(&body).map_err(|e| ApiError::usage(format!("the request: {e}")))?;
+    let mut held = shared.train.lock().await;
+    let node = &shared.node;
+    if let ThrottleAsk::Acquire { address, long } = ask {
+        if !(1..=10239).contains(&address) {
+            return Err(ApiError::usage("a DCC address is 1 to 10239"));
+        }
+        if let Some((train, _)) = held.take() {
+            send(node, train, TractionCommand::ReleaseController { flags: 0, node: node.node_id() }).await?;
+        }
+        let mut notices = node.event_notices().await.map_err(Failure::Net)?;
+        let mut events = node.throttle_events().await.map_err(Failure::Net)?;
+        let train = match acquire(node, &mut notices, &mut events, address, long).await {
+            Ok(train) => train,
+            Err(NotAcquired::Net(failure)) => return Err(failure.into()),
+            Err(NotAcquired::Refused(why)) => return Err(ApiError::of(crate::outcome::Outcome::Rejected, why)),
+            Err(NotAcquired::TimedOut(why)) => return Err(ApiError::of(crate::outcome::Outcome::TimedOut, why)),
+        };
+        *held = Some((train, address));
+        return Ok(axum::Json(
+            json!({ "result": "ok", "train": train.to_string(), "message": format!("DCC {address} is {train}") }),
+        ));
+    }
+    let Some((train, address)) = *held else {
+        return Err(ApiError::of(crate::outcome::Outcome::Usage, "no train is held: acquire one first".into()));
+    };
+    let (command, said) = match ask {
+        ThrottleAsk::Speed(kmh) if kmh.is_finite() && kmh.abs() <= 1000.0 => {
+            let magnitude = Speed::from_f32(kmh.abs() / 3.6);
+            let speed = if kmh < 0.0 { magnitude.reversed() } else { magnitude };
+            (TractionCommand::SetSpeed { speed, forwarded: false }, format!("speed {kmh} km/h"))
+        }
+        ThrottleAsk::Speed(_) => return Err(ApiError::usage("a speed is -1000 to 1000 km/h")),
+        ThrottleAsk::Function { number, on } if number <= 68 => (
+            TractionCommand::SetFunction { address: number, value: u16::from(on), forwarded: false },
+            format!("F{number} {}", if on { "on" } else { "off" }),
+        ),
+        ThrottleAsk::Function { .. } => return Err(ApiError::usage("a function is F0 to F68")),
+        ThrottleAsk::Estop => (TractionCommand::EmergencyStop { forwarded: false }, "emergency stop".into()),
+        ThrottleAsk::Release => {
+            *held = None;
+            (TractionCommand::ReleaseController { flags: 0, node: node.node_id() }, "released".into())
+        }
+        ThrottleAsk::Acquire { .. } => return Err(ApiError::usage("one request acquires or drives")),
+    };
+    send(node, train, command).await?;
+    Ok(axum::Json(json!({ "result": "ok", "message": format!("DCC {address} ({train}): {said}") })))
 }

@@ -150,6 +150,8 @@ pub(crate) struct Shared {
     pub(crate) live: Mutex<live::Gathered>,
     /// The fast clock the page shows.
     pub(crate) clock: ClockId,
+    /// The train the throttle pane holds (this node is its controller), and its address.
+    pub(crate) train: tokio::sync::Mutex<Option<(NodeId, u32)>>,
 }
 
 impl Shared {
@@ -213,6 +215,7 @@ async fn serve(args: &UiArgs) -> Result<ExitCode, String> {
         options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::BUFFER_UNAVAILABLE);
         options.node.events.listen = Listen::Everything;
         options.node.clocks = vec![crate::clock::controlling_consumer(args.clock)];
+        options.node.throttle = Some(openlcb_tokio::openlcb_node::traction::ThrottleConfig::default());
         options
     });
     let node = match node.await {
@@ -240,6 +243,7 @@ async fn serve(args: &UiArgs) -> Result<ExitCode, String> {
         push,
         live: Mutex::new(live::Gathered::default()),
         clock: args.clock,
+        train: tokio::sync::Mutex::new(None),
     });
     let host = match local.ip() {
         std::net::IpAddr::V6(ip) => format!("[{ip}]:{port}"),

@@ -136,6 +136,7 @@ function route() {
   if (parts[0] === 'events') return { view: 'events' };
   if (parts[0] === 'monitor') return { view: 'monitor' };
   if (parts[0] === 'clock') return { view: 'clock' };
+  if (parts[0] === 'throttle') return { view: 'throttle' };
   return { view: 'nodes' };
 }
 
@@ -143,7 +144,7 @@ let configView = null;
 
 function render() {
   const r = route();
-  for (const [id, view] of [['nav-nodes', 'nodes'], ['nav-events', 'events'], ['nav-monitor', 'monitor'], ['nav-clock', 'clock']]) {
+  for (const [id, view] of [['nav-nodes', 'nodes'], ['nav-events', 'events'], ['nav-monitor', 'monitor'], ['nav-clock', 'clock'], ['nav-throttle', 'throttle']]) {
     document.getElementById(id).classList.toggle('here', r.view === view);
   }
   const main = document.getElementById('view');
@@ -159,6 +160,7 @@ function render() {
   } else if (r.view === 'events') main.replaceChildren(eventsView());
   else if (r.view === 'monitor') main.replaceChildren(monitorView());
   else if (r.view === 'clock') main.replaceChildren(clockView());
+  else if (r.view === 'throttle') main.replaceChildren(throttleView());
 }
 
 // ---- nodes ----
@@ -518,6 +520,56 @@ function clockView() {
   api('GET', '/api/clock').then((c) => { state.clock = c; drawClock(); }).catch(sayError);
   queueMicrotask(drawClock);
   return view;
+}
+
+// ---- throttle ----
+
+function throttleView() {
+  const ask = (body) => async (e) => {
+    if (e && e.preventDefault) e.preventDefault();
+    try {
+      const answer = await api('POST', '/api/throttle', body());
+      say(answer.message);
+      if (answer.train !== undefined || body() === 'release') drawThrottle();
+    } catch (error) { sayError(error); }
+  };
+  const address = el('input', { type: 'number', id: 'throttle-address', min: '1', max: '10239', value: '3', 'aria-label': 'DCC address' });
+  const long = el('input', { type: 'checkbox', id: 'throttle-long', 'aria-label': 'Long address' });
+  const speed = el('input', { type: 'range', id: 'throttle-speed', min: '-120', max: '120', step: '1', value: '0', 'aria-label': 'Speed (km/h)' });
+  const shown = el('span', { id: 'throttle-speed-value' }, '0 km/h');
+  speed.addEventListener('input', () => { shown.textContent = speed.value + ' km/h'; });
+  speed.addEventListener('change', ask(() => ({ speed: Number(speed.value) })));
+  const functions = el('div', { class: 'row', id: 'throttle-functions' });
+  for (let number = 0; number <= 8; number++) {
+    const button = el('button', { type: 'button', id: 'throttle-f' + number, 'aria-pressed': 'false' }, 'F' + number);
+    button.addEventListener('click', async () => {
+      const on = button.getAttribute('aria-pressed') !== 'true';
+      await ask(() => ({ function: { number, on } }))();
+      button.setAttribute('aria-pressed', String(on));
+    });
+    functions.append(button);
+  }
+  const view = el('section', {},
+    el('h1', {}, 'Throttle'),
+    el('p', { id: 'throttle-train', class: 'muted' }, 'No train held.'),
+    el('form', { class: 'row', onsubmit: ask(() => ({ acquire: { address: Number(address.value), long: long.checked } })) },
+      address, el('label', {}, long, ' long'), el('button', { type: 'submit', id: 'throttle-acquire' }, 'Acquire')),
+    el('div', { class: 'row' }, speed, shown),
+    el('div', { class: 'row' },
+      el('button', { type: 'button', id: 'throttle-stop', onclick: () => { speed.value = '0'; shown.textContent = '0 km/h'; ask(() => ({ speed: 0 }))(); } }, 'Stop'),
+      el('button', { type: 'button', id: 'throttle-estop', onclick: ask(() => 'estop') }, 'E-stop'),
+      el('button', { type: 'button', id: 'throttle-release', onclick: ask(() => 'release') }, 'Release')),
+    functions);
+  drawThrottle();
+  return view;
+}
+
+async function drawThrottle() {
+  try {
+    const held = await api('GET', '/api/throttle');
+    const line = document.getElementById('throttle-train');
+    if (line) line.textContent = held.train ? `DCC ${held.address} is ${held.train}: this page drives it.` : 'No train held.';
+  } catch (error) { sayError(error); }
 }
 
 // ---- start ----
