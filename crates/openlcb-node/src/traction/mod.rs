@@ -35,7 +35,7 @@
 //!   node of its own (its own Node ID and alias), bounded as it chooses, and has it answer
 //!   with [`Node::answer_train_search`].
 //!
-//! The application is told what to do ([`NodeEvent::Train`](crate::NodeEvent::Train),
+//! The application is told what to do ([`NodeEvent::Train`],
 //! [`TrainEvent`]): the speed to apply (the commanded speed, zero while any emergency stop
 //! holds), the function to switch, the controller that changed; the service answers queries
 //! from the state it keeps ([`Node::train`], [`Node::train_function`]).
@@ -45,7 +45,7 @@
 //! (an Assign counts the train as controlled, up to [`ThrottleConfig::max_trains`]), and the
 //! train's replies, rejects, heartbeat requests (answered with a No-op at once unless
 //! [`ThrottleConfig::answer_heartbeats`] is off) and a Controller Changing Notify (accepted:
-//! the train is another's now) come as [`NodeEvent::Throttle`](crate::NodeEvent::Throttle)
+//! the train is another's now) come as [`NodeEvent::Throttle`]
 //! ([`ThrottleEvent`]). A node may be both.
 //!
 //! Space 0xFA, the FDI, is a read-only space of the application's memory server
@@ -147,7 +147,7 @@ impl TrainConfig {
     }
 }
 
-/// A change of the train, for the application ([`NodeEvent::Train`](crate::NodeEvent::Train)).
+/// A change of the train, for the application ([`NodeEvent::Train`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct TrainEvent {
     /// What changed.
