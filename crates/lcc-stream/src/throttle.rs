@@ -15,6 +15,7 @@ use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome};
+use crate::peer::Peer;
 
 /// How long the train search, the assign and each query wait.
 const ANSWER_WAIT: Duration = Duration::from_secs(3);
@@ -34,8 +35,12 @@ Examples:
 ", net::network_help(&[Outcome::TimedOut])))]
 pub(crate) struct ThrottleArgs {
     /// The train's DCC address.
-    #[arg(value_parser = clap::value_parser!(u32).range(1..=10239))]
-    address: u32,
+    #[arg(value_parser = clap::value_parser!(u32).range(1..=10239), required_unless_present = "train")]
+    address: Option<u32>,
+    /// The train by its Node ID instead of a search (a train node that does not answer Train
+    /// Search, such as OpenMRN's Linux `train`, found by `events identify 01.01.00.00.00.00.03.03`).
+    #[arg(long, value_name = "NODE_ID", value_parser = crate::args::node_id, conflicts_with_all = ["address", "long"])]
+    train: Option<NodeId>,
     /// Ask for the long (14-bit) address.
     #[arg(long)]
     long: bool,
@@ -108,7 +113,11 @@ pub(crate) fn run(args: &ThrottleArgs) -> Result<ExitCode, String> {
 /// One answer as `--json` prints it.
 #[derive(Debug, Serialize)]
 struct AnswerLine {
-    train: String,
+    /// The train's Node ID, or (known only by its CAN alias) `train_alias`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    train: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    train_alias: Option<String>,
     event: &'static str,
     #[serde(skip_serializing_if = "Option::is_none")]
     set_speed: Option<f32>,
@@ -151,8 +160,11 @@ fn print(json: bool, event: &ThrottleEvent) {
         }
         _ => return,
     };
+    let train = Peer::of(train);
     if json {
-        let line = AnswerLine { train: train.to_string(), event: name, set_speed: speed, emergency_stop: estop, other };
+        let (alias, train_alias) = (train.node_field(), train.alias_field());
+        let line =
+            AnswerLine { train: alias, train_alias, event: name, set_speed: speed, emergency_stop: estop, other };
         outln!("{}", serde_json::to_string(&line).unwrap_or_default());
     } else if name != "heartbeat" {
         outln!("train {train}: {text}");
@@ -243,6 +255,11 @@ pub(crate) async fn acquire(
     let Some(train) = found else {
         return Err(NotAcquired::TimedOut(format!("no train or command station answered for DCC {address}")));
     };
+    assign(node, events, train).await.map(|()| train)
+}
+
+/// Takes `train` as its controller.
+pub(crate) async fn assign(node: &Node, events: &mut ThrottleEvents, train: NodeId) -> Result<(), NotAcquired> {
     let me = node.node_id();
     send(node, train, TractionCommand::AssignController { flags: 0, node: me }).await.map_err(NotAcquired::Net)?;
     let assigned = wait_for(events, |e| match e {
@@ -252,7 +269,7 @@ pub(crate) async fn acquire(
     })
     .await;
     match assigned {
-        Some(true) => Ok(train),
+        Some(true) => Ok(()),
         Some(false) => Err(NotAcquired::Refused(format!("{train} refused this throttle as its controller"))),
         None => Err(NotAcquired::TimedOut(format!("{train} did not answer the assign"))),
     }
@@ -261,7 +278,12 @@ pub(crate) async fn acquire(
 async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt) -> Result<Outcome, Failure> {
     let mut notices = node.event_notices().await.map_err(Failure::Net)?;
     let mut events = node.throttle_events().await.map_err(Failure::Net)?;
-    let train = match acquire(node, &mut notices, &mut events, args.address, args.long).await {
+    let taken = match (args.train, args.address) {
+        (Some(train), _) => assign(node, &mut events, train).await.map(|()| train),
+        (None, Some(address)) => acquire(node, &mut notices, &mut events, address, args.long).await,
+        (None, None) => return Ok(Outcome::Usage),
+    };
+    let train = match taken {
         Ok(train) => train,
         Err(NotAcquired::Net(failure)) => return Err(failure),
         Err(NotAcquired::Refused(why)) => {
@@ -273,7 +295,10 @@ async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt)
             return Ok(Outcome::TimedOut);
         }
     };
-    eprintln!("lcc-stream throttle: DCC {} is {train}", args.address);
+    match args.address {
+        Some(address) => eprintln!("lcc-stream throttle: DCC {address} is {}", Peer::of(train)),
+        None => eprintln!("lcc-stream throttle: driving {}", Peer::of(train)),
+    }
     print(args.json, &ThrottleEvent::Assigned { train });
     let me = node.node_id();
     for (listener, flags) in &args.attach {

@@ -221,3 +221,41 @@ async fn our_throttle_finds_allocates_drives_and_releases_a_train() {
     assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
     let _ = hub.kill().await;
 }
+
+/// A train that does not answer Train Search (OpenMRN's Linux `train`) is driven by its Node
+/// ID: `throttle --train` assigns it without a search.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn our_throttle_drives_a_train_given_by_its_node_id() {
+    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0"]);
+    let mut hub_err: Lines<BufReader<ChildStderr>> = BufReader::new(hub.stderr.take().unwrap()).lines();
+    let line = until(&mut hub_err, "GridConnect on").await;
+    let gridconnect = line.split_whitespace().nth(4).unwrap().trim_end_matches(',').to_string();
+    tokio::spawn(async move { while let Ok(Some(_)) = hub_err.next_line().await {} });
+    let mut train =
+        spawn(&["train", "--connect", &gridconnect, "--node-id", "05.01.01.01.22.0A", "--allocate", "0", "--json"]);
+    let mut said: Lines<BufReader<ChildStderr>> = BufReader::new(train.stderr.take().unwrap()).lines();
+    let mut printed: Lines<BufReader<ChildStdout>> = BufReader::new(train.stdout.take().unwrap()).lines();
+    until(&mut said, "DCC 3 as").await;
+    let out = bounded(
+        "the throttle",
+        common::command(&[
+            "throttle",
+            "--train",
+            "05.01.01.01.22.0A",
+            "--speed",
+            "18",
+            "--release",
+            "--connect",
+            &gridconnect,
+        ])
+        .output(),
+    )
+    .await
+    .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let line = until(&mut printed, "\"speed\"").await;
+    assert!(line.contains("\"set_speed\":5"), "{line}");
+    until(&mut printed, "\"controller-released\"").await;
+    interrupt(&train).await;
+    assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
+}

@@ -395,7 +395,7 @@ fn commands_are_forwarded_to_listeners_as_their_flags_say_never_back() {
 // ----- heartbeat -----
 
 fn heartbeat_requests(sent: &[Message]) -> usize {
-    sent.iter().filter(|m| m.mti == Mti::TRACTION_CONTROL_REPLY && m.payload == [0x40, 0x03, 0, 0, 3]).count()
+    sent.iter().filter(|m| m.mti == Mti::TRACTION_CONTROL_REPLY && m.payload == [0x40, 0x03, 3]).count()
 }
 
 #[test]

@@ -1,7 +1,8 @@
 //! A complete LCC board on tokio: an 8-line I/O board. Its configuration is declared once
 //! (the kit, `openlcb_node::board`): a name, and per line a name, a mode and two events. The
 //! CDI and the addresses come from that; the settings live in a file (`FileSpace`), served by
-//! Memory Configuration and shared with the board (`SharedSpace`). Input lines produce their
+//! Memory Configuration and shared with the board (`SharedSpace`); space 0xEF takes a firmware
+//! upgrade. Input lines produce their
 //! events, output lines consume theirs, always as the configuration holds them: a tool's
 //! change takes effect at its Update Complete, and a Factory Reset writes the defaults.
 //!
@@ -18,6 +19,9 @@ use openlcb_tokio::{
 
 /// What the example's functions fail with.
 type Failure = Box<dyn std::error::Error + Send + Sync>;
+
+/// The firmware space (0xEF) a firmware upgrade writes.
+const FIRMWARE_SPACE: u32 = 128 * 1024;
 
 /// One I/O line's settings.
 #[allow(dead_code)] // `name` and `mode` are settings for the tools; the board does not read them.
@@ -68,6 +72,7 @@ async fn board(
     let server = MemoryServer::new()
         .with_space(0xFF, ReadOnlySpace::cdi(board.cdi()))
         .with_space(0xFD, space.clone())
+        .with_space(0xEF, RamSpace::new(FIRMWARE_SPACE))
         .with_acdi();
     let mut asked = bus.set_memory_server(server).await?;
     let mut reports = bus.event_notices().await?;
@@ -78,6 +83,8 @@ async fn board(
             Some(event) = asked.next() => match event {
                 // A tool finished writing: the events are what the settings hold now.
                 MemoryEvent::UpdateComplete { .. } => bus.set_events(board.events(&mut space)).await?,
+                // A real board writes the image to flash here and resets into it.
+                MemoryEvent::Unfrozen { image_len, .. } => println!("firmware image of {image_len} bytes received"),
                 MemoryEvent::FactoryResetRequested { .. } => {
                     board.factory_reset(&mut space)?;
                     bus.set_events(board.events(&mut space)).await?;

@@ -61,6 +61,10 @@
 //! - **A new controller** is accepted at once and the old one told with Controller Changing
 //!   Notify; its answer is not waited for (the standard allows either). A node that holds
 //!   the Management reservation refuses other nodes' Assign (result bit 1, train refused).
+//! - **The Heartbeat Request's deadline** is one byte of seconds (`40 03 SS`), as OpenMRN's
+//!   `heartbeat_request_payload` sends it and OpenMRN and OpenLCB_Java (JMRI's throttles) read
+//!   it; OpenLcbCLib sends three bytes, which those readers take as 0 s. The throttle here
+//!   answers any form at once.
 //! - **Heartbeat timeout** is Set Speed 0 as §6.6 says, not an Emergency Stop (OlcbChecker's
 //!   `tr110` notes, as a warning, that OpenLcbCLib sets the E-Stop status).
 //! - **Functions** are kept for addresses below [`TrainConfig::functions`] (F0-F68 by
@@ -632,9 +636,9 @@ impl Train {
             && at <= now
         {
             self.heartbeat_at = None;
-            let secs = self.heartbeat_secs();
-            let [_, a, b, c] = secs.to_be_bytes();
-            bus.reply(controller, alloc::vec![wire::MANAGEMENT, wire::MANAGEMENT_NOOP, a, b, c]);
+            // The deadline in one byte, as OpenMRN and OpenLCB_Java (JMRI's throttles) read it.
+            let secs = self.heartbeat_secs().min(u32::from(u8::MAX));
+            bus.reply(controller, alloc::vec![wire::MANAGEMENT, wire::MANAGEMENT_NOOP, secs as u8]);
             bus.stats.heartbeats_sent += 1;
             self.heartbeat_deadline = Some(now + Duration::from_secs(u64::from(secs)));
         }
