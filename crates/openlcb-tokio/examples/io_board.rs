@@ -14,7 +14,7 @@
 use openlcb_tokio::openlcb_node::board::{Board, BoardBuilder, EventRole, EventSetting, IntSetting, StringSetting};
 use openlcb_tokio::{
     EventId, EventNotice, EventRole as Role, FileSpace, Framing, Hub, HubOptions, MemoryEvent, MemoryServer, Node,
-    NodeCommand, NodeId, NodeOptions, ReadOnlySpace, SharedSpace, SnipInfo, TransferPath,
+    NodeCommand, NodeId, NodeOptions, RamSpace, ReadOnlySpace, SharedSpace, SnipInfo, TransferPath,
 };
 
 /// What the example's functions fail with.
