@@ -287,6 +287,23 @@ struct IdentifiedLine {
     state: Option<&'static str>,
 }
 
+/// `producer` or `consumer`.
+pub(crate) fn role_word(role: EventRole) -> &'static str {
+    match role {
+        EventRole::Producer => "producer",
+        EventRole::Consumer => "consumer",
+    }
+}
+
+/// `valid`, `invalid` or `unknown`.
+pub(crate) fn state_word(state: EventState) -> &'static str {
+    match state {
+        EventState::Valid => "valid",
+        EventState::Invalid => "invalid",
+        EventState::Unknown => "unknown",
+    }
+}
+
 impl IdentifiedLine {
     fn new(from: NodeId, role: EventRole, range: EventRange, state: Option<EventState>) -> Self {
         let peer = Peer::of(from);
@@ -294,18 +311,11 @@ impl IdentifiedLine {
             peer,
             node: peer.node_field(),
             alias: peer.alias_field(),
-            role: match role {
-                EventRole::Producer => "producer",
-                EventRole::Consumer => "consumer",
-            },
+            role: role_word(role),
             event: range.first().to_string(),
             last: range.last().to_string(),
             name: well_known(range.first()).filter(|_| range.is_single()),
-            state: state.map(|state| match state {
-                EventState::Valid => "valid",
-                EventState::Invalid => "invalid",
-                EventState::Unknown => "unknown",
-            }),
+            state: state.map(state_word),
         }
     }
 

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{bounded, command, interrupt, spawn};
+use common::{bounded, command, interrupt, spawn, until};
 use openlcb_tokio::{Hub, HubOptions};
 use tokio::io::{AsyncBufReadExt, BufReader, Lines};
 use tokio::process::{ChildStderr, ChildStdout};
@@ -11,18 +11,6 @@ use tokio::process::{ChildStderr, ChildStdout};
 async fn run(args: &[&str]) -> (i32, String) {
     let out = bounded("a command", command(args).output()).await.unwrap();
     (out.status.code().unwrap_or(-1), String::from_utf8(out.stderr).unwrap())
-}
-
-async fn until<R: tokio::io::AsyncRead + Unpin>(lines: &mut Lines<BufReader<R>>, needle: &str) -> String {
-    bounded(needle, async {
-        while let Some(line) = lines.next_line().await.unwrap() {
-            if line.contains(needle) {
-                return line;
-            }
-        }
-        panic!("the output ended before `{needle}`");
-    })
-    .await
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

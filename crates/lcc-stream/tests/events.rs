@@ -3,25 +3,12 @@
 
 mod common;
 
-use common::{Bus, bounded, command, interrupt, reports, scratch, spawn};
+use common::{Bus, bounded, command, interrupt, reports, scratch, spawn, until};
 use openlcb_tokio::{Hub, HubOptions};
 use tokio::io::{AsyncBufReadExt, BufReader, Lines};
 use tokio::process::{Child, ChildStderr};
 
 const SERVER: &str = "05.01.01.01.22.E1";
-
-/// Reads lines of `lines` until one contains `needle`.
-async fn until(lines: &mut Lines<BufReader<ChildStderr>>, needle: &str) -> String {
-    bounded(needle, async {
-        while let Some(line) = lines.next_line().await.unwrap() {
-            if line.contains(needle) {
-                return line;
-            }
-        }
-        panic!("the output ended before `{needle}`");
-    })
-    .await
-}
 
 async fn run(args: &[&str]) -> (bool, String, String) {
     let out = bounded("a command", command(args).output()).await.unwrap();

@@ -4,10 +4,10 @@
 
 mod common;
 
-use common::{bounded, interrupt, spawn};
+use common::{bounded, interrupt, spawn, until};
 use openlcb_stream::{Message, Mti, NodeId};
 use tokio::io::{AsyncBufReadExt, AsyncReadExt as _, AsyncWriteExt as _, BufReader, Lines};
-use tokio::process::{ChildStderr, ChildStdout};
+use tokio::process::{Child, ChildStderr, ChildStdout};
 
 /// A scripted OpenLCB-TCP peer.
 struct Throttle {
@@ -58,18 +58,6 @@ impl Throttle {
         })
         .await
     }
-}
-
-async fn until<R: tokio::io::AsyncRead + Unpin>(lines: &mut Lines<BufReader<R>>, needle: &str) -> String {
-    bounded(needle, async {
-        while let Some(line) = lines.next_line().await.unwrap() {
-            if line.contains(needle) {
-                return line;
-            }
-        }
-        panic!("the output ended before `{needle}`");
-    })
-    .await
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -136,20 +124,37 @@ async fn a_throttle_drives_the_train_and_has_a_second_one_allocated() {
 
     interrupt(&train).await;
     assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
-    let _ = hub.kill().await;
+}
+
+/// `lcc-stream hub` on 127.0.0.1 and `lcc-stream train --json` on it with `args`, logged in.
+struct Station {
+    _hub: Child,
+    /// The hub's GridConnect address.
+    gridconnect: String,
+    train: Child,
+    said: Lines<BufReader<ChildStderr>>,
+    printed: Lines<BufReader<ChildStdout>>,
+}
+
+async fn station(args: &[&str]) -> Station {
+    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0"]);
+    let mut hub_err = BufReader::new(hub.stderr.take().unwrap()).lines();
+    let line = until(&mut hub_err, "GridConnect on").await;
+    let gridconnect = line.split_whitespace().nth(4).unwrap().trim_end_matches(',').to_string();
+    tokio::spawn(async move { while let Ok(Some(_)) = hub_err.next_line().await {} });
+    let mut train_args = vec!["train", "--connect", &gridconnect, "--json"];
+    train_args.extend(args);
+    let mut train = spawn(&train_args);
+    let mut said = BufReader::new(train.stderr.take().unwrap()).lines();
+    let printed = BufReader::new(train.stdout.take().unwrap()).lines();
+    until(&mut said, "DCC 3 as").await;
+    Station { _hub: hub, gridconnect, train, said, printed }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn our_throttle_finds_allocates_drives_and_releases_a_train() {
-    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0"]);
-    let mut hub_err: Lines<BufReader<ChildStderr>> = BufReader::new(hub.stderr.take().unwrap()).lines();
-    let line = until(&mut hub_err, "GridConnect on").await;
-    let gridconnect = line.split_whitespace().nth(4).unwrap().trim_end_matches(',').to_string();
-    tokio::spawn(async move { while let Ok(Some(_)) = hub_err.next_line().await {} });
-    let mut train = spawn(&["train", "--connect", &gridconnect, "--node-id", "05.01.01.01.22.01", "--json"]);
-    let mut said: Lines<BufReader<ChildStderr>> = BufReader::new(train.stderr.take().unwrap()).lines();
-    let mut printed: Lines<BufReader<ChildStdout>> = BufReader::new(train.stdout.take().unwrap()).lines();
-    until(&mut said, "DCC 3 as").await;
+    let Station { _hub: _keep, gridconnect, mut train, mut said, mut printed } =
+        station(&["--node-id", "05.01.01.01.22.01"]).await;
 
     // DCC 3 is the station's own train.
     let out = bounded(
@@ -219,23 +224,14 @@ async fn our_throttle_finds_allocates_drives_and_releases_a_train() {
 
     interrupt(&train).await;
     assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
-    let _ = hub.kill().await;
 }
 
 /// A train that does not answer Train Search (OpenMRN's Linux `train`) is driven by its Node
 /// ID: `throttle --train` assigns it without a search.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn our_throttle_drives_a_train_given_by_its_node_id() {
-    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0"]);
-    let mut hub_err: Lines<BufReader<ChildStderr>> = BufReader::new(hub.stderr.take().unwrap()).lines();
-    let line = until(&mut hub_err, "GridConnect on").await;
-    let gridconnect = line.split_whitespace().nth(4).unwrap().trim_end_matches(',').to_string();
-    tokio::spawn(async move { while let Ok(Some(_)) = hub_err.next_line().await {} });
-    let mut train =
-        spawn(&["train", "--connect", &gridconnect, "--node-id", "05.01.01.01.22.0A", "--allocate", "0", "--json"]);
-    let mut said: Lines<BufReader<ChildStderr>> = BufReader::new(train.stderr.take().unwrap()).lines();
-    let mut printed: Lines<BufReader<ChildStdout>> = BufReader::new(train.stdout.take().unwrap()).lines();
-    until(&mut said, "DCC 3 as").await;
+    let Station { _hub: _keep, gridconnect, mut train, said: _, mut printed } =
+        station(&["--node-id", "05.01.01.01.22.0A", "--allocate", "0"]).await;
     let out = bounded(
         "the throttle",
         common::command(&[

@@ -163,18 +163,11 @@ pub(crate) fn identified(
 ) -> Identified {
     Identified {
         node: Peer::of(from).to_string(),
-        role: match role {
-            EventRole::Producer => "producer",
-            EventRole::Consumer => "consumer",
-        },
+        role: crate::events::role_word(role),
         event: range.first().to_string(),
         last: range.last().to_string(),
         name: well_known(range.first()).filter(|_| range.is_single()),
-        state: state.map(|state| match state {
-            EventState::Valid => "valid",
-            EventState::Invalid => "invalid",
-            EventState::Unknown => "unknown",
-        }),
+        state: state.map(crate::events::state_word),
     }
 }
 

@@ -93,6 +93,22 @@ pub(crate) fn reports(alias: u16, first: u64, span: u64, count: usize) -> String
     (0..count as u64).map(|i| format!(":X195B4{alias:03X}N{:016X};\n", first + i % span)).collect()
 }
 
+/// Reads lines of `lines` until one contains `needle`, and returns it.
+pub(crate) async fn until<R: tokio::io::AsyncRead + Unpin>(
+    lines: &mut tokio::io::Lines<tokio::io::BufReader<R>>,
+    needle: &str,
+) -> String {
+    bounded(needle, async {
+        while let Some(line) = lines.next_line().await.unwrap() {
+            if line.contains(needle) {
+                return line;
+            }
+        }
+        panic!("the output ended before `{needle}`");
+    })
+    .await
+}
+
 /// Sends SIGINT (Ctrl-C) to a child.
 pub(crate) async fn interrupt(child: &Child) {
     let pid = child.id().unwrap().to_string();
