@@ -195,7 +195,7 @@ async fn throttle(args: &ThrottleArgs) -> Result<ExitCode, String> {
 }
 
 /// Waits for the first event `pick` takes.
-async fn wait_for<T>(events: &mut ThrottleEvents, pick: impl Fn(&ThrottleEvent) -> Option<T>) -> Option<T> {
+pub(crate) async fn wait_for<T>(events: &mut ThrottleEvents, pick: impl Fn(&ThrottleEvent) -> Option<T>) -> Option<T> {
     tokio::time::timeout(ANSWER_WAIT, async {
         while let Some(event) = events.next().await {
             if let Some(found) = pick(&event) {

@@ -940,11 +940,14 @@ async fn the_throttle_pane_acquires_drives_and_releases_a_train() {
         .args(["train", "--connect", &layout.hub, "--node-id", "05.01.01.01.22.C7", "--json"])
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
-        .stderr(Stdio::null())
+        .stderr(Stdio::piped())
         .kill_on_drop(true)
         .spawn()
         .unwrap();
     let mut printed = BufReader::new(train.stdout.take().unwrap()).lines();
+    // Once the train has logged in and taken its own address, it answers the search.
+    let mut said = BufReader::new(train.stderr.take().unwrap()).lines();
+    common::until(&mut said, "DCC 3 as").await;
     let mut acquired = Value::Null;
     for _ in 0..60 {
         let answer = layout.page("POST", "/api/throttle", b"{\"acquire\": {\"address\": 3}}").await;
@@ -970,10 +973,12 @@ async fn the_throttle_pane_acquires_drives_and_releases_a_train() {
         .await
     };
     until("\"controller-assigned\"").await;
-    layout.ok("POST", "/api/throttle", &json!({ "speed": -36 })).await;
+    let said = layout.ok("POST", "/api/throttle", &json!({ "speed": -36 })).await;
+    assert!(said["message"].as_str().unwrap().ends_with("speed -36 km/h"), "read back from the train: {said}");
     let line = until("\"set_speed\"").await;
     assert!(line.contains("\"set_speed\":-10"), "{line}");
-    layout.ok("POST", "/api/throttle", &json!({ "function": { "number": 2, "on": true } })).await;
+    let said = layout.ok("POST", "/api/throttle", &json!({ "function": { "number": 2, "on": true } })).await;
+    assert!(said["message"].as_str().unwrap().ends_with("F2 on"), "read back from the train: {said}");
     let line = until("\"function\"").await;
     assert!(line.contains("\"function\":2") && line.contains("\"value\":1"), "{line}");
     assert_eq!(

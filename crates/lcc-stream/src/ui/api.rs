@@ -545,55 +545,77 @@ enum ThrottleAsk {
     Release,
 }
 
-/// The throttle pane's controls: the same commands as `lcc-stream throttle`.
+/// The throttle pane's controls: the same commands as `lcc-stream throttle`, each read back
+/// from the train (Query Speeds, Query Function) before it is said done.
 async fn throttle_ask(State(shared): Ctx, body: Bytes) -> Result<axum::Json<Json>, ApiError> {
-    use crate::throttle::{NotAcquired, acquire, send};
-    use openlcb_tokio::openlcb_node::traction::{Speed, TractionCommand};
+    use crate::outcome::Outcome;
+    use crate::peer::Peer;
+    use crate::throttle::{NotAcquired, acquire, send, wait_for};
+    use openlcb_tokio::openlcb_node::traction::{Speed, ThrottleEvent, TractionCommand};
     let ask: ThrottleAsk = serde_json::from_slice(&body).map_err(|e| ApiError::usage(format!("the request: {e}")))?;
     let mut held = shared.train.lock().await;
     let node = &shared.node;
-    if let ThrottleAsk::Acquire { address, long } = ask {
-        if !(1..=10239).contains(&address) {
-            return Err(ApiError::usage("a DCC address is 1 to 10239"));
+    let mut events = node.throttle_events().await.map_err(Failure::Net)?;
+    let not_held = || ApiError::of(Outcome::Usage, "no train is held: acquire one first".into());
+    let (train, address) = match ask {
+        ThrottleAsk::Acquire { address, long } => {
+            if !(1..=10239).contains(&address) {
+                return Err(ApiError::usage("a DCC address is 1 to 10239"));
+            }
+            if let Some((train, _)) = held.take() {
+                send(node, train, TractionCommand::ReleaseController { flags: 0, node: node.node_id() }).await?;
+            }
+            let mut notices = node.event_notices().await.map_err(Failure::Net)?;
+            let train = match acquire(node, &mut notices, &mut events, address, long).await {
+                Ok(train) => train,
+                Err(NotAcquired::Net(failure)) => return Err(failure.into()),
+                Err(NotAcquired::Refused(why)) => return Err(ApiError::of(Outcome::Rejected, why)),
+                Err(NotAcquired::TimedOut(why)) => return Err(ApiError::of(Outcome::TimedOut, why)),
+            };
+            *held = Some((train, address));
+            let message = format!("DCC {address} is {}", Peer::of(train));
+            return Ok(axum::Json(json!({ "result": "ok", "train": train.to_string(), "message": message })));
         }
-        if let Some((train, _)) = held.take() {
+        ThrottleAsk::Release => {
+            let (train, address) = held.take().ok_or_else(not_held)?;
             send(node, train, TractionCommand::ReleaseController { flags: 0, node: node.node_id() }).await?;
+            let message = format!("DCC {address} ({}) released", Peer::of(train));
+            return Ok(axum::Json(json!({ "result": "ok", "message": message })));
         }
-        let mut notices = node.event_notices().await.map_err(Failure::Net)?;
-        let mut events = node.throttle_events().await.map_err(Failure::Net)?;
-        let train = match acquire(node, &mut notices, &mut events, address, long).await {
-            Ok(train) => train,
-            Err(NotAcquired::Net(failure)) => return Err(failure.into()),
-            Err(NotAcquired::Refused(why)) => return Err(ApiError::of(crate::outcome::Outcome::Rejected, why)),
-            Err(NotAcquired::TimedOut(why)) => return Err(ApiError::of(crate::outcome::Outcome::TimedOut, why)),
-        };
-        *held = Some((train, address));
-        return Ok(axum::Json(
-            json!({ "result": "ok", "train": train.to_string(), "message": format!("DCC {address} is {train}") }),
-        ));
-    }
-    let Some((train, address)) = *held else {
-        return Err(ApiError::of(crate::outcome::Outcome::Usage, "no train is held: acquire one first".into()));
+        _ => (*held).ok_or_else(not_held)?,
     };
-    let (command, said) = match ask {
+    let (command, query) = match ask {
         ThrottleAsk::Speed(kmh) if kmh.is_finite() && kmh.abs() <= 1000.0 => {
             let magnitude = Speed::from_f32(kmh.abs() / 3.6);
             let speed = if kmh < 0.0 { magnitude.reversed() } else { magnitude };
-            (TractionCommand::SetSpeed { speed, forwarded: false }, format!("speed {kmh} km/h"))
+            (TractionCommand::SetSpeed { speed, forwarded: false }, TractionCommand::QuerySpeeds)
         }
-        ThrottleAsk::Speed(_) => return Err(ApiError::usage("a speed is -1000 to 1000 km/h")),
         ThrottleAsk::Function { number, on } if number <= 68 => (
             TractionCommand::SetFunction { address: number, value: u16::from(on), forwarded: false },
-            format!("F{number} {}", if on { "on" } else { "off" }),
+            TractionCommand::QueryFunction { address: number },
         ),
-        ThrottleAsk::Function { .. } => return Err(ApiError::usage("a function is F0 to F68")),
-        ThrottleAsk::Estop => (TractionCommand::EmergencyStop { forwarded: false }, "emergency stop".into()),
-        ThrottleAsk::Release => {
-            *held = None;
-            (TractionCommand::ReleaseController { flags: 0, node: node.node_id() }, "released".into())
-        }
-        ThrottleAsk::Acquire { .. } => return Err(ApiError::usage("one request acquires or drives")),
+        ThrottleAsk::Estop => (TractionCommand::EmergencyStop { forwarded: false }, TractionCommand::QuerySpeeds),
+        ThrottleAsk::Speed(_) => return Err(ApiError::usage("a speed is -1000 to 1000 km/h")),
+        _ => return Err(ApiError::usage("a function is F0 to F68")),
     };
     send(node, train, command).await?;
-    Ok(axum::Json(json!({ "result": "ok", "message": format!("DCC {address} ({train}): {said}") })))
+    send(node, train, query).await?;
+    // What the train holds now, in its own answer.
+    let read_back = wait_for(&mut events, |e| match *e {
+        ThrottleEvent::Speeds { train: t, set, emergency_stop, .. } if t == train => Some(Ok(match emergency_stop {
+            true => format!("emergency stop (speed {:.0} km/h)", set.to_f32() * 3.6),
+            false => format!("speed {:.0} km/h", set.to_f32() * 3.6),
+        })),
+        ThrottleEvent::Function { train: t, address, value } if t == train => {
+            Some(Ok(format!("F{address} {}", if value == 0 { "off" } else { "on" })))
+        }
+        ThrottleEvent::Rejected { train: t, code } if t == train => {
+            Some(Err(ApiError::of(Outcome::Rejected, format!("{} refused it (0x{:04X})", Peer::of(train), code.0))))
+        }
+        _ => None,
+    })
+    .await
+    .ok_or_else(|| ApiError::of(Outcome::TimedOut, format!("{} did not answer the query", Peer::of(train))))??;
+    let message = format!("DCC {address} ({}): {read_back}", Peer::of(train));
+    Ok(axum::Json(json!({ "result": "ok", "message": message })))
 }
