@@ -181,8 +181,10 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
     options.node.streams_enabled = !args.no_streams;
     // Streams are for Memory Configuration only: any other is refused, not swallowed.
     options.node.stream.accept_policy = AcceptPolicy::RejectAll(ReplyCode::STREAMS_NOT_SUPPORTED);
-    options.node.events.produced.clone_from(&args.produces);
-    options.node.events.consumed.clone_from(&args.consumes);
+    // The board's events as its configuration holds them, beside --produces and --consumes,
+    // declared from the start so that the node announces them once.
+    let mut configured = spaces.board.read(&mut *spaces.config.lock());
+    options.node.events = configured.declarations(&args.produces, &args.consumes);
     let mut report = ServeReport {
         node: args.node_id.to_string(),
         config_bytes: spaces.config.len(),
@@ -217,10 +219,8 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
             eprintln!("lcc-stream serve: {verb} {}", crate::events::range_text(declared.range));
         }
     }
-    // The board's events, as the configuration holds them.
-    let mut configured = Configured::default();
-    if let Err(error) = apply_board(&node, &spaces, args, &mut configured, true).await {
-        return Ok(net::fail("serve", &Failure::Net(error)));
+    if configured != Configured::default() && !args.json {
+        eprintln!("lcc-stream serve: the board's events: {}", configured.text());
     }
     let mut input = match &args.input {
         Some(path) => Some(input_lines(path)?),
@@ -236,7 +236,7 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
                     let applies = matches!(event, MemoryEvent::UpdateComplete { .. } | MemoryEvent::ResetRequested { .. });
                     on_event(event, args, &image, &mut report);
                     match applies {
-                        true => match apply_board(&node, &spaces, args, &mut configured, false).await {
+                        true => match apply_board(&node, &spaces, args, &mut configured).await {
                             Ok(()) => continue,
                             Err(error) => error,
                         },
@@ -269,7 +269,10 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
         }
         let stopped = if reconnect::is_lost(&lost) {
             let attempt = || async {
-                let node = args.connect.join_again(options.clone()).await?;
+                // A new login declares the board's events as they are now.
+                let mut options = options.clone();
+                options.node.events = configured.declarations(&args.produces, &args.consumes);
+                let node = args.connect.join_again(options).await?;
                 let started = serve_on(&node, &spaces).await.map_err(|error| error.to_string())?;
                 Ok::<_, String>((node, started))
             };
@@ -277,9 +280,6 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
                 Ok((again, started)) => {
                     dropped_before += notices.dropped();
                     (node, (events, notices)) = (again, started);
-                    if let Err(error) = apply_board(&node, &spaces, args, &mut configured, true).await {
-                        eprintln!("lcc-stream serve: {error}");
-                    }
                     if let Some(printer) = printer.as_mut() {
                         printer.new_listener();
                     }
@@ -327,17 +327,10 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
 }
 
 /// Declares the board's events as space 0xFD holds them now, beside `--produces` and
-/// `--consumes`, when they differ from `configured` (or, `joined`, on a new connection that
-/// knows only those), and says what they are.
-async fn apply_board(
-    node: &Node,
-    spaces: &Spaces,
-    args: &ServeArgs,
-    configured: &mut Configured,
-    joined: bool,
-) -> Result<(), Error> {
+/// `--consumes`, when they differ from `configured`, and says what they are.
+async fn apply_board(node: &Node, spaces: &Spaces, args: &ServeArgs, configured: &mut Configured) -> Result<(), Error> {
     let now = spaces.board.read(&mut *spaces.config.lock());
-    if now == *configured && !(joined && now != Configured::default()) {
+    if now == *configured {
         return Ok(());
     }
     node.set_events(now.declarations(&args.produces, &args.consumes)).await?;
