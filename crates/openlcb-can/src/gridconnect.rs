@@ -9,6 +9,7 @@
 //!   frames, and after garbage, a malformed frame or one longer than
 //!   [`MAX_FRAME_TEXT`] characters reports a typed error and resynchronises on the next `:`.
 
+#[cfg(feature = "bytes")]
 use bytes::BufMut;
 use embedded_can::Frame;
 
@@ -50,6 +51,7 @@ pub struct BufferTooSmall {
 /// gridconnect::encode_to(&frame, &mut text).unwrap();
 /// assert_eq!(text, b":X19490123N;");
 /// ```
+#[cfg(feature = "bytes")]
 pub fn encode_to(frame: &CanFrame, out: &mut impl BufMut) -> Result<usize, BufferTooSmall> {
     let mut text = [0u8; MAX_ENCODED_LEN];
     let len = encode(frame, &mut text)?;

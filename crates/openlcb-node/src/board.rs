@@ -84,7 +84,7 @@ impl IntSetting {
     }
 
     /// The value the space holds.
-    pub fn read(self, space: &mut impl MemorySpace) -> Result<u64, SpaceError> {
+    pub fn read(self, space: &mut (impl MemorySpace + ?Sized)) -> Result<u64, SpaceError> {
         let mut bytes = [0u8; 8];
         let len = usize::from(self.size);
         let got = space.read(self.address, bytes.get_mut(..len).unwrap_or_default())?;
@@ -95,7 +95,7 @@ impl IntSetting {
     }
 
     /// Writes `value` (its low bytes, as many as the setting has).
-    pub fn write(self, space: &mut impl MemorySpace, value: u64) -> Result<(), SpaceError> {
+    pub fn write(self, space: &mut (impl MemorySpace + ?Sized), value: u64) -> Result<(), SpaceError> {
         let bytes = value.to_be_bytes();
         space.write(self.address, bytes.get(8 - usize::from(self.size)..).unwrap_or_default())
     }
@@ -108,7 +108,7 @@ impl StringSetting {
     }
 
     /// The text the space holds, to its first NUL (bytes that are not UTF-8 are replaced).
-    pub fn read(self, space: &mut impl MemorySpace) -> Result<String, SpaceError> {
+    pub fn read(self, space: &mut (impl MemorySpace + ?Sized)) -> Result<String, SpaceError> {
         let mut bytes = alloc::vec![0u8; self.size as usize];
         let got = space.read(self.address, &mut bytes)?;
         bytes.truncate(got);
@@ -117,7 +117,7 @@ impl StringSetting {
     }
 
     /// Writes `text`, cut to the setting's size less its NUL, NUL-padded.
-    pub fn write(self, space: &mut impl MemorySpace, text: &str) -> Result<(), SpaceError> {
+    pub fn write(self, space: &mut (impl MemorySpace + ?Sized), text: &str) -> Result<(), SpaceError> {
         space.write(self.address, &padded(text, self.size))
     }
 }
@@ -129,7 +129,7 @@ impl EventSetting {
     }
 
     /// The Event ID the space holds.
-    pub fn read(self, space: &mut impl MemorySpace) -> Result<EventId, SpaceError> {
+    pub fn read(self, space: &mut (impl MemorySpace + ?Sized)) -> Result<EventId, SpaceError> {
         let mut bytes = [0u8; 8];
         if space.read(self.address, &mut bytes)? != 8 {
             return Err(SpaceError::OutOfBounds);
@@ -138,7 +138,7 @@ impl EventSetting {
     }
 
     /// Writes `event`.
-    pub fn write(self, space: &mut impl MemorySpace, event: EventId) -> Result<(), SpaceError> {
+    pub fn write(self, space: &mut (impl MemorySpace + ?Sized), event: EventId) -> Result<(), SpaceError> {
         space.write(self.address, &event.to_bytes())
     }
 }
@@ -288,6 +288,17 @@ impl Board {
         &self.cdi
     }
 
+    /// Moves the CDI out, as the content of space 0xFF, without a copy: a firmware's RAM
+    /// holds it once (the Memory Configuration server's space). [`cdi`](Self::cdi) is empty
+    /// afterwards; the settings, defaults and events are kept.
+    pub fn take_cdi_space(&mut self) -> crate::ReadOnlySpace {
+        let mut bytes = core::mem::take(&mut self.cdi).into_bytes();
+        bytes.reserve_exact(1);
+        bytes.push(0);
+        bytes.shrink_to_fit();
+        crate::ReadOnlySpace::new(bytes)
+    }
+
     /// The bytes of space 0xFD the settings take.
     pub fn len(&self) -> u32 {
         self.len
@@ -299,7 +310,7 @@ impl Board {
     }
 
     /// Writes every setting's factory value (a Factory Reset), then commits the space.
-    pub fn factory_reset(&self, space: &mut impl MemorySpace) -> Result<(), SpaceError> {
+    pub fn factory_reset(&self, space: &mut (impl MemorySpace + ?Sized)) -> Result<(), SpaceError> {
         for (address, bytes) in &self.defaults {
             space.write(*address, bytes)?;
         }
@@ -308,7 +319,7 @@ impl Board {
 
     /// The node's events as `space` holds them now: each event setting produced or consumed
     /// as declared (settings of all zeros or all ones are unset, and left out).
-    pub fn events(&self, space: &mut impl MemorySpace) -> EventConfig {
+    pub fn events(&self, space: &mut (impl MemorySpace + ?Sized)) -> EventConfig {
         let mut events = EventConfig::default();
         for (setting, role) in &self.events {
             let Ok(event) = setting.read(space) else { continue };

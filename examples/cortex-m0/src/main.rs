@@ -1,0 +1,197 @@
+//! An 8-line I/O board, the whole OpenLCB node, as Cortex-M0 firmware (QEMU's `microbit`,
+//! an nRF51822 held to 32 KiB of flash and 8 KiB of RAM by `memory.x`).
+//!
+//! The node: the CAN link (alias login, duplicate detection) through the `openlcb-embedded`
+//! driver on the UART's GridConnect bus (`serial_can`), datagrams, SNIP, PIP, Memory
+//! Configuration with the CDI, the ACDI and a configuration space that flash keeps, events
+//! bound to that configuration (lines 1-4 produce theirs, 5-8 consume theirs and print what
+//! they do), a firmware image space (0xEF) as a bootloader space, Reset/Reboot as a real reset.
+//! Its configuration is declared once with the kit (`openlcb_node::board`): the CDI and the
+//! offsets come from the same calls.
+//!
+//! Semihosting is its console: each consumed event it acts on (`line 5 on`), each image it
+//! takes, and before each reboot the RAM it used (`ram: ...`, the stack measured by painting).
+//! `.ci/firmware-m0` runs it against a bus the test drives (`cargo test -p openlcb-tokio
+//! --test cortex_m0 -- --ignored`).
+
+#![no_std]
+#![no_main]
+
+extern crate alloc;
+
+mod flash;
+mod nrf51;
+mod ram;
+mod serial_can;
+
+use alloc::vec::Vec;
+
+use cortex_m_rt::{ExceptionFrame, entry, exception};
+use openlcb_can::{CanConfig, CanLink};
+use openlcb_embedded::Driver;
+use openlcb_node::board::{Board, BoardBuilder, EventRole, EventSetting};
+use openlcb_node::{EventNotice, MemoryEvent, MemoryServer, MemorySpace, Node, NodeConfig, NodeEvent, SnipInfo};
+use openlcb_stream::{EventId, NodeId};
+
+use crate::flash::{ConfigSpace, FirmwareSpace};
+use crate::ram::print;
+
+/// The board's Node ID.
+const NODE_ID: u64 = 0x05_01_01_01_22_D0;
+
+/// One line's events.
+struct Line {
+    on: EventSetting,
+    off: EventSetting,
+}
+
+/// The configuration: a name, and per line a name, a mode and two events (lines 1-4 inputs,
+/// 5-8 outputs), the factory events the Node ID's, two a line.
+fn declare() -> (Board, Vec<Line>, SnipInfo) {
+    let mut config = BoardBuilder::new("I/O board");
+    config.string("Board name", 16, "");
+    let lines = config.group("Line", 8, |g, i| {
+        let (role, mode) = if i < 4 { (EventRole::Produced, 0) } else { (EventRole::Consumed, 1) };
+        g.string("Name", 8, "");
+        g.int("Mode", 1, mode, &[(0, "Input"), (1, "Output")]);
+        let event = |k| EventId(NODE_ID << 16 | u64::from(2 * i + k));
+        Line { on: g.event("Event On", role, event(0)), off: g.event("Event Off", role, event(1)) }
+    });
+    let snip = SnipInfo {
+        manufacturer: "openlcb-stream".into(),
+        model: "Cortex-M0 I/O board".into(),
+        hardware_version: "QEMU microbit".into(),
+        software_version: env!("CARGO_PKG_VERSION").into(),
+        ..Default::default()
+    };
+    (config.finish(&snip), lines, snip)
+}
+
+/// The configuration space of a running node.
+fn config_space(node: &mut Node) -> &mut (dyn MemorySpace + Send + 'static) {
+    match node.memory_server_mut().and_then(|server| server.space_mut(0xFD)) {
+        Some(space) => space,
+        None => fail("no space 0xFD"),
+    }
+}
+
+/// Prints what an output line does with `event`, if it is one of theirs.
+fn act_on(lines: &[Line], space: &mut (dyn MemorySpace + Send), event: EventId) {
+    for (i, line) in lines.iter().enumerate().skip(4) {
+        let state = if line.on.read(space).ok() == Some(event) {
+            "on\n"
+        } else if line.off.read(space).ok() == Some(event) {
+            "off\n"
+        } else {
+            continue;
+        };
+        print(&["line ", ram::digits(i as u32 + 1).as_str(), " ", state]);
+    }
+}
+
+/// The CAN link's tables, sized for a board that answers tools and talks to few peers (the
+/// defaults suit a PC tool): aliases of 16 peers, 4 messages reassembled at once of up to a
+/// datagram's 72 bytes, 8 messages and 8 frames queued, 2 datagrams in flight.
+fn can_config() -> CanConfig {
+    let mut config = CanConfig::default();
+    config.alias_cache_size = 16;
+    config.reassembly_slots = 4;
+    config.max_message_len = 72;
+    config.transmit_queue_limit = 8;
+    config.frame_queue_limit = 8;
+    config.datagram_slots = 2;
+    config
+}
+
+/// The node: its configuration space loaded (or its defaults written), its tables sized, its
+/// memory spaces.
+fn build_node(id: NodeId, board: &mut Board, snip: SnipInfo) -> Node {
+    let (mut config, found) = ConfigSpace::load(board.len());
+    if !found && board.factory_reset(&mut config).is_err() {
+        fail("factory reset");
+    }
+    let mut node_config = NodeConfig::default();
+    node_config.events = board.events(&mut config);
+    node_config.snip = snip;
+    // The node's tables, sized for a board (the defaults suit a PC tool): datagrams only (a
+    // stream's buffers do not fit the RAM; the image comes by datagrams), 2 datagrams of its
+    // own queued and 2 awaiting the application's answer, 1 SNIP request of its own.
+    node_config.streams_enabled = false;
+    node_config.datagrams.max_outgoing = 2;
+    node_config.datagrams.max_outgoing_per_destination = 1;
+    node_config.datagrams.max_awaiting_answer = 2;
+    node_config.max_snip_requests = 1;
+    node_config.transmit_queue_limit = 16;
+    let server = MemoryServer::new()
+        .with_space(0xFF, board.take_cdi_space())
+        .with_space(0xFD, config)
+        .with_space(0xEF, FirmwareSpace::new())
+        .with_acdi();
+    Node::new(id, node_config).with_memory_server(server)
+}
+
+#[entry]
+fn main() -> ! {
+    ram::paint_stack();
+    ram::init_heap();
+    let Some(id) = NodeId::new(NODE_ID) else { fail("bad Node ID") };
+    let (mut board, lines, snip) = declare();
+    let mut node = build_node(id, &mut board, snip);
+    print(&["booted\n"]);
+    // The login's 200 ms count from here: the first poll, just below, sends its CIDs.
+    let mut clock = nrf51::Clock::new();
+    let link = CanLink::new(clock.now(), id, can_config());
+    let mut driver = Driver::new(serial_can::SerialCan::new(nrf51::Uart::new()), move || clock.now(), link);
+    let mut rebooting = false;
+    loop {
+        let Ok(poll) = driver.poll(&mut node) else { continue };
+        if rebooting && poll.is_idle() {
+            ram::report();
+            nrf51::reset();
+        }
+        while let Some(event) = node.poll_event() {
+            match event {
+                NodeEvent::Memory(MemoryEvent::UpdateComplete { .. }) => {
+                    if cfg!(feature = "inject-hardfault") {
+                        cortex_m::asm::udf();
+                    }
+                    if !cfg!(feature = "inject-stale-events") {
+                        let events = board.events(config_space(&mut node));
+                        node.set_events(events);
+                    }
+                }
+                NodeEvent::Memory(MemoryEvent::FactoryResetRequested { .. }) => {
+                    if board.factory_reset(config_space(&mut node)).is_err() {
+                        fail("factory reset");
+                    }
+                    let events = board.events(config_space(&mut node));
+                    node.set_events(events);
+                }
+                NodeEvent::Memory(MemoryEvent::ResetRequested { .. }) => rebooting = true,
+                NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) => {
+                    print(&["firmware image of ", ram::digits(image_len).as_str(), " bytes\n"]);
+                }
+                NodeEvent::Events(EventNotice::Report { event, .. }) => act_on(&lines, config_space(&mut node), event),
+                _ => {}
+            }
+        }
+    }
+}
+
+/// Ends the run with a failure: QEMU exits with status 1.
+fn fail(why: &str) -> ! {
+    print(&["FAIL: ", why, "\n"]);
+    ram::exit_failure()
+}
+
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo<'_>) -> ! {
+    // No location: its file names would take 3 KiB of flash.
+    fail("panicked")
+}
+
+#[exception]
+unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
+    print(&["HardFault at pc ", ram::digits(frame.pc()).as_str(), "\n"]);
+    fail("HardFault")
+}

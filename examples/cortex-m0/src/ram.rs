@@ -1,0 +1,166 @@
+//! The runtime's RAM: the heap (with its high-water mark), the stack painted at start-up and
+//! measured before a reboot, and the semihosting console.
+//!
+//! RAM used = static data (`.data`, `.bss`, `.uninit`, the heap array among them) + the
+//! deepest the stack went. `report` prints both, and the heap's peak, on the console.
+
+use core::alloc::{GlobalAlloc, Layout};
+use core::cell::Cell;
+use core::mem::MaybeUninit;
+
+use cortex_m::interrupt::{self, Mutex};
+use cortex_m_semihosting::{debug, hio};
+use embedded_alloc::LlffHeap;
+
+/// Bytes of RAM given to the heap.
+pub const HEAP_SIZE: usize = 8 * 1024;
+
+/// The word the stack is painted with.
+const PAINT: u32 = 0x5A5A_A5A5;
+/// Words kept unpainted below the stack pointer of `paint_stack` (its own frame).
+const PAINT_MARGIN_WORDS: usize = 16;
+
+/// The heap, counting the most it ever held.
+struct PeakHeap {
+    heap: LlffHeap,
+    peak: Mutex<Cell<usize>>,
+}
+
+#[global_allocator]
+static HEAP: PeakHeap = PeakHeap { heap: LlffHeap::empty(), peak: Mutex::new(Cell::new(0)) };
+
+// SAFETY: forwards to `LlffHeap`, which is a correct allocator; only counts besides.
+#[allow(unsafe_code)]
+unsafe impl GlobalAlloc for PeakHeap {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        // SAFETY: the caller's contract, passed on.
+        let block = unsafe { self.heap.alloc(layout) };
+        let used = self.heap.used();
+        interrupt::free(|cs| {
+            let peak = self.peak.borrow(cs);
+            peak.set(peak.get().max(used));
+        });
+        block
+    }
+
+    unsafe fn dealloc(&self, block: *mut u8, layout: Layout) {
+        // SAFETY: the caller's contract, passed on.
+        unsafe { self.heap.dealloc(block, layout) }
+    }
+}
+
+/// Gives the heap its memory. Call once, first thing after `paint_stack`.
+pub fn init_heap() {
+    static mut HEAP_MEM: [MaybeUninit<u8>; HEAP_SIZE] = [MaybeUninit::uninit(); HEAP_SIZE];
+    // SAFETY: called once at start-up, before any allocation; HEAP_MEM is used by nothing else.
+    #[allow(unsafe_code)]
+    unsafe {
+        HEAP.heap.init(&raw mut HEAP_MEM as usize, HEAP_SIZE)
+    }
+}
+
+unsafe extern "C" {
+    /// The end of static data: the stack may grow down to here (cortex-m-rt's linker script).
+    static __sheap: u32;
+    /// The top of RAM, where the stack starts.
+    static _stack_start: u32;
+}
+
+fn stack_floor() -> *mut u32 {
+    (&raw const __sheap).cast_mut()
+}
+
+fn stack_top() -> usize {
+    (&raw const _stack_start) as usize
+}
+
+/// Paints the free RAM between static data and the stack pointer.
+pub fn paint_stack() {
+    let sp = cortex_m::register::msp::read() as usize;
+    let mut word = stack_floor();
+    while (word as usize) < sp - 4 * PAINT_MARGIN_WORDS {
+        // SAFETY: between the end of static data and below the live stack: RAM no one uses.
+        #[allow(unsafe_code)]
+        unsafe {
+            word.write_volatile(PAINT);
+            word = word.add(1);
+        }
+    }
+}
+
+/// The deepest the stack has gone: bytes from its top down to the lowest word no longer
+/// holding the paint.
+fn stack_used() -> usize {
+    let mut word = stack_floor();
+    // SAFETY: reads of the painted region, inside RAM.
+    #[allow(unsafe_code)]
+    while (word as usize) < stack_top() && unsafe { word.read_volatile() } == PAINT {
+        word = unsafe { word.add(1) };
+    }
+    stack_top() - word as usize
+}
+
+/// Prints `ram: static S B + stack K B = T B; heap peak H B of SIZE B`.
+pub fn report() {
+    let statics = stack_floor() as usize - 0x2000_0000;
+    let stack = stack_used();
+    let peak = interrupt::free(|cs| HEAP.peak.borrow(cs).get());
+    print(&[
+        "ram: static ",
+        digits(statics as u32).as_str(),
+        " B + stack ",
+        digits(stack as u32).as_str(),
+        " B = ",
+        digits((statics + stack) as u32).as_str(),
+        " B; heap used ",
+        digits(HEAP.heap.used() as u32).as_str(),
+        " B, peak ",
+        digits(peak as u32).as_str(),
+        " B of ",
+        digits(HEAP_SIZE as u32).as_str(),
+        " B\n",
+    ]);
+}
+
+/// A number in decimal, without the formatting machinery.
+pub struct Digits {
+    text: [u8; 10],
+    start: usize,
+}
+
+impl Digits {
+    /// The text.
+    pub fn as_str(&self) -> &str {
+        core::str::from_utf8(&self.text[self.start..]).unwrap_or("?")
+    }
+}
+
+/// `value` in decimal.
+pub fn digits(mut value: u32) -> Digits {
+    let mut out = Digits { text: [0; 10], start: 10 };
+    loop {
+        out.start -= 1;
+        out.text[out.start] = b'0' + (value % 10) as u8;
+        value /= 10;
+        if value == 0 {
+            return out;
+        }
+    }
+}
+
+/// Writes the pieces to the host's stdout.
+pub fn print(pieces: &[&str]) {
+    if let Ok(mut out) = hio::hstdout() {
+        for piece in pieces {
+            let _ = out.write_all(piece.as_bytes());
+        }
+    }
+}
+
+/// QEMU exits with status 1.
+pub fn exit_failure() -> ! {
+    debug::exit(debug::EXIT_FAILURE);
+    loop {
+        cortex_m::asm::bkpt();
+    }
+}
