@@ -38,10 +38,8 @@
 //! assert_eq!(board.events(&mut space).produced.len(), 4);
 //! ```
 
-use alloc::format;
 use alloc::string::String;
 use alloc::vec::Vec;
-use core::fmt::Write as _;
 
 use openlcb_stream::EventId;
 
@@ -174,14 +172,24 @@ impl BoardBuilder {
     /// The configuration segment (space 0xFD from address 0), named `name` in the CDI.
     pub fn new(name: &str) -> Self {
         let mut xml = String::new();
-        let _ = writeln!(xml, "<segment space=\"253\" origin=\"0\"><name>{}</name>", escape(name));
+        xml.push_str("<segment space=\"253\" origin=\"0\"><name>");
+        push_escaped(&mut xml, name);
+        xml.push_str("</name>\n");
         BoardBuilder { xml, address: 0, defaults: Vec::new(), events: Vec::new(), quiet: false }
     }
 
-    fn element(&mut self, text: &str) {
-        if !self.quiet {
-            self.xml.push_str(text);
-            self.xml.push('\n');
+    /// Writes `pieces` in turn, each markup to copy, text to escape or a number. Nothing while
+    /// a replication after the first is laid out.
+    fn element(&mut self, pieces: &[Xml<'_>]) {
+        if self.quiet {
+            return;
+        }
+        for piece in pieces {
+            match piece {
+                Xml::Markup(markup) => self.xml.push_str(markup),
+                Xml::Text(text) => push_escaped(&mut self.xml, text),
+                Xml::Number(value) => push_decimal(&mut self.xml, *value),
+            }
         }
     }
 
@@ -192,16 +200,23 @@ impl BoardBuilder {
             1 | 2 | 4 | 8 => size,
             _ => 1,
         };
-        let mut relations = String::new();
-        for (value, label) in map {
-            let _ =
-                write!(relations, "<relation><property>{value}</property><value>{}</value></relation>", escape(label));
+        use Xml::{Markup, Number, Text};
+        self.element(&[Markup("<int size=\""), Number(size.into()), Markup("\"><name>"), Text(name)]);
+        self.element(&[Markup("</name><default>"), Number(default), Markup("</default>")]);
+        if !map.is_empty() {
+            self.element(&[Markup("<map>")]);
+            for (value, label) in map {
+                self.element(&[
+                    Markup("<relation><property>"),
+                    Number(*value),
+                    Markup("</property><value>"),
+                    Text(label),
+                    Markup("</value></relation>"),
+                ]);
+            }
+            self.element(&[Markup("</map>")]);
         }
-        let map = if relations.is_empty() { String::new() } else { format!("<map>{relations}</map>") };
-        self.element(&format!(
-            "<int size=\"{size}\"><name>{}</name><default>{default}</default>{map}</int>",
-            escape(name)
-        ));
+        self.element(&[Markup("</int>\n")]);
         let setting = IntSetting { address: self.address, size };
         let bytes = default.to_be_bytes();
         self.defaults.push((self.address, bytes.get(8 - usize::from(size)..).unwrap_or_default().to_vec()));
@@ -211,7 +226,14 @@ impl BoardBuilder {
 
     /// A string of `size` bytes (its NUL included) with its factory value.
     pub fn string(&mut self, name: &str, size: u32, default: &str) -> StringSetting {
-        self.element(&format!("<string size=\"{size}\"><name>{}</name></string>", escape(name)));
+        use Xml::{Markup, Number, Text};
+        self.element(&[
+            Markup("<string size=\""),
+            Number(size.into()),
+            Markup("\"><name>"),
+            Text(name),
+            Markup("</name></string>\n"),
+        ]);
         let setting = StringSetting { address: self.address, size };
         self.defaults.push((self.address, padded(default, size)));
         self.address += size;
@@ -220,7 +242,7 @@ impl BoardBuilder {
 
     /// An Event ID the node produces or consumes, with its factory value.
     pub fn event(&mut self, name: &str, role: EventRole, default: EventId) -> EventSetting {
-        self.element(&format!("<eventid><name>{}</name></eventid>", escape(name)));
+        self.element(&[Xml::Markup("<eventid><name>"), Xml::Text(name), Xml::Markup("</name></eventid>\n")]);
         let setting = EventSetting { address: self.address };
         self.defaults.push((self.address, default.to_bytes().to_vec()));
         self.events.push((setting, role));
@@ -231,9 +253,14 @@ impl BoardBuilder {
     /// A group replicated `count` times (`count` 1: a plain group), its settings declared by
     /// `settings` (called once per replication, with its index): the handles of each.
     pub fn group<T>(&mut self, name: &str, count: u32, mut settings: impl FnMut(&mut Self, u32) -> T) -> Vec<T> {
+        use Xml::{Markup, Number, Text};
         let count = count.max(1);
-        let repname = if count > 1 { format!("<repname>{} 1</repname>", escape(name)) } else { String::new() };
-        self.element(&format!("<group replication=\"{count}\"><name>{}</name>{repname}", escape(name)));
+        self.element(&[Markup("<group replication=\""), Number(count.into()), Markup("\"><name>"), Text(name)]);
+        if count > 1 {
+            self.element(&[Markup("</name><repname>"), Text(name), Markup(" 1</repname>\n")]);
+        } else {
+            self.element(&[Markup("</name>\n")]);
+        }
         let outer = self.quiet;
         let mut groups = Vec::with_capacity(count as usize);
         for index in 0..count {
@@ -241,35 +268,86 @@ impl BoardBuilder {
             self.quiet = true;
         }
         self.quiet = outer;
-        self.element("</group>");
+        self.element(&[Markup("</group>\n")]);
         groups
     }
 
     /// The board: the whole CDI (identification from `snip`, ACDI, the user name and
     /// description, this segment), its size and defaults.
-    pub fn finish(mut self, snip: &SnipInfo) -> Board {
-        self.xml.push_str("</segment>\n");
-        let cdi = format!(
+    pub fn finish(self, snip: &SnipInfo) -> Board {
+        let mut cdi = String::with_capacity(self.xml.len() + 600);
+        cdi.push_str(
             "<?xml version=\"1.0\" encoding=\"utf-8\"?>\n<cdi xmlns:xsi=\"http://www.w3.org/2001/XMLSchema-instance\" \
-             xsi:noNamespaceSchemaLocation=\"http://openlcb.org/schema/cdi/1/4/cdi.xsd\">\n<identification>\
-             <manufacturer>{}</manufacturer><model>{}</model><hardwareVersion>{}</hardwareVersion>\
-             <softwareVersion>{}</softwareVersion></identification>\n<acdi/>\n\
-             <segment space=\"251\" origin=\"1\"><name>User identification</name>\
-             <string size=\"63\"><name>User name</name></string>\
-             <string size=\"64\"><name>User description</name></string></segment>\n{}</cdi>\n",
-            escape(&snip.manufacturer),
-            escape(&snip.model),
-            escape(&snip.hardware_version),
-            escape(&snip.software_version),
-            self.xml
+             xsi:noNamespaceSchemaLocation=\"http://openlcb.org/schema/cdi/1/4/cdi.xsd\">\n<identification>",
         );
+        for (tag, value) in [
+            ("manufacturer", &snip.manufacturer),
+            ("model", &snip.model),
+            ("hardwareVersion", &snip.hardware_version),
+            ("softwareVersion", &snip.software_version),
+        ] {
+            for piece in ["<", tag, ">"] {
+                cdi.push_str(piece);
+            }
+            push_escaped(&mut cdi, value);
+            for piece in ["</", tag, ">"] {
+                cdi.push_str(piece);
+            }
+        }
+        cdi.push_str(
+            "</identification>\n<acdi/>\n<segment space=\"251\" origin=\"1\"><name>User identification</name>\
+             <string size=\"63\"><name>User name</name></string>\
+             <string size=\"64\"><name>User description</name></string></segment>\n",
+        );
+        cdi.push_str(&self.xml);
+        cdi.push_str("</segment>\n</cdi>\n");
         Board { cdi, len: self.address, defaults: self.defaults, events: self.events }
     }
 }
 
-/// `text` for XML character data.
-fn escape(text: &str) -> String {
-    text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+/// A piece of an element the builder writes.
+enum Xml<'a> {
+    /// Copied as it is.
+    Markup(&'a str),
+    /// Character data, escaped.
+    Text(&'a str),
+    /// A number in decimal.
+    Number(u64),
+}
+
+/// Appends `text` as XML character data.
+fn push_escaped(out: &mut String, text: &str) {
+    for c in text.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            _ => out.push(c),
+        }
+    }
+}
+
+/// Appends `value` in decimal, by subtracting powers of ten: no formatting machinery and no
+/// 64-bit division, which a Cortex-M0 does in library code (about 2 KiB of flash between them).
+fn push_decimal(out: &mut String, mut value: u64) {
+    let mut started = false;
+    let mut power = 1u64;
+    let powers: [u64; 20] = core::array::from_fn(|_| {
+        let this = power;
+        power = power.wrapping_mul(10);
+        this
+    });
+    for (i, power) in powers.iter().enumerate().rev() {
+        let mut digit = b'0';
+        while value >= *power {
+            value -= power;
+            digit += 1;
+        }
+        if digit != b'0' || started || i == 0 {
+            started = true;
+            out.push(char::from(digit));
+        }
+    }
 }
 
 /// A board's configuration: its CDI, the size of its space 0xFD, its defaults and its event

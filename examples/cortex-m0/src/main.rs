@@ -78,14 +78,14 @@ fn config_space(node: &mut Node) -> &mut (dyn MemorySpace + Send + 'static) {
 /// Prints what an output line does with `event`, if it is one of theirs.
 fn act_on(lines: &[Line], space: &mut (dyn MemorySpace + Send), event: EventId) {
     for (i, line) in lines.iter().enumerate().skip(4) {
-        let state = if line.on.read(space).ok() == Some(event) {
-            "on\n"
+        let state: &[u8] = if line.on.read(space).ok() == Some(event) {
+            b"on\n"
         } else if line.off.read(space).ok() == Some(event) {
-            "off\n"
+            b"off\n"
         } else {
             continue;
         };
-        print(&["line ", ram::digits(i as u32 + 1).as_str(), " ", state]);
+        print(&[b"line ", ram::digits(i as u32 + 1).as_bytes(), b" ", state]);
     }
 }
 
@@ -137,7 +137,7 @@ fn main() -> ! {
     let Some(id) = NodeId::new(NODE_ID) else { fail("bad Node ID") };
     let (mut board, lines, snip) = declare();
     let mut node = build_node(id, &mut board, snip);
-    print(&["booted\n"]);
+    print(&[b"booted\n"]);
     // The login's 200 ms count from here: the first poll, just below, sends its CIDs.
     let mut clock = nrf51::Clock::new();
     let link = CanLink::new(clock.now(), id, can_config());
@@ -169,7 +169,7 @@ fn main() -> ! {
                 }
                 NodeEvent::Memory(MemoryEvent::ResetRequested { .. }) => rebooting = true,
                 NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) => {
-                    print(&["firmware image of ", ram::digits(image_len).as_str(), " bytes\n"]);
+                    print(&[b"firmware image of ", ram::digits(image_len).as_bytes(), b" bytes\n"]);
                 }
                 NodeEvent::Events(EventNotice::Report { event, .. }) => act_on(&lines, config_space(&mut node), event),
                 _ => {}
@@ -180,7 +180,7 @@ fn main() -> ! {
 
 /// Ends the run with a failure: QEMU exits with status 1.
 fn fail(why: &str) -> ! {
-    print(&["FAIL: ", why, "\n"]);
+    print(&[b"FAIL: ", why.as_bytes(), b"\n"]);
     ram::exit_failure()
 }
 
@@ -192,6 +192,6 @@ fn panic(_info: &core::panic::PanicInfo<'_>) -> ! {
 
 #[exception]
 unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
-    print(&["HardFault at pc ", ram::digits(frame.pc()).as_str(), "\n"]);
+    print(&[b"HardFault at pc ", ram::digits(frame.pc()).as_bytes(), b"\n"]);
     fail("HardFault")
 }

@@ -106,19 +106,19 @@ pub fn report() {
     let stack = stack_used();
     let peak = interrupt::free(|cs| HEAP.peak.borrow(cs).get());
     print(&[
-        "ram: static ",
-        digits(statics as u32).as_str(),
-        " B + stack ",
-        digits(stack as u32).as_str(),
-        " B = ",
-        digits((statics + stack) as u32).as_str(),
-        " B; heap used ",
-        digits(HEAP.heap.used() as u32).as_str(),
-        " B, peak ",
-        digits(peak as u32).as_str(),
-        " B of ",
-        digits(HEAP_SIZE as u32).as_str(),
-        " B\n",
+        b"ram: static ",
+        digits(statics as u32).as_bytes(),
+        b" B + stack ",
+        digits(stack as u32).as_bytes(),
+        b" B = ",
+        digits((statics + stack) as u32).as_bytes(),
+        b" B; heap used ",
+        digits(HEAP.heap.used() as u32).as_bytes(),
+        b" B, peak ",
+        digits(peak as u32).as_bytes(),
+        b" B of ",
+        digits(HEAP_SIZE as u32).as_bytes(),
+        b" B\n",
     ]);
 }
 
@@ -129,9 +129,9 @@ pub struct Digits {
 }
 
 impl Digits {
-    /// The text.
-    pub fn as_str(&self) -> &str {
-        core::str::from_utf8(&self.text[self.start..]).unwrap_or("?")
+    /// The text, in ASCII.
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.text[self.start..]
     }
 }
 
@@ -148,11 +148,11 @@ pub fn digits(mut value: u32) -> Digits {
     }
 }
 
-/// Writes the pieces to the host's stdout.
-pub fn print(pieces: &[&str]) {
+/// Writes the pieces (ASCII) to the host's stdout.
+pub fn print(pieces: &[&[u8]]) {
     if let Ok(mut out) = hio::hstdout() {
         for piece in pieces {
-            let _ = out.write_all(piece.as_bytes());
+            let _ = out.write_all(piece);
         }
     }
 }
