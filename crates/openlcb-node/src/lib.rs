@@ -194,6 +194,7 @@ pub mod memconfig;
 mod node;
 mod service;
 mod snip;
+mod streams;
 #[cfg(feature = "traction")]
 pub mod traction;
 
@@ -215,7 +216,9 @@ pub use memconfig::{
     MemoryConfigOptions, MemoryError, MemoryEvent, MemoryOperation, MemoryRequestError, MemoryServer, MemorySpace,
     NodeCommand, RamSpace, ReadOnlySpace, SpaceError, TransferPath,
 };
-pub use node::{DUPLICATE_NODE_ID_DETECTED, Node, NodeEvent, NodeStats, Streams};
+#[cfg(feature = "streams")]
+pub use node::Streams;
+pub use node::{DUPLICATE_NODE_ID_DETECTED, Node, NodeEvent, NodeStats};
 pub use snip::{MAX_REPLY_LEN, SnipFailure, SnipField, SnipInfo, SnipRequestError, SnipTooLong};
 #[cfg(feature = "traction")]
 pub use traction::{Speed, TrainConfig, TrainEvent};

@@ -4,10 +4,11 @@
 
 use alloc::vec::Vec;
 
-use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport, ReplyCode};
+#[cfg(feature = "streams")]
+use openlcb_stream::wire::ReplyCode;
+use openlcb_stream::wire::{Emit, ErrorCode, ErrorReport};
 use openlcb_stream::{
-    AcceptOptions, AcceptPolicy, Event, EventId, Instant, Message, MessageRef, Mti, NodeId, OpenOptions, PeerChange,
-    PeerChanges, Queue, Receiver, StreamEndpoint, StreamError, StreamHandle,
+    AcceptPolicy, Event, EventId, Instant, Message, MessageRef, Mti, NodeId, PeerChange, PeerChanges, Queue, Receiver,
 };
 
 #[cfg(feature = "broadcast-time")]
@@ -22,7 +23,10 @@ use crate::memconfig::{MemoryConfig, MemoryEvent, MemoryLent, MemoryServer, acdi
 use crate::memconfig::{MemoryOperation, MemoryRequestError, NodeCommand, TransferPath};
 use crate::service::{Lent, Service, ServiceChange, Services, earliest};
 use crate::snip::{SnipFailure, SnipInfo, SnipRequestError};
+use crate::streams::{self, Endpoint};
 use crate::{DatagramStats, NodeConfig, Protocols};
+#[cfg(feature = "streams")]
+use openlcb_stream::{AcceptOptions, OpenOptions, StreamEndpoint, StreamError, StreamHandle};
 
 /// The well-known Event ID Duplicate Node ID Detected.
 pub const DUPLICATE_NODE_ID_DETECTED: EventId = EventId(0x0101_0000_0000_0201);
@@ -209,7 +213,7 @@ impl Outputs {
 pub struct Node {
     pub(crate) config: NodeConfig,
     protocols: Protocols,
-    streams: StreamEndpoint,
+    streams: Endpoint,
     memory: MemoryConfig,
     pub(crate) services: Services,
     pub(crate) out: Outputs,
@@ -233,7 +237,7 @@ fn memory_lent<'a>(
     out: &'a mut Outputs,
     config: &'a NodeConfig,
     datagrams: &'a mut DatagramService,
-    streams: &'a mut StreamEndpoint,
+    streams: &'a mut Endpoint,
 ) -> MemoryLent<'a> {
     MemoryLent { lent: Lent { now, out, config }, datagrams, streams }
 }
@@ -257,12 +261,12 @@ impl Node {
             | Protocols::SIMPLE_NODE_INFORMATION
             | config.extra_protocols
             | services.protocols(&config);
-        if config.streams_enabled {
+        if streams::enabled(&config) {
             protocols = protocols | Protocols::STREAM;
         }
         Node {
             protocols,
-            streams: StreamEndpoint::new(id, config.stream.clone()),
+            streams: Endpoint::new(id, config.stream.clone()),
             memory: MemoryConfig::default(),
             services,
             out,
@@ -319,6 +323,7 @@ impl Node {
     }
 
     /// The stream endpoint, for its getters.
+    #[cfg(feature = "streams")]
     pub fn streams(&self) -> &StreamEndpoint {
         &self.streams
     }
@@ -326,6 +331,7 @@ impl Node {
     /// The stream commands (`open`, `write`, `read`, `accept`, ...) and, through `Deref`, the
     /// endpoint's getters. Each command lets Memory Configuration act on what it caused, so
     /// that [`poll_event`](Self::poll_event) only pops.
+    #[cfg(feature = "streams")]
     pub fn streams_mut(&mut self) -> Streams<'_> {
         Streams { node: self }
     }
@@ -448,7 +454,7 @@ impl Node {
 
     /// Offers `msg` to each service in turn; whether one took it.
     fn offer(&mut self, now: Instant, msg: MessageRef<'_>) -> bool {
-        if msg.mti.is_stream() && self.config.streams_enabled {
+        if msg.mti.is_stream() && streams::enabled(&self.config) {
             self.streams.handle_message(now, msg);
             return true;
         }
@@ -466,7 +472,7 @@ impl Node {
         let report = ErrorReport::parse(msg.payload);
         let peer = msg.source;
         let mut handled = false;
-        if report.mti.is_none_or(Mti::is_stream) && self.config.streams_enabled {
+        if report.mti.is_none_or(Mti::is_stream) && streams::enabled(&self.config) {
             let before = self.streams.stats().stray_error_reports;
             self.streams.handle_message(now, msg);
             handled = self.streams.stats().stray_error_reports == before;
@@ -644,11 +650,13 @@ impl Node {
 /// getters through `Deref`. Each command takes `now`, and the node settles what it caused
 /// (Memory Configuration acts on its streams' events) before it returns, so that
 /// [`Node::poll_event`] only pops.
+#[cfg(feature = "streams")]
 #[derive(Debug)]
 pub struct Streams<'a> {
     node: &'a mut Node,
 }
 
+#[cfg(feature = "streams")]
 impl core::ops::Deref for Streams<'_> {
     type Target = StreamEndpoint;
 
@@ -657,6 +665,7 @@ impl core::ops::Deref for Streams<'_> {
     }
 }
 
+#[cfg(feature = "streams")]
 impl Streams<'_> {
     /// Runs one command of the endpoint, then settles the node.
     fn command<T>(&mut self, now: Instant, command: impl FnOnce(&mut StreamEndpoint) -> T) -> T {

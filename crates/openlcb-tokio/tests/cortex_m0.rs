@@ -27,7 +27,7 @@ use openlcb_tokio::openlcb_can::embedded_can::Frame as _;
 use openlcb_tokio::openlcb_can::{CanFrame, GridConnectDecoder};
 use openlcb_tokio::{
     EventId, EventNotice, EventRole, Framing, Hub, HubOptions, Listen, Node, NodeCommand, NodeId, NodeOptions,
-    TransferPath,
+    Protocols, TransferPath,
 };
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
@@ -218,6 +218,22 @@ async fn io_board_on_a_cortex_m0() {
         tap.lock().unwrap().frames[seen..].iter().any(|(_, f)| f.raw_id() == 0x1070_0000 | alias)
     })
     .await;
+
+    // Its PIP: what an I/O board serves, and no streams (the firmware is built without them).
+    let protocols =
+        tool.protocols(board, Duration::from_secs(5)).await.expect("the board answers Protocol Support Inquiry");
+    println!("protocols: {protocols:?}");
+    for needed in [
+        Protocols::DATAGRAM,
+        Protocols::MEMORY_CONFIGURATION,
+        Protocols::EVENT_EXCHANGE,
+        Protocols::SIMPLE_NODE_INFORMATION,
+        Protocols::CDI,
+        Protocols::FIRMWARE_UPGRADE,
+    ] {
+        assert!(protocols.contains(needed), "the board announces {needed:?}");
+    }
+    assert!(!protocols.contains(Protocols::STREAM), "a board built without streams announces none");
 
     // Identify Events, answered from the configuration (the factory events).
     let wait = Duration::from_secs(5);

@@ -113,10 +113,9 @@ fn build_node(id: NodeId, board: &mut Board, snip: SnipInfo) -> Node {
     let mut node_config = NodeConfig::default();
     node_config.events = board.events(&mut config);
     node_config.snip = snip;
-    // The node's tables, sized for a board (the defaults suit a PC tool): datagrams only (a
-    // stream's buffers do not fit the RAM; the image comes by datagrams), 2 datagrams of its
-    // own queued and 2 awaiting the application's answer, 1 SNIP request of its own.
-    node_config.streams_enabled = false;
+    // The node's tables, sized for a board (the defaults suit a PC tool): 2 datagrams of its
+    // own queued and 2 awaiting the application's answer, 1 SNIP request of its own. It has
+    // no streams (`openlcb-node` without its `streams` feature): the image comes by datagrams.
     node_config.datagrams.max_outgoing = 2;
     node_config.datagrams.max_outgoing_per_destination = 1;
     node_config.datagrams.max_awaiting_answer = 2;

@@ -29,9 +29,7 @@ mod space;
 use alloc::vec::Vec;
 
 use openlcb_stream::wire::{ErrorCode, ErrorReport};
-use openlcb_stream::{
-    Duration, Event, Instant, Message, MessageRef, Mti, NodeId, StreamEndpoint, StreamHandle, TimeoutKind,
-};
+use openlcb_stream::{Duration, Event, Instant, Message, MessageRef, Mti, NodeId, StreamHandle, TimeoutKind};
 
 use crate::Protocols;
 use crate::datagram::{DatagramId, DatagramOwner, DatagramService, OkFlags, Outcome, rejected};
@@ -267,7 +265,7 @@ pub(crate) struct Cx<'a> {
     pub(crate) now: Instant,
     pub(crate) out: &'a mut Outputs,
     pub(crate) datagrams: &'a mut DatagramService,
-    pub(crate) streams: &'a mut StreamEndpoint,
+    pub(crate) streams: &'a mut crate::streams::Endpoint,
     pub(crate) streams_enabled: bool,
     pub(crate) options: &'a MemoryConfigOptions,
     /// Streams Memory Configuration is done with (see [`MemoryConfig`]).
@@ -331,7 +329,7 @@ impl Cx<'_> {
 pub(crate) struct MemoryLent<'a> {
     pub(crate) lent: Lent<'a>,
     pub(crate) datagrams: &'a mut DatagramService,
-    pub(crate) streams: &'a mut StreamEndpoint,
+    pub(crate) streams: &'a mut crate::streams::Endpoint,
 }
 
 /// Memory Configuration as one service of the node: the server (once set), the client, and
@@ -367,7 +365,7 @@ impl MemoryConfig {
             out: lent.lent.out,
             datagrams: lent.datagrams,
             streams: lent.streams,
-            streams_enabled: lent.lent.config.streams_enabled,
+            streams_enabled: crate::streams::enabled(lent.lent.config),
             options: &lent.lent.config.memory,
             ended,
             announce: false,
