@@ -296,8 +296,10 @@ impl EventService {
             return None;
         }
         self.left -= 1;
-        let index = self.next % total;
-        self.next = (index + 1) % total;
+        // Wrapped by comparison, not `%`: a Cortex-M0 divides in library code. (`next` is past
+        // the end when the declarations shrank: the pass goes on from the first.)
+        let index = if self.next < total { self.next } else { 0 };
+        self.next = if index + 1 < total { index + 1 } else { 0 };
         let (role, declared) = match config.produced.get(index) {
             Some(declared) => (EventRole::Producer, declared),
             None => (EventRole::Consumer, config.consumed.get(index - config.produced.len())?),

@@ -135,17 +135,20 @@ impl Digits {
     }
 }
 
-/// `value` in decimal.
+/// `value` in decimal, by subtracting powers of ten (a Cortex-M0 has no divide instruction).
 pub fn digits(mut value: u32) -> Digits {
-    let mut out = Digits { text: [0; 10], start: 10 };
-    loop {
-        out.start -= 1;
-        out.text[out.start] = b'0' + (value % 10) as u8;
-        value /= 10;
-        if value == 0 {
-            return out;
+    let mut out = Digits { text: [b'0'; 10], start: 9 };
+    const POWERS: [u32; 10] = [1_000_000_000, 100_000_000, 10_000_000, 1_000_000, 100_000, 10_000, 1_000, 100, 10, 1];
+    for (i, (slot, power)) in out.text.iter_mut().zip(POWERS).enumerate() {
+        while value >= power {
+            value -= power;
+            *slot += 1;
+        }
+        if *slot != b'0' && out.start > i {
+            out.start = i;
         }
     }
+    out
 }
 
 /// Writes the pieces (ASCII) to the host's stdout.
