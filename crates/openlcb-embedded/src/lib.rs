@@ -17,6 +17,10 @@
 //! [`memory_bus`] is an in-memory bus whose ports implement the same trait, for host tests
 //! and for firmware that runs several nodes on one chip.
 //!
+//! A whole board on this driver is the repository's `examples/cortex-m0`: an 8-line I/O board
+//! on a Cortex-M0 (QEMU's `microbit`), its configuration in flash, its events bound to it, a
+//! firmware image space, run by CI against a bus a test drives (`.ci/firmware-m0`).
+//!
 //! # The loop
 //!
 //! Two nodes on a memory bus, on virtual time, move 1000 bytes through a stream:
