@@ -25,14 +25,15 @@ const ANSWER_WAIT: Duration = Duration::from_secs(3);
 The throttle searches for the train (allocating it, so a command station creates it when it
 has none), assigns itself as its controller, gives the commands in the order below, reads
 back the train's speed, and then releases it (--release) or keeps it, answering its
-heartbeat requests, until Ctrl-C releases it.
+heartbeat requests, until Ctrl-C releases it. A train that leaves the network while it is
+driven (on CAN its alias released) is reported (`train-lost`) and ends the run with status 5.
 
 Examples:
   lcc-stream throttle 3 --speed 40 --forward --function 0=on --release
   lcc-stream throttle 1234 --long --estop --release --json
   lcc-stream throttle 3 --attach 05.01.01.01.22.02:reverse,f0 --release     a consist
 
-", net::network_help(&[Outcome::TimedOut])))]
+", net::network_help(&[Outcome::TimedOut, Outcome::NotFound])))]
 pub(crate) struct ThrottleArgs {
     /// The train's DCC address.
     #[arg(value_parser = clap::value_parser!(u32).range(1..=10239), required_unless_present = "train")]
@@ -141,6 +142,9 @@ fn print(json: bool, event: &ThrottleEvent) {
         }
         ThrottleEvent::ControllerLost { train, to } => {
             (train, "controller-lost", None, None, Some(to.to_string()), format!("taken over by {to}"))
+        }
+        ThrottleEvent::TrainLost { train } => {
+            (train, "train-lost", None, None, None, "is gone: it left the network (or this link was lost)".into())
         }
         ThrottleEvent::Rejected { train, code } => {
             let code = format!("0x{:04X}", code.0);
@@ -345,6 +349,11 @@ async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt)
                         print(args.json, &event);
                         if matches!(event, ThrottleEvent::ControllerLost { train: t, .. } if t == train) {
                             return Ok(Outcome::Ok);
+                        }
+                        // Nothing to release: the train is gone; the exit status says so.
+                        if matches!(event, ThrottleEvent::TrainLost { train: t } if t == train) {
+                            eprintln!("lcc-stream throttle: {train} left the network");
+                            return Ok(Outcome::NotFound);
                         }
                     }
                     None => break Outcome::ConnectionLost,

@@ -137,7 +137,7 @@ struct Station {
 }
 
 async fn station(args: &[&str]) -> Station {
-    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0"]);
+    let mut hub = spawn(&["hub", "--listen", "127.0.0.1:0", "--tcp-listen", "127.0.0.1:0"]);
     let mut hub_err = BufReader::new(hub.stderr.take().unwrap()).lines();
     let line = until(&mut hub_err, "GridConnect on").await;
     let gridconnect = line.split_whitespace().nth(4).unwrap().trim_end_matches(',').to_string();
@@ -254,4 +254,26 @@ async fn our_throttle_drives_a_train_given_by_its_node_id() {
     until(&mut printed, "\"controller-released\"").await;
     interrupt(&train).await;
     assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
+}
+
+/// A train that leaves while the throttle drives it (on CAN its alias released, AMR): the
+/// throttle says so (`train-lost`) and exits with status 5 (`not_found`), not waiting forever.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_train_that_leaves_while_driven_ends_the_throttle_with_train_lost() {
+    let Station { _hub: _keep, gridconnect, mut train, said: _, mut printed } =
+        station(&["--node-id", "05.01.01.01.22.0B", "--allocate", "0"]).await;
+    let mut throttle = common::command(&["throttle", "3", "--speed", "20", "--json", "--connect", &gridconnect]);
+    let mut throttle =
+        throttle.stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::piped()).spawn().unwrap();
+    let mut throttle_out = BufReader::new(throttle.stdout.take().unwrap()).lines();
+    let speeds = until(&mut throttle_out, "\"event\":\"speeds\"").await;
+    let driven = speeds.split(",\"event\"").next().unwrap().to_string();
+    until(&mut printed, "\"speed\"").await;
+    // The station stops in an orderly way: its link releases the alias.
+    interrupt(&train).await;
+    assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
+    let line = until(&mut throttle_out, "\"event\":\"train-lost\"").await;
+    assert!(line.starts_with(&driven), "the train driven is the one lost: {line} after {speeds}");
+    let status = bounded("the throttle to end", throttle.wait()).await.unwrap();
+    assert_eq!(status.code(), Some(5), "the throttle's exit status");
 }

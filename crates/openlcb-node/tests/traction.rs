@@ -11,7 +11,7 @@ use openlcb_node::traction::{
     TrainEvent, TrainProtocol, fdi_space, fdi_xml,
 };
 use openlcb_node::{Node, NodeConfig, NodeEvent, Protocols};
-use openlcb_stream::{Duration, EventId, Instant, Message, Mti, NodeId};
+use openlcb_stream::{Duration, EventId, Instant, Message, Mti, NodeId, PeerChange};
 
 const DUT: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x22, 1]);
 const TOOL: NodeId = NodeId::from_bytes([5, 1, 1, 1, 0x22, 9]);
@@ -716,4 +716,27 @@ fn a_throttle_controls_no_more_trains_than_its_bound() {
     assert_eq!(layout.nodes[1].throttle_command(other, assign), Err(ThrottleError::TooManyTrains));
     let mut plain = Node::new(TOOL, NodeConfig::default());
     assert_eq!(plain.throttle_command(DUT, TractionCommand::QuerySpeeds), Err(ThrottleError::NotAThrottle));
+}
+
+#[test]
+fn a_vanished_train_is_reported_to_its_throttle_and_no_longer_controlled() {
+    let mut layout = Layout::new(2, ThrottleConfig::default());
+    let me = layout.id(1);
+    layout.send(1, TractionCommand::AssignController { flags: 0, node: me }).unwrap();
+    assert_eq!(layout.nodes[1].controlled_trains(), [DUT]);
+    layout.events.clear();
+    // Another node leaving tells nothing; the train leaving (its alias released on CAN) does,
+    // to the throttle that controls it only.
+    layout.nodes[1].peer_changed(PeerChange::Lost(NodeId::new(0x0501_0101_2299).unwrap()));
+    layout.nodes[2].peer_changed(PeerChange::Lost(DUT));
+    layout.nodes[1].peer_changed(PeerChange::Lost(DUT));
+    layout.run(Duration::ZERO);
+    assert_eq!(layout.events, vec![(1, ThrottleEvent::TrainLost { train: DUT })]);
+    assert!(layout.nodes[1].controlled_trains().is_empty());
+    // A train assigned again and this node's own link lost: the same word.
+    layout.send(1, TractionCommand::AssignController { flags: 0, node: me }).unwrap();
+    layout.events.clear();
+    layout.nodes[1].link_lost();
+    layout.run(Duration::ZERO);
+    assert_eq!(layout.events, vec![(1, ThrottleEvent::TrainLost { train: DUT })]);
 }

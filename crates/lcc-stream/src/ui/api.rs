@@ -612,6 +612,9 @@ async fn throttle_ask(State(shared): Ctx, body: Bytes) -> Result<axum::Json<Json
         ThrottleEvent::Rejected { train: t, code } if t == train => {
             Some(Err(ApiError::of(Outcome::Rejected, format!("{} refused it (0x{:04X})", Peer::of(train), code.0))))
         }
+        ThrottleEvent::TrainLost { train: t } if t == train => {
+            Some(Err(ApiError::of(Outcome::NotFound, format!("{} left the network", Peer::of(train)))))
+        }
         _ => None,
     })
     .await

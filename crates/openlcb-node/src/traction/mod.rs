@@ -814,9 +814,11 @@ impl Service<Lent<'_>> for TrainService {
         true
     }
 
-    fn peer_changed(&mut self, _: &mut Outputs, change: ServiceChange) {
-        if let Some(throttle) = &mut self.throttle {
-            throttle.peer_changed(change);
+    fn peer_changed(&mut self, out: &mut Outputs, change: ServiceChange) {
+        if let Some(throttle) = &mut self.throttle
+            && !throttle.peer_changed(out, change)
+        {
+            self.stats.notices_dropped += 1;
         }
         let Some(train) = &mut self.train else { return };
         if let Some(holder) = train.reserved_by

@@ -113,6 +113,13 @@ pub enum ThrottleEvent {
         /// The new controller.
         to: NodeId,
     },
+    /// A train this node controls is gone: its node left the network (on CAN its alias was
+    /// released, or a Verify Node ID found it missing), or this node's own link was lost. It
+    /// is no longer controlled here; a train that comes back must be assigned again.
+    TrainLost {
+        /// The train.
+        train: NodeId,
+    },
     /// The train rejected a command (Optional Interaction Rejected or Terminate Due To Error).
     Rejected {
         /// The train.
@@ -157,12 +164,19 @@ impl Throttle {
         &self.trains
     }
 
-    /// A lost train is no longer controlled; a renamed one keeps its place.
-    pub(crate) fn peer_changed(&mut self, change: crate::service::ServiceChange) {
+    /// A lost train is no longer controlled, and is told to the application
+    /// ([`ThrottleEvent::TrainLost`]; false if a notice was dropped); a renamed one keeps its
+    /// place.
+    pub(crate) fn peer_changed(&mut self, out: &mut Outputs, change: crate::service::ServiceChange) -> bool {
+        let mut told = true;
+        for train in self.trains.iter().filter(|t| change.loses(**t)) {
+            told &= out.notify(crate::NodeEvent::Throttle(ThrottleEvent::TrainLost { train: *train }));
+        }
         self.trains.retain(|t| !change.loses(*t));
         for train in &mut self.trains {
             change.rename(train);
         }
+        told
     }
 
     /// Sends `command` to `train`.
