@@ -32,6 +32,7 @@ mod serve;
 mod settings;
 mod sim;
 mod throttle;
+mod throttle_tty;
 mod train;
 mod ui;
 mod watch;

@@ -25,10 +25,14 @@ const ANSWER_WAIT: Duration = Duration::from_secs(3);
 The throttle searches for the train (allocating it, so a command station creates it when it
 has none), assigns itself as its controller, gives the commands in the order below, reads
 back the train's speed, and then releases it (--release) or keeps it, answering its
-heartbeat requests, until Ctrl-C releases it. A train that leaves the network while it is
+heartbeat requests, until Ctrl-C releases it. With nothing scripted, at a terminal, keys drive
+it: Up/Down (or + -) speed in steps of 5 km/h, Right/Left (or f r) direction, 0-9 toggle
+F0-F9, Space emergency stop, q (or Esc, Ctrl-C) releases it; a status line shows what the
+train answers (each key's command is read back). A train that leaves the network while it is
 driven (on CAN its alias released) is reported (`train-lost`) and ends the run with status 5.
 
 Examples:
+  lcc-stream throttle 3                                   drive DCC 3 from the keyboard
   lcc-stream throttle 3 --speed 40 --forward --function 0=on --release
   lcc-stream throttle 1234 --long --estop --release --json
   lcc-stream throttle 3 --attach 05.01.01.01.22.02:reverse,f0 --release     a consist
@@ -77,6 +81,22 @@ pub(crate) struct ThrottleArgs {
     node_id: net::TransientId,
     #[command(flatten)]
     connect: ConnectArgs,
+}
+
+impl ThrottleArgs {
+    /// Keys drive the train: nothing scripted, no `--json`, and stdin and stderr a terminal.
+    fn interactive(&self) -> bool {
+        use std::io::IsTerminal as _;
+        let scripted = self.speed.is_some()
+            || self.forward
+            || self.reverse
+            || !self.functions.is_empty()
+            || self.estop
+            || !self.attach.is_empty()
+            || !self.detach.is_empty()
+            || self.release;
+        !scripted && !self.json && std::io::stdin().is_terminal() && std::io::stderr().is_terminal()
+    }
 }
 
 fn parse_function(text: &str) -> Result<(u32, bool), String> {
@@ -305,6 +325,15 @@ async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt)
     }
     print(args.json, &ThrottleEvent::Assigned { train });
     let me = node.node_id();
+    if args.interactive() {
+        let outcome = crate::throttle_tty::drive(node, &mut events, train, interrupt).await?;
+        if outcome != Outcome::NotFound {
+            send(node, train, TractionCommand::ReleaseController { flags: 0, node: me }).await?;
+            eprintln!("lcc-stream throttle: released {train}");
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        return Ok(outcome);
+    }
     for (listener, flags) in &args.attach {
         send(node, train, TractionCommand::AttachListener { flags: *flags, node: *listener }).await?;
         answer_of_listener(args.json, &mut events, train, *listener).await;

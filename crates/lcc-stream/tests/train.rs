@@ -277,3 +277,57 @@ async fn a_train_that_leaves_while_driven_ends_the_throttle_with_train_lost() {
     let status = bounded("the throttle to end", throttle.wait()).await.unwrap();
     assert_eq!(status.code(), Some(5), "the throttle's exit status");
 }
+
+/// The throttle at a terminal (a pseudo-terminal, through `script` from util-linux): Up twice
+/// is 10 km/h, `0` switches F0 on, `q` releases the train; each shows on the train's side and
+/// on the status line.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_throttle_at_a_terminal_is_driven_by_its_keys() {
+    let Station { _hub: _keep, gridconnect, mut train, said: _, mut printed } =
+        station(&["--node-id", "05.01.01.01.22.0C", "--allocate", "0"]).await;
+    let command = format!("{} throttle 3 --connect {gridconnect}", common::BIN);
+    let mut terminal = tokio::process::Command::new("script")
+        .args(["-qfec", &command, "/dev/null"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()
+        .expect("script (util-linux) runs");
+    let mut keys = terminal.stdin.take().unwrap();
+    let mut screen = terminal.stdout.take().unwrap();
+    let seen = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
+    tokio::spawn({
+        let seen = seen.clone();
+        async move {
+            let mut buf = [0u8; 1024];
+            while let Ok(n @ 1..) = screen.read(&mut buf).await {
+                seen.lock().unwrap().push_str(&String::from_utf8_lossy(&buf[..n]));
+            }
+        }
+    });
+    let shown = |text: &'static str| {
+        let seen = seen.clone();
+        bounded(text, async move {
+            while !seen.lock().unwrap().contains(text) {
+                tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+            }
+        })
+    };
+    shown("0 km/h forward").await;
+    keys.write_all(b"\x1b[A").await.unwrap();
+    shown("5 km/h forward").await;
+    keys.write_all(b"\x1b[A").await.unwrap();
+    shown("10 km/h forward").await;
+    let line = until(&mut printed, "\"set_speed\":2.7").await;
+    assert!(line.contains("\"speed\""), "{line}");
+    keys.write_all(b"0").await.unwrap();
+    shown("; F0").await;
+    until(&mut printed, "\"function\"").await;
+    keys.write_all(b"q").await.unwrap();
+    until(&mut printed, "\"controller-released\"").await;
+    let status = bounded("the throttle to end", terminal.wait()).await.unwrap();
+    assert!(status.success(), "{status:?}: {}", seen.lock().unwrap());
+    interrupt(&train).await;
+    assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
+}
