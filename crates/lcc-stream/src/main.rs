@@ -34,6 +34,7 @@ mod sim;
 mod throttle;
 mod throttle_tty;
 mod train;
+mod train_config;
 mod ui;
 mod watch;
 mod write;

@@ -9,16 +9,16 @@ use std::time::Instant;
 
 use clap::Args;
 use openlcb_stream::{EventId, NodeId};
-use openlcb_tokio::openlcb_node::memconfig::MemoryServer;
 use openlcb_tokio::openlcb_node::traction::{
-    FunctionKind, FunctionName, TrainChange, TrainConfig, TrainEvent, TrainIdentity, TrainProtocol, fdi_space,
+    FunctionKind, FunctionName, TrainChange, TrainConfig, TrainEvent, TrainIdentity, TrainProtocol,
 };
-use openlcb_tokio::{Node, NodeOptions};
+use openlcb_tokio::{MemoryEvent, Node, NodeOptions, ServerEvents};
 use serde::Serialize;
 
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome};
 use crate::peer::Peer;
+use crate::train_config::{TrainSettings, TrainSetup};
 
 #[derive(Debug, Args)]
 #[command(after_help = format!("{}{}", "\
@@ -26,7 +26,10 @@ The node is a train (Traction Control: speed, functions, emergency stop, control
 listeners for consists, reservation, heartbeat; the global Emergency Stop and Off events) and
 a command station: an allocate search (Train Search) for an address it has no train for
 creates one, a node of its own with the next Node ID, up to --allocate trains. Every train
-serves its FDI (space 0xFA) naming the --function keys.
+serves its FDI (space 0xFA) naming the --function keys, its function values (space 0xF9),
+and its configuration with a CDI (name, DCC address, address type, speed steps, a name and
+kind for each key F0-F68; `lcc-stream config` or JMRI change it, in effect at Update
+Complete; kept in memory while the process runs).
 
 Examples:
   lcc-stream train                                        DCC 3, trains created on demand
@@ -50,6 +53,9 @@ pub(crate) struct TrainArgs {
     /// These functions are momentary (a horn), not on/off.
     #[arg(long = "momentary", value_name = "NUMBER")]
     momentary: Vec<u32>,
+    /// The decoder's speed steps, as the configuration shows them: 14, 28 or 128.
+    #[arg(long, default_value_t = 128, value_parser = parse_speed_steps)]
+    speed_steps: u8,
     /// Trains created for allocate searches, at most (0: none).
     #[arg(long, default_value_t = 8, value_name = "MAX")]
     allocate: usize,
@@ -76,6 +82,13 @@ fn parse_function(text: &str) -> Result<(u32, String), String> {
         return Err(format!("`{text}`: a function is 0 to 68 with a name"));
     }
     Ok((number, name.to_string()))
+}
+
+fn parse_speed_steps(text: &str) -> Result<u8, String> {
+    match text.parse() {
+        Ok(steps @ (14 | 28 | 128)) => Ok(steps),
+        _ => Err(format!("`{text}`: a decoder has 14, 28 or 128 speed steps")),
+    }
 }
 
 pub(crate) fn run(args: &TrainArgs) -> Result<ExitCode, String> {
@@ -109,11 +122,14 @@ struct ChangeLine {
     from_alias: Option<String>,
 }
 
-/// What every train of this process shares: the output, the FDI, the trains there are.
+/// What every train of this process shares: the output, the factory settings, the trains
+/// there are.
 struct Station {
     json: bool,
     started: Instant,
+    /// The function keys a train starts with (the command line's).
     functions: Vec<FunctionName>,
+    speed_steps: u8,
     heartbeat: u64,
     /// The trains by (address, long), with their Node IDs.
     trains: Mutex<BTreeMap<(u32, bool), NodeId>>,
@@ -131,12 +147,12 @@ impl Station {
         config
     }
 
-    fn print(&self, address: u32, node: NodeId, event: &TrainEvent) {
-        let peer = event.from.map(Peer::of);
-        let mut line = ChangeLine {
+    /// A line of `train`'s output, `change` and the rest to fill in.
+    fn line(&self, train: &Kept, from: Option<Peer>) -> ChangeLine {
+        ChangeLine {
             time: self.started.elapsed().as_secs_f64(),
-            train: address,
-            node: node.to_string(),
+            train: train.setup.identity.address,
+            node: train.id.to_string(),
             change: "",
             set_speed: None,
             commanded_speed: None,
@@ -145,9 +161,23 @@ impl Station {
             on: None,
             other: None,
             flags: None,
-            from: peer.and_then(Peer::node_field),
-            from_alias: peer.and_then(Peer::alias_field),
-        };
+            from: from.and_then(Peer::node_field),
+            from_alias: from.and_then(Peer::alias_field),
+        }
+    }
+
+    fn emit(&self, line: &ChangeLine, text: &str, from: Option<Peer>) {
+        if self.json {
+            outln!("{}", serde_json::to_string(line).unwrap_or_default());
+        } else {
+            let by = from.map(|p| format!(" (by {p})")).unwrap_or_default();
+            outln!("train {}: {text}{by}", line.train);
+        }
+    }
+
+    fn print(&self, train: &Kept, event: &TrainEvent) {
+        let peer = event.from.map(Peer::of);
+        let mut line = self.line(train, peer);
         let text = match event.change {
             TrainChange::Speed { set, commanded } => {
                 line.change = "speed";
@@ -159,7 +189,8 @@ impl Station {
                 line.change = "function";
                 line.function = Some(address);
                 line.value = Some(value);
-                let name = self.functions.iter().find(|f| f.number == address).map(|f| format!(" ({})", f.name));
+                let names = &train.setup.functions;
+                let name = names.iter().find(|f| f.number == address).map(|f| format!(" ({})", f.name));
                 format!("F{address}{} = {value}", name.unwrap_or_default())
             }
             TrainChange::EmergencyStop => {
@@ -225,12 +256,75 @@ impl Station {
                 "other change".into()
             }
         };
-        if self.json {
-            outln!("{}", serde_json::to_string(&line).unwrap_or_default());
-        } else {
-            let by = peer.map(|p| format!(" (by {p})")).unwrap_or_default();
-            outln!("train {address}: {text}{by}");
+        self.emit(&line, &text, peer);
+    }
+
+    /// `train` took a new configuration from `by`; it was `was` (its address).
+    fn print_configured(&self, train: &Kept, was: u32, by: NodeId) {
+        let peer = Some(Peer::of(by));
+        let mut line = self.line(train, peer);
+        line.change = "configured";
+        line.other = Some(train.setup.text());
+        let text = format!("configured as {}", train.setup.text());
+        let text = if was == line.train { text } else { format!("{text} (was DCC {was})") };
+        self.emit(&line, &text, peer);
+    }
+}
+
+/// One train of this process: its node, its configuration, what it was configured as.
+struct Kept {
+    id: NodeId,
+    settings: TrainSettings,
+    setup: TrainSetup,
+}
+
+impl Kept {
+    /// Serves the configuration of the train on `node`, which starts as `setup`; the memory
+    /// events to act on ([`Kept::on_memory`]).
+    async fn serve(node: &Node, setup: TrainSetup) -> Result<(Kept, ServerEvents), openlcb_tokio::Error> {
+        let settings = TrainSettings::new(&setup, &net::snip("train"));
+        let events = node.set_memory_server(settings.server()).await?;
+        Ok((Kept { id: node.node_id(), settings, setup }, events))
+    }
+
+    /// Update Complete takes what a tool wrote; Factory Reset the defaults.
+    async fn on_memory(&mut self, node: &Node, station: &Station, event: MemoryEvent) {
+        let by = match event {
+            MemoryEvent::UpdateComplete { by } => by,
+            MemoryEvent::FactoryResetRequested { by } => {
+                if let Err(error) = self.settings.factory_reset() {
+                    eprintln!("lcc-stream train: DCC {}: {error}", self.setup.identity.address);
+                }
+                by
+            }
+            _ => return,
+        };
+        let was = self.setup.identity.address;
+        let setup = match self.settings.read() {
+            Ok(setup) if setup == self.setup => return,
+            Ok(setup) => setup,
+            Err(why) => return eprintln!("lcc-stream train: DCC {was}: configuration not taken: {why}"),
+        };
+        let key = |identity: &TrainIdentity| {
+            (identity.address, matches!(identity.protocol, TrainProtocol::Dcc { long: true }))
+        };
+        if setup.identity.address != was || key(&setup.identity) != key(&self.setup.identity) {
+            let Ok(mut trains) = station.trains.lock() else { return };
+            if trains.get(&key(&setup.identity)).is_some_and(|id| *id != self.id) {
+                return eprintln!(
+                    "lcc-stream train: DCC {was}: configuration not taken: DCC {} is another train here",
+                    setup.identity.address
+                );
+            }
+            trains.remove(&key(&self.setup.identity));
+            trains.insert(key(&setup.identity), self.id);
         }
+        if let Err(error) = node.set_train_identity(setup.identity.clone()).await {
+            return eprintln!("lcc-stream train: DCC {was}: {error}");
+        }
+        self.settings.show(&setup);
+        self.setup = setup;
+        station.print_configured(self, was, by);
     }
 }
 
@@ -261,6 +355,7 @@ async fn train(args: &TrainArgs) -> Result<ExitCode, String> {
         json: args.json,
         started: Instant::now(),
         functions,
+        speed_steps: args.speed_steps,
         heartbeat: args.heartbeat,
         trains: Mutex::new(BTreeMap::new()),
     });
@@ -274,9 +369,10 @@ async fn train(args: &TrainArgs) -> Result<ExitCode, String> {
         Err(failure) => return Ok(net::fail("train", &failure)),
     };
     let mut node = node;
-    if let Err(error) = serve_fdi(&node, &station).await {
-        return Ok(net::fail("train", &Failure::Net(error)));
-    }
+    let (mut kept, mut asked) = match Kept::serve(&node, station.setup(identity.clone())).await {
+        Ok(served) => served,
+        Err(error) => return Ok(net::fail("train", &Failure::Net(error))),
+    };
     let mut events = match node.train_events().await {
         Ok(events) => events,
         Err(error) => return Ok(net::fail("train", &Failure::Net(error))),
@@ -288,18 +384,19 @@ async fn train(args: &TrainArgs) -> Result<ExitCode, String> {
         if long { " (long)" } else { "" },
         node.node_id()
     );
-    let mut created: Vec<Node> = Vec::new();
+    let mut created: Vec<Created> = Vec::new();
     let outcome = loop {
         tokio::select! {
             event = events.next() => {
                 let Some(event) = event else { break Outcome::ConnectionLost };
-                station.print(args.address, node.node_id(), &event);
+                station.print(&kept, &event);
                 if let TrainChange::Allocate { event: search, address, protocol } = event.change
                     && let Some(train) = allocate(args, &station, &node, created.len(), search, address, protocol).await
                 {
                     created.push(train);
                 }
             }
+            Some(event) = asked.next() => kept.on_memory(&node, &station, event).await,
             () = interrupt.wait() => break Outcome::Interrupted,
             error = node.closed() => {
                 eprintln!("lcc-stream train: {error}");
@@ -307,8 +404,9 @@ async fn train(args: &TrainArgs) -> Result<ExitCode, String> {
             }
         }
     };
-    for train in created {
-        train.close().await;
+    for (stop, running) in created {
+        let _ = stop.send(());
+        let _ = running.await;
     }
     node.close().await;
     Ok(ExitCode::from(match outcome {
@@ -317,11 +415,15 @@ async fn train(args: &TrainArgs) -> Result<ExitCode, String> {
     }))
 }
 
-/// Serves the train's FDI (space 0xFA).
-async fn serve_fdi(node: &Node, station: &Station) -> Result<(), openlcb_tokio::Error> {
-    let server = MemoryServer::new().with_space(0xFA, fdi_space(&station.functions));
-    node.set_memory_server(server).await.map(drop)
+impl Station {
+    /// The settings a train at `identity` starts with.
+    fn setup(&self, identity: TrainIdentity) -> TrainSetup {
+        TrainSetup { identity, speed_steps: self.speed_steps, functions: self.functions.clone() }
+    }
 }
+
+/// A train created for a search: how to stop it, and its task (which closes its node).
+type Created = (tokio::sync::oneshot::Sender<()>, tokio::task::JoinHandle<()>);
 
 /// Creates the train an allocate search asked for, unless this process has it (it
 /// answered itself) or has created `--allocate` already; it answers `search` once it is on
@@ -334,7 +436,7 @@ async fn allocate(
     search: EventId,
     address: u32,
     protocol: TrainProtocol,
-) -> Option<Node> {
+) -> Option<Created> {
     let long = matches!(protocol, TrainProtocol::Dcc { long: true });
     if station.trains.lock().ok()?.contains_key(&(address, long)) {
         return None;
@@ -354,9 +456,14 @@ async fn allocate(
             return None;
         }
     };
-    if let Err(error) = serve_fdi(&train, station).await {
-        eprintln!("lcc-stream train: DCC {address}: {error}");
-    }
+    let (mut kept, mut asked) = match Kept::serve(&train, station.setup(identity.clone())).await {
+        Ok(served) => served,
+        Err(error) => {
+            eprintln!("lcc-stream train: DCC {address}: {error}");
+            train.close().await;
+            return None;
+        }
+    };
     let mut events = train.train_events().await.ok()?;
     if let Err(error) = train.answer_train_search(search).await {
         eprintln!("lcc-stream train: DCC {address} could not answer the search: {error}");
@@ -364,10 +471,19 @@ async fn allocate(
     station.trains.lock().ok()?.insert((address, long), id);
     eprintln!("lcc-stream train: created DCC {address}{} as {id}", if long { " (long)" } else { "" });
     let station = station.clone();
-    tokio::spawn(async move {
-        while let Some(event) = events.next().await {
-            station.print(address, id, &event);
+    let (stop, mut stopped) = tokio::sync::oneshot::channel();
+    let running = tokio::spawn(async move {
+        loop {
+            tokio::select! {
+                event = events.next() => match event {
+                    Some(event) => station.print(&kept, &event),
+                    None => break,
+                },
+                Some(event) = asked.next() => kept.on_memory(&train, &station, event).await,
+                _ = &mut stopped => break,
+            }
         }
+        train.close().await;
     });
-    Some(train)
+    Some((stop, running))
 }

@@ -252,12 +252,39 @@ impl BoardBuilder {
 
     /// A group replicated `count` times (`count` 1: a plain group), its settings declared by
     /// `settings` (called once per replication, with its index): the handles of each.
-    pub fn group<T>(&mut self, name: &str, count: u32, mut settings: impl FnMut(&mut Self, u32) -> T) -> Vec<T> {
+    /// A tool labels the copies `name 1`, `name 2` and so on.
+    pub fn group<T>(&mut self, name: &str, count: u32, settings: impl FnMut(&mut Self, u32) -> T) -> Vec<T> {
+        self.replicated(name, &[Xml::Text(name), Xml::Markup(" 1")], count, settings)
+    }
+
+    /// A group replicated `count` times whose first copy a tool labels `first` and counts on
+    /// from its number (the CDI standard increments a repname ending in digits): `"F0"` labels
+    /// the copies F0, F1, F2 and so on. Otherwise as [`group`](Self::group).
+    pub fn numbered_group<T>(
+        &mut self,
+        name: &str,
+        first: &str,
+        count: u32,
+        settings: impl FnMut(&mut Self, u32) -> T,
+    ) -> Vec<T> {
+        self.replicated(name, &[Xml::Text(first)], count, settings)
+    }
+
+    /// A group replicated `count` times, `repname` labelling its first copy.
+    fn replicated<T>(
+        &mut self,
+        name: &str,
+        repname: &[Xml<'_>],
+        count: u32,
+        mut settings: impl FnMut(&mut Self, u32) -> T,
+    ) -> Vec<T> {
         use Xml::{Markup, Number, Text};
         let count = count.max(1);
         self.element(&[Markup("<group replication=\""), Number(count.into()), Markup("\"><name>"), Text(name)]);
         if count > 1 {
-            self.element(&[Markup("</name><repname>"), Text(name), Markup(" 1</repname>\n")]);
+            self.element(&[Markup("</name><repname>")]);
+            self.element(repname);
+            self.element(&[Markup("</repname>\n")]);
         } else {
             self.element(&[Markup("</name>\n")]);
         }

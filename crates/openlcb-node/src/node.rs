@@ -637,6 +637,7 @@ impl Node {
             }
         }
         self.update_user_info();
+        self.sync_memory();
         if core::mem::take(&mut self.memory.reboot) {
             self.reinitialize();
         }
@@ -733,6 +734,7 @@ impl Node {
     pub fn set_memory_server(&mut self, mut server: MemoryServer) {
         server.mirror_snip(&self.config.snip);
         self.memory.server = Some(server);
+        self.sync_memory();
         // The server claims its Write Streams before anything is decided, to grant them the
         // window their space can take; the node applies the application's policy to the rest.
         self.streams.set_accept_policy(AcceptPolicy::Ask);
@@ -851,6 +853,13 @@ impl Node {
             server.reinitialize();
         }
         self.out.announce_start();
+    }
+
+    /// The spaces the services keep follow them, and they what a tool wrote there.
+    fn sync_memory(&mut self) {
+        if let Some(server) = &mut self.memory.server {
+            self.services.sync_memory(&mut self.out, server);
+        }
     }
 
     /// A write to space 0xFB changed the user strings: SNIP follows them.

@@ -11,6 +11,7 @@ use openlcb_stream::{Instant, MessageRef, NodeId, PeerChange};
 use crate::broadcast_time::ClockService;
 use crate::datagram::DatagramService;
 use crate::events::EventService;
+use crate::memconfig::MemoryServer;
 use crate::node::Outputs;
 use crate::snip::SnipService;
 #[cfg(feature = "traction")]
@@ -141,6 +142,15 @@ impl Services {
         self.clocks.announce();
         #[cfg(feature = "traction")]
         self.trains.announce();
+    }
+
+    /// The services that keep a space of the memory server themselves bring it up to date
+    /// (a train's space 0xF9), and take what a tool wrote there.
+    pub(crate) fn sync_memory(&mut self, out: &mut Outputs, server: &mut MemoryServer) {
+        #[cfg(feature = "traction")]
+        self.trains.sync_memory(out, server);
+        #[cfg(not(feature = "traction"))]
+        let _ = (out, server);
     }
 }
 

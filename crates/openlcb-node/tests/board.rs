@@ -78,3 +78,26 @@ fn factory_reset_writes_the_defaults_and_the_events_follow_the_space() {
     space.read(name.address(), &mut raw).unwrap();
     assert_eq!(raw[22..], [0, 0]);
 }
+
+#[test]
+fn a_numbered_group_labels_its_copies_on_from_the_first_number() {
+    let mut config = BoardBuilder::new("Train");
+    let keys = config.numbered_group("Function key", "F0", 4, |g, _| g.string("Name", 8, ""));
+    let board = config.finish(&SnipInfo::default());
+    assert!(board.cdi().contains("<name>Function key</name><repname>F0</repname>"), "{}", board.cdi());
+    let layout = Layout::parse(board.cdi()).expect("the CDI parses");
+    let mut labels = Vec::new();
+    let mut stack: Vec<&openlcb_cdi::LaidGroup> = layout.segments.iter().collect();
+    while let Some(group) = stack.pop() {
+        for child in &group.children {
+            if let openlcb_cdi::Laid::Group(copy) = child {
+                labels.extend(copy.label.clone());
+                stack.push(copy);
+            }
+        }
+    }
+    labels.sort();
+    assert_eq!(labels, ["F0", "F1", "F2", "F3", "Function key"]);
+    let third = layout.find("Train.Function key(2).Name").next().expect("the third key");
+    assert_eq!(third.address, keys[2].address());
+}

@@ -157,7 +157,9 @@ fn fdi_is_served_read_only_and_announced() {
         FunctionName { number: 2, name: "Horn".into(), kind: FunctionKind::Momentary },
     ];
     let xml = fdi_xml(&functions);
-    assert!(xml.contains("<segment space=\"249\" origin=\"0\">"));
+    // FDI Standard §5.1.2, §5.1.4: the reserved space, origin and size attributes omitted.
+    assert!(xml.contains("<segment>") && !xml.contains("space=") && !xml.contains("size="));
+    assert!(xml.contains("https://openlcb.org/schema/fdi/1/1/fdi.xsd"));
     let mut node = Node::new(DUT, NodeConfig::default())
         .with_memory_server(MemoryServer::new().with_space(0xFA, fdi_space(&functions)));
     assert!(node.protocols().contains(Protocols::FDI));
@@ -240,6 +242,87 @@ fn functions_are_set_queried_and_bounded() {
     // Past F68 (the default bound), both are rejected: 0x1080.
     assert_eq!(oir_code(&bench.command(&[0x01, 0, 0, 69, 0, 1])), 0x1080);
     assert_eq!(oir_code(&bench.command(&[0x11, 0x01, 0, 0])), 0x1080);
+}
+
+/// The bench's train with a memory server (its FDI), as `lcc-stream train` serves it.
+fn train_with_memory() -> Bench {
+    let mut bench = Bench::dcc(3);
+    let functions = [FunctionName { number: 0, name: "Headlight".into(), kind: FunctionKind::Binary }];
+    bench.node.set_memory_server(MemoryServer::new().with_space(0xFA, fdi_space(&functions)));
+    bench
+}
+
+impl Bench {
+    /// The datagrams `payload` from `from` gets back (its Received OK acknowledged), each
+    /// with the answer's MTI.
+    fn datagram_from(&mut self, from: NodeId, payload: &[u8]) -> Vec<(Mti, Vec<u8>)> {
+        self.sent.clear();
+        let msg = Message::addressed(Mti::DATAGRAM, from, DUT, payload.to_vec());
+        self.node.handle_message(self.now, msg.as_ref());
+        self.drain();
+        let mut answers = Vec::new();
+        for m in self.take() {
+            if m.mti == Mti::DATAGRAM {
+                let ok = Message::addressed(Mti::DATAGRAM_RECEIVED_OK, from, DUT, vec![0]);
+                self.node.handle_message(self.now, ok.as_ref());
+            }
+            answers.push((m.mti, m.payload.to_vec()));
+        }
+        self.drain();
+        answers
+    }
+
+    /// The reply datagram of a Memory Configuration command.
+    fn memory(&mut self, payload: &[u8]) -> Vec<u8> {
+        let answers = self.datagram_from(TOOL, payload);
+        let replies: Vec<_> = answers.iter().filter(|(mti, _)| *mti == Mti::DATAGRAM).collect();
+        assert_eq!(replies.len(), 1, "{answers:?}");
+        replies[0].1.clone()
+    }
+}
+
+#[test]
+fn space_0xf9_holds_a_byte_per_function_read_and_written_as_set_function() {
+    let mut bench = train_with_memory();
+    // Get Address Space Information: F0-F68, 69 bytes, writable.
+    let info = bench.memory(&[0x20, 0x84, 0xF9]);
+    assert_eq!(&info[..7], &[0x20, 0x87, 0xF9, 0, 0, 0, 68], "{info:02X?}");
+    assert_eq!(info[7] & 0x01, 0, "read-only flag: {info:02X?}");
+    // Set Function F2 = 1 and F5 = 300: the space shows 1 and 255 (Train Control §7.1).
+    assert!(bench.command(&[0x01, 0, 0, 2, 0, 1]).is_empty());
+    assert!(bench.command(&[0x01, 0, 0, 5, 0x01, 0x2C]).is_empty());
+    let read = bench.memory(&[0x20, 0x40, 0, 0, 0, 0, 0xF9, 8]);
+    assert_eq!(read, vec![0x20, 0x50, 0, 0, 0, 0, 0xF9, 0, 0, 1, 0, 0, 255, 0, 0]);
+    // A throttle's write (OpenLCB_Java's ThrottleFunctionDatagram: F3 on) is a Set Function
+    // from it: told to the application, answered by Query Function, forwarded to a listener
+    // linked to Fn, and F5's unchanged 255 leaves its 300 alone.
+    let listener = with_node(&[0x30, 0x01, LISTENER_LINK_FN], LISTENER_A);
+    bench.command(&listener);
+    bench.events.clear();
+    let answers = bench.datagram_from(TOOL, &[0x20, 0x00, 0, 0, 0, 3, 0xF9, 1, 0, 255]);
+    assert!(answers.iter().any(|(mti, _)| *mti == Mti::DATAGRAM_RECEIVED_OK), "{answers:?}");
+    assert_eq!(
+        bench.events,
+        vec![TrainEvent { change: TrainChange::Function { address: 3, value: 1 }, from: Some(TOOL) }]
+    );
+    assert_eq!(bench.ask(&[0x11, 0, 0, 3]), vec![0x11, 0, 0, 3, 0, 1]);
+    assert_eq!(bench.node.train_function(5), Some(300));
+    let sent = bench.datagram_from(TOOL, &[0x20, 0x00, 0, 0, 0, 3, 0xF9, 0]);
+    let forwarded: Vec<_> = sent.iter().filter(|(mti, _)| *mti == Mti::TRACTION_CONTROL_COMMAND).collect();
+    assert_eq!(forwarded, vec![&(Mti::TRACTION_CONTROL_COMMAND, vec![0x81, 0, 0, 3, 0, 0])]);
+    // Past F68: out of bounds, nothing changes.
+    let refused = bench.memory(&[0x20, 0x00, 0, 0, 0, 69, 0xF9, 1]);
+    assert_eq!(refused[1], 0x18, "write failed: {refused:02X?}");
+}
+
+#[test]
+fn an_applications_own_space_0xf9_is_left_alone() {
+    let mut bench = Bench::dcc(3);
+    let own = openlcb_node::memconfig::RamSpace::new(4);
+    bench.node.set_memory_server(MemoryServer::new().with_space(0xF9, own));
+    assert!(bench.command(&[0x01, 0, 0, 1, 0, 1]).is_empty());
+    let read = bench.memory(&[0x20, 0x40, 0, 0, 0, 0, 0xF9, 4]);
+    assert_eq!(read, vec![0x20, 0x50, 0, 0, 0, 0, 0xF9, 0, 0, 0, 0]);
 }
 
 #[test]

@@ -473,6 +473,13 @@ impl Node {
         result.map_err(crate::train::train_error)
     }
 
+    /// The train's address, protocol and name from now on (see
+    /// [`openlcb_node::Node::set_train_identity`]): a configuration tool changed them.
+    pub async fn set_train_identity(&self, identity: openlcb_node::traction::TrainIdentity) -> Result<(), Error> {
+        let result = self.control.call(|reply| Command::Train(TrainCommand::SetIdentity { identity, reply })).await?;
+        result.map_err(crate::train::train_error)
+    }
+
     /// From now on, what trains answer the node's throttle (declared in
     /// [`NodeOptions::node`](crate::NodeOptions::node)`.throttle`).
     pub async fn throttle_events(&self) -> Result<ThrottleEvents, Error> {

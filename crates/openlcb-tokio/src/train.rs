@@ -7,7 +7,9 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use openlcb_node::traction::{ThrottleError, ThrottleEvent, TractionCommand, TrainError, TrainEvent, TrainState};
+use openlcb_node::traction::{
+    ThrottleError, ThrottleEvent, TractionCommand, TrainError, TrainEvent, TrainIdentity, TrainState,
+};
 use openlcb_stream::EventId;
 use openlcb_stream::NodeId;
 use tokio::sync::{mpsc, oneshot};
@@ -43,6 +45,7 @@ pub(crate) enum TrainCommand {
     State { reply: oneshot::Sender<Option<TrainState>> },
     Function { address: u32, reply: oneshot::Sender<Option<u16>> },
     AnswerSearch { event: EventId, reply: oneshot::Sender<Result<(), TrainError>> },
+    SetIdentity { identity: TrainIdentity, reply: oneshot::Sender<Result<(), TrainError>> },
     ListenThrottle { sink: mpsc::Sender<ThrottleEvent>, dropped: Arc<AtomicU64>, listening: oneshot::Sender<()> },
     Throttle { train: NodeId, command: TractionCommand, reply: oneshot::Sender<Result<(), ThrottleError>> },
 }
@@ -106,6 +109,9 @@ impl TrainDriver {
             }
             TrainCommand::AnswerSearch { event, reply } => {
                 let _ = reply.send(stack.answer_train_search(event));
+            }
+            TrainCommand::SetIdentity { identity, reply } => {
+                let _ = reply.send(stack.set_train_identity(identity));
             }
             TrainCommand::ListenThrottle { sink, dropped, listening } => {
                 self.throttle_listeners.push((sink, dropped));

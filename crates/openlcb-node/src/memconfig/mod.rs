@@ -37,6 +37,8 @@ use crate::node::Outputs;
 use crate::service::{Lent, Service, ServiceChange, earliest};
 pub(crate) use client::MemoryClient;
 pub use client::{MemoryOperation, MemoryRequestError, NodeCommand, TransferPath};
+#[cfg(feature = "traction")]
+pub(crate) use server::FunctionMirror;
 pub use server::{MemoryServer, MemoryServerStats};
 pub use space::{
     ACDI_MANUFACTURER_LEN, ACDI_USER_LEN, MemorySpace, RamSpace, ReadOnlySpace, SpaceError, acdi_manufacturer_bytes,

@@ -11,7 +11,9 @@ use openlcb_stream::{AcceptOptions, Event, Instant, Message, Mti, NodeId, OpenOp
 use super::Cx;
 use super::space::{MemorySpace, SpaceError, acdi_manufacturer_bytes, acdi_user_bytes, read_slice};
 use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceForm, SpaceInfoReply, codes};
-use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FDI, SPACE_FIRMWARE};
+use super::wire::{
+    MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FDI, SPACE_FIRMWARE, SPACE_FUNCTIONS,
+};
 use super::{MemoryEvent, MemoryEvent as E};
 use crate::service::{ServiceChange, earliest};
 use crate::{OkFlags, Protocols, SnipInfo};
@@ -122,7 +124,20 @@ pub struct MemoryServer {
     holder_check: Option<HolderCheck>,
     transfers: Vec<Transfer>,
     pub(crate) user_info_changed: bool,
+    /// Space 0xF9 of a train node, kept by the node (`None`: not a train, or the application
+    /// serves a space 0xF9 of its own).
+    pub(crate) functions: Option<FunctionMirror>,
     stats: MemoryServerStats,
+}
+
+/// Space 0xF9 of a train (Train Control Standard §7.1, FDI TN §3.1): a byte per function
+/// address, F0 at 0, kept equal to the train's functions by the node.
+#[derive(Debug, Default)]
+pub(crate) struct FunctionMirror {
+    /// Each function's value as a byte (255 for a larger one).
+    pub(crate) values: Vec<u8>,
+    /// A write of this node has changed `values` since the train last took them.
+    pub(crate) written_by: Option<NodeId>,
 }
 
 impl fmt::Debug for MemoryServer {
@@ -163,6 +178,7 @@ impl MemoryServer {
             holder_check: None,
             transfers: Vec::new(),
             user_info_changed: false,
+            functions: None,
             stats: MemoryServerStats::default(),
         }
     }
@@ -332,17 +348,22 @@ impl MemoryServer {
         &self.acdi_user
     }
 
-    // ----- spaces, ACDI included -----
+    // ----- spaces, ACDI and a train's functions included -----
 
-    fn is_acdi(&self, space: u8) -> bool {
-        self.acdi && (space == SPACE_ACDI_MANUFACTURER || space == SPACE_ACDI_USER)
+    /// The bytes of a space the server keeps itself: the ACDI spaces, a train's 0xF9.
+    fn own_bytes(&self, space: u8) -> Option<&[u8]> {
+        match space {
+            SPACE_ACDI_MANUFACTURER if self.acdi => Some(&self.acdi_manufacturer),
+            SPACE_ACDI_USER if self.acdi => Some(&self.acdi_user),
+            SPACE_FUNCTIONS => self.functions.as_ref().map(|mirror| mirror.values.as_slice()),
+            _ => None,
+        }
     }
 
     fn space_len(&self, space: u8) -> Option<u32> {
-        match space {
-            SPACE_ACDI_MANUFACTURER if self.acdi => u32::try_from(self.acdi_manufacturer.len()).ok(),
-            SPACE_ACDI_USER if self.acdi => u32::try_from(self.acdi_user.len()).ok(),
-            _ => self.space(space).map(|s| s.len()),
+        match self.own_bytes(space) {
+            Some(bytes) => u32::try_from(bytes.len()).ok(),
+            None => self.space(space).map(|s| s.len()),
         }
     }
 
@@ -351,6 +372,7 @@ impl MemoryServer {
         match space {
             SPACE_ACDI_MANUFACTURER if self.acdi => true,
             SPACE_ACDI_USER if self.acdi => false,
+            SPACE_FUNCTIONS if self.functions.is_some() => false,
             SPACE_FIRMWARE => !self.frozen,
             _ => self.space(space).is_none_or(|s| s.read_only()),
         }
@@ -359,7 +381,7 @@ impl MemoryServer {
     /// Reads of `space` are refused: its bytes cannot be read back
     /// ([`MemorySpace::write_only`]).
     fn write_only(&self, space: u8) -> bool {
-        !self.is_acdi(space) && self.space(space).is_some_and(|s| s.write_only())
+        self.own_bytes(space).is_none() && self.space(space).is_some_and(|s| s.write_only())
     }
 
     fn read_space(&mut self, space: u8, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
@@ -369,18 +391,14 @@ impl MemoryServer {
         }
         let room = usize::try_from(len - address).unwrap_or(usize::MAX).min(buf.len());
         let buf = buf.get_mut(..room).unwrap_or_default();
-        let acdi = match space {
-            SPACE_ACDI_MANUFACTURER if self.acdi => Some(&self.acdi_manufacturer),
-            SPACE_ACDI_USER if self.acdi => Some(&self.acdi_user),
-            _ => None,
-        };
-        if let Some(bytes) = acdi {
+        if let Some(bytes) = self.own_bytes(space) {
             return read_slice(bytes, address, buf);
         }
         self.space_mut(space).ok_or(SpaceError::OutOfBounds)?.read(address, buf)
     }
 
-    fn write_space(&mut self, space: u8, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+    /// Stores `data` at `address` of `space` for `peer`, the writer.
+    fn write_space(&mut self, peer: NodeId, space: u8, address: u32, data: &[u8]) -> Result<(), SpaceError> {
         let len = self.space_len(space).ok_or(SpaceError::OutOfBounds)?;
         if self.read_only(space) {
             return Err(SpaceError::ReadOnly);
@@ -389,14 +407,21 @@ impl MemoryServer {
         if end > len {
             return Err(SpaceError::OutOfBounds);
         }
-        if self.is_acdi(space) {
+        let range = address as usize..end as usize;
+        if self.own_bytes(space).is_some() {
             // ACDI §5.1: byte 0 of space 0xFB is the layout's version, not the user's to write.
-            if address == 0 {
-                return Err(SpaceError::ReadOnly);
-            }
-            let slot = self.acdi_user.get_mut(address as usize..end as usize).ok_or(SpaceError::OutOfBounds)?;
-            slot.copy_from_slice(data);
-            self.user_info_changed = true;
+            let own = match (space, &mut self.functions) {
+                (SPACE_FUNCTIONS, Some(mirror)) => {
+                    mirror.written_by = Some(peer);
+                    &mut mirror.values
+                }
+                _ if address == 0 => return Err(SpaceError::ReadOnly),
+                _ => {
+                    self.user_info_changed = true;
+                    &mut self.acdi_user
+                }
+            };
+            own.get_mut(range).ok_or(SpaceError::OutOfBounds)?.copy_from_slice(data);
             return Ok(());
         }
         if space == SPACE_FIRMWARE && address == 0 && self.firmware_aborted {
@@ -444,6 +469,9 @@ impl MemoryServer {
         }
         for n in acdi {
             take(*n);
+        }
+        if self.functions.is_some() {
+            take(SPACE_FUNCTIONS);
         }
         let (lowest, highest) = bounds.unwrap_or((0xFD, 0xFF));
         OptionsReply {
@@ -647,7 +675,7 @@ impl MemoryServer {
         }
         let mut merged = [0u8; MAX_DATA_LEN];
         let result = match mask {
-            None => self.write_space(space, address, data).and_then(|()| self.commit(space)),
+            None => self.write_space(peer, space, address, data).and_then(|()| self.commit(space)),
             Some(mask) => {
                 let merged = merged.get_mut(..data.len()).unwrap_or_default();
                 self.read_space(space, address, merged).and_then(|n| {
@@ -657,7 +685,7 @@ impl MemoryServer {
                     for ((old, new), m) in merged.iter_mut().zip(data).zip(mask) {
                         *old = (*old & !m) | (new & m);
                     }
-                    self.write_space(space, address, merged).and_then(|()| self.commit(space))
+                    self.write_space(peer, space, address, merged).and_then(|()| self.commit(space))
                 })
             }
         };
@@ -1016,12 +1044,12 @@ impl MemoryServer {
     fn drain_write(&mut self, cx: &mut Cx<'_>, index: usize, finished: bool) {
         let mut buf = [0u8; CHUNK];
         loop {
-            let Some(Transfer { job: Job::Write { handle: Some(handle), space, next, .. }, .. }) =
+            let Some(Transfer { peer, job: Job::Write { handle: Some(handle), space, next, .. }, .. }) =
                 self.transfers.get(index)
             else {
                 return;
             };
-            let (handle, space, at) = (*handle, *space, *next);
+            let (peer, handle, space, at) = (*peer, *handle, *space, *next);
             let n = cx.streams.read(cx.now, handle, &mut buf).unwrap_or(0);
             if n == 0 {
                 break;
@@ -1030,7 +1058,7 @@ impl MemoryServer {
             let room = self.space_len(space).map_or(0, |len| len.saturating_sub(at));
             let fits = n.min(usize::try_from(room).unwrap_or(usize::MAX));
             let stored = match buf.get(..fits).filter(|b| !b.is_empty()) {
-                Some(part) => self.write_space(space, at, part),
+                Some(part) => self.write_space(peer, space, at, part),
                 None => Ok(()),
             };
             if let Err(e) = stored.and(if fits < n { Err(SpaceError::OutOfBounds) } else { Ok(()) }) {

@@ -41,20 +41,22 @@ fn escaped(out: &mut String, text: &str) {
     }
 }
 
-/// The FDI document of `functions`, in the order given: one segment of space 0xF9, one
-/// group, each function with its name and number.
+/// The FDI document of `functions`, in the order given: one segment, one group, each
+/// function with its kind, name and number. The segment's `space` and `origin` and the
+/// function's `size` are reserved and omitted, as FDI Standard §5.1.2 and §5.1.4 ask of new
+/// implementations (their defaults are space 0xF9, origin 0, size 1).
 pub fn fdi_xml(functions: &[FunctionName]) -> String {
     let mut xml = String::from(
         "<?xml version=\"1.0\"?>\n<fdi xmlns:xsi=\"http://www.w3.org/2001/XMLSchema-instance\" \
-         xsi:noNamespaceSchemaLocation=\"http://openlcb.org/schema/fdi/1/1/fdi.xsd\">\n\
-         <segment space=\"249\" origin=\"0\">\n<group>\n<name>Functions</name>\n",
+         xsi:noNamespaceSchemaLocation=\"https://openlcb.org/schema/fdi/1/1/fdi.xsd\">\n\
+         <segment>\n<group>\n<name>Functions</name>\n",
     );
     for function in functions {
         let kind = match function.kind {
             FunctionKind::Binary => "binary",
             FunctionKind::Momentary => "momentary",
         };
-        let _ = write!(xml, "<function size=\"1\" kind=\"{kind}\">\n<name>");
+        let _ = write!(xml, "<function kind=\"{kind}\">\n<name>");
         escaped(&mut xml, &function.name);
         let _ = writeln!(xml, "</name>\n<number>{}</number>\n</function>", function.number);
     }

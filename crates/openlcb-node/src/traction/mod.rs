@@ -93,6 +93,8 @@ pub use wire::{
     LISTENER_HIDE, LISTENER_LINK_F0, LISTENER_LINK_FN, LISTENER_RESERVED, LISTENER_REVERSE, Speed, TractionCommand,
 };
 
+use crate::memconfig::wire::SPACE_FUNCTIONS;
+use crate::memconfig::{FunctionMirror, MemoryServer};
 use crate::node::Outputs;
 use crate::service::{Lent, Service, ServiceChange, earliest};
 use crate::{Node, NodeEvent};
@@ -297,6 +299,8 @@ struct Train {
     global_stop: bool,
     global_off: bool,
     functions: Vec<u16>,
+    /// `functions` changed since space 0xF9 last took them.
+    functions_changed: bool,
     controller: Option<NodeId>,
     reserved_by: Option<NodeId>,
     listeners: Vec<Listener>,
@@ -356,6 +360,11 @@ impl Bus<'_> {
     }
 }
 
+/// A function's value as its byte of space 0xF9.
+fn function_byte(value: u16) -> u8 {
+    u8::try_from(value).unwrap_or(u8::MAX)
+}
+
 fn result_code(code: ErrorCode) -> [u8; 2] {
     code.0.to_be_bytes()
 }
@@ -370,6 +379,7 @@ impl Train {
             global_stop: false,
             global_off: false,
             functions,
+            functions_changed: true,
             controller: None,
             reserved_by: None,
             listeners: Vec::new(),
@@ -471,13 +481,10 @@ impl Train {
                 self.forward(bus, Some(from), command);
             }
             TractionCommand::SetFunction { address, value, .. } => {
-                let Some(slot) = self.functions.get_mut(address as usize) else {
+                if !self.set_function(bus, from, address, value) {
                     bus.stats.commands -= 1;
                     return bus.reject(from, ErrorCode::INVALID_ARGUMENTS);
-                };
-                *slot = value;
-                bus.tell(TrainChange::Function { address, value }, Some(from));
-                self.forward(bus, Some(from), command);
+                }
             }
             TractionCommand::EmergencyStop { .. } => {
                 self.set_speed = self.set_speed.stopped();
@@ -600,6 +607,18 @@ impl Train {
             TractionCommand::Noop => {}
         }
         self.rearm(now, heard);
+    }
+
+    /// Function `address` set to `value` by `from` (Set Function, or a write to space 0xF9):
+    /// the application told, the listeners linked to it told in turn; `false`: no such
+    /// function is kept.
+    fn set_function(&mut self, bus: &mut Bus<'_>, from: NodeId, address: u32, value: u16) -> bool {
+        let Some(slot) = self.functions.get_mut(address as usize) else { return false };
+        *slot = value;
+        self.functions_changed = true;
+        bus.tell(TrainChange::Function { address, value }, Some(from));
+        self.forward(bus, Some(from), TractionCommand::SetFunction { address, value, forwarded: false });
+        true
     }
 
     /// A forwarded command that changes nothing, or the echo of a speed this train
@@ -749,6 +768,32 @@ impl TrainService {
         self.train.is_some()
     }
 
+    /// Keeps space 0xF9 of `server` and the train's functions one (Train Control Standard
+    /// §7.1): the space is served once the node has a memory server (unless the application
+    /// serves a 0xF9 of its own); each byte a tool wrote there that differs from its
+    /// function is a Set Function from that tool, and the functions are copied back after
+    /// any change, a value past 255 as 255.
+    pub(crate) fn sync_memory(&mut self, out: &mut Outputs, server: &mut MemoryServer) {
+        let Some(train) = &mut self.train else { return };
+        if server.functions.is_none() && server.space(SPACE_FUNCTIONS).is_none() {
+            server.functions = Some(FunctionMirror::default());
+            train.functions_changed = true;
+        }
+        let Some(mirror) = &mut server.functions else { return };
+        if let Some(writer) = mirror.written_by.take() {
+            let mut bus = Bus { out, stats: &mut self.stats };
+            for (address, byte) in (0u32..).zip(mirror.values.iter()) {
+                if train.functions.get(address as usize).is_some_and(|&value| function_byte(value) != *byte) {
+                    train.set_function(&mut bus, writer, address, u16::from(*byte));
+                }
+            }
+        }
+        if core::mem::take(&mut train.functions_changed) {
+            mirror.values.clear();
+            mirror.values.extend(train.functions.iter().map(|&value| function_byte(value)));
+        }
+    }
+
     /// Produce Is Train again (after the node's Initialization Complete).
     pub(crate) fn announce(&mut self) {
         self.announce = self.train.as_ref().is_some_and(|t| t.config.announce);
@@ -886,6 +931,15 @@ impl Node {
     /// The trains this node's throttle controls (or has asked to).
     pub fn controlled_trains(&self) -> &[NodeId] {
         self.services.trains.throttle.as_ref().map_or(&[], |t| t.controlled())
+    }
+
+    /// The train's address, protocol and name from now on (its configuration changed): Train
+    /// Search queries are matched against them. The train's speed, functions, controller
+    /// and listeners stay.
+    pub fn set_train_identity(&mut self, identity: TrainIdentity) -> Result<(), TrainError> {
+        let train = self.services.trains.train.as_mut().ok_or(TrainError::NotATrain)?;
+        train.config.identity = identity;
+        Ok(())
     }
 
     /// Answers the Train Search `event` with Producer Identified Valid, as a train a command
