@@ -331,3 +331,69 @@ async fn the_throttle_at_a_terminal_is_driven_by_its_keys() {
     interrupt(&train).await;
     assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
 }
+
+/// A train's configuration, as a tool changes it: `config set` gives DCC 3 a long address
+/// 1234 and names F1; the train answers the search for 1234, its FDI names the key, and its
+/// function space (0xF9) holds the function a throttle set.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tool_configures_the_train_and_a_throttle_finds_it_by_its_new_address() {
+    let Station { _hub: _keep, gridconnect, mut train, said: _, mut printed } =
+        station(&["--node-id", "05.01.01.01.22.0C", "--allocate", "0"]).await;
+    let node = "05.01.01.01.22.0C";
+    for (key, value) in
+        [("Train.Address type", "Long"), ("Train.DCC address", "1234"), ("Train.Function key(1).Name", "Bell")]
+    {
+        let out = bounded(
+            "config set",
+            common::command(&["config", "set", node, key, value, "--connect", &gridconnect]).output(),
+        )
+        .await
+        .unwrap();
+        assert!(out.status.success(), "{key}: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    let line = until(&mut printed, "DCC 1234 (long)").await;
+    assert!(line.contains("\"configured\""), "{line}");
+    let line = until(&mut printed, "2 named functions").await;
+    assert!(line.contains("DCC 1234 (long)"), "{line}");
+
+    let out = bounded(
+        "the throttle",
+        common::command(&["throttle", "1234", "--function", "1=on", "--release", "--connect", &gridconnect]).output(),
+    )
+    .await
+    .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    until(&mut printed, "\"function\"").await;
+
+    let read = |space: &'static str| {
+        let gridconnect = gridconnect.clone();
+        async move {
+            let out = bounded(
+                "read",
+                common::command(&[
+                    "read",
+                    "--from",
+                    node,
+                    "--space",
+                    space,
+                    "--out",
+                    "-",
+                    "-q",
+                    "--connect",
+                    &gridconnect,
+                ])
+                .output(),
+            )
+            .await
+            .unwrap();
+            assert!(out.status.success(), "{space}: {}", String::from_utf8_lossy(&out.stderr));
+            out.stdout
+        }
+    };
+    assert_eq!(read("0xF9").await.get(..2), Some(&[0, 1][..]), "F1 is on, F0 off");
+    let fdi = String::from_utf8_lossy(&read("0xFA").await).into_owned();
+    assert!(fdi.contains("<name>Bell</name>\n<number>1</number>"), "{fdi}");
+
+    interrupt(&train).await;
+    assert!(bounded("the train to stop", train.wait()).await.unwrap().success());
+}

@@ -50,7 +50,10 @@
 //!
 //! Space 0xFA, the FDI, is a read-only space of the application's memory server
 //! ([`fdi_space`] builds it from the function names); a node with it announces FDI in its
-//! PIP.
+//! PIP. Space 0xF9, the functions themselves (Train Control Standard §7.1), the node keeps
+//! beside the application's memory server (unless that serves a 0xF9 of its own): a byte
+//! per function address, read as the train's state, and a write of it is a Set Function
+//! from the writer, carried out and forwarded as one.
 //!
 //! # Where the standard and real peers differ
 //!
@@ -69,6 +72,9 @@
 //!   `tr110` notes, as a warning, that OpenLcbCLib sets the E-Stop status).
 //! - **Functions** are kept for addresses below [`TrainConfig::functions`] (F0-F68 by
 //!   default); a Set or Query Function past them is rejected with 0x1080.
+//! - **A function's byte in space 0xF9** is its value clamped to 255 (values are 16 bits on
+//!   the Traction Control wire); OpenLCB_Java's throttle writes a single byte (`20 00 00 00
+//!   00 NN F9 SS`), which is taken as the function's whole value.
 //! - **Train Search allocation** in one process: the command station knows its own trains,
 //!   so it does not wait the 200 ms of §6.2 for them; trains of other command stations that
 //!   answer later make a duplicate the user must resolve, as with any two command stations.
