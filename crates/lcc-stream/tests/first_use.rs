@@ -223,10 +223,11 @@ async fn read_reports_the_path_it_used_and_a_peer_not_found_like_everyone() {
         let report = one_object(&output);
         assert_eq!((report["path"].as_str(), report["bytes"].as_u64()), (Some(path), Some(100)), "{report}");
     }
-    let absent = run(&["read", "--from", "05.01.01.01.22.99", "--out", "-", "--connect", &addr]).await;
+    // Absent: a Node ID outside the transient range (05.01.01.01.22.80-BF) the tools pick from.
+    let absent = run(&["read", "--from", "05.01.01.01.22.7E", "--out", "-", "--connect", &addr]).await;
     assert_eq!(absent.status.code(), Some(5));
     let json =
-        run(&["send", "Cargo.toml", "--to", "05.01.01.01.22.99", "--json", "--timeout", "2", "--connect", &addr]).await;
+        run(&["send", "Cargo.toml", "--to", "05.01.01.01.22.7E", "--json", "--timeout", "2", "--connect", &addr]).await;
     assert_eq!(json.status.code(), Some(5), "{}", text(&json.stderr));
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -591,7 +591,7 @@ async fn write_ends_with_update_complete_and_reboot_and_factory_reset_reach_the_
     let (status, json) = run(&addr, &["factory-reset", SERVER, "--yes"]).await;
     assert_eq!(status, 0, "{json}");
     server.wait_for("factory reset asked for by").await;
-    let (status, json) = run(&addr, &["reboot", "05.01.01.01.22.99"]).await;
+    let (status, json) = run(&addr, &["reboot", "05.01.01.01.22.7E"]).await;
     assert_eq!((status, json["result"].as_str()), (5, Some("not_found")), "{json}");
 }
 
