@@ -10,10 +10,10 @@ use openlcb_stream::{AcceptOptions, Event, Instant, Message, Mti, NodeId, OpenOp
 
 use super::Cx;
 use super::space::{MemorySpace, SpaceError, acdi_manufacturer_bytes, acdi_user_bytes, read_slice};
+#[cfg(feature = "traction")]
+use super::wire::SPACE_FUNCTIONS;
 use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceForm, SpaceInfoReply, codes};
-use super::wire::{
-    MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FDI, SPACE_FIRMWARE, SPACE_FUNCTIONS,
-};
+use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FDI, SPACE_FIRMWARE};
 use super::{MemoryEvent, MemoryEvent as E};
 use crate::service::{ServiceChange, earliest};
 use crate::{OkFlags, Protocols, SnipInfo};
@@ -126,12 +126,14 @@ pub struct MemoryServer {
     pub(crate) user_info_changed: bool,
     /// Space 0xF9 of a train node, kept by the node (`None`: not a train, or the application
     /// serves a space 0xF9 of its own).
+    #[cfg(feature = "traction")]
     pub(crate) functions: Option<FunctionMirror>,
     stats: MemoryServerStats,
 }
 
 /// Space 0xF9 of a train (Train Control Standard §7.1, FDI TN §3.1): a byte per function
 /// address, F0 at 0, kept equal to the train's functions by the node.
+#[cfg(feature = "traction")]
 #[derive(Debug, Default)]
 pub(crate) struct FunctionMirror {
     /// Each function's value as a byte (255 for a larger one).
@@ -178,6 +180,7 @@ impl MemoryServer {
             holder_check: None,
             transfers: Vec::new(),
             user_info_changed: false,
+            #[cfg(feature = "traction")]
             functions: None,
             stats: MemoryServerStats::default(),
         }
@@ -355,6 +358,7 @@ impl MemoryServer {
         match space {
             SPACE_ACDI_MANUFACTURER if self.acdi => Some(&self.acdi_manufacturer),
             SPACE_ACDI_USER if self.acdi => Some(&self.acdi_user),
+            #[cfg(feature = "traction")]
             SPACE_FUNCTIONS => self.functions.as_ref().map(|mirror| mirror.values.as_slice()),
             _ => None,
         }
@@ -372,6 +376,7 @@ impl MemoryServer {
         match space {
             SPACE_ACDI_MANUFACTURER if self.acdi => true,
             SPACE_ACDI_USER if self.acdi => false,
+            #[cfg(feature = "traction")]
             SPACE_FUNCTIONS if self.functions.is_some() => false,
             SPACE_FIRMWARE => !self.frozen,
             _ => self.space(space).is_none_or(|s| s.read_only()),
@@ -397,8 +402,15 @@ impl MemoryServer {
         self.space_mut(space).ok_or(SpaceError::OutOfBounds)?.read(address, buf)
     }
 
-    /// Stores `data` at `address` of `space` for `peer`, the writer.
-    fn write_space(&mut self, peer: NodeId, space: u8, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+    /// Stores `data` at `address` of `space` for `peer`, the writer (a train's Set Function
+    /// comes from it).
+    fn write_space(
+        &mut self,
+        #[cfg_attr(not(feature = "traction"), expect(unused_variables))] peer: NodeId,
+        space: u8,
+        address: u32,
+        data: &[u8],
+    ) -> Result<(), SpaceError> {
         let len = self.space_len(space).ok_or(SpaceError::OutOfBounds)?;
         if self.read_only(space) {
             return Err(SpaceError::ReadOnly);
@@ -408,20 +420,19 @@ impl MemoryServer {
             return Err(SpaceError::OutOfBounds);
         }
         let range = address as usize..end as usize;
+        #[cfg(feature = "traction")]
+        if let (SPACE_FUNCTIONS, Some(mirror)) = (space, &mut self.functions) {
+            mirror.written_by = Some(peer);
+            mirror.values.get_mut(range).ok_or(SpaceError::OutOfBounds)?.copy_from_slice(data);
+            return Ok(());
+        }
         if self.own_bytes(space).is_some() {
             // ACDI §5.1: byte 0 of space 0xFB is the layout's version, not the user's to write.
-            let own = match (space, &mut self.functions) {
-                (SPACE_FUNCTIONS, Some(mirror)) => {
-                    mirror.written_by = Some(peer);
-                    &mut mirror.values
-                }
-                _ if address == 0 => return Err(SpaceError::ReadOnly),
-                _ => {
-                    self.user_info_changed = true;
-                    &mut self.acdi_user
-                }
-            };
-            own.get_mut(range).ok_or(SpaceError::OutOfBounds)?.copy_from_slice(data);
+            if address == 0 {
+                return Err(SpaceError::ReadOnly);
+            }
+            self.acdi_user.get_mut(range).ok_or(SpaceError::OutOfBounds)?.copy_from_slice(data);
+            self.user_info_changed = true;
             return Ok(());
         }
         if space == SPACE_FIRMWARE && address == 0 && self.firmware_aborted {
@@ -470,6 +481,7 @@ impl MemoryServer {
         for n in acdi {
             take(*n);
         }
+        #[cfg(feature = "traction")]
         if self.functions.is_some() {
             take(SPACE_FUNCTIONS);
         }
