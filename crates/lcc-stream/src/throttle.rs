@@ -161,6 +161,7 @@ fn print(json: bool, event: &ThrottleEvent) {
             (train, "speeds", Some(set.to_f32() * 3.6), Some(emergency_stop), None, text)
         }
         ThrottleEvent::ControllerLost { train, to } => {
+            let to = Peer::of(to);
             (train, "controller-lost", None, None, Some(to.to_string()), format!("taken over by {to}"))
         }
         ThrottleEvent::TrainLost { train } => {
@@ -171,6 +172,7 @@ fn print(json: bool, event: &ThrottleEvent) {
             (train, "rejected", None, None, Some(code.clone()), format!("rejected a command ({code})"))
         }
         ThrottleEvent::ListenerChanged { train, listener, attached, code } => {
+            let listener = Peer::of(listener);
             let done = if attached { "attached" } else { "detached" };
             let text = match code {
                 0 => format!("listener {listener} {done}"),
@@ -329,7 +331,7 @@ async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt)
         let outcome = crate::throttle_tty::drive(node, &mut events, train, interrupt).await?;
         if outcome != Outcome::NotFound {
             send(node, train, TractionCommand::ReleaseController { flags: 0, node: me }).await?;
-            eprintln!("lcc-stream throttle: released {train}");
+            eprintln!("lcc-stream throttle: released {}", Peer::of(train));
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
         return Ok(outcome);
@@ -392,7 +394,7 @@ async fn drive(args: &ThrottleArgs, node: &Node, interrupt: &mut net::Interrupt)
         }
     };
     send(node, train, TractionCommand::ReleaseController { flags: 0, node: me }).await?;
-    eprintln!("lcc-stream throttle: released {train}");
+    eprintln!("lcc-stream throttle: released {}", Peer::of(train));
     // The release is queued; give the driver a moment to send it before the node closes.
     tokio::time::sleep(Duration::from_millis(100)).await;
     Ok(outcome)

@@ -181,6 +181,8 @@ async fn our_throttle_finds_allocates_drives_and_releases_a_train() {
     assert!(stdout.contains("\"event\":\"assigned\""), "{stdout}");
     assert!(stdout.contains("\"event\":\"speeds\"") && stdout.contains("\"set_speed\":-36"), "{stdout}");
     assert!(stderr.contains("released"), "{stderr}");
+    // A train known only by its alias is named so, never by a provisional Node ID.
+    assert!(!stderr.contains("00.00.00.00.") && !stdout.contains("00.00.00.00."), "{stderr}{stdout}");
     let line = until(&mut printed, "\"speed\"").await;
     assert!(line.contains("\"set_speed\":-10"), "{line}");
     until(&mut printed, "\"function\"").await;
