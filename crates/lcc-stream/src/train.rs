@@ -18,7 +18,7 @@ use serde::Serialize;
 use crate::net::{self, ConnectArgs};
 use crate::outcome::{Failure, Outcome};
 use crate::peer::Peer;
-use crate::train_config::{TrainSettings, TrainSetup};
+use crate::train_config::{SPEED_STEPS, TrainSettings, TrainSetup};
 
 #[derive(Debug, Args)]
 #[command(after_help = format!("{}{}", "\
@@ -85,10 +85,10 @@ fn parse_function(text: &str) -> Result<(u32, String), String> {
 }
 
 fn parse_speed_steps(text: &str) -> Result<u8, String> {
-    match text.parse() {
-        Ok(steps @ (14 | 28 | 128)) => Ok(steps),
-        _ => Err(format!("`{text}`: a decoder has 14, 28 or 128 speed steps")),
-    }
+    text.parse::<u8>()
+        .ok()
+        .filter(|steps| SPEED_STEPS.contains(&u64::from(*steps)))
+        .ok_or_else(|| format!("`{text}`: a decoder has 14, 28 or 128 speed steps"))
 }
 
 pub(crate) fn run(args: &TrainArgs) -> Result<ExitCode, String> {
@@ -308,7 +308,7 @@ impl Kept {
         let key = |identity: &TrainIdentity| {
             (identity.address, matches!(identity.protocol, TrainProtocol::Dcc { long: true }))
         };
-        if setup.identity.address != was || key(&setup.identity) != key(&self.setup.identity) {
+        if key(&setup.identity) != key(&self.setup.identity) {
             let Ok(mut trains) = station.trains.lock() else { return };
             if trains.get(&key(&setup.identity)).is_some_and(|id| *id != self.id) {
                 return eprintln!(

@@ -17,7 +17,7 @@ const NAME_SIZE: u32 = 32;
 /// The longest function key name, its NUL included.
 const KEY_NAME_SIZE: u32 = 16;
 /// The speed steps a DCC decoder may use.
-const SPEED_STEPS: [u64; 3] = [14, 28, 128];
+pub(crate) const SPEED_STEPS: [u64; 3] = [14, 28, 128];
 
 /// What a train's configuration holds.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -151,33 +151,26 @@ async fn station(args: &[&str]) -> Station {
     Station { _hub: hub, gridconnect, train, said, printed }
 }
 
+/// `lcc-stream ARGS --connect HUB`, bounded; its output, once it has succeeded.
+async fn succeeds(hub: &str, args: &[&str]) -> std::process::Output {
+    let command = [args, &["--connect", hub]].concat();
+    let out = bounded(args[0], common::command(&command).output()).await.unwrap();
+    assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    out
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn our_throttle_finds_allocates_drives_and_releases_a_train() {
     let Station { _hub: _keep, gridconnect, mut train, mut said, mut printed } =
         station(&["--node-id", "05.01.01.01.22.01"]).await;
 
     // DCC 3 is the station's own train.
-    let out = bounded(
-        "the throttle",
-        common::command(&[
-            "throttle",
-            "3",
-            "--speed",
-            "36",
-            "--reverse",
-            "--function",
-            "0=on",
-            "--release",
-            "--json",
-            "--connect",
-            &gridconnect,
-        ])
-        .output(),
+    let out = succeeds(
+        &gridconnect,
+        &["throttle", "3", "--speed", "36", "--reverse", "--function", "0=on", "--release", "--json"],
     )
-    .await
-    .unwrap();
+    .await;
     let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    assert!(out.status.success(), "{stderr}");
     assert!(stdout.contains("\"event\":\"assigned\""), "{stdout}");
     assert!(stdout.contains("\"event\":\"speeds\"") && stdout.contains("\"set_speed\":-36"), "{stdout}");
     assert!(stderr.contains("released"), "{stderr}");
@@ -189,38 +182,17 @@ async fn our_throttle_finds_allocates_drives_and_releases_a_train() {
     until(&mut printed, "\"controller-released\"").await;
 
     // DCC 44 is not there: the throttle's allocating search has it created.
-    let out = bounded(
-        "the throttle",
-        common::command(&["throttle", "44", "--speed", "10", "--release", "--connect", &gridconnect]).output(),
-    )
-    .await
-    .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    succeeds(&gridconnect, &["throttle", "44", "--speed", "10", "--release"]).await;
     until(&mut said, "created DCC 44").await;
     until(&mut printed, "\"train\":44").await;
 
     // A consist: DCC 44 (the station's first created train, the next Node ID) listens to
     // DCC 3, reversed; a speed for 3 reaches 44 the other way round.
-    let out = bounded(
-        "the throttle",
-        common::command(&[
-            "throttle",
-            "3",
-            "--attach",
-            "05.01.01.01.22.02:reverse",
-            "--speed",
-            "18",
-            "--forward",
-            "--release",
-            "--connect",
-            &gridconnect,
-        ])
-        .output(),
-    )
-    .await
-    .unwrap();
+    let throttle =
+        ["throttle", "3", "--attach", "05.01.01.01.22.02:reverse", "--speed", "18", "--forward", "--release"];
+    let out = succeeds(&gridconnect, &throttle).await;
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && stdout.contains("listener 05.01.01.01.22.02 attached"), "{stdout}");
+    assert!(stdout.contains("listener 05.01.01.01.22.02 attached"), "{stdout}");
     let line = until(&mut printed, "\"set_speed\":-5").await;
     assert!(line.contains("\"train\":44"), "{line}");
 
@@ -234,23 +206,7 @@ async fn our_throttle_finds_allocates_drives_and_releases_a_train() {
 async fn our_throttle_drives_a_train_given_by_its_node_id() {
     let Station { _hub: _keep, gridconnect, mut train, said: _, mut printed } =
         station(&["--node-id", "05.01.01.01.22.0A", "--allocate", "0"]).await;
-    let out = bounded(
-        "the throttle",
-        common::command(&[
-            "throttle",
-            "--train",
-            "05.01.01.01.22.0A",
-            "--speed",
-            "18",
-            "--release",
-            "--connect",
-            &gridconnect,
-        ])
-        .output(),
-    )
-    .await
-    .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    succeeds(&gridconnect, &["throttle", "--train", "05.01.01.01.22.0A", "--speed", "18", "--release"]).await;
     let line = until(&mut printed, "\"speed\"").await;
     assert!(line.contains("\"set_speed\":5"), "{line}");
     until(&mut printed, "\"controller-released\"").await;
@@ -345,55 +301,21 @@ async fn a_tool_configures_the_train_and_a_throttle_finds_it_by_its_new_address(
     for (key, value) in
         [("Train.Address type", "Long"), ("Train.DCC address", "1234"), ("Train.Function key(1).Name", "Bell")]
     {
-        let out = bounded(
-            "config set",
-            common::command(&["config", "set", node, key, value, "--connect", &gridconnect]).output(),
-        )
-        .await
-        .unwrap();
-        assert!(out.status.success(), "{key}: {}", String::from_utf8_lossy(&out.stderr));
+        succeeds(&gridconnect, &["config", "set", node, key, value]).await;
     }
     let line = until(&mut printed, "DCC 1234 (long)").await;
     assert!(line.contains("\"configured\""), "{line}");
     let line = until(&mut printed, "2 named functions").await;
     assert!(line.contains("DCC 1234 (long)"), "{line}");
 
-    let out = bounded(
-        "the throttle",
-        common::command(&["throttle", "1234", "--function", "1=on", "--release", "--connect", &gridconnect]).output(),
-    )
-    .await
-    .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    succeeds(&gridconnect, &["throttle", "1234", "--function", "1=on", "--release"]).await;
     until(&mut printed, "\"function\"").await;
 
-    let read = |space: &'static str| {
-        let gridconnect = gridconnect.clone();
-        async move {
-            let out = bounded(
-                "read",
-                common::command(&[
-                    "read",
-                    "--from",
-                    node,
-                    "--space",
-                    space,
-                    "--out",
-                    "-",
-                    "-q",
-                    "--connect",
-                    &gridconnect,
-                ])
-                .output(),
-            )
-            .await
-            .unwrap();
-            assert!(out.status.success(), "{space}: {}", String::from_utf8_lossy(&out.stderr));
-            out.stdout
-        }
-    };
-    assert_eq!(read("0xF9").await.get(..2), Some(&[0, 1][..]), "F1 is on, F0 off");
-    let fdi = String::from_utf8_lossy(&read("0xFA").await).into_owned();
+    let read = ["read", "--from", node, "--space", "0xF9", "--out", "-", "-q"];
+    let functions = succeeds(&gridconnect, &read).await.stdout;
+    assert_eq!(functions.get(..2), Some(&[0, 1][..]), "F1 is on, F0 off");
+    let read = ["read", "--from", node, "--space", "0xFA", "--out", "-", "-q"];
+    let fdi = String::from_utf8_lossy(&succeeds(&gridconnect, &read).await.stdout).into_owned();
     assert!(fdi.contains("<name>Bell</name>\n<number>1</number>"), "{fdi}");
 
     interrupt(&train).await;
