@@ -42,7 +42,11 @@
 //! closed its socket or only half-closed it (shut down its sending side): over TCP the two
 //! cannot be told apart until a write to the client fails, which on a quiet bus may be
 //! never, and a client that left must not hold its slot. A half-closed client therefore gets
-//! no more frames; a client that wants to listen keeps its sending side open.
+//! no more frames; a client that wants to listen keeps its sending side open. The other way
+//! round, a client that can no longer be written to (it reset its connection) gets nothing
+//! more, but every frame it sent before is still read and relayed until its input ends: the
+//! hub never drops a frame it took, not even one held up by a slow listener when its sender
+//! left.
 //!
 //! Garbage is counted and reported at most once per [`GARBAGE_REPORT_INTERVAL`] per client.
 //!
@@ -63,7 +67,7 @@ use openlcb_can::{CanFrame, CanHeader, FrameKind, GridConnectDecoder, NodeAlias,
 use openlcb_tcp::Decoder;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{Notify, mpsc};
+use tokio::sync::{Notify, mpsc, oneshot};
 use tokio::task::{AbortHandle, JoinSet};
 use tokio::time::Instant;
 use tracing::Instrument as _;
@@ -277,13 +281,28 @@ pub(crate) struct Client {
     /// The client's recent frames, to judge its rate when the hub is full; `None` for those
     /// never evicted (attached links, the bridge).
     activity: Option<Activity>,
-    tasks: Vec<AbortHandle>,
+    /// The task writing to the client, stopped when it is removed.
+    writer: Option<AbortHandle>,
+    /// Dropped with the entry: the client's reader stops at its next read, never while it
+    /// relays what it read (frames a client sent before it left reach everyone).
+    _removal: oneshot::Sender<()>,
     /// Aliases the client announced (AMD) and has not released (AMR), at most
     /// [`ALIASES_PER_CLIENT`]: when it leaves, the hub releases them for it.
     aliases: Vec<(NodeAlias, NodeId)>,
     /// Node IDs the OpenLCB-TCP client carried (sources of its messages), at most
     /// [`NODES_PER_CLIENT`]: when it leaves, the bridge releases their CAN aliases.
     nodes: Vec<NodeId>,
+}
+
+/// What a new client's tasks get from [`State::add_client`].
+pub(crate) struct NewClient {
+    id: ClientId,
+    /// The chunks to write to it.
+    queue: mpsc::UnboundedReceiver<Bytes>,
+    /// Their count.
+    backlog: Arc<Backlog>,
+    /// Ends when the client is removed.
+    removed: oneshot::Receiver<()>,
 }
 
 /// The bytes queued for one client, counted against [`HubOptions::max_queued_bytes`] (the
@@ -293,7 +312,7 @@ pub(crate) struct Backlog {
     bytes: AtomicUsize,
     /// Notified when the client's writer takes bytes out and when the client is removed.
     room: Notify,
-    /// The client was removed: nothing more is queued for it.
+    /// The client was removed or its writer ended: nothing more is queued for it.
     gone: AtomicBool,
 }
 
@@ -334,11 +353,16 @@ impl Backlog {
         self.room.notify_waiters();
     }
 
-    /// The client was removed: its queue goes with it, and nobody waits for it any more.
+    /// The client was removed or its writer ended: nothing more is queued for it, and nobody
+    /// waits for it any more.
     fn close(&self) {
         self.gone.store(true, Ordering::Relaxed);
         self.bytes.store(0, Ordering::Relaxed);
         self.room.notify_waiters();
+    }
+
+    fn is_closed(&self) -> bool {
+        self.gone.load(Ordering::Relaxed)
     }
 
     fn queued(&self) -> usize {
@@ -433,7 +457,9 @@ impl State {
             queue,
             backlog: Arc::default(),
             activity: None,
-            tasks: Vec::new(),
+            writer: None,
+            // The bridge has no reader.
+            _removal: oneshot::channel().0,
             aliases: Vec::new(),
             nodes: Vec::new(),
         };
@@ -443,16 +469,13 @@ impl State {
         (id, rx)
     }
 
-    /// Registers a new client of `protocol`'s group: its id, its queue and its queue's count.
-    /// A TCP client can be evicted from a full hub; a link (`evictable` false) never is.
-    fn add_client(
-        &self,
-        protocol: Framing,
-        evictable: bool,
-    ) -> (ClientId, mpsc::UnboundedReceiver<Bytes>, Arc<Backlog>) {
+    /// Registers a new client of `protocol`'s group. A TCP client can be evicted from a full
+    /// hub; a link (`evictable` false) never is.
+    fn add_client(&self, protocol: Framing, evictable: bool) -> NewClient {
         let id = self.next_id.fetch_add(1, Ordering::Relaxed);
         self.accepted.fetch_add(1, Ordering::Relaxed);
         let (queue, rx) = mpsc::unbounded_channel();
+        let (removal, removed) = oneshot::channel();
         let backlog = Arc::new(Backlog::default());
         let client = Client {
             protocol,
@@ -460,14 +483,15 @@ impl State {
             queue,
             backlog: backlog.clone(),
             activity: evictable.then(|| Activity::new(Instant::now(), self.options.slot_min_frames)),
-            tasks: Vec::new(),
+            writer: None,
+            _removal: removal,
             aliases: Vec::new(),
             nodes: Vec::new(),
         };
         if let Ok(mut clients) = self.clients.lock() {
             clients.insert(id, client);
         }
-        (id, rx, backlog)
+        NewClient { id, queue: rx, backlog, removed }
     }
 
     /// Counts relayed frames and undecodable input.
@@ -480,7 +504,8 @@ impl State {
         &self.options
     }
 
-    /// Removes a client and stops its tasks; `true` if it was still there. The bridge forgets
+    /// Removes a client: its writer stops at once, its reader at its next read; `true` if it
+    /// was still there. The bridge forgets
     /// the aliases it still held: a node that left without a word is forgotten, and its Node
     /// ID may join again, on either side. Nothing goes on the wire for a GridConnect client:
     /// a GridConnect hub is a wire, it relays and never originates a frame. For the Node IDs
@@ -492,7 +517,7 @@ impl State {
         let departed: Vec<NodeId> =
             entry.nodes.iter().copied().filter(|node| !clients.values().any(|c| c.nodes.contains(node))).collect();
         drop(clients);
-        entry.tasks.iter().for_each(AbortHandle::abort);
+        entry.writer.iter().for_each(AbortHandle::abort);
         entry.backlog.close();
         self.bridge_forgets(&entry.aliases);
         if let Some(bridge) = &self.departed {
@@ -561,7 +586,8 @@ impl State {
         let mut full = Vec::new();
         if let Ok(clients) = self.clients.lock() {
             for (&id, client) in clients.iter() {
-                if id == from || client.protocol != protocol {
+                // A client whose writer failed gets nothing more (its reader still relays).
+                if id == from || client.protocol != protocol || client.queue.is_closed() {
                     continue;
                 }
                 if client.bridge || client.backlog.reserve(chunk.len(), max) {
@@ -579,7 +605,7 @@ impl State {
         for (client, backlog, queue) in full {
             if backlog.wait_for_room(chunk.len(), max, deadline).await {
                 let _ = queue.send(chunk.clone());
-            } else if self.remove(client) {
+            } else if !backlog.is_closed() && self.remove(client) {
                 self.slow_clients.fetch_add(1, Ordering::Relaxed);
                 self.event(HubEvent::SlowClient { client, queued: backlog.queued() });
             }
@@ -731,9 +757,10 @@ impl Hub {
     /// is no stray connection) nor evicted from a full hub. It leaves when the stream ends or
     /// fails ([`HubEvent::Disconnected`]).
     pub fn attach(&mut self, stream: impl ByteStream, name: &str) -> ClientId {
-        let (id, queue, backlog) = self.state.add_client(Framing::GridConnect, false);
+        let client = self.state.add_client(Framing::GridConnect, false);
+        let id = client.id;
         self.state.event(HubEvent::Attached { client: id, name: name.to_string() });
-        self._listeners.spawn(serve_link(id, crate::io::halves(stream), queue, backlog, self.state.clone()));
+        self._listeners.spawn(serve_link(client, crate::io::halves(stream), self.state.clone()));
         id
     }
 
@@ -795,23 +822,23 @@ fn start_client(tasks: &mut JoinSet<()>, socket: TcpStream, peer: SocketAddr, pr
     }
     let _ = socket.set_nodelay(true);
     let _ = crate::socket::keep_alive(&socket);
-    let (id, rx, backlog) = state.add_client(protocol, true);
+    let client = state.add_client(protocol, true);
+    let id = client.id;
     let span = tracing::info_span!("client", id, %peer, ?protocol);
     span.in_scope(|| state.event(HubEvent::Connected { client: id, peer, protocol }));
     let (reader, writer) = crate::io::tcp_halves(socket);
     let silent_timeout = state.options.silent_timeout;
-    let handles = [
-        tasks.spawn(read_client(id, reader, protocol, silent_timeout, state.clone()).instrument(span.clone())),
-        tasks.spawn(write_client(id, writer, rx, backlog, state.clone()).instrument(span)),
-    ];
+    let reading = read_client(id, reader, client.removed, protocol, silent_timeout, state.clone());
+    tasks.spawn(reading.instrument(span.clone()));
+    let writer = tasks.spawn(write_client(writer, client.queue, client.backlog).instrument(span));
     let registered = state
         .clients
         .lock()
         .ok()
-        .and_then(|mut clients| clients.get_mut(&id).map(|client| client.tasks.extend(handles.iter().cloned())));
+        .and_then(|mut clients| clients.get_mut(&id).map(|client| client.writer = Some(writer.clone())));
     if registered.is_none() {
-        // It left before its tasks were registered.
-        handles.iter().for_each(AbortHandle::abort);
+        // It left before its writer was registered.
+        writer.abort();
     }
 }
 
@@ -830,9 +857,9 @@ async fn upstream_loop(addr: String, state: Arc<State>) {
         let reason = match tokio::time::timeout(UPSTREAM_CONNECT_TIMEOUT, crate::node::dial(&addr)).await {
             Ok(Ok(socket)) => {
                 let _ = socket.set_nodelay(true);
-                let (id, queue, backlog) = state.add_client(Framing::GridConnect, false);
-                state.event(HubEvent::Attached { client: id, name: name.clone() });
-                serve_link(id, crate::io::tcp_halves(socket), queue, backlog, state.clone()).await;
+                let client = state.add_client(Framing::GridConnect, false);
+                state.event(HubEvent::Attached { client: client.id, name: name.clone() });
+                serve_link(client, crate::io::tcp_halves(socket), state.clone()).await;
                 // It was up: the next attempt starts from the shortest wait.
                 retry_in = UPSTREAM_RETRY_FIRST;
                 "the connection ended".to_string()
@@ -846,21 +873,16 @@ async fn upstream_loop(addr: String, state: Arc<State>) {
     }
 }
 
-/// Runs a link client (an attached stream, an upstream hub) until either direction ends,
-/// then removes it.
-async fn serve_link(
-    id: ClientId,
-    (reader, writer): (ByteReader, ByteWriter),
-    queue: mpsc::UnboundedReceiver<Bytes>,
-    backlog: Arc<Backlog>,
-    state: Arc<State>,
-) {
+/// Runs a link client (an attached stream, an upstream hub) until its input ends (which
+/// removes it); its writer goes with it.
+async fn serve_link(client: NewClient, (reader, writer): (ByteReader, ByteWriter), state: Arc<State>) {
+    let reading = read_client(client.id, reader, client.removed, Framing::GridConnect, None, state);
+    let writing = write_client(writer, client.queue, client.backlog);
+    tokio::pin!(reading, writing);
     tokio::select! {
-        () = read_client(id, reader, Framing::GridConnect, None, state.clone()) => {}
-        () = write_client(id, writer, queue, backlog, state.clone()) => {}
-    }
-    if state.remove(id) {
-        state.event(HubEvent::Disconnected { client: id, reason: "the link ended".to_string() });
+        () = &mut reading => {}
+        // A link that can no longer be written to still relays what it sends until it ends.
+        () = &mut writing => reading.await,
     }
 }
 
@@ -916,10 +938,12 @@ fn other_protocol(port: Framing, first: &[u8]) -> Option<&'static str> {
 
 /// Reads a client's frames, encodes each again and relays them in one chunk per read; reads
 /// nothing more while a client's full queue holds the chunk up. At the end of its input (a
-/// close or a half-close) the client is removed.
+/// close or a half-close) the client is removed; once it is `removed` by the hub, nothing
+/// more is read.
 async fn read_client(
     id: ClientId,
     mut reader: ByteReader,
+    mut removed: oneshot::Receiver<()>,
     protocol: Framing,
     silent_timeout: Option<std::time::Duration>,
     state: Arc<State>,
@@ -934,13 +958,11 @@ async fn read_client(
     let (mut heard, mut first_input, mut input_ended) = (false, true, false);
     let silent_deadline = silent_timeout.map(|t| tokio::time::Instant::now() + t);
     let reason: String = loop {
-        let read = reader.read(&mut buf);
-        let n = match silent_deadline.filter(|_| !heard) {
-            Some(at) => match tokio::time::timeout_at(at, read).await {
-                Ok(read) => read,
-                Err(_) => break "sent no frame since it connected".to_string(),
-            },
-            None => read.await,
+        let silent_until = silent_deadline.filter(|_| !heard);
+        let n = tokio::select! {
+            read = reader.read(&mut buf) => read,
+            _ = &mut removed => break "removed".to_string(),
+            () = sleep_until(silent_until) => break "sent no frame since it connected".to_string(),
         };
         let n = match n {
             Ok(0) => {
@@ -1090,16 +1112,20 @@ fn departure(error: &std::io::Error) -> String {
     }
 }
 
-/// Writes a client's queue, many chunks per `write` call.
-async fn write_client(
-    id: ClientId,
-    mut writer: ByteWriter,
-    mut queue: mpsc::UnboundedReceiver<Bytes>,
-    backlog: Arc<Backlog>,
-    state: Arc<State>,
-) {
+/// Waits until `at`, or for ever without one.
+async fn sleep_until(at: Option<Instant>) {
+    match at {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Writes a client's queue, many chunks per `write` call, until the client is removed or a
+/// write fails. Then nothing more is queued for it; its reader goes on until its input ends
+/// (what it sent before its connection broke still reaches everyone).
+async fn write_client(mut writer: ByteWriter, mut queue: mpsc::UnboundedReceiver<Bytes>, backlog: Arc<Backlog>) {
     let mut batch = Vec::new();
-    let reason = loop {
+    let failure = loop {
         let Some(first) = queue.recv().await else { break None };
         batch.extend_from_slice(&first);
         while batch.len() < WRITE_BATCH {
@@ -1108,14 +1134,15 @@ async fn write_client(
         }
         backlog.take(batch.len());
         if let Err(error) = writer.write_all(&batch).await {
-            break Some(departure(&error));
+            break Some(error);
         }
         batch.clear();
         // Memory goes back when a burst is over.
         batch.shrink_to(WRITE_BATCH);
     };
-    if state.remove(id) {
-        let reason = reason.unwrap_or_else(|| "queue closed".to_string());
-        state.event(HubEvent::Disconnected { client: id, reason });
+    queue.close();
+    backlog.close();
+    if let Some(error) = failure {
+        tracing::debug!(%error, "writing to the client failed; it gets nothing more");
     }
 }

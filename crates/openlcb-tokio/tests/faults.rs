@@ -748,3 +748,43 @@ async fn a_half_closed_client_is_removed_and_gets_no_more_frames() {
     bounded("the close", half.read_to_end(&mut rest)).await.unwrap();
     assert!(rest.is_empty(), "a half-closed client got {:?}", String::from_utf8_lossy(&rest));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frames_read_from_a_client_whose_connection_broke_still_reach_a_slow_listener() {
+    let mut options = HubOptions::default();
+    options.max_queued_bytes = 4 * 1024;
+    options.silent_timeout = None;
+    let hub = bounded("binding the hub", Hub::bind("127.0.0.1:0", None, options)).await.unwrap();
+    let addr = hub.local_addr();
+    // The listener reads nothing for now: the hub holds the sender's frames up for it.
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let mut listener = bounded("connecting", socket.connect(addr)).await.unwrap();
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_send_buffer_size(256 * 1024).unwrap();
+    let mut sender = bounded("connecting", socket.connect(addr)).await.unwrap();
+    until_clients(&hub, 2).await;
+    // More than the listener's socket buffers and queue take, less than they and the sender's
+    // send buffer and the hub's receive buffer take: all written, much of it held up.
+    const SENT: usize = 8000;
+    bounded("sending", sender.write_all(&FRAME.repeat(SENT))).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    assert!(hub.stats().frames < SENT as u64, "the hub did not hold the sender up: {:?}", hub.stats());
+    // The sender goes while its frames are held up; the listener's frames make the hub write
+    // to the closed connection until that fails.
+    drop(sender);
+    for _ in 0..20 {
+        listener.write_all(FRAME).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    // Now the listener reads: every frame the hub read from the sender reaches it, once (what
+    // the sender's own kernel still held when its socket was reset never left it).
+    let mut heard = 0;
+    let mut buf = vec![0u8; 16 * 1024];
+    while let Ok(Ok(n @ 1..)) = tokio::time::timeout(Duration::from_secs(2), listener.read(&mut buf)).await {
+        heard += buf[..n].iter().filter(|&&b| b == b';').count() as u64;
+    }
+    until_clients(&hub, 1).await;
+    assert_eq!(heard, hub.stats().frames - 20, "{:?}", hub.stats());
+    assert_eq!(hub.stats().slow_clients, 0, "{:?}", hub.stats());
+}
