@@ -33,7 +33,7 @@ pub(crate) struct DemoArgs {
 }
 
 pub(crate) fn run(args: &DemoArgs) -> Result<ExitCode, String> {
-    net::server_runtime()?.block_on(demo(args))
+    net::runtime()?.block_on(demo(args))
 }
 
 /// Deterministic, incompressible-looking test data (xorshift64*).

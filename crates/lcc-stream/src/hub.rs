@@ -90,7 +90,7 @@ pub(crate) struct HubArgs {
 }
 
 pub(crate) fn run(args: &HubArgs) -> Result<ExitCode, String> {
-    net::server_runtime()?.block_on(serve(args))
+    net::runtime()?.block_on(serve(args))
 }
 
 async fn serve(args: &HubArgs) -> Result<ExitCode, String> {

@@ -392,18 +392,8 @@ pub(crate) fn snip(command: &str) -> openlcb_tokio::SnipInfo {
     }
 }
 
-/// The runtime of a subcommand that is one node (or a few) on one connection: one thread.
-/// Every message then costs no wake-up of another thread, and the CPU is left to the peers:
-/// a firmware upgrade by datagrams into OpenMRN's Bootloader on the same 2-core machine made
-/// 9 194 futex calls for its 3 125 datagrams on the multi-threaded runtime and 14 on this
-/// one (`strace -f -c`).
+/// A multi-threaded runtime for one subcommand.
 pub(crate) fn runtime() -> Result<tokio::runtime::Runtime, String> {
-    tokio::runtime::Builder::new_current_thread().enable_all().build().map_err(|e| format!("cannot start tokio: {e}"))
-}
-
-/// The runtime of a subcommand that serves many connections at once (`hub`, `ui`, `demo`'s
-/// hub and two nodes in one process): a thread per core.
-pub(crate) fn server_runtime() -> Result<tokio::runtime::Runtime, String> {
     tokio::runtime::Builder::new_multi_thread().enable_all().build().map_err(|e| format!("cannot start tokio: {e}"))
 }
 

@@ -191,7 +191,7 @@ fn same_secret(a: &[u8], b: &[u8]) -> bool {
 }
 
 pub(crate) fn run(args: &UiArgs) -> Result<ExitCode, String> {
-    net::server_runtime()?.block_on(serve(args))
+    net::runtime()?.block_on(serve(args))
 }
 
 async fn serve(args: &UiArgs) -> Result<ExitCode, String> {
