@@ -47,6 +47,7 @@ fn permitted_link() -> CanLink {
         reassembly_slots: 2,
         max_message_len: 32,
         transmit_queue_limit: 8,
+        unresolved_limit: 4,
         frame_queue_limit: 4,
         datagram_slots: 2,
         ..CanConfig::default()

@@ -98,6 +98,10 @@ pub struct CanConfig {
     /// Messages accepted by [`CanLink::send`] and not yet framed (including those waiting
     /// for an alias). More are refused with [`SendError::QueueFull`].
     pub transmit_queue_limit: usize,
+    /// Of those, the messages that may wait for their destination's alias at once (an AME
+    /// out for it); more are refused with [`SendError::QueueFull`]. A board that answers
+    /// tools, which it hears from first, needs few.
+    pub unresolved_limit: usize,
     /// Frames the link itself queues (AME, OIR, Datagram Rejected, and
     /// Initialization Complete after a re-login, first into the queue emptied with the old
     /// alias); more are dropped and counted.
@@ -122,6 +126,7 @@ impl Default for CanConfig {
             reassembly_timeout: Duration::from_secs(3),
             reject_reassembly_errors: true,
             transmit_queue_limit: 64,
+            unresolved_limit: 64,
             frame_queue_limit: 16,
             resolve_timeout: Duration::from_secs(1),
             newcomer_window: Duration::from_millis(500),
@@ -345,7 +350,7 @@ impl CanLink {
             stream_control: Queue::new(),
             current: None,
             current_control: None,
-            unresolved: Queue::with_capacity(config.transmit_queue_limit),
+            unresolved: Queue::with_capacity(config.unresolved_limit.min(config.transmit_queue_limit)),
             permitted_at: now,
             last_duplicate: None,
             leaving: false,
@@ -482,6 +487,9 @@ impl CanLink {
             return Err(SendError::QueueFull);
         }
         let resolved = destination.map(|node| self.alias_for(node)).transpose();
+        if resolved.is_err() && self.unresolved.len() >= self.config.unresolved_limit {
+            return Err(SendError::QueueFull);
+        }
         let mut outgoing = Outgoing::new(message, None);
         match resolved {
             Ok(alias) => {
@@ -490,8 +498,8 @@ impl CanLink {
             }
             Err(deadline) => {
                 outgoing.deadline = deadline;
-                // Never refused: `can_send` found the queues together below the limit.
-                self.unresolved.push_within(self.config.transmit_queue_limit, outgoing);
+                // Never refused: the queues together and this one are below their limits.
+                self.unresolved.push_within(self.config.unresolved_limit, outgoing);
             }
         }
         if resolved.is_err() {

@@ -143,6 +143,26 @@ fn unknown_destination_is_resolved_with_ame() {
 }
 
 #[test]
+fn messages_waiting_for_an_alias_are_bounded_on_their_own() {
+    let mut can = can_config(0x123);
+    can.unresolved_limit = 1;
+    let mut solo = Solo::permitted_with(can);
+    let to = |id| Message::addressed(Mti::VERIFY_NODE_ID_ADDRESSED, node_id(A_ID), node_id(id), Vec::new());
+    solo.node.link.send(solo.now, to(C_ID)).unwrap();
+    assert_eq!(solo.sent(), [":X10702123N050101012202;"], "AME for C");
+    // A second unknown destination finds the waiting room full; a known one is sent.
+    assert_eq!(solo.node.link.send(solo.now, to(B_ID)), Err(SendError::QueueFull));
+    assert_eq!(solo.node.link.stats().send_refused, 1);
+    solo.inject(&[":X10701456N050101012201;"]);
+    solo.node.link.send(solo.now, to(B_ID)).unwrap();
+    assert_eq!(solo.sent(), [":X19488123N0456;"]);
+    // C answers: its message goes, and the room is free again.
+    assert_eq!(solo.inject(&[":X10701789N050101012202;"]), [":X19488123N0789;"]);
+    solo.node.link.send(solo.now, to(0x05_01_01_01_22_03)).unwrap();
+    assert_eq!(solo.sent(), [":X10702123N050101012203;"]);
+}
+
+#[test]
 fn unknown_destination_times_out_as_unreachable() {
     let mut solo = Solo::permitted();
     let msg = Message::addressed(Mti::VERIFY_NODE_ID_ADDRESSED, node_id(A_ID), node_id(C_ID), Vec::new());

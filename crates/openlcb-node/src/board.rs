@@ -141,29 +141,154 @@ impl EventSetting {
     }
 }
 
-/// `text` in `size` bytes: cut at a character boundary to leave room for a NUL, NUL-padded.
-fn padded(text: &str, size: u32) -> Vec<u8> {
+/// Appends `text` in `size` bytes: cut at a character boundary to leave room for a NUL,
+/// NUL-padded.
+fn push_padded(out: &mut Vec<u8>, text: &str, size: u32) {
     let room = (size as usize).saturating_sub(1);
     let mut end = text.len().min(room);
     while !text.is_char_boundary(end) {
         end -= 1;
     }
-    let mut bytes = alloc::vec![0u8; size as usize];
-    if let Some(into) = bytes.get_mut(..end) {
-        into.copy_from_slice(text.as_bytes().get(..end).unwrap_or_default());
-    }
+    out.extend_from_slice(text.as_bytes().get(..end).unwrap_or_default());
+    out.resize(out.len() + size as usize - end, 0);
+}
+
+/// `text` in `size` bytes, as [`push_padded`] lays it out.
+fn padded(text: &str, size: u32) -> Vec<u8> {
+    let mut bytes = Vec::with_capacity(size as usize);
+    push_padded(&mut bytes, text, size);
     bytes
+}
+
+/// Where the builder's XML goes: every byte is counted, and those from `from` on are kept, up
+/// to `limit` of them. The whole CDI ([`BoardBuilder::finish`]) keeps all from 0; a read of
+/// a [`CdiSpace`] keeps the bytes it asks for; a layout keeps none.
+#[derive(Debug)]
+struct Sink {
+    at: u32,
+    from: u32,
+    limit: usize,
+    out: Vec<u8>,
+}
+
+impl Sink {
+    /// Keeps everything.
+    fn whole() -> Self {
+        Sink { at: 0, from: 0, limit: usize::MAX, out: Vec::new() }
+    }
+
+    /// Keeps up to `limit` bytes from `from`.
+    fn window(from: u32, limit: usize) -> Self {
+        Sink { at: 0, from, limit, out: Vec::with_capacity(limit) }
+    }
+
+    fn push(&mut self, bytes: &[u8]) {
+        let skip = self.from.saturating_sub(self.at) as usize;
+        if let Some(tail) = bytes.get(skip..) {
+            let room = self.limit - self.out.len();
+            self.out.extend_from_slice(tail.get(..room.min(tail.len())).unwrap_or_default());
+        }
+        self.at = self.at.saturating_add(bytes.len() as u32);
+    }
+
+    fn push_str(&mut self, text: &str) {
+        self.push(text.as_bytes());
+    }
+
+    /// Character data, escaped (the markup characters are ASCII: what lies between them is
+    /// whole characters).
+    fn push_escaped(&mut self, text: &str) {
+        let bytes = text.as_bytes();
+        let mut plain = 0;
+        for (i, byte) in bytes.iter().enumerate() {
+            let escape = match byte {
+                b'&' => "&amp;",
+                b'<' => "&lt;",
+                b'>' => "&gt;",
+                _ => continue,
+            };
+            self.push(bytes.get(plain..i).unwrap_or_default());
+            self.push_str(escape);
+            plain = i + 1;
+        }
+        self.push(bytes.get(plain..).unwrap_or_default());
+    }
+
+    /// `value` in decimal, by subtracting powers of ten: no formatting machinery and no 64-bit
+    /// division, which a Cortex-M0 does in library code (about 2 KiB of flash between them).
+    fn push_decimal(&mut self, mut value: u64) {
+        let mut started = false;
+        let mut power = 1u64;
+        let powers: [u64; 20] = core::array::from_fn(|_| {
+            let this = power;
+            power = power.wrapping_mul(10);
+            this
+        });
+        for (i, power) in powers.iter().enumerate().rev() {
+            let mut digit = b'0';
+            while value >= *power {
+                value -= power;
+                digit += 1;
+            }
+            if digit != b'0' || started || i == 0 {
+                started = true;
+                self.push(&[digit]);
+            }
+        }
+    }
+
+    /// The CDI before the configuration segment: the identification (from `snip`), the ACDI,
+    /// the user name and description.
+    fn push_prologue(&mut self, snip: &SnipInfo) {
+        self.push_str(
+            "<?xml version=\"1.0\" encoding=\"utf-8\"?>\n<cdi xmlns:xsi=\"http://www.w3.org/2001/XMLSchema-instance\" \
+             xsi:noNamespaceSchemaLocation=\"http://openlcb.org/schema/cdi/1/4/cdi.xsd\">\n<identification>",
+        );
+        for (tag, value) in [
+            ("manufacturer", &snip.manufacturer),
+            ("model", &snip.model),
+            ("hardwareVersion", &snip.hardware_version),
+            ("softwareVersion", &snip.software_version),
+        ] {
+            for piece in ["<", tag, ">"] {
+                self.push_str(piece);
+            }
+            self.push_escaped(value);
+            for piece in ["</", tag, ">"] {
+                self.push_str(piece);
+            }
+        }
+        self.push_str(
+            "</identification>\n<acdi/>\n<segment space=\"251\" origin=\"1\"><name>User identification</name>\
+             <string size=\"63\"><name>User name</name></string>\
+             <string size=\"64\"><name>User description</name></string></segment>\n",
+        );
+    }
+
+    /// The start of the configuration segment, named `name`.
+    fn push_segment(&mut self, name: &str) {
+        self.push_str("<segment space=\"253\" origin=\"0\"><name>");
+        self.push_escaped(name);
+        self.push_str("</name>\n");
+    }
+
+    /// The CDI after the last setting.
+    fn push_epilogue(&mut self) {
+        self.push_str("</segment>\n</cdi>\n");
+    }
 }
 
 /// Writes the settings of the configuration segment (and of a group, inside it) and works
 /// out their addresses.
 #[derive(Debug)]
 pub struct BoardBuilder {
-    xml: String,
+    xml: Sink,
     address: u32,
-    /// The factory value of each setting that has one: its address and bytes.
-    defaults: Vec<(u32, Vec<u8>)>,
+    /// The factory value of every byte of the settings so far (they lie end to end from 0).
+    defaults: Vec<u8>,
     events: Vec<(EventSetting, EventRole)>,
+    /// Only the XML is wanted (a [`CdiSpace`] read): no defaults or events are kept.
+    render_only: bool,
     /// While a group's second and later replications are laid out, their XML is not written.
     quiet: bool,
 }
@@ -171,11 +296,9 @@ pub struct BoardBuilder {
 impl BoardBuilder {
     /// The configuration segment (space 0xFD from address 0), named `name` in the CDI.
     pub fn new(name: &str) -> Self {
-        let mut xml = String::new();
-        xml.push_str("<segment space=\"253\" origin=\"0\"><name>");
-        push_escaped(&mut xml, name);
-        xml.push_str("</name>\n");
-        BoardBuilder { xml, address: 0, defaults: Vec::new(), events: Vec::new(), quiet: false }
+        let mut xml = Sink::whole();
+        xml.push_segment(name);
+        BoardBuilder { xml, address: 0, defaults: Vec::new(), events: Vec::new(), render_only: false, quiet: false }
     }
 
     /// Writes `pieces` in turn, each markup to copy, text to escape or a number. Nothing while
@@ -187,10 +310,18 @@ impl BoardBuilder {
         for piece in pieces {
             match piece {
                 Xml::Markup(markup) => self.xml.push_str(markup),
-                Xml::Text(text) => push_escaped(&mut self.xml, text),
-                Xml::Number(value) => push_decimal(&mut self.xml, *value),
+                Xml::Text(text) => self.xml.push_escaped(text),
+                Xml::Number(value) => self.xml.push_decimal(*value),
             }
         }
+    }
+
+    /// Moves on past a setting of `size` bytes whose factory value `default` lays out.
+    fn advance(&mut self, size: u32, default: impl FnOnce(&mut Vec<u8>)) {
+        if !self.render_only {
+            default(&mut self.defaults);
+        }
+        self.address += size;
     }
 
     /// An integer of `size` bytes (1, 2, 4 or 8) with its factory value and, if not empty, a
@@ -218,9 +349,9 @@ impl BoardBuilder {
         }
         self.element(&[Markup("</int>\n")]);
         let setting = IntSetting { address: self.address, size };
-        let bytes = default.to_be_bytes();
-        self.defaults.push((self.address, bytes.get(8 - usize::from(size)..).unwrap_or_default().to_vec()));
-        self.address += u32::from(size);
+        self.advance(size.into(), |defaults| {
+            defaults.extend_from_slice(default.to_be_bytes().get(8 - usize::from(size)..).unwrap_or_default())
+        });
         setting
     }
 
@@ -235,8 +366,7 @@ impl BoardBuilder {
             Markup("</name></string>\n"),
         ]);
         let setting = StringSetting { address: self.address, size };
-        self.defaults.push((self.address, padded(default, size)));
-        self.address += size;
+        self.advance(size, |defaults| push_padded(defaults, default, size));
         setting
     }
 
@@ -244,9 +374,10 @@ impl BoardBuilder {
     pub fn event(&mut self, name: &str, role: EventRole, default: EventId) -> EventSetting {
         self.element(&[Xml::Markup("<eventid><name>"), Xml::Text(name), Xml::Markup("</name></eventid>\n")]);
         let setting = EventSetting { address: self.address };
-        self.defaults.push((self.address, default.to_bytes().to_vec()));
-        self.events.push((setting, role));
-        self.address += 8;
+        if !self.render_only {
+            self.events.push((setting, role));
+        }
+        self.advance(8, |defaults| defaults.extend_from_slice(&default.to_bytes()));
         setting
     }
 
@@ -302,32 +433,12 @@ impl BoardBuilder {
     /// The board: the whole CDI (identification from `snip`, ACDI, the user name and
     /// description, this segment), its size and defaults.
     pub fn finish(self, snip: &SnipInfo) -> Board {
-        let mut cdi = String::with_capacity(self.xml.len() + 600);
-        cdi.push_str(
-            "<?xml version=\"1.0\" encoding=\"utf-8\"?>\n<cdi xmlns:xsi=\"http://www.w3.org/2001/XMLSchema-instance\" \
-             xsi:noNamespaceSchemaLocation=\"http://openlcb.org/schema/cdi/1/4/cdi.xsd\">\n<identification>",
-        );
-        for (tag, value) in [
-            ("manufacturer", &snip.manufacturer),
-            ("model", &snip.model),
-            ("hardwareVersion", &snip.hardware_version),
-            ("softwareVersion", &snip.software_version),
-        ] {
-            for piece in ["<", tag, ">"] {
-                cdi.push_str(piece);
-            }
-            push_escaped(&mut cdi, value);
-            for piece in ["</", tag, ">"] {
-                cdi.push_str(piece);
-            }
-        }
-        cdi.push_str(
-            "</identification>\n<acdi/>\n<segment space=\"251\" origin=\"1\"><name>User identification</name>\
-             <string size=\"63\"><name>User name</name></string>\
-             <string size=\"64\"><name>User description</name></string></segment>\n",
-        );
-        cdi.push_str(&self.xml);
-        cdi.push_str("</segment>\n</cdi>\n");
+        let mut cdi = Sink::whole();
+        cdi.push_prologue(snip);
+        cdi.push(&self.xml.out);
+        cdi.push_epilogue();
+        // Every piece was a `str`: the bytes are UTF-8.
+        let cdi = String::from_utf8(cdi.out).unwrap_or_default();
         Board { cdi, len: self.address, defaults: self.defaults, events: self.events }
     }
 }
@@ -342,60 +453,49 @@ enum Xml<'a> {
     Number(u64),
 }
 
-/// Appends `text` as XML character data.
-fn push_escaped(out: &mut String, text: &str) {
-    for c in text.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            _ => out.push(c),
-        }
-    }
-}
-
-/// Appends `value` in decimal, by subtracting powers of ten: no formatting machinery and no
-/// 64-bit division, which a Cortex-M0 does in library code (about 2 KiB of flash between them).
-fn push_decimal(out: &mut String, mut value: u64) {
-    let mut started = false;
-    let mut power = 1u64;
-    let powers: [u64; 20] = core::array::from_fn(|_| {
-        let this = power;
-        power = power.wrapping_mul(10);
-        this
-    });
-    for (i, power) in powers.iter().enumerate().rev() {
-        let mut digit = b'0';
-        while value >= *power {
-            value -= power;
-            digit += 1;
-        }
-        if digit != b'0' || started || i == 0 {
-            started = true;
-            out.push(char::from(digit));
-        }
-    }
-}
-
 /// A board's configuration: its CDI, the size of its space 0xFD, its defaults and its event
-/// settings ([`BoardBuilder::finish`]).
+/// settings ([`BoardBuilder::finish`], or [`Board::declare`] with no CDI kept).
 #[derive(Debug, Clone)]
 pub struct Board {
     cdi: String,
     len: u32,
-    defaults: Vec<(u32, Vec<u8>)>,
+    defaults: Vec<u8>,
     events: Vec<(EventSetting, EventRole)>,
 }
 
 impl Board {
+    /// A board declared by `declare` (its settings in space 0xFD, named `name` in the CDI),
+    /// for a firmware: the board and the handles `declare` returns, and its CDI as a space
+    /// that renders the XML on demand ([`CdiSpace`]), so that neither RAM nor flash holds it.
+    /// The board's [`cdi`](Self::cdi) is empty.
+    pub fn declare<T>(
+        name: &'static str,
+        snip: &SnipInfo,
+        declare: fn(&mut BoardBuilder) -> T,
+    ) -> (Board, T, CdiSpace<T>) {
+        let mut builder = BoardBuilder {
+            xml: Sink::window(u32::MAX, 0),
+            address: 0,
+            defaults: Vec::new(),
+            events: Vec::new(),
+            render_only: false,
+            quiet: true,
+        };
+        let handles = declare(&mut builder);
+        let board =
+            Board { cdi: String::new(), len: builder.address, defaults: builder.defaults, events: builder.events };
+        let mut space = CdiSpace { name, snip: snip.clone(), declare, len: 0 };
+        space.len = space.render(u32::MAX, 0).0;
+        (board, handles, space)
+    }
+
     /// The CDI XML (serve it as space 0xFF: [`ReadOnlySpace::cdi`](crate::ReadOnlySpace::cdi)).
     pub fn cdi(&self) -> &str {
         &self.cdi
     }
 
-    /// Moves the CDI out, as the content of space 0xFF, without a copy: a firmware's RAM
-    /// holds it once (the Memory Configuration server's space). [`cdi`](Self::cdi) is empty
-    /// afterwards; the settings, defaults and events are kept.
+    /// Moves the CDI out, as the content of space 0xFF, without a copy. [`cdi`](Self::cdi)
+    /// is empty afterwards; the settings, defaults and events are kept.
     pub fn take_cdi_space(&mut self) -> crate::ReadOnlySpace {
         let mut bytes = core::mem::take(&mut self.cdi).into_bytes();
         bytes.reserve_exact(1);
@@ -416,9 +516,7 @@ impl Board {
 
     /// Writes every setting's factory value (a Factory Reset), then commits the space.
     pub fn factory_reset(&self, space: &mut (impl MemorySpace + ?Sized)) -> Result<(), SpaceError> {
-        for (address, bytes) in &self.defaults {
-            space.write(*address, bytes)?;
-        }
+        space.write(0, &self.defaults)?;
         space.commit()
     }
 
@@ -438,5 +536,61 @@ impl Board {
             }
         }
         events
+    }
+}
+
+/// The CDI of a board declared with [`Board::declare`], as space 0xFF: each read runs the
+/// declaration again and keeps only the bytes it asks for. Neither RAM nor flash holds the
+/// XML (a few KiB on a board); a read costs the time to write the CDI up to its end, once.
+/// The bytes are those [`BoardBuilder::finish`] writes for the same declaration, then the
+/// NUL that ends a CDI (CDI §5.1).
+pub struct CdiSpace<T> {
+    name: &'static str,
+    snip: SnipInfo,
+    declare: fn(&mut BoardBuilder) -> T,
+    len: u32,
+}
+
+impl<T> core::fmt::Debug for CdiSpace<T> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("CdiSpace").field("name", &self.name).field("len", &self.len).finish_non_exhaustive()
+    }
+}
+
+impl<T> CdiSpace<T> {
+    /// Writes the whole CDI and its NUL, keeping up to `want` bytes from `from`: the length
+    /// of it all and the bytes kept.
+    fn render(&self, from: u32, want: usize) -> (u32, Vec<u8>) {
+        let mut xml = Sink::window(from, want);
+        xml.push_prologue(&self.snip);
+        xml.push_segment(self.name);
+        let mut builder =
+            BoardBuilder { xml, address: 0, defaults: Vec::new(), events: Vec::new(), render_only: true, quiet: false };
+        (self.declare)(&mut builder);
+        builder.xml.push_epilogue();
+        builder.xml.push(&[0]);
+        (builder.xml.at, builder.xml.out)
+    }
+}
+
+impl<T> MemorySpace for CdiSpace<T> {
+    fn len(&self) -> u32 {
+        self.len
+    }
+
+    fn read_only(&self) -> bool {
+        true
+    }
+
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        if address > self.len {
+            return Err(SpaceError::OutOfBounds);
+        }
+        let (_, bytes) = self.render(address, buf.len());
+        Ok(crate::memconfig::copy_prefix(buf, &bytes))
+    }
+
+    fn write(&mut self, _address: u32, _data: &[u8]) -> Result<(), SpaceError> {
+        Err(SpaceError::ReadOnly)
     }
 }

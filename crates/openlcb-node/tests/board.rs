@@ -3,7 +3,7 @@
 //! the events a board declares follow what its space holds.
 
 use openlcb_cdi::{EntryKind, Layout};
-use openlcb_node::board::{BoardBuilder, EventRole, EventSetting, IntSetting, StringSetting};
+use openlcb_node::board::{Board, BoardBuilder, EventRole, EventSetting, IntSetting, StringSetting};
 use openlcb_node::{MemorySpace, RamSpace, SnipInfo};
 use openlcb_stream::EventId;
 
@@ -14,8 +14,8 @@ struct Line {
     off: EventSetting,
 }
 
-fn board() -> (openlcb_node::board::Board, StringSetting, IntSetting, Vec<Line>) {
-    let mut config = BoardBuilder::new("I/O <board>");
+/// The settings of the test board (as a firmware declares them: a function).
+fn settings(config: &mut BoardBuilder) -> (StringSetting, IntSetting, Vec<Line>) {
     let name = config.string("Board name", 24, "yard & mainline");
     let delay = config.int("Debounce (ms)", 2, 20, &[]);
     let lines = config.group("Line", 8, |g, i| Line {
@@ -32,8 +32,17 @@ fn board() -> (openlcb_node::board::Board, StringSetting, IntSetting, Vec<Line>)
             EventId(0x0501_0101_2260_0001 + 2 * u64::from(i)),
         ),
     });
-    let snip = SnipInfo { manufacturer: "Acme".into(), model: "IO-8".into(), ..SnipInfo::default() };
-    (config.finish(&snip), name, delay, lines)
+    (name, delay, lines)
+}
+
+fn snip() -> SnipInfo {
+    SnipInfo { manufacturer: "Acme <&>".into(), model: "IO-8".into(), ..SnipInfo::default() }
+}
+
+fn board() -> (Board, StringSetting, IntSetting, Vec<Line>) {
+    let mut config = BoardBuilder::new("I/O <board>");
+    let (name, delay, lines) = settings(&mut config);
+    (config.finish(&snip()), name, delay, lines)
 }
 
 #[test]
@@ -52,7 +61,7 @@ fn the_cdi_a_tool_reads_puts_every_setting_where_its_handle_is() {
     let mode = layout.find("I/O <board>.Line(0).Mode").next().unwrap();
     assert!(matches!(mode.kind, EntryKind::Int { default: Some(0), .. }));
     assert_eq!(board.len(), 24 + 2 + 8 * (16 + 1 + 8 + 8));
-    assert!(board.cdi().contains("<manufacturer>Acme</manufacturer><model>IO-8</model>"));
+    assert!(board.cdi().contains("<manufacturer>Acme &lt;&amp;&gt;</manufacturer><model>IO-8</model>"));
 }
 
 #[test]
@@ -100,4 +109,39 @@ fn a_numbered_group_labels_its_copies_on_from_the_first_number() {
     assert_eq!(labels, ["F0", "F1", "F2", "F3", "Function key"]);
     let third = layout.find("Train.Function key(2).Name").next().expect("the third key");
     assert_eq!(third.address, keys[2].address());
+}
+
+#[test]
+fn a_declared_board_renders_on_each_read_the_cdi_its_builder_writes() {
+    let (built, name, delay, lines) = board();
+    let (declared, (name2, delay2, lines2), mut space) = Board::declare("I/O <board>", &snip(), settings);
+    assert_eq!(declared.cdi(), "", "a declared board keeps no CDI");
+    assert_eq!((name2, delay2), (name, delay));
+    assert!(lines2.iter().zip(&lines).all(|(a, b)| a.on == b.on && a.off == b.off && a.mode == b.mode));
+    assert_eq!(declared.len(), built.len());
+    let mut whole = built.cdi().as_bytes().to_vec();
+    whole.push(0);
+    assert_eq!(space.len() as usize, whole.len());
+    assert!(space.read_only());
+    for chunk in [1, 7, 64, 1000, whole.len() + 10] {
+        let mut read = Vec::new();
+        let mut at = 0;
+        while at < space.len() {
+            let mut buf = vec![0u8; chunk];
+            let n = space.read(at, &mut buf).unwrap();
+            assert!(n > 0, "a read inside the space returns bytes");
+            read.extend_from_slice(&buf[..n]);
+            at += n as u32;
+        }
+        assert_eq!(read, whole, "read in chunks of {chunk}");
+    }
+    assert_eq!(space.read(space.len(), &mut [0u8; 4]).unwrap(), 0, "at the end: nothing");
+    assert!(space.read(space.len() + 1, &mut [0u8; 4]).is_err(), "past the end: out of bounds");
+    assert!(space.write(0, b"x").is_err(), "the CDI is read-only");
+    // The declared board's layout is the built one's: the same defaults and events.
+    let (mut a, mut b) = (RamSpace::new(built.len()), RamSpace::new(declared.len()));
+    built.factory_reset(&mut a).unwrap();
+    declared.factory_reset(&mut b).unwrap();
+    assert_eq!(a.as_bytes(), b.as_bytes());
+    assert_eq!(built.events(&mut a), declared.events(&mut b));
 }

@@ -20,16 +20,18 @@
 extern crate alloc;
 
 mod flash;
+mod mem;
 mod nrf51;
 mod ram;
 mod serial_can;
 
 use alloc::vec::Vec;
+use core::mem::MaybeUninit;
 
 use cortex_m_rt::{ExceptionFrame, entry, exception};
 use openlcb_can::{CanConfig, CanLink};
 use openlcb_embedded::Driver;
-use openlcb_node::board::{Board, BoardBuilder, EventRole, EventSetting};
+use openlcb_node::board::{Board, BoardBuilder, CdiSpace, EventRole, EventSetting};
 use openlcb_node::{EventNotice, MemoryEvent, MemoryServer, MemorySpace, Node, NodeConfig, NodeEvent, SnipInfo};
 use openlcb_stream::{EventId, NodeId};
 
@@ -46,25 +48,28 @@ struct Line {
 }
 
 /// The configuration: a name, and per line a name, a mode and two events (lines 1-4 inputs,
-/// 5-8 outputs), the factory events the Node ID's, two a line.
-fn declare() -> (Board, Vec<Line>, SnipInfo) {
-    let mut config = BoardBuilder::new("I/O board");
+/// 5-8 outputs), the factory events the Node ID's, two a line. A function, so that the CDI
+/// space can run it again for each read ([`Board::declare`]).
+fn settings(config: &mut BoardBuilder) -> Vec<Line> {
     config.string("Board name", 16, "");
-    let lines = config.group("Line", 8, |g, i| {
+    config.group("Line", 8, |g, i| {
         let (role, mode) = if i < 4 { (EventRole::Produced, 0) } else { (EventRole::Consumed, 1) };
         g.string("Name", 8, "");
         g.int("Mode", 1, mode, &[(0, "Input"), (1, "Output")]);
         let event = |k| EventId(NODE_ID << 16 | u64::from(2 * i + k));
         Line { on: g.event("Event On", role, event(0)), off: g.event("Event Off", role, event(1)) }
-    });
-    let snip = SnipInfo {
+    })
+}
+
+/// What the node says about itself.
+fn snip() -> SnipInfo {
+    SnipInfo {
         manufacturer: "openlcb-stream".into(),
         model: "Cortex-M0 I/O board".into(),
         hardware_version: "QEMU microbit".into(),
         software_version: env!("CARGO_PKG_VERSION").into(),
         ..Default::default()
-    };
-    (config.finish(&snip), lines, snip)
+    }
 }
 
 /// The configuration space of a running node.
@@ -91,27 +96,28 @@ fn act_on(lines: &[Line], space: &mut (dyn MemorySpace + Send), event: EventId) 
 
 /// The CAN link's tables, sized for a board that answers tools and talks to few peers (the
 /// defaults suit a PC tool): aliases of 16 peers, 4 messages reassembled at once of up to a
-/// datagram's 72 bytes, 8 messages and 8 frames queued, 2 datagrams in flight.
+/// datagram's 72 bytes, 8 messages queued (2 of them waiting for an alias) and 8 frames, 2
+/// datagrams in flight.
 fn can_config() -> CanConfig {
     let mut config = CanConfig::default();
     config.alias_cache_size = 16;
     config.reassembly_slots = 4;
     config.max_message_len = 72;
     config.transmit_queue_limit = 8;
+    config.unresolved_limit = 2;
     config.frame_queue_limit = 8;
     config.datagram_slots = 2;
     config
 }
 
-/// The node: its configuration space loaded (or its defaults written), its tables sized, its
-/// memory spaces.
-fn build_node(id: NodeId, board: &mut Board, snip: SnipInfo) -> Node {
-    let (mut config, found) = ConfigSpace::load(board.len());
-    if !found && board.factory_reset(&mut config).is_err() {
-        fail("factory reset");
-    }
+/// The board's driver: the CAN link on the UART's GridConnect bus, timed by TIMER0.
+type BoardDriver = Driver<serial_can::SerialCan, nrf51::Clock>;
+
+/// The node's configuration: its events as the configuration space holds them, what it says
+/// about itself, its tables sized.
+fn node_config(board: &Board, config: &mut ConfigSpace, snip: SnipInfo) -> NodeConfig {
     let mut node_config = NodeConfig::default();
-    node_config.events = board.events(&mut config);
+    node_config.events = board.events(config);
     node_config.snip = snip;
     // The node's tables, sized for a board (the defaults suit a PC tool): 2 datagrams of its
     // own queued and 2 awaiting the application's answer, 1 SNIP request of its own. It has
@@ -121,12 +127,33 @@ fn build_node(id: NodeId, board: &mut Board, snip: SnipInfo) -> Node {
     node_config.datagrams.max_awaiting_answer = 2;
     node_config.max_snip_requests = 1;
     node_config.transmit_queue_limit = 16;
-    let server = MemoryServer::new()
-        .with_space(0xFF, board.take_cdi_space())
+    node_config
+}
+
+/// The memory spaces: the CDI, the configuration, the firmware image, the ACDI.
+#[inline(never)]
+fn memory_server(cdi: CdiSpace<Vec<Line>>, config: ConfigSpace) -> MemoryServer {
+    MemoryServer::new()
+        .with_space(0xFF, cdi)
         .with_space(0xFD, config)
         .with_space(0xEF, FirmwareSpace::new())
-        .with_acdi();
-    Node::new(id, node_config).with_memory_server(server)
+        .with_acdi()
+}
+
+/// The node, its configuration space loaded (or its defaults written). It lives in static
+/// RAM, built there in place (`ram::place`): it is 1.1 KiB, never copied through the stack.
+#[inline(never)]
+fn build_node(id: NodeId, board: &Board, cdi: CdiSpace<Vec<Line>>, snip: SnipInfo) -> &'static mut Node {
+    let (mut config, found) = ConfigSpace::load(board.len());
+    if !found && board.factory_reset(&mut config).is_err() {
+        fail("factory reset");
+    }
+    let Some(slot) = cortex_m::singleton!(: MaybeUninit<Node> = MaybeUninit::uninit()) else {
+        fail("node built twice")
+    };
+    let node = ram::place(slot, || Node::new(id, node_config(board, &mut config, snip)));
+    node.set_memory_server(memory_server(cdi, config));
+    node
 }
 
 #[entry]
@@ -134,47 +161,80 @@ fn main() -> ! {
     ram::paint_stack();
     ram::init_heap();
     let Some(id) = NodeId::new(NODE_ID) else { fail("bad Node ID") };
-    let (mut board, lines, snip) = declare();
-    let mut node = build_node(id, &mut board, snip);
-    print(&[b"booted\n"]);
-    // The login's 200 ms count from here: the first poll, just below, sends its CIDs.
-    let mut clock = nrf51::Clock::new();
-    let link = CanLink::new(clock.now(), id, can_config());
-    let mut driver = Driver::new(serial_can::SerialCan::new(nrf51::Uart::new()), move || clock.now(), link);
+    let (board, lines, node) = start(id);
+    let driver = connect(id);
     let mut rebooting = false;
     loop {
-        let Ok(poll) = driver.poll(&mut node) else { continue };
-        if rebooting && poll.is_idle() {
+        let Some(idle) = poll(driver, node) else { continue };
+        if rebooting && idle {
             ram::report();
             nrf51::reset();
         }
         while let Some(event) = node.poll_event() {
-            match event {
-                NodeEvent::Memory(MemoryEvent::UpdateComplete { .. }) => {
-                    if cfg!(feature = "inject-hardfault") {
-                        cortex_m::asm::udf();
-                    }
-                    if !cfg!(feature = "inject-stale-events") {
-                        let events = board.events(config_space(&mut node));
-                        node.set_events(events);
-                    }
-                }
-                NodeEvent::Memory(MemoryEvent::FactoryResetRequested { .. }) => {
-                    if board.factory_reset(config_space(&mut node)).is_err() {
-                        fail("factory reset");
-                    }
-                    let events = board.events(config_space(&mut node));
-                    node.set_events(events);
-                }
-                NodeEvent::Memory(MemoryEvent::ResetRequested { .. }) => rebooting = true,
-                NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) => {
-                    print(&[b"firmware image of ", ram::digits(image_len).as_bytes(), b" bytes\n"]);
-                }
-                NodeEvent::Events(EventNotice::Report { event, .. }) => act_on(&lines, config_space(&mut node), event),
-                _ => {}
-            }
+            rebooting |= on_event(event, &board, &lines, node);
         }
     }
+}
+
+/// The board declared and its node built: apart from `main`, so that what they need on the
+/// stack is given back before the node runs.
+#[inline(never)]
+fn start(id: NodeId) -> (Board, Vec<Line>, &'static mut Node) {
+    let snip = snip();
+    let (board, lines, cdi) = Board::declare("I/O board", &snip, settings);
+    let node = build_node(id, &board, cdi, snip);
+    print(&[b"booted\n"]);
+    (board, lines, node)
+}
+
+/// The CAN link and its driver, in static RAM like the node. The login's 200 ms count from
+/// here: the first poll sends its CIDs.
+#[inline(never)]
+fn connect(id: NodeId) -> &'static mut BoardDriver {
+    let Some(slot) = cortex_m::singleton!(: MaybeUninit<BoardDriver> = MaybeUninit::uninit()) else {
+        fail("driver built twice")
+    };
+    ram::place(slot, || {
+        let mut clock = nrf51::Clock::new();
+        let link = CanLink::new(clock.now(), id, can_config());
+        Driver::new(serial_can::SerialCan::new(nrf51::Uart::new()), clock, link)
+    })
+}
+
+/// One poll of the driver: whether it left nothing to do (`None`: the peripheral failed).
+#[inline(never)]
+fn poll(driver: &mut BoardDriver, node: &mut Node) -> Option<bool> {
+    driver.poll(node).ok().map(|poll| poll.is_idle())
+}
+
+/// Acts on one event of the node: whether it asks for a reset.
+#[inline(never)]
+fn on_event(event: NodeEvent, board: &Board, lines: &[Line], node: &mut Node) -> bool {
+    match event {
+        NodeEvent::Memory(MemoryEvent::UpdateComplete { .. }) => {
+            if cfg!(feature = "inject-hardfault") {
+                cortex_m::asm::udf();
+            }
+            if !cfg!(feature = "inject-stale-events") {
+                let events = board.events(config_space(node));
+                node.set_events(events);
+            }
+        }
+        NodeEvent::Memory(MemoryEvent::FactoryResetRequested { .. }) => {
+            if board.factory_reset(config_space(node)).is_err() {
+                fail("factory reset");
+            }
+            let events = board.events(config_space(node));
+            node.set_events(events);
+        }
+        NodeEvent::Memory(MemoryEvent::ResetRequested { .. }) => return true,
+        NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) => {
+            print(&[b"firmware image of ", ram::digits(image_len).as_bytes(), b" bytes\n"]);
+        }
+        NodeEvent::Events(EventNotice::Report { event, .. }) => act_on(lines, config_space(node), event),
+        _ => {}
+    }
+    false
 }
 
 /// Ends the run with a failure: QEMU exits with status 1.

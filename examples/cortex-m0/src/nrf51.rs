@@ -154,3 +154,9 @@ pub fn read_flash(address: u32, buf: &mut [u8]) {
 pub fn reset() -> ! {
     cortex_m::peripheral::SCB::sys_reset()
 }
+
+impl openlcb_embedded::Clock for Clock {
+    fn now(&mut self) -> Instant {
+        Clock::now(self)
+    }
+}

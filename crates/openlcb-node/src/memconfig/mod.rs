@@ -40,6 +40,7 @@ pub use client::{MemoryOperation, MemoryRequestError, NodeCommand, TransferPath}
 #[cfg(feature = "traction")]
 pub(crate) use server::FunctionMirror;
 pub use server::{MemoryServer, MemoryServerStats};
+pub(crate) use space::copy_prefix;
 pub use space::{
     ACDI_MANUFACTURER_LEN, ACDI_USER_LEN, MemorySpace, RamSpace, ReadOnlySpace, SpaceError, acdi_manufacturer_bytes,
     acdi_user_bytes, acdi_user_strings,
