@@ -23,6 +23,9 @@ use crate::reconnect::{self, RECONNECT_HELP, ReconnectArgs, Stop};
 /// How long a command waits for the generator to confirm it: its echo of a set comes at
 /// once, its synchronization sequence (which confirms start and stop) 3 s after the last.
 const CONFIRM_WAIT: Duration = Duration::from_secs(5);
+/// How long an answer other than the one asked for waits for one that agrees (see
+/// [`set_confirmed`]).
+const CONTRARY_WAIT: Duration = Duration::from_millis(500);
 
 /// How often the live line of a terminal is redrawn.
 const LIVE_REFRESH: Duration = Duration::from_millis(250);
@@ -257,15 +260,28 @@ pub(crate) async fn set_confirmed(
     set: ClockSet,
 ) -> Result<String, Unconfirmed> {
     node.set_clock(clock, set).await.map_err(|e| Unconfirmed::Net(Failure::Net(e)))?;
-    let deadline = tokio::time::Instant::now() + CONFIRM_WAIT;
+    let asked = set_text(set);
+    let mut deadline = tokio::time::Instant::now() + CONFIRM_WAIT;
+    // An answer other than what was asked may be one the generator sent before it took the
+    // set (its synchronization, crossing the set on the bus): it stands only if no answer
+    // that agrees follows, within CONTRARY_WAIT for a set the generator echoes at once, and
+    // within the whole wait for start and stop (confirmed by its next synchronization).
+    let echoed = !matches!(set, ClockSet::Start | ClockSet::Stop);
+    let mut contrary = None;
     let confirmed = loop {
         let notice = match tokio::time::timeout_at(deadline, notices.next()).await {
             Ok(Some(notice)) => notice,
             Ok(None) => return Err(Unconfirmed::Net(Failure::Net(openlcb_tokio::Error::Closed))),
-            Err(_) => break None,
+            Err(_) => break contrary,
         };
         if let Some((from, message)) = confirmation(clock, set, &notice) {
-            break Some((from, message));
+            if message_text(message) == asked {
+                break Some((from, message));
+            }
+            if echoed && contrary.is_none() {
+                deadline = deadline.min(tokio::time::Instant::now() + CONTRARY_WAIT);
+            }
+            contrary = Some((from, message));
         }
     };
     let Some((from, message)) = confirmed else {
@@ -275,7 +291,6 @@ pub(crate) async fn set_confirmed(
             CONFIRM_WAIT.as_secs()
         )));
     };
-    let asked = set_text(set);
     let got = message_text(message);
     let from = Peer::of(from);
     Ok(if asked == got {

@@ -559,6 +559,14 @@ impl CanLink {
         Some(frame)
     }
 
+    /// Every frame `poll_transmit` handed out so far was sent by `now` (given to the
+    /// peripheral, or written). A driver says so after each batch it sends, so that the alias
+    /// login's reserve wait counts from the CID frames on the bus rather than from when they
+    /// were queued ([`AliasLogin::frames_sent`]); one comparison when no login is under way.
+    pub fn frames_sent(&mut self, now: Instant) {
+        self.login.frames_sent(now);
+    }
+
     fn next_frame(&mut self) -> Option<CanFrame> {
         if let Some(frame) = self.login.poll_transmit() {
             return Some(frame);

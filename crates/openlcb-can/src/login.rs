@@ -95,7 +95,8 @@ pub struct LoginStats {
 
 /// The local node's alias state machine. Feed it every received frame, call `handle_timeout`
 /// when `poll_timeout` says, and send what `poll_transmit` returns, promptly: the reserve wait
-/// counts from when the CID frames were queued.
+/// counts from when the CID frames were queued, or from when a driver says they were sent
+/// ([`frames_sent`](Self::frames_sent)), whichever is later.
 #[derive(Debug, Clone)]
 pub struct AliasLogin {
     node: NodeId,
@@ -103,6 +104,9 @@ pub struct AliasLogin {
     reserve_wait: Duration,
     state: LoginState,
     transmits: Queue<CanFrame>,
+    /// The CID frames of the alias being checked were all handed out, and no driver has said
+    /// when they were sent.
+    checks_unsent: bool,
     events: Queue<LoginEvent>,
     stats: LoginStats,
 }
@@ -120,6 +124,7 @@ impl AliasLogin {
             reserve_wait,
             state: LoginState::Checking { alias, deadline: now },
             transmits: Queue::with_capacity(QUEUE_BOUND),
+            checks_unsent: false,
             events: Queue::new(),
             stats: LoginStats::default(),
         };
@@ -156,7 +161,25 @@ impl AliasLogin {
 
     /// The next frame to send.
     pub fn poll_transmit(&mut self) -> Option<CanFrame> {
-        self.transmits.pop_front()
+        let frame = self.transmits.pop_front()?;
+        if self.transmits.is_empty() && matches!(self.state, LoginState::Checking { .. }) {
+            self.checks_unsent = true;
+        }
+        Some(frame)
+    }
+
+    /// The frames handed out by `poll_transmit` were sent by `now`. After the CID frames of
+    /// an alias, the reserve wait counts from `now` if that is later than when they were
+    /// queued: CFT §6.2.1 counts the 200 ms from the CIDs on the bus, and a driver that sends
+    /// them some time after the login queued them (a first poll that comes late) would
+    /// otherwise shorten it. Any other call is harmless.
+    pub fn frames_sent(&mut self, now: Instant) {
+        if !core::mem::take(&mut self.checks_unsent) {
+            return;
+        }
+        if let LoginState::Checking { deadline, .. } = &mut self.state {
+            *deadline = (*deadline).max(now + self.reserve_wait);
+        }
     }
 
     /// The next event.
@@ -312,6 +335,7 @@ impl AliasLogin {
             self.send(FrameKind::CheckId { sequence, node_id_bits }, alias, false);
         }
         self.state = LoginState::Checking { alias, deadline: now + self.reserve_wait };
+        self.checks_unsent = false;
     }
 
     fn has_queued(&self, kind: FrameKind) -> bool {
@@ -379,6 +403,34 @@ mod tests {
         assert_eq!(l.poll_event(), Some(LoginEvent::Permitted { alias: alias(0x555) }));
         assert_eq!(l.alias(), Some(alias(0x555)));
         assert_eq!(l.poll_timeout(), None);
+    }
+
+    #[test]
+    fn the_reserve_wait_counts_from_the_cids_sent_when_the_driver_says_so() {
+        let mut l = login();
+        // Said before the CIDs are all out: nothing changes.
+        l.poll_transmit();
+        l.frames_sent(Instant::from_millis(50));
+        assert_eq!(l.poll_timeout(), Some(Instant::from_millis(200)));
+        assert_eq!(ids(&mut l).len(), 3);
+        // The driver sent them 15 ms after the login queued them: 200 ms from then.
+        l.frames_sent(Instant::from_millis(15));
+        assert_eq!(l.poll_timeout(), Some(Instant::from_millis(215)));
+        // Said again (other frames later): the wait is not put off.
+        l.frames_sent(Instant::from_millis(100));
+        assert_eq!(l.poll_timeout(), Some(Instant::from_millis(215)));
+        l.handle_timeout(Instant::from_millis(214));
+        assert_eq!(l.alias(), None, "no RID 199 ms after the CIDs");
+        l.handle_timeout(Instant::from_millis(215));
+        assert_eq!(ids(&mut l), [0x1070_0555, 0x1070_1555]);
+        // Once permitted, nothing to move.
+        l.frames_sent(Instant::from_millis(300));
+        assert_eq!(l.poll_timeout(), None);
+        // A driver whose sends come before the queueing time changes nothing either.
+        let mut early = login();
+        ids(&mut early);
+        early.frames_sent(Instant::ZERO);
+        assert_eq!(early.poll_timeout(), Some(Instant::from_millis(200)));
     }
 
     #[test]

@@ -186,6 +186,12 @@ impl<C: Can, K: Clock> Driver<C, K> {
         let (received, receive_error) = self.receive(now, upper);
         self.pump(now, upper);
         let (transmitted, transmit_error) = self.transmit();
+        if transmitted > 0 && self.held.is_none() {
+            // Everything the link handed out is with the peripheral: the login's reserve
+            // wait counts from here (a first poll may come well after the link was made).
+            let sent = self.clock.now();
+            self.link.frames_sent(sent);
+        }
         let poll = Poll {
             now,
             received,

@@ -78,6 +78,26 @@ fn login_on_memory_bus_reserves_aliases_after_the_reserve_wait() {
 }
 
 #[test]
+fn a_first_poll_that_comes_late_still_waits_200_ms_after_the_cids() {
+    let bus: MemoryBus<CanFrame, 1, 8> = MemoryBus::new();
+    let time = Cell::new(Instant::ZERO);
+    let link = CanLink::new(time.get(), node(A), CanConfig::default());
+    let mut a = Driver::new(bus.port(0).unwrap(), || time.get(), link);
+    let mut endpoint = StreamEndpoint::new(node(A), Config::default());
+    // The firmware went on with its start-up for 15 ms before its first poll.
+    time.set(Instant::from_millis(15));
+    let first = a.poll(&mut endpoint).unwrap();
+    assert_eq!(first.transmitted, 4, "the CIDs");
+    assert_eq!(first.deadline, Some(Instant::from_millis(215)), "200 ms from the CIDs sent");
+    time.set(Instant::from_millis(214));
+    a.poll(&mut endpoint).unwrap();
+    assert_eq!(a.link().alias(), None, "no RID 199 ms after the CIDs");
+    time.set(Instant::from_millis(215));
+    a.poll(&mut endpoint).unwrap();
+    assert!(a.link().alias().is_some());
+}
+
+#[test]
 fn nodes_on_memory_bus_announce_themselves_and_answer_snip_by_alias() {
     let bus: MemoryBus<CanFrame, 2, 8> = MemoryBus::new();
     let time = Cell::new(Instant::ZERO);

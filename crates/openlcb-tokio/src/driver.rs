@@ -315,7 +315,8 @@ impl Driver {
         match written {
             Ok(0) => Err(Error::lost(std::io::ErrorKind::WriteZero.into())),
             Ok(n) => {
-                self.wire.advance(n, &mut self.stats);
+                let now = self.now();
+                self.wire.advance(n, now, &mut self.stats);
                 self.last_write = tokio::time::Instant::now();
                 Ok(())
             }

@@ -312,14 +312,17 @@ impl Wire {
         }
     }
 
-    /// The socket took `n` bytes of [`pending`](Self::pending).
-    pub(crate) fn advance(&mut self, n: usize, stats: &mut WireStats) {
+    /// The socket took `n` bytes of [`pending`](Self::pending), at `now`.
+    pub(crate) fn advance(&mut self, n: usize, now: Instant, stats: &mut WireStats) {
         stats.bytes_out += n as u64;
         stats.writes += 1;
         match self {
-            Wire::GridConnect { out, taken, .. } => {
+            Wire::GridConnect { link, out, taken, .. } => {
                 *taken = (*taken + n).min(out.len());
                 if *taken == out.len() {
+                    // Every frame the link handed out is written: the login's reserve wait
+                    // counts from here.
+                    link.frames_sent(now);
                     out.clear();
                     *taken = 0;
                 } else if *taken > HIGH_WATER {

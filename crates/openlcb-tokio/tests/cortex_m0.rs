@@ -2,8 +2,9 @@
 //! hub the firmware's UART joins as a GridConnect client, a raw tap that records every frame,
 //! and a tool node. It checks, in order: the board's alias login on the wire (four CIDs
 //! carrying its Node ID, RID 200 ms (on the first login) after the last, AMD, Initialization
-//! Complete) and its answer to a duplicate-alias check; Identify Events answered from its
-//! configuration; a configuration write by datagrams read back; Update Complete making the new
+//! Complete) and its answer to a duplicate-alias check; its CDI (which it renders on each
+//! read) read whole by datagrams and parsed, each line's settings where it keeps them;
+//! Identify Events answered from its configuration; a configuration write by datagrams read back; Update Complete making the new
 //! Event ID the one it answers for; an event its output line consumes; a firmware image
 //! written into space 0xEF and read back; a Reboot (a real reset: it logs in again, and the
 //! configuration it got survives in flash).
@@ -147,12 +148,15 @@ fn login(tap: &Tap, n: usize) -> Option<u32> {
     let last_cid = tap.frames[start + 3].0;
     let mine = |id: u32| tap.frames[start + 4..].iter().find(|(_, f)| f.raw_id() == id | alias);
     let (rid_at, _) = mine(0x1070_0000)?;
-    // The tap stamps frames as the hub relays them, a few milliseconds late and not always
-    // by the same amount: 190 ms seen stands for the 200 ms the firmware waited. Only the
-    // first login is timed: after QEMU's system reset the CIDs reach the hub late, in one
-    // burst (their stamps a microsecond apart), so the gap seen is shorter than the board's.
+    // The tap stamps frames as the hub relays them, late and not always by the same amount
+    // (up to 15 ms seen on a busy machine): 180 ms seen stands for the 200 ms the firmware
+    // waits from handing its CIDs to the UART (a RID sent with no wait, or well short of it,
+    // still fails; `openlcb-embedded`'s tests check that the wait counts from the CIDs sent,
+    // not from when they were queued). Only the first login is timed: after QEMU's system
+    // reset the CIDs reach the hub late, in one burst (their stamps a microsecond apart), so
+    // the gap seen is shorter than the board's.
     assert!(
-        n > 0 || *rid_at - last_cid >= Duration::from_millis(190),
+        n > 0 || *rid_at - last_cid >= Duration::from_millis(180),
         "RID sent {:?} after the last CID",
         *rid_at - last_cid
     );
@@ -160,6 +164,9 @@ fn login(tap: &Tap, n: usize) -> Option<u32> {
     assert_eq!(amd.data(), node, "AMD carries the Node ID");
     let (_, init) = mine(0x1910_0000)?;
     assert_eq!(init.data(), node, "Initialization Complete carries the Node ID");
+    if n == 0 {
+        println!("login: RID {:?} after the last CID, as the tap saw them", *rid_at - last_cid);
+    }
     Some(alias)
 }
 
@@ -235,6 +242,24 @@ async fn io_board_on_a_cortex_m0() {
     }
     assert!(!protocols.contains(Protocols::STREAM), "a board built without streams announces none");
 
+    // The CDI, which the board renders on each read from its declaration (it keeps no copy):
+    // read whole by datagrams, it parses, and a tool finds each line's settings where the
+    // board keeps them.
+    let cdi = bounded("the CDI", async {
+        tool.read_memory(board, 0xFF, 0, None, TransferPath::Datagrams).await?.finish().await
+    })
+    .await
+    .expect("the board serves its CDI");
+    assert_eq!(cdi.last(), Some(&0), "the CDI ends with its NUL");
+    let text = std::str::from_utf8(&cdi[..cdi.len() - 1]).expect("the CDI is UTF-8");
+    let layout = openlcb_cdi::Layout::parse(text).expect("the CDI parses");
+    for line in 0..8 {
+        let key = format!("I/O board.Line({line}).Event On");
+        let entry = layout.find(&key).next().unwrap_or_else(|| panic!("the CDI has {key}"));
+        assert_eq!((entry.space, entry.address), (0xFD, event_on_address(line)), "{key}");
+    }
+    println!("CDI: {} bytes, read by datagrams", cdi.len());
+
     // Identify Events, answered from the configuration (the factory events).
     let wait = Duration::from_secs(5);
     assert!(
@@ -295,14 +320,17 @@ async fn io_board_on_a_cortex_m0() {
         .expect("rebooted");
     until("the board's second login", &console, || login(&tap.lock().unwrap(), 1).is_some()).await;
     assert_eq!(printed(&console, "booted"), 2);
+    // The board answers for its configured event (which also shows that the tool has taken
+    // its Initialization Complete, sent before: a read started earlier would end as the
+    // board's restart).
+    tool.identify(EventRole::Producer, new).await.unwrap();
+    assert!(identified(&mut notices, EventRole::Producer, new, wait).await);
     let back = bounded("the read after reboot", async {
         tool.read_memory(board, 0xFD, address, Some(8), path).await?.finish().await
     })
     .await
     .expect("the board answers after its reboot");
     assert_eq!(back, new.to_bytes(), "the configuration survived the reboot (flash)");
-    tool.identify(EventRole::Producer, new).await.unwrap();
-    assert!(identified(&mut notices, EventRole::Producer, new, wait).await);
 
     let frames = tap.lock().unwrap().frames.len();
     let ram = console.lock().unwrap().lines.iter().find(|l| l.starts_with("ram: ")).cloned();

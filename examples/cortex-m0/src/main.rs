@@ -162,6 +162,8 @@ fn main() -> ! {
     ram::init_heap();
     let Some(id) = NodeId::new(NODE_ID) else { fail("bad Node ID") };
     let (board, lines, node) = start(id);
+    ram::started();
+    // Last before the loop: the login's 200 ms count from the link's creation.
     let driver = connect(id);
     let mut rebooting = false;
     loop {

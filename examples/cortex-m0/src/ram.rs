@@ -2,7 +2,8 @@
 //! measured before a reboot, and the semihosting console.
 //!
 //! RAM used = static data (`.data`, `.bss`, `.uninit`, the heap array among them) + the
-//! deepest the stack went. `report` prints both, and the heap's peak, on the console.
+//! deepest the stack went, while the node was built or after. `report` prints them, and the
+//! heap's peak, on the console.
 
 use core::alloc::{GlobalAlloc, Layout};
 use core::cell::Cell;
@@ -83,6 +84,17 @@ fn stack_top() -> usize {
     (&raw const _stack_start) as usize
 }
 
+/// The deepest the stack went while the node was being built (`started`).
+static STARTUP_STACK: Mutex<Cell<usize>> = Mutex::new(Cell::new(0));
+
+/// The node is built: keeps how deep the stack went so far and paints the free RAM again, so
+/// that the report tells the start-up's depth from the running node's.
+pub fn started() {
+    let depth = stack_used();
+    interrupt::free(|cs| STARTUP_STACK.borrow(cs).set(depth));
+    paint_stack();
+}
+
 /// Paints the free RAM between static data and the stack pointer.
 pub fn paint_stack() {
     let sp = cortex_m::register::msp::read() as usize;
@@ -109,17 +121,24 @@ fn stack_used() -> usize {
     stack_top() - word as usize
 }
 
-/// Prints `ram: static S B + stack K B = T B; heap peak H B of SIZE B`.
+/// Prints `ram: static S B + stack K B (start-up K1 B, running K2 B) = T B; heap used U B,
+/// peak H B of SIZE B`, K the deeper of K1 and K2.
 pub fn report() {
     let statics = stack_floor() as usize - 0x2000_0000;
-    let stack = stack_used();
+    let startup = interrupt::free(|cs| STARTUP_STACK.borrow(cs).get());
+    let running = stack_used();
+    let stack = startup.max(running);
     let peak = interrupt::free(|cs| HEAP.peak.borrow(cs).get());
     print(&[
         b"ram: static ",
         digits(statics as u32).as_bytes(),
         b" B + stack ",
         digits(stack as u32).as_bytes(),
-        b" B = ",
+        b" B (start-up ",
+        digits(startup as u32).as_bytes(),
+        b" B, running ",
+        digits(running as u32).as_bytes(),
+        b" B) = ",
         digits((statics + stack) as u32).as_bytes(),
         b" B; heap used ",
         digits(HEAP.heap.used() as u32).as_bytes(),
