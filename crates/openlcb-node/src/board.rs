@@ -541,7 +541,8 @@ impl Board {
 
 /// The CDI of a board declared with [`Board::declare`], as space 0xFF: each read runs the
 /// declaration again and keeps only the bytes it asks for. Neither RAM nor flash holds the
-/// XML (a few KiB on a board); a read costs the time to write the CDI up to its end, once.
+/// XML (1 083 B for the Cortex-M0 example's eight lines, and the copies a build of it
+/// makes); a read costs the time to write the CDI up to its end, once.
 /// The bytes are those [`BoardBuilder::finish`] writes for the same declaration, then the
 /// NUL that ends a CDI (CDI §5.1).
 pub struct CdiSpace<T> {
