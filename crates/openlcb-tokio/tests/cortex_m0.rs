@@ -13,7 +13,7 @@
 //! runs it through `.ci/firmware-m0`:
 //!
 //! ```text
-//! OPENLCB_M0_FIRMWARE=examples/cortex-m0/target/thumbv6m-none-eabi/release/io-board \
+//! OPENLCB_M0_FIRMWARE=/tmp/openlcb-size-report/examples/cortex-m0/target/thumbv6m-none-eabi/release/io-board \
 //!     cargo test -p openlcb-tokio --test cortex_m0 -- --ignored --nocapture
 //! ```
 

@@ -1,7 +1,7 @@
 //! Small `memcpy`, `memmove` and `memset` (and the ARM EABI names the compiler calls) in place
 //! of `compiler_builtins`' word-at-a-time ones, which take about 2.4 KiB of a Cortex-M0's
-//! flash between them. Byte at a time: the node's copies are a CAN frame's 8 bytes or a
-//! datagram's 72, a few hundred cycles at most. The loops use volatile accesses so that the
+//! flash between them. Byte at a time: the board's copies are a CAN frame's 8 bytes, a
+//! datagram's 72, at most its configuration's 216. The loops use volatile accesses so that the
 //! compiler cannot turn them back into calls of themselves, and none calls another by its C
 //! name (the compiler would take that for the library call it names).
 //!
