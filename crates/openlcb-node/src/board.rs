@@ -7,7 +7,10 @@
 //! writes the declared defaults.
 //!
 //! A whole board on a host, with its file-backed space and its events following the
-//! configuration at Update Complete, is `openlcb-tokio`'s `examples/io_board.rs`.
+//! configuration at Update Complete, is `openlcb-tokio`'s `examples/io_board.rs`. A firmware
+//! short of RAM declares its settings in a function and hands it to [`Board::declare`]: its
+//! [`CdiSpace`] renders the XML on each read from that function, so that no copy of it is
+//! kept (the Cortex-M0 board in `examples/cortex-m0` does so).
 //!
 //! Why a builder and not a derive macro: a builder is plain code (no proc-macro crate, no
 //! `syn` in a firmware's build), its replicated groups come out as a `Vec` of the same
@@ -489,7 +492,8 @@ impl Board {
         (board, handles, space)
     }
 
-    /// The CDI XML (serve it as space 0xFF: [`ReadOnlySpace::cdi`](crate::ReadOnlySpace::cdi)).
+    /// The CDI XML (serve it as space 0xFF: [`ReadOnlySpace::cdi`](crate::ReadOnlySpace::cdi));
+    /// empty for a board from [`Board::declare`], whose [`CdiSpace`] renders it.
     pub fn cdi(&self) -> &str {
         &self.cdi
     }
