@@ -301,7 +301,13 @@ impl BoardBuilder {
     pub fn new(name: &str) -> Self {
         let mut xml = Sink::whole();
         xml.push_segment(name);
-        BoardBuilder { xml, address: 0, defaults: Vec::new(), events: Vec::new(), render_only: false, quiet: false }
+        Self::writing(xml, false, false)
+    }
+
+    /// A builder at address 0 writing into `xml` (none at all while `quiet`), keeping the
+    /// layout (defaults and events) unless `render_only`.
+    fn writing(xml: Sink, render_only: bool, quiet: bool) -> Self {
+        BoardBuilder { xml, address: 0, defaults: Vec::new(), events: Vec::new(), render_only, quiet }
     }
 
     /// Writes `pieces` in turn, each markup to copy, text to escape or a number. Nothing while
@@ -476,14 +482,8 @@ impl Board {
         snip: &SnipInfo,
         declare: fn(&mut BoardBuilder) -> T,
     ) -> (Board, T, CdiSpace<T>) {
-        let mut builder = BoardBuilder {
-            xml: Sink::window(u32::MAX, 0),
-            address: 0,
-            defaults: Vec::new(),
-            events: Vec::new(),
-            render_only: false,
-            quiet: true,
-        };
+        // The layout only: no XML is written.
+        let mut builder = BoardBuilder::writing(Sink::window(u32::MAX, 0), false, true);
         let handles = declare(&mut builder);
         let board =
             Board { cdi: String::new(), len: builder.address, defaults: builder.defaults, events: builder.events };
@@ -569,8 +569,7 @@ impl<T> CdiSpace<T> {
         let mut xml = Sink::window(from, want);
         xml.push_prologue(&self.snip);
         xml.push_segment(self.name);
-        let mut builder =
-            BoardBuilder { xml, address: 0, defaults: Vec::new(), events: Vec::new(), render_only: true, quiet: false };
+        let mut builder = BoardBuilder::writing(xml, true, false);
         (self.declare)(&mut builder);
         builder.xml.push_epilogue();
         builder.xml.push(&[0]);
