@@ -635,6 +635,60 @@ async fn a_bulk_transfer_through_the_hub_costs_a_slow_listener_nothing() {
     listener.abort();
 }
 
+/// Frames sent by each of `senders` GridConnect clients: a PCER whose event ID is the sender
+/// and the frame's number.
+const NUMBERED_FRAMES: u32 = 3000;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_slow_listener_gets_every_senders_frames_in_the_order_they_were_sent() {
+    let mut options = HubOptions::default();
+    options.silent_timeout = None;
+    let hub = bounded("binding the hub", Hub::bind("127.0.0.1:0", None, options)).await.unwrap();
+    // A small receive buffer, read in small pieces with pauses: the hub's writes to it are
+    // partial or refused, and the rest waits in its queue.
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let mut listener = socket.connect(hub.local_addr()).await.unwrap();
+    until_clients(&hub, 1).await;
+    let senders = 3u32;
+    let mut sending = tokio::task::JoinSet::new();
+    for sender in 0..senders {
+        let addr = hub.local_addr();
+        sending.spawn(async move {
+            let mut socket = TcpStream::connect(addr).await.unwrap();
+            for n in 0..NUMBERED_FRAMES {
+                // One write per frame, as boards do.
+                let frame = format!(":X195B4{:03X}N{:08X}{n:08X};", 0x100 + sender, sender);
+                socket.write_all(frame.as_bytes()).await.unwrap();
+            }
+            socket
+        });
+    }
+    let mut text = Vec::new();
+    let mut buf = vec![0u8; 512];
+    let total = (senders * NUMBERED_FRAMES) as usize;
+    bounded("the listener hearing every frame", async {
+        while text.iter().filter(|&&b| b == b';').count() < total {
+            let n = listener.read(&mut buf).await.unwrap();
+            assert!(n > 0, "the hub closed the listener: {:?}", hub.stats());
+            text.extend_from_slice(&buf[..n]);
+            tokio::time::sleep(Duration::from_micros(200)).await;
+        }
+    })
+    .await;
+    let mut next = vec![0u32; senders as usize];
+    for frame in String::from_utf8(text).unwrap().split_whitespace() {
+        let data = frame.trim_end_matches(';').split_once('N').unwrap().1;
+        let sender = u32::from_str_radix(&data[..8], 16).unwrap() as usize;
+        let n = u32::from_str_radix(&data[8..], 16).unwrap();
+        assert_eq!(n, next[sender], "sender {sender}: frame {n} came where frame {} was due", next[sender]);
+        next[sender] += 1;
+    }
+    assert_eq!(next, vec![NUMBERED_FRAMES; senders as usize], "every frame, once");
+    assert_eq!(hub.stats().slow_clients, 0, "{:?}", hub.stats());
+    while sending.join_next().await.is_some() {}
+}
+
 /// Options for the slot tests: `max_clients`, and a minimum rate of `min_frames` per `window`.
 fn slot_options(max_clients: usize, min_frames: u16, window: Duration) -> HubOptions {
     let mut options = HubOptions::default();
