@@ -166,7 +166,7 @@ fn run_a(addr: &str) -> io::Result<Vec<(NodeId, SnipInfo)>> {
                 }
                 NodeEvent::SnipReceived { peer, info } => {
                     println!("  {peer}  {} / {}", info.manufacturer, info.model);
-                    found.push((peer, info));
+                    found.push((peer, *info));
                     last_answer = Clock::now();
                 }
                 _ => {}

@@ -33,29 +33,30 @@ impl<E: core::fmt::Debug> core::fmt::Display for Error<E> {
 
 impl<E: core::fmt::Debug> core::error::Error for Error<E> {}
 
-/// Counters of a [`Driver`].
+/// Counters of a [`Driver`], 32-bit like the CAN link's (64-bit ones cost a microcontroller
+/// flash and RAM); each stops at `u32::MAX`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct DriverStats {
     /// Frames taken from the peripheral.
-    pub frames_received: u64,
+    pub frames_received: u32,
     /// Frames the peripheral accepted.
-    pub frames_transmitted: u64,
+    pub frames_transmitted: u32,
     /// `transmit` answered `WouldBlock`: the frame was kept for later.
-    pub would_block: u64,
+    pub would_block: u32,
     /// `transmit` accepted a frame by giving back a pending lower-priority one, which was
     /// kept and offered again.
-    pub displaced: u64,
+    pub displaced: u32,
     /// Frames that have no form in the other frame type (a received frame with more than 8
     /// data bytes); dropped.
-    pub unconvertible: u64,
+    pub unconvertible: u32,
     /// Messages of the upper layer the link refused (no CAN form, or the link stopped after
     /// a duplicate Node ID); dropped.
-    pub send_refused: u64,
+    pub send_refused: u32,
     /// `receive` errors.
-    pub receive_errors: u64,
+    pub receive_errors: u32,
     /// `transmit` errors.
-    pub transmit_errors: u64,
+    pub transmit_errors: u32,
 }
 
 /// What one [`Driver::poll`] did and when the next one is due.
@@ -318,6 +319,8 @@ pub fn convert<A: Frame, B: Frame>(frame: &A) -> Option<B> {
     if frame.is_remote_frame() { B::new_remote(frame.id(), frame.dlc()) } else { B::new(frame.id(), frame.data()) }
 }
 
-fn bump(counter: &mut u64) {
+/// Counts one more, stopping at `u32::MAX`. Out of line: one copy of the add for every counter.
+#[inline(never)]
+fn bump(counter: &mut u32) {
     *counter = counter.saturating_add(1);
 }

@@ -260,10 +260,10 @@ fn transfer<const DEPTH: usize>(len: u64, window: u16, read_chunk: usize) -> Out
     Outcome {
         received,
         finished: finished && source_done,
-        would_block: a.stats().would_block + b.stats().would_block,
+        would_block: u64::from(a.stats().would_block + b.stats().would_block),
         bus_would_block: bus.stats().would_block,
         bus_frames: bus.stats().frames,
-        transmitted: a.stats().frames_transmitted + b.stats().frames_transmitted,
+        transmitted: u64::from(a.stats().frames_transmitted + b.stats().frames_transmitted),
     }
 }
 

@@ -5,7 +5,9 @@ use alloc::vec::Vec;
 use core::fmt;
 use core::ops::BitOr;
 
-use openlcb_stream::{Config, Duration};
+#[cfg(feature = "streams")]
+use openlcb_stream::Config;
+use openlcb_stream::Duration;
 
 #[cfg(feature = "broadcast-time")]
 use crate::broadcast_time::ClockConfig;
@@ -21,10 +23,14 @@ use crate::traction::{ThrottleConfig, TrainConfig};
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct NodeConfig {
-    /// The stream endpoint's bounds and timers.
+    /// The stream endpoint's bounds and timers (with the `streams` feature: without it the
+    /// node has no endpoint to bound).
+    #[cfg(feature = "streams")]
     pub stream: Config,
     /// Take part in Stream Transport. When off, the PIP Stream bit is clear and stream
-    /// messages are answered with OIR 0x1043, as from a node without streams.
+    /// messages are answered with OIR 0x1043, as from a node without streams (with the
+    /// `streams` feature: without it the node never does).
+    #[cfg(feature = "streams")]
     pub streams_enabled: bool,
     /// The datagram service's bounds and timers, and the content IDs the application takes.
     pub datagrams: DatagramConfig,
@@ -66,7 +72,9 @@ pub struct NodeConfig {
 impl Default for NodeConfig {
     fn default() -> Self {
         NodeConfig {
+            #[cfg(feature = "streams")]
             stream: Config::default(),
+            #[cfg(feature = "streams")]
             streams_enabled: true,
             datagrams: DatagramConfig::default(),
             snip: SnipInfo::default(),

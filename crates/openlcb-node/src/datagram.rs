@@ -2,6 +2,7 @@
 //! Received OK, Rejected (resent on temporary codes, bounded), and timeouts; incoming
 //! datagrams go to the application by content ID, and every other one is rejected at once.
 
+use alloc::boxed::Box;
 use alloc::vec::Vec;
 use core::fmt;
 
@@ -232,7 +233,6 @@ struct Awaiting {
 /// Both directions of Datagram Transport for one node.
 #[derive(Debug)]
 pub(crate) struct DatagramService {
-    config: DatagramConfig,
     claimed: [u64; 4],
     outgoing: Queue<Outgoing>,
     awaiting: Vec<Awaiting>,
@@ -243,7 +243,9 @@ pub(crate) struct DatagramService {
 }
 
 impl DatagramService {
-    pub(crate) fn new(config: DatagramConfig) -> Self {
+    /// The service bounded by `config`, which every call that sends, resends or takes in a
+    /// datagram is given again (the node's own copy: none is kept here).
+    pub(crate) fn new(config: &DatagramConfig) -> Self {
         let mut claimed = [0u64; 4];
         for &content in &config.claimed {
             if let Some(word) = claimed.get_mut(usize::from(content / 64)) {
@@ -257,7 +259,6 @@ impl DatagramService {
             client_outcomes: Queue::new(),
             next_id: 0,
             stats: DatagramStats::default(),
-            config,
         }
     }
 
@@ -275,6 +276,7 @@ impl DatagramService {
     /// Sends a datagram for `owner`, who gets its outcome.
     pub(crate) fn send(
         &mut self,
+        config: &DatagramConfig,
         now: Instant,
         out: &mut Outputs,
         to: NodeId,
@@ -287,28 +289,36 @@ impl DatagramService {
         if to == out.node {
             return Err(DatagramError::SelfAddressed);
         }
-        if !self.has_room(to) {
+        if !self.has_room(config, to) {
             return Err(DatagramError::QueueFull);
         }
-        Ok(self.queue(now, out, to, payload, owner))
+        Ok(self.queue(config, now, out, to, payload, owner))
     }
 
     /// Room for one more datagram to `to`: under both bounds of the config.
-    pub(crate) fn has_room(&self, to: NodeId) -> bool {
-        self.outgoing.len() < self.config.max_outgoing
-            && self.outgoing.iter().filter(|o| o.to == to).count() < self.config.max_outgoing_per_destination
+    pub(crate) fn has_room(&self, config: &DatagramConfig, to: NodeId) -> bool {
+        self.outgoing.len() < config.max_outgoing
+            && self.outgoing.iter().filter(|o| o.to == to).count() < config.max_outgoing_per_destination
     }
 
     /// Sends a reply of the memory server that was promised (a Datagram OK with Reply
     /// Pending went out, after [`has_room`](Self::has_room) said yes): queued even above the
     /// bounds, which the promises themselves bound.
-    pub(crate) fn send_promised(&mut self, now: Instant, out: &mut Outputs, to: NodeId, payload: &[u8]) {
+    pub(crate) fn send_promised(
+        &mut self,
+        config: &DatagramConfig,
+        now: Instant,
+        out: &mut Outputs,
+        to: NodeId,
+        payload: &[u8],
+    ) {
         let payload = payload.get(..MAX_DATAGRAM_LEN).unwrap_or(payload);
-        self.queue(now, out, to, payload, DatagramOwner::MemoryServer);
+        self.queue(config, now, out, to, payload, DatagramOwner::MemoryServer);
     }
 
     fn queue(
         &mut self,
+        config: &DatagramConfig,
         now: Instant,
         out: &mut Outputs,
         to: NodeId,
@@ -321,14 +331,14 @@ impl DatagramService {
         let payload = payload.to_vec();
         self.outgoing.push_back(Outgoing { id, owner, to, payload, state: SendState::Queued, resends: 0 });
         if !busy {
-            self.start_next(now, out, to);
+            self.start_next(config, now, out, to);
         }
         id
     }
 
     /// Sends the first queued datagram to `to`, if any (one outstanding per destination).
-    fn start_next(&mut self, now: Instant, out: &mut Outputs, to: NodeId) {
-        let deadline = now + self.config.timeout;
+    fn start_next(&mut self, config: &DatagramConfig, now: Instant, out: &mut Outputs, to: NodeId) {
+        let deadline = now + config.timeout;
         if let Some(next) = self.outgoing.iter_mut().find(|o| o.to == to)
             && next.state == SendState::Queued
         {
@@ -348,10 +358,10 @@ impl DatagramService {
         self.outgoing.iter().position(|o| o.to == to && o.state != SendState::Queued)
     }
 
-    fn finish(&mut self, now: Instant, out: &mut Outputs, index: usize, result: Outcome) {
+    fn finish(&mut self, config: &DatagramConfig, now: Instant, out: &mut Outputs, index: usize, result: Outcome) {
         let Some(done) = self.outgoing.remove(index) else { return };
         self.report(out, &done, result);
-        self.start_next(now, out, done.to);
+        self.start_next(config, now, out, done.to);
     }
 
     /// Gives the outcome of `done` to its owner.
@@ -378,23 +388,29 @@ impl DatagramService {
         self.client_outcomes.pop_front()
     }
 
-    fn on_received_ok(&mut self, now: Instant, out: &mut Outputs, from: NodeId, payload: &[u8]) {
+    fn on_received_ok(
+        &mut self,
+        config: &DatagramConfig,
+        now: Instant,
+        out: &mut Outputs,
+        from: NodeId,
+        payload: &[u8],
+    ) {
         let Some(index) = self.active(from) else {
             self.stats.stray_answers += 1;
             return;
         };
         let flags = OkFlags::from_byte(payload.first().copied().unwrap_or(0));
-        self.finish(now, out, index, Ok(flags));
+        self.finish(config, now, out, index, Ok(flags));
     }
 
     /// Datagram Rejected, or an OIR/TDE naming Datagram (or nothing), from `from`.
-    fn on_rejected(&mut self, now: Instant, out: &mut Outputs, from: NodeId, code: ErrorCode) {
+    fn on_rejected(&mut self, config: &DatagramConfig, now: Instant, out: &mut Outputs, from: NodeId, code: ErrorCode) {
         let Some(index) = self.active(from) else {
             self.stats.stray_answers += 1;
             return;
         };
-        let retries = self.config.max_retries;
-        let delay = self.config.retry_delay;
+        let (retries, delay) = (config.max_retries, config.retry_delay);
         let Some(entry) = self.outgoing.get_mut(index) else { return };
         // DG §6.2: only a temporary code allows the same datagram again.
         if code.is_temporary() && entry.resends < retries {
@@ -403,13 +419,13 @@ impl DatagramService {
             entry.state = SendState::Backoff { until: now + backoff };
             return;
         }
-        self.finish(now, out, index, Err(DatagramFailure::Rejected(code)));
+        self.finish(config, now, out, index, Err(DatagramFailure::Rejected(code)));
     }
 
     /// `peer` sent Initialization Complete: a datagram it had not answered is lost.
-    fn peer_restarted(&mut self, now: Instant, out: &mut Outputs, peer: NodeId) {
+    fn peer_restarted(&mut self, config: &DatagramConfig, now: Instant, out: &mut Outputs, peer: NodeId) {
         if let Some(index) = self.active(peer) {
-            self.finish(now, out, index, Err(DatagramFailure::PeerRestarted));
+            self.finish(config, now, out, index, Err(DatagramFailure::PeerRestarted));
         }
         // By position and an ordered remove, as below: no `retain` (flash).
         while let Some(index) = self.awaiting.iter().position(|a| a.from == peer) {
@@ -417,16 +433,16 @@ impl DatagramService {
         }
     }
 
-    fn timeout(&mut self, now: Instant, out: &mut Outputs) {
+    fn timeout(&mut self, config: &DatagramConfig, now: Instant, out: &mut Outputs) {
         loop {
             let expired = self
                 .outgoing
                 .iter()
                 .position(|o| matches!(o.state, SendState::InFlight { deadline } if deadline <= now));
             let Some(index) = expired else { break };
-            self.finish(now, out, index, Err(DatagramFailure::TimedOut));
+            self.finish(config, now, out, index, Err(DatagramFailure::TimedOut));
         }
-        let deadline = now + self.config.timeout;
+        let deadline = now + config.timeout;
         for o in self.outgoing.iter_mut() {
             if matches!(o.state, SendState::Backoff { until } if until <= now) {
                 o.state = SendState::InFlight { deadline };
@@ -444,21 +460,20 @@ impl DatagramService {
 
     // ----- receiving -----
 
-    fn on_datagram(&mut self, now: Instant, out: &mut Outputs, from: NodeId, payload: &[u8]) {
+    fn on_datagram(&mut self, config: &DatagramConfig, now: Instant, out: &mut Outputs, from: NodeId, payload: &[u8]) {
         let claimed = payload.first().is_some_and(|&c| self.is_claimed(c));
         let Some(datagram) = Datagram::new(payload).filter(|_| claimed) else {
             self.stats.rejected_unclaimed += 1;
             return out.reply(rejected(out.node, from, ErrorCode::NOT_IMPLEMENTED_DATAGRAM_TYPE));
         };
-        let busy =
-            self.awaiting.len() >= self.config.max_awaiting_answer || self.awaiting.iter().any(|a| a.from == from);
+        let busy = self.awaiting.len() >= config.max_awaiting_answer || self.awaiting.iter().any(|a| a.from == from);
         if busy {
             self.stats.rejected_busy += 1;
             return out.reply(rejected(out.node, from, ErrorCode::BUFFER_UNAVAILABLE));
         }
-        self.awaiting.push(Awaiting { from, deadline: now + self.config.answer_timeout });
+        self.awaiting.push(Awaiting { from, deadline: now + config.answer_timeout });
         self.stats.received += 1;
-        out.event(NodeEvent::DatagramReceived { from, datagram });
+        out.event(NodeEvent::DatagramReceived { from, datagram: Box::new(datagram) });
     }
 
     pub(crate) fn answer(
@@ -484,13 +499,13 @@ impl Service<Lent<'_>> for DatagramService {
     /// Datagrams nobody else took (Memory Configuration is asked first), their OKs and
     /// rejections, and Initialization Complete (what the peer had not answered is lost).
     fn handle_message(&mut self, cx: &mut Lent<'_>, msg: MessageRef<'_>) -> bool {
-        let (now, out, peer) = (cx.now, &mut *cx.out, msg.source);
+        let (config, now, out, peer) = (&cx.config.datagrams, cx.now, &mut *cx.out, msg.source);
         match msg.mti {
-            Mti::DATAGRAM => self.on_datagram(now, out, peer, msg.payload),
-            Mti::DATAGRAM_RECEIVED_OK => self.on_received_ok(now, out, peer, msg.payload),
-            Mti::DATAGRAM_REJECTED => self.on_rejected(now, out, peer, rejection_code(msg.payload)),
+            Mti::DATAGRAM => self.on_datagram(config, now, out, peer, msg.payload),
+            Mti::DATAGRAM_RECEIVED_OK => self.on_received_ok(config, now, out, peer, msg.payload),
+            Mti::DATAGRAM_REJECTED => self.on_rejected(config, now, out, peer, rejection_code(msg.payload)),
             Mti::INITIALIZATION_COMPLETE | Mti::INITIALIZATION_COMPLETE_SIMPLE => {
-                self.peer_restarted(now, out, peer);
+                self.peer_restarted(config, now, out, peer);
                 return false;
             }
             _ => return false,
@@ -502,7 +517,7 @@ impl Service<Lent<'_>> for DatagramService {
     fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
         let ours = matches!(report.mti, None | Some(Mti::DATAGRAM)) && self.is_waiting_for(peer);
         if ours {
-            self.on_rejected(cx.now, cx.out, peer, report.code);
+            self.on_rejected(&cx.config.datagrams, cx.now, cx.out, peer, report.code);
         }
         ours
     }
@@ -535,7 +550,7 @@ impl Service<Lent<'_>> for DatagramService {
     }
 
     fn handle_timeout(&mut self, cx: &mut Lent<'_>) {
-        self.timeout(cx.now, cx.out);
+        self.timeout(&cx.config.datagrams, cx.now, cx.out);
     }
 
     fn poll_timeout(&self) -> Option<Instant> {

@@ -2,6 +2,7 @@
 //! other message to the first of its services that takes it, and drains them in one drive
 //! loop.
 
+use alloc::boxed::Box;
 use alloc::vec::Vec;
 
 #[cfg(feature = "streams")]
@@ -42,8 +43,8 @@ pub enum NodeEvent {
     DatagramReceived {
         /// The sender.
         from: NodeId,
-        /// Its bytes.
-        datagram: Datagram,
+        /// Its bytes (boxed, so that the events every node raises stay small).
+        datagram: Box<Datagram>,
     },
     /// A datagram this node sent was answered with Received OK.
     DatagramDelivered {
@@ -79,8 +80,8 @@ pub enum NodeEvent {
     SnipReceived {
         /// The node asked.
         peer: NodeId,
-        /// Its strings.
-        info: SnipInfo,
+        /// Its strings (boxed, so that the events every node raises stay small).
+        info: Box<SnipInfo>,
     },
     /// A SNIP request got no usable answer.
     SnipFailed {
@@ -130,6 +131,23 @@ pub struct NodeStats {
     pub stray_snip_replies: u64,
     /// The datagram service's counters.
     pub datagrams: DatagramStats,
+}
+
+/// The counters the node keeps itself (the rest of [`NodeStats`] are its services', read when
+/// asked for): 32-bit, each stopping at `u32::MAX`, as the node is built and kept in a
+/// microcontroller's RAM.
+#[derive(Debug, Default)]
+struct MessageCounts {
+    messages_in: u32,
+    own_echoes: u32,
+    not_for_us: u32,
+    unknown_mti_rejected: u32,
+    stray_error_reports: u32,
+}
+
+/// Counts one more, stopping at `u32::MAX`.
+fn bump(counter: &mut u32) {
+    *counter = counter.saturating_add(1);
 }
 
 /// The node's own output queues, lent to each service.
@@ -217,7 +235,7 @@ pub struct Node {
     memory: MemoryConfig,
     pub(crate) services: Services,
     pub(crate) out: Outputs,
-    stats: NodeStats,
+    stats: MessageCounts,
 }
 
 /// Lends the node's parts for one call: `$lent` is what every service gets, `$parts` binds
@@ -266,11 +284,11 @@ impl Node {
         }
         Node {
             protocols,
-            streams: Endpoint::new(id, config.stream.clone()),
+            streams: streams::endpoint(id, &config),
             memory: MemoryConfig::default(),
             services,
             out,
-            stats: NodeStats::default(),
+            stats: MessageCounts::default(),
             config,
         }
     }
@@ -338,12 +356,17 @@ impl Node {
 
     /// Counters.
     pub fn stats(&self) -> NodeStats {
+        let counts = &self.stats;
         NodeStats {
+            messages_in: counts.messages_in.into(),
+            own_echoes: counts.own_echoes.into(),
+            not_for_us: counts.not_for_us.into(),
+            unknown_mti_rejected: counts.unknown_mti_rejected.into(),
+            stray_error_reports: counts.stray_error_reports.into(),
             answers_dropped: self.out.answers_dropped,
             snip_answered: self.services.snip.answered,
             stray_snip_replies: self.services.snip.stray_replies,
             datagrams: self.services.datagrams.stats,
-            ..self.stats
         }
     }
 
@@ -378,14 +401,14 @@ impl Node {
     /// to the first service that takes it, and an error report to every service it may
     /// concern.
     pub fn handle_message(&mut self, now: Instant, msg: MessageRef<'_>) {
-        self.stats.messages_in += 1;
+        bump(&mut self.stats.messages_in);
         if msg.source == self.out.node {
-            self.stats.own_echoes += 1;
+            bump(&mut self.stats.own_echoes);
             return;
         }
         if msg.destination.is_some_and(|d| d != self.out.node) || (msg.destination.is_none() && msg.mti.is_addressed())
         {
-            self.stats.not_for_us += 1;
+            bump(&mut self.stats.not_for_us);
             return;
         }
         match msg.mti {
@@ -398,7 +421,7 @@ impl Node {
             }
             mti if mti.is_addressed() && !is_answer(mti) => {
                 // MN §3.5.2: an addressed message of a protocol this node lacks.
-                self.stats.unknown_mti_rejected += 1;
+                bump(&mut self.stats.unknown_mti_rejected);
                 let oir = ErrorReport { code: ErrorCode::NOT_IMPLEMENTED_MTI, mti: Some(mti) };
                 let node = self.out.node;
                 self.out.reply(Message::addressed(
@@ -484,7 +507,7 @@ impl Node {
             handled |= memory.handle_error_report(&mut memory_lent, peer, report);
         });
         if !handled {
-            self.stats.stray_error_reports += 1;
+            bump(&mut self.stats.stray_error_reports);
         }
     }
 
@@ -550,7 +573,14 @@ impl Node {
     /// Sends a datagram of at most 72 bytes to `to`. Datagrams to one node go one at a time
     /// (DG §6.1); later ones wait their turn. `DatagramDelivered` or `DatagramFailed` follows.
     pub fn send_datagram(&mut self, now: Instant, to: NodeId, payload: &[u8]) -> Result<DatagramId, DatagramError> {
-        self.services.datagrams.send(now, &mut self.out, to, payload, DatagramOwner::Application)
+        self.services.datagrams.send(
+            &self.config.datagrams,
+            now,
+            &mut self.out,
+            to,
+            payload,
+            DatagramOwner::Application,
+        )
     }
 
     /// Answers the datagram `from` sent (raised by `DatagramReceived`).
@@ -560,7 +590,7 @@ impl Node {
 
     /// Asks `peer` for its Simple Node Information. `SnipReceived` or `SnipFailed` follows.
     pub fn request_snip(&mut self, now: Instant, peer: NodeId) -> Result<(), SnipRequestError> {
-        self.services.snip.request(now, &mut self.out, peer)
+        self.services.snip.request(&self.config, now, &mut self.out, peer)
     }
 
     /// Sends a global Verify Node ID: every node on the network answers with Verified Node
@@ -607,7 +637,7 @@ impl Node {
     fn settle(&mut self, now: Instant) {
         // The application's policy, for the requests Memory Configuration did not claim (the
         // endpoint raises requests only when it asks: with a server, or with `Ask`).
-        let unclaimed_streams = self.config.stream.accept_policy;
+        let unclaimed_streams = streams::accept_policy(&self.config);
         let Node { config, out, streams, services, memory, .. } = self;
         let mut lent = memory_lent(now, out, config, &mut services.datagrams, streams);
         loop {

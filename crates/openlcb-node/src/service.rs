@@ -102,8 +102,8 @@ impl Services {
     pub(crate) fn new(config: &NodeConfig) -> Self {
         let announce = config.send_initialization_complete;
         Services {
-            datagrams: DatagramService::new(config.datagrams.clone()),
-            snip: SnipService::new(&config.snip, config.max_snip_requests, config.snip_timeout),
+            datagrams: DatagramService::new(&config.datagrams),
+            snip: SnipService::new(config),
             events: EventService::new(&config.events, announce),
             #[cfg(feature = "broadcast-time")]
             clocks: ClockService::new(&config.clocks, announce),

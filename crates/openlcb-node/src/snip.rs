@@ -1,12 +1,13 @@
 //! Simple Node Information (SNIP, node-protocols.md §5): the strings a node tells about
 //! itself, their wire form, and the requests this node makes for other nodes' strings.
 
+use alloc::boxed::Box;
 use alloc::string::String;
 use alloc::vec::Vec;
 use core::fmt;
 
 use openlcb_stream::wire::ErrorReport;
-use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId};
+use openlcb_stream::{Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::node::{NodeEvent, Outputs};
 use crate::service::{Lent, Service, ServiceChange, earliest};
@@ -208,6 +209,13 @@ impl fmt::Display for SnipInfo {
 }
 
 /// The longest prefix of `value` of at most `max` bytes that ends on a character boundary.
+/// A reply kept for the node's lifetime, without the room `to_payload` made for the longest
+/// one (253 bytes, where a board's is often under 100: RAM on a microcontroller).
+fn kept(mut reply: Vec<u8>) -> Vec<u8> {
+    reply.shrink_to_fit();
+    reply
+}
+
 fn truncate(value: &str, max: usize) -> &str {
     let mut end = value.len().min(max);
     while !value.is_char_boundary(end) {
@@ -316,8 +324,6 @@ pub(crate) struct SnipService {
     /// The node's reply payload.
     reply: Vec<u8>,
     requests: Vec<PendingSnip>,
-    max_requests: usize,
-    timeout: Duration,
     /// Requests answered.
     pub(crate) answered: u64,
     /// Replies nobody here asked for.
@@ -325,12 +331,12 @@ pub(crate) struct SnipService {
 }
 
 impl SnipService {
-    pub(crate) fn new(info: &SnipInfo, max_requests: usize, timeout: Duration) -> Self {
+    /// The service for a node of `config` (its own strings, the bound and the wait of its
+    /// requests: [`request`](Self::request) is given the bound and the wait again).
+    pub(crate) fn new(config: &crate::NodeConfig) -> Self {
         SnipService {
-            reply: info.to_payload(),
-            requests: Vec::with_capacity(max_requests),
-            max_requests,
-            timeout,
+            reply: kept(config.snip.to_payload()),
+            requests: Vec::with_capacity(config.max_snip_requests),
             answered: 0,
             stray_replies: 0,
         }
@@ -338,21 +344,28 @@ impl SnipService {
 
     /// The node's strings changed.
     pub(crate) fn set_info(&mut self, info: &SnipInfo) {
-        self.reply = info.to_payload();
+        self.reply = kept(info.to_payload());
     }
 
-    /// Asks `peer` for its strings.
-    pub(crate) fn request(&mut self, now: Instant, out: &mut Outputs, peer: NodeId) -> Result<(), SnipRequestError> {
+    /// Asks `peer` for its strings: at most `config.max_snip_requests` at once, each waiting
+    /// `config.snip_timeout`.
+    pub(crate) fn request(
+        &mut self,
+        config: &crate::NodeConfig,
+        now: Instant,
+        out: &mut Outputs,
+        peer: NodeId,
+    ) -> Result<(), SnipRequestError> {
         if peer == out.node {
             return Err(SnipRequestError::SelfAddressed);
         }
         if self.requests.iter().any(|p| p.peer == peer) {
             return Err(SnipRequestError::AlreadyPending);
         }
-        if self.requests.len() >= self.max_requests {
+        if self.requests.len() >= config.max_snip_requests {
             return Err(SnipRequestError::TooMany);
         }
-        self.requests.push(PendingSnip { peer, deadline: now + self.timeout, reply: Vec::new() });
+        self.requests.push(PendingSnip { peer, deadline: now + config.snip_timeout, reply: Vec::new() });
         out.transmit(Message::addressed(Mti::SIMPLE_NODE_INFO_REQUEST, out.node, peer, Vec::new()));
         Ok(())
     }
@@ -365,7 +378,7 @@ impl SnipService {
             Some(failure) if reply.is_empty() || failure != SnipFailure::TimedOut => {
                 NodeEvent::SnipFailed { peer, failure }
             }
-            _ => NodeEvent::SnipReceived { peer, info: SnipInfo::parse(&reply) },
+            _ => NodeEvent::SnipReceived { peer, info: Box::new(SnipInfo::parse(&reply)) },
         });
     }
 }

@@ -14,16 +14,48 @@ pub(crate) use openlcb_stream::StreamEndpoint as Endpoint;
 pub(crate) use absent::Endpoint;
 
 /// Streams are in use: the feature is built in and the configuration turns them on.
+#[cfg(feature = "streams")]
 pub(crate) fn enabled(config: &crate::NodeConfig) -> bool {
-    cfg!(feature = "streams") && config.streams_enabled
+    config.streams_enabled
+}
+
+/// Streams are in use: never without the feature.
+#[cfg(not(feature = "streams"))]
+pub(crate) fn enabled(_config: &crate::NodeConfig) -> bool {
+    false
+}
+
+/// The node's stream endpoint, bounded by its configuration.
+#[cfg(feature = "streams")]
+pub(crate) fn endpoint(node: openlcb_stream::NodeId, config: &crate::NodeConfig) -> Endpoint {
+    Endpoint::new(node, config.stream.clone())
+}
+
+/// The node's stream endpoint: one without streams.
+#[cfg(not(feature = "streams"))]
+pub(crate) fn endpoint(_node: openlcb_stream::NodeId, _config: &crate::NodeConfig) -> Endpoint {
+    Endpoint
+}
+
+/// What becomes of a stream request that Memory Configuration does not claim.
+#[cfg(feature = "streams")]
+pub(crate) fn accept_policy(config: &crate::NodeConfig) -> openlcb_stream::AcceptPolicy {
+    config.stream.accept_policy
+}
+
+/// What becomes of a stream request that Memory Configuration does not claim: without an
+/// endpoint none ever comes.
+#[cfg(not(feature = "streams"))]
+pub(crate) fn accept_policy(_config: &crate::NodeConfig) -> openlcb_stream::AcceptPolicy {
+    openlcb_stream::AcceptPolicy::Ask
 }
 
 #[cfg(not(feature = "streams"))]
 mod absent {
     use openlcb_stream::wire::{ErrorCode, ReplyCode};
     use openlcb_stream::{
-        AcceptOptions, AcceptPolicy, Config, Event, Instant, Message, MessageRef, NodeId, OpenOptions, PeerChange,
-        Stats, StreamError, StreamHandle, StreamId, StreamInfo,
+        AcceptOptions, AcceptPolicy, Event, Instant, Message, MessageRef, NodeId, OpenOptions, PeerChange, Stats,
+        StreamError, StreamHandle, StreamId, StreamInfo,
     };
 
     /// An endpoint without streams: it holds none, so every command on a stream finds none
@@ -33,9 +65,6 @@ mod absent {
     pub(crate) struct Endpoint;
 
     impl Endpoint {
-        pub(crate) fn new(_node: NodeId, _config: Config) -> Self {
-            Endpoint
-        }
         pub(crate) fn handle_message(&mut self, _now: Instant, _msg: MessageRef<'_>) {}
         pub(crate) fn handle_timeout(&mut self, _now: Instant) {}
         pub(crate) fn peer_changed(&mut self, _change: PeerChange) {}

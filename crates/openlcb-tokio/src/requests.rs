@@ -48,7 +48,7 @@ impl Requests {
             }
             NodeEvent::SnipReceived { peer, info } => {
                 for reply in take(&mut self.snip, peer) {
-                    let _ = reply.send(Ok(info.clone()));
+                    let _ = reply.send(Ok(SnipInfo::clone(&info)));
                 }
             }
             NodeEvent::SnipFailed { peer, failure } => {

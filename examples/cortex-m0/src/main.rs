@@ -95,15 +95,17 @@ fn act_on(lines: &[Line], space: &mut (dyn MemorySpace + Send), event: EventId) 
 }
 
 /// The CAN link's tables, sized for a board that answers tools and talks to few peers (the
-/// defaults suit a PC tool): aliases of 16 peers, 4 messages reassembled at once of up to a
-/// datagram's 72 bytes, 8 messages queued (2 of them waiting for an alias) and 8 frames, 2
-/// datagrams in flight.
+/// defaults suit a PC tool): aliases of 8 peers (those it answers, learnt from their frames);
+/// 2 messages other than datagrams reassembled at once, of up to 72 bytes (a board takes in
+/// few: a PCER with a payload, a tool's SNIP reply); 2 messages queued (the driver hands the
+/// link the node's next message only when it has room: the node's own queue holds the rest),
+/// 2 of them waiting for an alias; 8 frames; 2 datagrams in flight.
 fn can_config() -> CanConfig {
     let mut config = CanConfig::default();
-    config.alias_cache_size = 16;
-    config.reassembly_slots = 4;
+    config.alias_cache_size = 8;
+    config.reassembly_slots = 2;
     config.max_message_len = 72;
-    config.transmit_queue_limit = 8;
+    config.transmit_queue_limit = 2;
     config.unresolved_limit = 2;
     config.frame_queue_limit = 8;
     config.datagram_slots = 2;
@@ -140,22 +142,6 @@ fn memory_server(cdi: CdiSpace<Vec<Line>>, config: ConfigSpace) -> MemoryServer 
         .with_acdi()
 }
 
-/// The node, its configuration space loaded (or its defaults written). It lives in static
-/// RAM, built there in place (`ram::place`): it is 1.1 KiB, never copied through the stack.
-#[inline(never)]
-fn build_node(id: NodeId, board: &Board, cdi: CdiSpace<Vec<Line>>, snip: SnipInfo) -> &'static mut Node {
-    let (mut config, found) = ConfigSpace::load(board.len());
-    if !found && board.factory_reset(&mut config).is_err() {
-        fail("factory reset");
-    }
-    let Some(slot) = cortex_m::singleton!(: MaybeUninit<Node> = MaybeUninit::uninit()) else {
-        fail("node built twice")
-    };
-    let node = ram::place(slot, || Node::new(id, node_config(board, &mut config, snip)));
-    node.set_memory_server(memory_server(cdi, config));
-    node
-}
-
 #[entry]
 fn main() -> ! {
     ram::paint_stack();
@@ -178,15 +164,33 @@ fn main() -> ! {
     }
 }
 
-/// The board declared and its node built: apart from `main`, so that what they need on the
-/// stack is given back before the node runs.
+/// The board declared, then its node built, its configuration space loaded (or its defaults
+/// written). The node (0.8 KiB) lives in static RAM, placed there by `ram::place`, out of
+/// `main`'s frame. Apart from `main` and out of line, like the declaration before it, so that
+/// what they need on the stack is given back before the node runs.
 #[inline(never)]
 fn start(id: NodeId) -> (Board, Vec<Line>, &'static mut Node) {
-    let snip = snip();
-    let (board, lines, cdi) = Board::declare("I/O board", &snip, settings);
-    let node = build_node(id, &board, cdi, snip);
+    let (board, lines, cdi, snip) = declare();
+    let (mut config, found) = ConfigSpace::load(board.len());
+    if !found && board.factory_reset(&mut config).is_err() {
+        fail("factory reset");
+    }
+    let Some(slot) = cortex_m::singleton!(: MaybeUninit<Node> = MaybeUninit::uninit()) else {
+        fail("node built twice")
+    };
+    let node = ram::place(slot, || Node::new(id, node_config(&board, &mut config, snip)));
+    node.set_memory_server(memory_server(cdi, config));
     print(&[b"booted\n"]);
     (board, lines, node)
+}
+
+/// The board declared: its layout, defaults and events, its lines' settings, its CDI space,
+/// and what it says about itself.
+#[inline(never)]
+fn declare() -> (Board, Vec<Line>, CdiSpace<Vec<Line>>, SnipInfo) {
+    let snip = snip();
+    let (board, lines, cdi) = Board::declare("I/O board", &snip, settings);
+    (board, lines, cdi, snip)
 }
 
 /// The CAN link and its driver, in static RAM like the node. The login's 200 ms count from

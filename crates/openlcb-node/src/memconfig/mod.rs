@@ -268,6 +268,8 @@ pub(crate) struct Cx<'a> {
     pub(crate) now: Instant,
     pub(crate) out: &'a mut Outputs,
     pub(crate) datagrams: &'a mut DatagramService,
+    /// The datagram service's bounds and timers.
+    datagram_config: &'a crate::DatagramConfig,
     pub(crate) streams: &'a mut crate::streams::Endpoint,
     pub(crate) streams_enabled: bool,
     pub(crate) options: &'a MemoryConfigOptions,
@@ -296,7 +298,7 @@ impl Cx<'_> {
 
     /// Sends a command datagram of the client, whose outcome comes back to the client.
     pub(crate) fn send_datagram(&mut self, to: NodeId, payload: &[u8]) -> Option<DatagramId> {
-        self.datagrams.send(self.now, self.out, to, payload, DatagramOwner::MemoryClient).ok()
+        self.datagrams.send(self.datagram_config, self.now, self.out, to, payload, DatagramOwner::MemoryClient).ok()
     }
 
     /// Finishes a stream of Memory Configuration (its `Sent` event stays inside).
@@ -311,7 +313,7 @@ impl Cx<'_> {
     /// Sends a reply datagram of the server that a Datagram OK promised: never dropped (its
     /// delivery is the datagram service's business).
     pub(crate) fn send_reply(&mut self, to: NodeId, payload: &[u8]) {
-        self.datagrams.send_promised(self.now, self.out, to, payload);
+        self.datagrams.send_promised(self.datagram_config, self.now, self.out, to, payload);
     }
 
     /// Sends the server's reply datagram `reply` to `to`, naming its space in `form`. Out of
@@ -323,7 +325,7 @@ impl Cx<'_> {
 
     /// A reply to `to` could be queued now.
     pub(crate) fn has_reply_room(&self, to: NodeId) -> bool {
-        self.datagrams.has_room(to)
+        self.datagrams.has_room(self.datagram_config, to)
     }
 }
 
@@ -367,6 +369,7 @@ impl MemoryConfig {
             now: lent.lent.now,
             out: lent.lent.out,
             datagrams: lent.datagrams,
+            datagram_config: &lent.lent.config.datagrams,
             streams: lent.streams,
             streams_enabled: crate::streams::enabled(lent.lent.config),
             options: &lent.lent.config.memory,
