@@ -325,6 +325,18 @@ mod tests {
     }
 
     #[test]
+    fn node_ids_keep_their_value_order_and_an_optional_one_is_as_small() {
+        assert_eq!(core::mem::size_of::<Option<NodeId>>(), core::mem::size_of::<NodeId>());
+        let ids = [0, 1, 0x0501_0101_2200, 0xFFFF_FFFF_FFFF].map(|raw| NodeId::new(raw).unwrap());
+        assert_eq!(ids.map(NodeId::as_raw), [0, 1, 0x0501_0101_2200, 0xFFFF_FFFF_FFFF]);
+        assert!(ids.windows(2).all(|pair| pair[0] < pair[1]), "{ids:?}");
+        assert_eq!(NodeId::default().as_raw(), 0);
+        assert_eq!(NodeId::MAX, ids[3]);
+        assert_eq!(NodeId::from_bytes([0; 6]), NodeId::default());
+        assert_eq!(ids[3].to_bytes(), [0xFF; 6]);
+    }
+
+    #[test]
     fn node_id_text_forms() {
         let id = NodeId::new(0x0501_0101_2200).unwrap();
         assert_eq!(id.to_string(), "05.01.01.01.22.00");
