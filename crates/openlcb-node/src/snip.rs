@@ -208,7 +208,6 @@ impl fmt::Display for SnipInfo {
     }
 }
 
-/// The longest prefix of `value` of at most `max` bytes that ends on a character boundary.
 /// A reply kept for the node's lifetime, without the room `to_payload` made for the longest
 /// one (253 bytes, where a board's is often under 100: RAM on a microcontroller).
 fn kept(mut reply: Vec<u8>) -> Vec<u8> {
@@ -216,6 +215,7 @@ fn kept(mut reply: Vec<u8>) -> Vec<u8> {
     reply
 }
 
+/// The longest prefix of `value` of at most `max` bytes that ends on a character boundary.
 fn truncate(value: &str, max: usize) -> &str {
     let mut end = value.len().min(max);
     while !value.is_char_boundary(end) {

@@ -24,11 +24,9 @@ impl NodeId {
 
     /// The value `raw` (48 bits) as held.
     const fn held(raw: u64) -> Self {
-        match NonZeroU64::new(raw | NODE_ID_HELD) {
-            Some(value) => NodeId(value),
-            // The held bit is set: never zero.
-            None => NodeId(NonZeroU64::MAX),
-        }
+        // One plus the held value less one: the held value itself, as a `NonZeroU64` without
+        // a check that could fail (the held bit makes it at least 2^48).
+        NodeId(NonZeroU64::MIN.saturating_add((raw | NODE_ID_HELD) - 1))
     }
 
     /// A Node ID from its 48-bit value, or `None` if bits above 47 are set.

@@ -1172,8 +1172,9 @@ async fn sleep_until(at: Option<Instant>) {
 }
 
 /// Writes a client's queue, many chunks per `write` call, until the client is removed or a
-/// write fails; between writes the socket is lent to the relays ([`Backlog::offer`]). Then nothing more is queued for it; its reader goes on until its input ends
-/// (what it sent before its connection broke still reaches everyone).
+/// write fails; between writes the socket is lent to the relays ([`Backlog::offer`]). Then
+/// nothing more is queued for it; its reader goes on until its input ends (what it sent
+/// before its connection broke still reaches everyone).
 async fn write_client(writer: ByteWriter, mut queue: mpsc::UnboundedReceiver<Bytes>, backlog: Arc<Backlog>) {
     backlog.put_writer(writer);
     let mut batch = Vec::new();
