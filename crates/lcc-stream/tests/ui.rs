@@ -53,26 +53,7 @@ impl Layout {
         let config = dir.join("config.bin");
         std::fs::write(&config, vec![0; len]).unwrap();
         let serve = serve(&dir, &addr, SERVER, "Yard", &config, &["--produces", PRODUCED]).await;
-        let mut ui = Command::new(BIN)
-            .args(["ui", "--connect", &addr, "--listen", "127.0.0.1:0", "--json"])
-            .args(ui_args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .kill_on_drop(true)
-            .spawn()
-            .unwrap();
-        let mut out = BufReader::new(ui.stdout.take().unwrap()).lines();
-        let ready = bounded("ui to print its URL", out.next_line()).await.unwrap().expect("ui printed nothing");
-        let ready: Value = serde_json::from_str(&ready).unwrap();
-        let listen = ready["listen"].as_str().unwrap().to_string();
-        assert!(listen.starts_with("127.0.0.1:"), "{ready}");
-        let token = ready["token"].as_str().map(str::to_string);
-        let url = ready["url"].as_str().unwrap();
-        match &token {
-            Some(token) => assert_eq!(url, format!("http://{listen}/?token={token}")),
-            None => assert_eq!(url, format!("http://{listen}/")),
-        }
+        let (ui, listen, token) = start_ui(&addr, ui_args).await;
         Layout {
             _hub: hub,
             hub: addr,
@@ -122,6 +103,31 @@ impl Layout {
 }
 
 /// `serve` as `node_id` named `name` with the configuration file `config`, once it serves.
+/// `ui --json` on the hub at `hub`: the child, the address it listens on and its token.
+async fn start_ui(hub: &str, ui_args: &[&str]) -> (Child, String, Option<String>) {
+    let mut ui = Command::new(BIN)
+        .args(["ui", "--connect", hub, "--listen", "127.0.0.1:0", "--json"])
+        .args(ui_args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .unwrap();
+    let mut out = BufReader::new(ui.stdout.take().unwrap()).lines();
+    let ready = bounded("ui to print its URL", out.next_line()).await.unwrap().expect("ui printed nothing");
+    let ready: Value = serde_json::from_str(&ready).unwrap();
+    let listen = ready["listen"].as_str().unwrap().to_string();
+    assert!(listen.starts_with("127.0.0.1:"), "{ready}");
+    let token = ready["token"].as_str().map(str::to_string);
+    let url = ready["url"].as_str().unwrap();
+    match &token {
+        Some(token) => assert_eq!(url, format!("http://{listen}/?token={token}")),
+        None => assert_eq!(url, format!("http://{listen}/")),
+    }
+    (ui, listen, token)
+}
+
 async fn serve(dir: &Path, hub: &str, node_id: &str, name: &str, config: &Path, extra: &[&str]) -> Child {
     let mut serve = Command::new(BIN)
         .current_dir(dir)
@@ -584,6 +590,46 @@ fn base64_decode(text: &str) -> Vec<u8> {
 fn base64_decodes() {
     assert_eq!(base64_decode("aGVsbG8="), b"hello");
     assert_eq!(base64_decode("aGVsbG8h"), b"hello!");
+}
+
+/// A node that answers `ui`'s first discovery two seconds late (a busy machine, a slow bus:
+/// the discovery stops a second after the last answer) is in the table all the same: the
+/// monitor heard its Verified Node ID. The node is logged in by hand as 05.01.01.01.22.F0
+/// (alias 0x5A5) before `ui` starts, so its Initialization Complete is not heard.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_that_answers_the_first_discovery_late_is_in_the_table() {
+    let hub = Hub::bind("127.0.0.1:0", None, HubOptions::default()).await.unwrap();
+    let addr = hub.local_addr().to_string();
+    let (read, mut write) = tokio::net::TcpStream::connect(&addr).await.unwrap().into_split();
+    let login = ":X170505A5N;:X161015A5N;:X150125A5N;:X142F05A5N;:X107005A5N;:X107015A5N0501010122F0;";
+    write.write_all(format!("{login}:X191005A5N0501010122F0;\n").as_bytes()).await.unwrap();
+    let late = tokio::spawn(async move {
+        let mut lines = BufReader::new(read).lines();
+        while let Ok(Some(line)) = lines.next_line().await {
+            if line.starts_with(":X19490") {
+                tokio::time::sleep(std::time::Duration::from_secs(2)).await;
+                write.write_all(b":X191705A5N0501010122F0;\n").await.unwrap();
+                // Stays on the bus (SNIP and PIP go unanswered) until the test ends.
+                while let Ok(Some(_)) = lines.next_line().await {}
+                return true;
+            }
+        }
+        false
+    });
+    let (_ui, listen, _) = start_ui(&addr, &[]).await;
+    let table = bounded("the late node in the table", async {
+        loop {
+            let state = http(&listen, "GET", "/api/state", "X-LCC-UI: 1\r\n", b"").await.json();
+            if state["nodes"].as_array().is_some_and(|nodes| !nodes.is_empty()) {
+                return state["nodes"].clone();
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+        }
+    })
+    .await;
+    assert_eq!(table[0]["node_id"], "05.01.01.01.22.F0", "{table}");
+    assert_eq!(table[0]["alias"], "5A5", "{table}");
+    assert!(!late.is_finished(), "the node left the bus");
 }
 
 /// The browser, or None when there is none and LCC_UI_BROWSER_TEST=skip says that is fine.

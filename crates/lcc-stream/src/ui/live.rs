@@ -2,7 +2,7 @@
 //! they introduce themselves), the event reports and identifications its node hears, and the
 //! bus decoded by `monitor`'s decoder, with the trace kept for download.
 
-use std::collections::VecDeque;
+use std::collections::{BTreeSet, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -94,29 +94,31 @@ pub(crate) fn start(shared: &Arc<Shared>, connect: &ConnectArgs) -> Vec<JoinHand
     tasks
 }
 
-/// Finds every node, asks each for its SNIP and PIP, and shows the table anew.
+/// Finds every node, asks each for its SNIP and PIP, and shows the table anew: a node that
+/// was in it and did not answer goes; one learnt while the discovery ran stays (one that
+/// introduced itself, or whose answer came after the quiet and was heard by the monitor).
 pub(crate) async fn discover(shared: Arc<Shared>) {
-    let found = match shared.node.discover(DISCOVER_QUIET, nodes::MOST_NODES).await {
-        Ok(found) => found,
+    let before: BTreeSet<NodeId> = shared.nodes().keys().copied().collect();
+    let found: BTreeSet<NodeId> = match shared.node.discover(DISCOVER_QUIET, nodes::MOST_NODES).await {
+        Ok(found) => found.into_iter().collect(),
         Err(error) => {
             shared.push("notice", &serde_json::json!({ "error": format!("finding the nodes: {error}") }));
             return;
         }
     };
-    let mut reports = std::collections::BTreeMap::new();
-    for peer in found {
-        reports.insert(peer, nodes::describe(&shared.node, peer).await);
+    for &peer in &found {
+        learn(Arc::clone(&shared), peer).await;
     }
     let list: Vec<_> = {
         let mut table = shared.nodes();
-        *table = reports;
+        table.retain(|peer, _| found.contains(peer) || !before.contains(peer));
         table.values().cloned().collect()
     };
     shared.push("nodes", &list);
 }
 
-/// Asks `peer` for its SNIP and PIP and puts it in the table (a node that introduced
-/// itself, or sent something before we knew it).
+/// Asks `peer` for its SNIP and PIP and puts it in the table (a node that answered a
+/// discovery, introduced itself, or sent something before we knew it).
 pub(crate) async fn learn(shared: Arc<Shared>, peer: NodeId) {
     let report = nodes::describe(&shared.node, peer).await;
     let list: Vec<_> = {
@@ -222,7 +224,8 @@ fn report(shared: &Shared, started: Instant, from: NodeId, event: EventId, paylo
 }
 
 /// Listens to the bus as `monitor` does (a connection of its own, only listening) and
-/// decodes it; a node's Initialization Complete puts it in the table.
+/// decodes it; a node's Initialization Complete, or a Verified Node ID from a node not in
+/// the table, puts it there.
 async fn watch_bus(shared: Arc<Shared>, connect: ConnectArgs, started: Instant) {
     if connect.serial.is_some() {
         shared.gathered().monitor_off =
@@ -277,9 +280,14 @@ async fn watch_bus(shared: Arc<Shared>, connect: ConnectArgs, started: Instant) 
             if line.message == "AMR" {
                 forget(&shared, &line.source_alias);
             }
-            if line.message.starts_with("Initialization Complete")
+            // A Verified Node ID from a node not in the table: an answer to a discovery that
+            // came after its quiet (a busy machine, a slow bus), or to another tool's Verify.
+            let introduced = line.message.starts_with("Initialization Complete");
+            let answered = line.message.starts_with("Verified Node ID");
+            if (introduced || answered)
                 && let Ok(peer) = line.detail.parse::<NodeId>()
                 && peer != shared.node.node_id()
+                && (introduced || !shared.nodes().contains_key(&peer))
             {
                 tokio::spawn(learn(Arc::clone(&shared), peer));
             }
