@@ -7,6 +7,7 @@ use core::ops::BitOr;
 
 #[cfg(feature = "streams")]
 use openlcb_stream::Config;
+#[cfg(feature = "snip-client")]
 use openlcb_stream::Duration;
 
 #[cfg(feature = "broadcast-time")]
@@ -54,8 +55,10 @@ pub struct NodeConfig {
     #[cfg(feature = "traction")]
     pub throttle: Option<ThrottleConfig>,
     /// How long a SNIP request of this node waits for the reply.
+    #[cfg(feature = "snip-client")]
     pub snip_timeout: Duration,
     /// SNIP requests of this node waiting at once.
+    #[cfg(feature = "snip-client")]
     pub max_snip_requests: usize,
     /// Protocol bits announced besides the ones the node implements itself (Datagram, SNIP,
     /// and Stream when enabled): for protocols the application implements on top.
@@ -86,7 +89,9 @@ impl Default for NodeConfig {
             train: None,
             #[cfg(feature = "traction")]
             throttle: None,
+            #[cfg(feature = "snip-client")]
             snip_timeout: Duration::from_secs(3),
+            #[cfg(feature = "snip-client")]
             max_snip_requests: 8,
             extra_protocols: Protocols::NONE,
             transmit_queue_limit: 256,

@@ -23,7 +23,9 @@ use crate::memconfig::{MemoryConfig, MemoryEvent, MemoryLent, MemoryServer, acdi
 #[cfg(feature = "memory-client")]
 use crate::memconfig::{MemoryOperation, MemoryRequestError, NodeCommand, TransferPath};
 use crate::service::{Lent, Service, ServiceChange, Services, earliest};
-use crate::snip::{SnipFailure, SnipInfo, SnipRequestError};
+#[cfg(feature = "snip-client")]
+use crate::snip::SnipRequestError;
+use crate::snip::{SnipFailure, SnipInfo};
 use crate::streams::{self, Endpoint};
 use crate::{DatagramStats, NodeConfig, Protocols};
 #[cfg(feature = "streams")]
@@ -589,6 +591,7 @@ impl Node {
     }
 
     /// Asks `peer` for its Simple Node Information. `SnipReceived` or `SnipFailed` follows.
+    #[cfg(feature = "snip-client")]
     pub fn request_snip(&mut self, now: Instant, peer: NodeId) -> Result<(), SnipRequestError> {
         self.services.snip.request(&self.config, now, &mut self.out, peer)
     }

@@ -334,12 +334,12 @@ impl SnipService {
     /// The service for a node of `config` (its own strings, the bound and the wait of its
     /// requests: [`request`](Self::request) is given the bound and the wait again).
     pub(crate) fn new(config: &crate::NodeConfig) -> Self {
-        SnipService {
-            reply: kept(config.snip.to_payload()),
-            requests: Vec::with_capacity(config.max_snip_requests),
-            answered: 0,
-            stray_replies: 0,
-        }
+        // Without `snip-client` none is ever made.
+        #[cfg(feature = "snip-client")]
+        let requests = Vec::with_capacity(config.max_snip_requests);
+        #[cfg(not(feature = "snip-client"))]
+        let requests = Vec::new();
+        SnipService { reply: kept(config.snip.to_payload()), requests, answered: 0, stray_replies: 0 }
     }
 
     /// The node's strings changed.
@@ -347,8 +347,15 @@ impl SnipService {
         self.reply = kept(info.to_payload());
     }
 
+    /// The requests waiting for their replies: never any without the `snip-client` feature,
+    /// which the compiler is told here, so that it links none of the reply handling.
+    fn requests(&self) -> &[PendingSnip] {
+        if cfg!(feature = "snip-client") { &self.requests } else { &[] }
+    }
+
     /// Asks `peer` for its strings: at most `config.max_snip_requests` at once, each waiting
     /// `config.snip_timeout`.
+    #[cfg(feature = "snip-client")]
     pub(crate) fn request(
         &mut self,
         config: &crate::NodeConfig,
@@ -359,7 +366,7 @@ impl SnipService {
         if peer == out.node {
             return Err(SnipRequestError::SelfAddressed);
         }
-        if self.requests.iter().any(|p| p.peer == peer) {
+        if self.requests().iter().any(|p| p.peer == peer) {
             return Err(SnipRequestError::AlreadyPending);
         }
         if self.requests.len() >= config.max_snip_requests {
@@ -392,7 +399,7 @@ impl Service<Lent<'_>> for SnipService {
                 out.reply(Message::addressed(Mti::SIMPLE_NODE_INFO_REPLY, out.node, peer, self.reply.clone()));
             }
             Mti::SIMPLE_NODE_INFO_REPLY => {
-                let Some(index) = self.requests.iter().position(|p| p.peer == peer) else {
+                let Some(index) = self.requests().iter().position(|p| p.peer == peer) else {
                     self.stray_replies += 1;
                     return true;
                 };
@@ -407,7 +414,7 @@ impl Service<Lent<'_>> for SnipService {
 
     fn handle_error_report(&mut self, cx: &mut Lent<'_>, peer: NodeId, report: ErrorReport) -> bool {
         let named = matches!(report.mti, None | Some(Mti::SIMPLE_NODE_INFO_REQUEST));
-        let Some(index) = self.requests.iter().position(|p| p.peer == peer).filter(|_| named) else { return false };
+        let Some(index) = self.requests().iter().position(|p| p.peer == peer).filter(|_| named) else { return false };
         self.end(cx.out, index, Some(SnipFailure::Rejected(report.code)));
         true
     }
@@ -416,19 +423,19 @@ impl Service<Lent<'_>> for SnipService {
         for pending in self.requests.iter_mut() {
             change.rename(&mut pending.peer);
         }
-        while let Some(index) = self.requests.iter().position(|p| change.loses(p.peer)) {
+        while let Some(index) = self.requests().iter().position(|p| change.loses(p.peer)) {
             self.end(out, index, Some(SnipFailure::PeerLost));
         }
     }
 
     fn handle_timeout(&mut self, cx: &mut Lent<'_>) {
-        while let Some(index) = self.requests.iter().position(|p| p.deadline <= cx.now) {
+        while let Some(index) = self.requests().iter().position(|p| p.deadline <= cx.now) {
             self.end(cx.out, index, Some(SnipFailure::TimedOut));
         }
     }
 
     fn poll_timeout(&self) -> Option<Instant> {
-        self.requests.iter().fold(None, |next, p| earliest(next, Some(p.deadline)))
+        self.requests().iter().fold(None, |next, p| earliest(next, Some(p.deadline)))
     }
 }
 

@@ -242,6 +242,11 @@ async fn io_board_on_a_cortex_m0() {
     }
     assert!(!protocols.contains(Protocols::STREAM), "a board built without streams announces none");
 
+    // Its SNIP: answered by a node built without `snip-client` (it asks nobody for theirs).
+    let snip = bounded("the SNIP", tool.snip(board)).await.expect("the board answers SNIP");
+    println!("snip: {} {}", snip.manufacturer, snip.model);
+    assert_eq!((snip.manufacturer.as_str(), snip.model.as_str()), ("openlcb-stream", "Cortex-M0 I/O board"));
+
     // The CDI, which the board renders on each read from its declaration (it keeps no copy):
     // read whole by datagrams, it parses, and a tool finds each line's settings where the
     // board keeps them.

@@ -127,7 +127,6 @@ fn node_config(board: &Board, config: &mut ConfigSpace, snip: SnipInfo) -> NodeC
     node_config.datagrams.max_outgoing = 2;
     node_config.datagrams.max_outgoing_per_destination = 1;
     node_config.datagrams.max_awaiting_answer = 2;
-    node_config.max_snip_requests = 1;
     node_config.transmit_queue_limit = 16;
     node_config
 }

@@ -359,7 +359,7 @@ impl MemoryClient {
         if peer == cx.out.node {
             return Err(MemoryRequestError::SelfAddressed);
         }
-        if path == TransferPath::Stream && !cx.streams_enabled {
+        if path == TransferPath::Stream && !cx.streams_enabled() {
             return Err(MemoryRequestError::NoStreams);
         }
         if self.has_operation_with(peer) {
@@ -397,7 +397,7 @@ impl MemoryClient {
             // FWU §5.5: Freeze first; the PIP asked after it decides the path.
             _ if firmware => self.send(cx, index, Step::Freeze, &Command::Freeze { space: SPACE_FIRMWARE }),
             (_, Some(command)) => self.send(cx, index, Step::Command(command), &command.to_wire(peer)),
-            (TransferPath::Auto, None) if cx.streams_enabled => {
+            (TransferPath::Auto, None) if cx.streams_enabled() => {
                 self.send(cx, index, Step::Options, &Command::GetOptions)
             }
             (TransferPath::Stream, None) => self.begin_transfer(cx, index, true),
@@ -734,7 +734,7 @@ impl MemoryClient {
             }
             (Step::Lock { .. }, Reply::Lock { owner }) => Some(Outcome::Fail(MemoryError::Locked { owner })),
             (Step::Options, Reply::Options(options)) => {
-                let by_stream = options.streams() && cx.streams_enabled;
+                let by_stream = options.streams() && cx.streams_enabled();
                 self.begin_transfer(cx, index, by_stream)
             }
             (Step::SpaceInfo { .. }, Reply::SpaceInfo(info)) if info.space != op.space => {
@@ -877,7 +877,7 @@ impl MemoryClient {
         }
         op.deadline = None;
         let by_stream =
-            protocols.contains(Protocols::STREAM) && op.path != TransferPath::Datagrams && cx.streams_enabled;
+            protocols.contains(Protocols::STREAM) && op.path != TransferPath::Datagrams && cx.streams_enabled();
         let outcome = if op.path == TransferPath::Stream && !by_stream {
             Some(Outcome::Fail(MemoryError::NoStreams))
         } else {

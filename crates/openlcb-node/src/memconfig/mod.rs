@@ -271,7 +271,8 @@ pub(crate) struct Cx<'a> {
     /// The datagram service's bounds and timers.
     datagram_config: &'a crate::DatagramConfig,
     pub(crate) streams: &'a mut crate::streams::Endpoint,
-    pub(crate) streams_enabled: bool,
+    /// See [`Cx::streams_enabled`].
+    streams_enabled: bool,
     pub(crate) options: &'a MemoryConfigOptions,
     /// Streams Memory Configuration is done with (see [`MemoryConfig`]).
     ended: &'a mut Vec<StreamHandle>,
@@ -285,6 +286,12 @@ pub(crate) struct Cx<'a> {
 }
 
 impl Cx<'_> {
+    /// Streams are in use: never without the `streams` feature, which the compiler sees, so
+    /// that it links none of Memory Configuration's stream paths.
+    pub(crate) fn streams_enabled(&self) -> bool {
+        cfg!(feature = "streams") && self.streams_enabled
+    }
+
     /// Datagram Received OK for the datagram `to` sent.
     pub(crate) fn ok(&mut self, to: NodeId, flags: OkFlags) {
         let ok = Message::addressed(Mti::DATAGRAM_RECEIVED_OK, self.out.node, to, [flags.to_byte()].to_vec());
@@ -495,7 +502,8 @@ impl Service<MemoryLent<'_>> for MemoryConfig {
     /// ends that transfer (the stream endpoint leaves a report about another protocol alone):
     /// a client that gives up its firmware stream so, with TDE, is answered at its Unfreeze.
     fn handle_error_report(&mut self, lent: &mut MemoryLent<'_>, peer: NodeId, report: ErrorReport) -> bool {
-        if report.mti != Some(Mti::DATAGRAM) {
+        // Without the `streams` feature there is no Write Stream to end.
+        if report.mti != Some(Mti::DATAGRAM) || !cfg!(feature = "streams") {
             return false;
         }
         let mut ended = false;

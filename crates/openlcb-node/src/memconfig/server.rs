@@ -331,6 +331,12 @@ impl MemoryServer {
         }
     }
 
+    /// The stream transfers running: never any without the `streams` feature, which the
+    /// compiler is told here, so that it links none of their handling.
+    fn transfers(&self) -> &[Transfer] {
+        if cfg!(feature = "streams") { &self.transfers } else { &[] }
+    }
+
     /// Stream transfers running (or waiting for their stream).
     pub fn active_streams(&self) -> usize {
         self.transfers.len()
@@ -571,7 +577,7 @@ impl MemoryServer {
             }
             Command::GetOptions => {
                 cx.ok(peer, pending);
-                cx.send_server_reply(peer, Reply::Options(self.options(cx.streams_enabled)), SpaceForm::Short);
+                cx.send_server_reply(peer, Reply::Options(self.options(cx.streams_enabled())), SpaceForm::Short);
             }
             Command::GetSpaceInfo { space } => {
                 cx.ok(peer, pending);
@@ -729,7 +735,7 @@ impl MemoryServer {
         address: u32,
         write: bool,
     ) -> Result<(), ErrorCode> {
-        if !cx.streams_enabled {
+        if !cx.streams_enabled() {
             return Err(codes::UNKNOWN_COMMAND);
         }
         let len = self.space_len(space).ok_or(codes::UNKNOWN_SPACE)?;
@@ -746,7 +752,7 @@ impl MemoryServer {
             return Err(codes::OUT_OF_BOUNDS);
         }
         let per_peer = (cx.options.max_server_streams / 2).max(1);
-        let peers = self.transfers.iter().filter(|t| t.peer == peer).count();
+        let peers = self.transfers().iter().filter(|t| t.peer == peer).count();
         if self.transfers.len() >= cx.options.max_server_streams || peers >= per_peer {
             return Err(codes::BUSY);
         }
@@ -815,7 +821,7 @@ impl MemoryServer {
         // A repeated command (its OK lost) replaces the transfer waiting for the same SID;
         // the reply promised for the first goes out first.
         while let Some(index) = self
-            .transfers
+            .transfers()
             .iter()
             .position(|t| t.peer == peer && matches!(t.job, Job::Write { sid: s, handle: None, .. } if s == sid))
         {
@@ -849,14 +855,12 @@ impl MemoryServer {
     // ----- streams -----
 
     fn position(&self, handle: StreamHandle) -> Option<usize> {
-        self.transfers.iter().position(|t| match t.job {
+        self.transfers().iter().position(|t| match t.job {
             Job::Read { handle: h, .. } => h == handle,
             Job::Write { handle: h, .. } => h == Some(handle),
         })
     }
 
-    /// Takes a stream event that belongs to one of this server's transfers; returns false
-    /// for any other.
     /// Takes a stream event of one of the server's transfers; false for any other.
     pub(crate) fn on_stream_event(&mut self, cx: &mut Cx<'_>, event: &Event) -> bool {
         let claimed = self.transfer_event(cx, event);
@@ -871,7 +875,8 @@ impl MemoryServer {
     /// as an end that failed; a pending Unfreeze is then answered. Whether there was one.
     pub(crate) fn end_write_streams_of(&mut self, cx: &mut Cx<'_>, peer: NodeId, code: ErrorCode) -> bool {
         let mut ended = false;
-        while let Some(index) = self.transfers.iter().position(|t| t.peer == peer && matches!(t.job, Job::Write { .. }))
+        while let Some(index) =
+            self.transfers().iter().position(|t| t.peer == peer && matches!(t.job, Job::Write { .. }))
         {
             if let Some(Transfer { job: Job::Write { handle: Some(handle), .. }, .. }) = self.transfers.get(index) {
                 let _ = cx.streams.abort(cx.now, *handle, code);
@@ -1122,7 +1127,7 @@ impl MemoryServer {
 
     pub(crate) fn poll_timeout(&self) -> Option<Instant> {
         let check = self.holder_check.map(|c| c.deadline);
-        self.transfers.iter().fold(check, |next, t| match t.job {
+        self.transfers().iter().fold(check, |next, t| match t.job {
             Job::Write { reply: WriteReply::Due(at), .. } | Job::Write { handle: None, deadline: at, .. } => {
                 earliest(next, Some(at))
             }
@@ -1137,14 +1142,14 @@ impl MemoryServer {
         self.end_holder_check(cx);
         let now = cx.now;
         while let Some(index) = self
-            .transfers
+            .transfers()
             .iter()
             .position(|t| matches!(t.job, Job::Write { reply: WriteReply::Due(at), .. } if at <= now))
         {
             self.send_write_reply(cx, index, None);
         }
         while let Some(index) = self
-            .transfers
+            .transfers()
             .iter()
             .position(|t| matches!(t.job, Job::Write { handle: None, deadline, .. } if deadline <= now))
         {
@@ -1172,7 +1177,7 @@ impl MemoryServer {
         }
         // By position and an ordered remove: no `retain` (flash).
         while let Some(index) = self
-            .transfers
+            .transfers()
             .iter()
             .position(|t| peer.is_none_or(|p| p == t.peer) && matches!(t.job, Job::Write { handle: None, .. }))
         {
@@ -1200,7 +1205,7 @@ impl MemoryServer {
         let ServiceChange::Lost(lost) = change else { return };
         self.forget_peer(lost);
         self.unfreeze_pending = self.unfreeze_pending.filter(|p| !change.loses(*p));
-        while let Some(index) = self.transfers.iter().position(|t| change.loses(t.peer)) {
+        while let Some(index) = self.transfers().iter().position(|t| change.loses(t.peer)) {
             if let Some(Transfer { job: Job::Read { handle, .. } | Job::Write { handle: Some(handle), .. }, .. }) =
                 self.transfers.get(index)
             {
