@@ -148,8 +148,10 @@ async fn discover(args: &NodesArgs) -> Result<Vec<NodeReport>, Failure> {
 
 /// Asks one node for its SNIP and PIP at once.
 pub(crate) async fn describe(node: &Node, peer: NodeId) -> NodeReport {
-    let (snip, protocols, alias) =
-        tokio::join!(node.snip(peer), node.protocols(peer, PIP_TIMEOUT), node.alias_of(peer));
+    let (snip, protocols) = tokio::join!(node.snip(peer), node.protocols(peer, PIP_TIMEOUT));
+    // Asked after the answers (or their timeouts): by then the link has taken in whatever
+    // named the peer's alias, even when another connection (`ui`'s monitor) heard it first.
+    let alias = node.alias_of(peer).await;
     let mut errors = Vec::new();
     let snip = keep(snip, &mut errors).map(SnipReport::from);
     let protocols = keep(protocols, &mut errors).map(|p: Protocols| p.names().collect());

@@ -2,6 +2,7 @@
 //! Received OK, Rejected (resent on temporary codes, bounded), and timeouts; incoming
 //! datagrams go to the application by content ID, and every other one is rejected at once.
 
+#[cfg(feature = "app-datagrams")]
 use alloc::boxed::Box;
 use alloc::vec::Vec;
 use core::fmt;
@@ -22,6 +23,7 @@ pub struct DatagramConfig {
     /// Content IDs (byte 0) the application handles: a datagram starting with one of these
     /// raises [`NodeEvent::DatagramReceived`]. Every other datagram is rejected at once with
     /// 0x1042 (datagram type unknown, DG-TN §2.4.3.1).
+    #[cfg(feature = "app-datagrams")]
     pub claimed: Vec<u8>,
     /// How long a sent datagram waits for Received OK or Rejected. MN §3.7 forbids less than
     /// 3 s; OpenMRN and OpenLcbCLib wait 3 s.
@@ -39,22 +41,27 @@ pub struct DatagramConfig {
     pub max_outgoing_per_destination: usize,
     /// Received datagrams waiting for the application's answer, all sources together. More
     /// are rejected with 0x2020 (buffer unavailable: the sender resends).
+    #[cfg(feature = "app-datagrams")]
     pub max_awaiting_answer: usize,
     /// How long a received datagram may wait for `answer_datagram`; then it is rejected with
     /// 0x2020. Default 500 ms, inside the 750 ms MN §3.7 allows for a response.
+    #[cfg(feature = "app-datagrams")]
     pub answer_timeout: Duration,
 }
 
 impl Default for DatagramConfig {
     fn default() -> Self {
         DatagramConfig {
+            #[cfg(feature = "app-datagrams")]
             claimed: Vec::new(),
             timeout: Duration::from_secs(3),
             max_retries: 3,
             retry_delay: Duration::from_millis(200),
             max_outgoing: 16,
             max_outgoing_per_destination: 4,
+            #[cfg(feature = "app-datagrams")]
             max_awaiting_answer: 8,
+            #[cfg(feature = "app-datagrams")]
             answer_timeout: Duration::from_millis(500),
         }
     }
@@ -246,15 +253,22 @@ impl DatagramService {
     /// The service bounded by `config`, which every call that sends, resends or takes in a
     /// datagram is given again (the node's own copy: none is kept here).
     pub(crate) fn new(config: &DatagramConfig) -> Self {
+        #[cfg_attr(not(feature = "app-datagrams"), allow(unused_mut))]
         let mut claimed = [0u64; 4];
+        #[cfg(feature = "app-datagrams")]
         for &content in &config.claimed {
             if let Some(word) = claimed.get_mut(usize::from(content / 64)) {
                 *word |= 1 << (content % 64);
             }
         }
+        // Without `app-datagrams` no datagram waits for the application.
+        #[cfg(feature = "app-datagrams")]
+        let awaiting = Vec::with_capacity(config.max_awaiting_answer);
+        #[cfg(not(feature = "app-datagrams"))]
+        let awaiting = Vec::new();
         DatagramService {
             outgoing: Queue::with_capacity(config.max_outgoing),
-            awaiting: Vec::with_capacity(config.max_awaiting_answer),
+            awaiting,
             claimed,
             client_outcomes: Queue::new(),
             next_id: 0,
@@ -267,8 +281,17 @@ impl DatagramService {
         self.is_claimed(content)
     }
 
+    /// Never without the `app-datagrams` feature, which the compiler is told here, so that
+    /// it links none of the application's datagram handling.
     fn is_claimed(&self, content: u8) -> bool {
-        self.claimed.get(usize::from(content / 64)).is_some_and(|word| word & (1 << (content % 64)) != 0)
+        cfg!(feature = "app-datagrams")
+            && self.claimed.get(usize::from(content / 64)).is_some_and(|word| word & (1 << (content % 64)) != 0)
+    }
+
+    /// The received datagrams waiting for the application's answer: never any without the
+    /// `app-datagrams` feature (see [`is_claimed`](Self::is_claimed)).
+    fn awaiting(&self) -> &[Awaiting] {
+        if cfg!(feature = "app-datagrams") { &self.awaiting } else { &[] }
     }
 
     // ----- sending -----
@@ -372,8 +395,14 @@ impl DatagramService {
         }
         let (id, to) = (done.id, done.to);
         match (done.owner, result) {
-            (DatagramOwner::Application, Ok(flags)) => out.event(NodeEvent::DatagramDelivered { id, to, flags }),
-            (DatagramOwner::Application, Err(failure)) => out.event(NodeEvent::DatagramFailed { id, to, failure }),
+            // Without the `app-datagrams` feature the application sends none.
+            (DatagramOwner::Application, Ok(flags)) if cfg!(feature = "app-datagrams") => {
+                out.event(NodeEvent::DatagramDelivered { id, to, flags });
+            }
+            (DatagramOwner::Application, Err(failure)) if cfg!(feature = "app-datagrams") => {
+                out.event(NodeEvent::DatagramFailed { id, to, failure });
+            }
+            (DatagramOwner::Application, _) => {}
             // Without the `memory-client` feature nothing sends for the client.
             (DatagramOwner::MemoryClient, result) if cfg!(feature = "memory-client") => {
                 self.client_outcomes.push_back((id, result));
@@ -428,7 +457,7 @@ impl DatagramService {
             self.finish(config, now, out, index, Err(DatagramFailure::PeerRestarted));
         }
         // By position and an ordered remove, as below: no `retain` (flash).
-        while let Some(index) = self.awaiting.iter().position(|a| a.from == peer) {
+        while let Some(index) = self.awaiting().iter().position(|a| a.from == peer) {
             self.awaiting.remove(index);
         }
     }
@@ -451,7 +480,7 @@ impl DatagramService {
                 out.transmit(Message::addressed(Mti::DATAGRAM, out.node, o.to, o.payload.clone()));
             }
         }
-        while let Some(index) = self.awaiting.iter().position(|a| a.deadline <= now) {
+        while let Some(index) = self.awaiting().iter().position(|a| a.deadline <= now) {
             let expired = self.awaiting.swap_remove(index);
             self.stats.answer_timeouts += 1;
             out.reply(rejected(out.node, expired.from, ErrorCode::BUFFER_UNAVAILABLE));
@@ -460,12 +489,29 @@ impl DatagramService {
 
     // ----- receiving -----
 
+    #[cfg_attr(not(feature = "app-datagrams"), allow(unused_variables))]
     fn on_datagram(&mut self, config: &DatagramConfig, now: Instant, out: &mut Outputs, from: NodeId, payload: &[u8]) {
         let claimed = payload.first().is_some_and(|&c| self.is_claimed(c));
-        let Some(datagram) = Datagram::new(payload).filter(|_| claimed) else {
-            self.stats.rejected_unclaimed += 1;
-            return out.reply(rejected(out.node, from, ErrorCode::NOT_IMPLEMENTED_DATAGRAM_TYPE));
-        };
+        match Datagram::new(payload).filter(|_| claimed) {
+            #[cfg(feature = "app-datagrams")]
+            Some(datagram) => self.hand_to_application(config, now, out, from, datagram),
+            _ => {
+                self.stats.rejected_unclaimed += 1;
+                out.reply(rejected(out.node, from, ErrorCode::NOT_IMPLEMENTED_DATAGRAM_TYPE));
+            }
+        }
+    }
+
+    /// A datagram with a content ID the application claimed: it waits for its answer.
+    #[cfg(feature = "app-datagrams")]
+    fn hand_to_application(
+        &mut self,
+        config: &DatagramConfig,
+        now: Instant,
+        out: &mut Outputs,
+        from: NodeId,
+        datagram: Datagram,
+    ) {
         let busy = self.awaiting.len() >= config.max_awaiting_answer || self.awaiting.iter().any(|a| a.from == from);
         if busy {
             self.stats.rejected_busy += 1;
@@ -476,6 +522,7 @@ impl DatagramService {
         out.event(NodeEvent::DatagramReceived { from, datagram: Box::new(datagram) });
     }
 
+    #[cfg(feature = "app-datagrams")]
     pub(crate) fn answer(
         &mut self,
         out: &mut Outputs,
@@ -534,7 +581,7 @@ impl Service<Lent<'_>> for DatagramService {
                 continue;
             }
             if let Some(done) = self.outgoing.remove(index) {
-                if done.owner == DatagramOwner::Application {
+                if cfg!(feature = "app-datagrams") && done.owner == DatagramOwner::Application {
                     self.report(out, &done, Err(DatagramFailure::PeerLost));
                 } else {
                     self.stats.failed += 1;
@@ -544,7 +591,7 @@ impl Service<Lent<'_>> for DatagramService {
         for a in self.awaiting.iter_mut() {
             change.rename(&mut a.from);
         }
-        while let Some(index) = self.awaiting.iter().position(|a| change.loses(a.from)) {
+        while let Some(index) = self.awaiting().iter().position(|a| change.loses(a.from)) {
             self.awaiting.remove(index);
         }
     }
@@ -558,7 +605,7 @@ impl Service<Lent<'_>> for DatagramService {
             SendState::InFlight { deadline: at } | SendState::Backoff { until: at } => earliest(next, Some(at)),
             SendState::Queued => next,
         });
-        self.awaiting.iter().fold(sends, |next, a| earliest(next, Some(a.deadline)))
+        self.awaiting().iter().fold(sends, |next, a| earliest(next, Some(a.deadline)))
     }
 }
 

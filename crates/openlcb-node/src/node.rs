@@ -14,9 +14,9 @@ use openlcb_stream::{
 
 #[cfg(feature = "broadcast-time")]
 use crate::broadcast_time::ClockEvent;
-use crate::datagram::{
-    Datagram, DatagramAnswer, DatagramError, DatagramFailure, DatagramId, DatagramOwner, DatagramService, OkFlags,
-};
+use crate::datagram::{Datagram, DatagramFailure, DatagramId, DatagramService, OkFlags};
+#[cfg(feature = "app-datagrams")]
+use crate::datagram::{DatagramAnswer, DatagramError, DatagramOwner};
 use crate::events::EventNotice;
 pub(crate) use crate::memconfig::Cx;
 use crate::memconfig::{MemoryConfig, MemoryEvent, MemoryLent, MemoryServer, acdi_user_strings};
@@ -574,6 +574,7 @@ impl Node {
 
     /// Sends a datagram of at most 72 bytes to `to`. Datagrams to one node go one at a time
     /// (DG §6.1); later ones wait their turn. `DatagramDelivered` or `DatagramFailed` follows.
+    #[cfg(feature = "app-datagrams")]
     pub fn send_datagram(&mut self, now: Instant, to: NodeId, payload: &[u8]) -> Result<DatagramId, DatagramError> {
         self.services.datagrams.send(
             &self.config.datagrams,
@@ -586,6 +587,7 @@ impl Node {
     }
 
     /// Answers the datagram `from` sent (raised by `DatagramReceived`).
+    #[cfg(feature = "app-datagrams")]
     pub fn answer_datagram(&mut self, from: NodeId, answer: DatagramAnswer) -> Result<(), DatagramError> {
         self.services.datagrams.answer(&mut self.out, from, answer)
     }

@@ -247,6 +247,20 @@ async fn io_board_on_a_cortex_m0() {
     println!("snip: {} {}", snip.manufacturer, snip.model);
     assert_eq!((snip.manufacturer.as_str(), snip.model.as_str()), ("openlcb-stream", "Cortex-M0 I/O board"));
 
+    // A datagram that is not Memory Configuration's (content ID 0x30), from a sender known
+    // only by its alias: rejected at once as of an unknown type (0x1042), as a board built
+    // without `app-datagrams` claims no content ID.
+    let sender = 0x5A5;
+    assert_ne!(tool.alias_of(tool.node_id()).await.unwrap(), Some(sender as u16), "the tap's alias is free");
+    let seen = tap.lock().unwrap().frames.len();
+    tap_out.write_all(format!(":X1A{alias:03X}{sender:03X}N3001;").as_bytes()).await.unwrap();
+    until("the board's Datagram Rejected", &console, || {
+        tap.lock().unwrap().frames[seen..]
+            .iter()
+            .any(|(_, f)| f.raw_id() == 0x19A4_8000 | alias && f.payload() == [0x05, 0xA5, 0x10, 0x42])
+    })
+    .await;
+
     // The CDI, which the board renders on each read from its declaration (it keeps no copy):
     // read whole by datagrams, it parses, and a tool finds each line's settings where the
     // board keeps them.

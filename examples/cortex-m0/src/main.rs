@@ -121,12 +121,12 @@ fn node_config(board: &Board, config: &mut ConfigSpace, snip: SnipInfo) -> NodeC
     let mut node_config = NodeConfig::default();
     node_config.events = board.events(config);
     node_config.snip = snip;
-    // The node's tables, sized for a board (the defaults suit a PC tool): 2 datagrams of its
-    // own queued and 2 awaiting the application's answer, 1 SNIP request of its own. It has
-    // no streams (`openlcb-node` without its `streams` feature): the image comes by datagrams.
+    // The node's tables, sized for a board (the defaults suit a PC tool): 2 datagrams queued
+    // (Memory Configuration's replies), 1 per destination. It has no streams, makes no SNIP
+    // requests and takes no datagrams itself (`openlcb-node` without its `streams`,
+    // `snip-client` and `app-datagrams` features): the image comes by datagrams.
     node_config.datagrams.max_outgoing = 2;
     node_config.datagrams.max_outgoing_per_destination = 1;
-    node_config.datagrams.max_awaiting_answer = 2;
     node_config.transmit_queue_limit = 16;
     node_config
 }
