@@ -102,7 +102,6 @@ impl Layout {
     }
 }
 
-/// `serve` as `node_id` named `name` with the configuration file `config`, once it serves.
 /// `ui --json` on the hub at `hub`: the child, the address it listens on and its token.
 async fn start_ui(hub: &str, ui_args: &[&str]) -> (Child, String, Option<String>) {
     let mut ui = Command::new(BIN)
@@ -128,6 +127,7 @@ async fn start_ui(hub: &str, ui_args: &[&str]) -> (Child, String, Option<String>
     (ui, listen, token)
 }
 
+/// `serve` as `node_id` named `name` with the configuration file `config`, once it serves.
 async fn serve(dir: &Path, hub: &str, node_id: &str, name: &str, config: &Path, extra: &[&str]) -> Child {
     let mut serve = Command::new(BIN)
         .current_dir(dir)

@@ -99,26 +99,28 @@ pub(crate) fn start(shared: &Arc<Shared>, connect: &ConnectArgs) -> Vec<JoinHand
 /// introduced itself, or whose answer came after the quiet and was heard by the monitor).
 pub(crate) async fn discover(shared: Arc<Shared>) {
     let before: BTreeSet<NodeId> = shared.nodes().keys().copied().collect();
-    let found: BTreeSet<NodeId> = match shared.node.discover(DISCOVER_QUIET, nodes::MOST_NODES).await {
-        Ok(found) => found.into_iter().collect(),
+    let found = match shared.node.discover(DISCOVER_QUIET, nodes::MOST_NODES).await {
+        Ok(found) => found,
         Err(error) => {
             shared.push("notice", &serde_json::json!({ "error": format!("finding the nodes: {error}") }));
             return;
         }
     };
-    for &peer in &found {
-        learn(Arc::clone(&shared), peer).await;
+    let mut reports = std::collections::BTreeMap::new();
+    for peer in found {
+        reports.insert(peer, nodes::describe(&shared.node, peer).await);
     }
     let list: Vec<_> = {
         let mut table = shared.nodes();
-        table.retain(|peer, _| found.contains(peer) || !before.contains(peer));
+        table.retain(|peer, _| !before.contains(peer));
+        table.extend(reports);
         table.values().cloned().collect()
     };
     shared.push("nodes", &list);
 }
 
-/// Asks `peer` for its SNIP and PIP and puts it in the table (a node that answered a
-/// discovery, introduced itself, or sent something before we knew it).
+/// Asks `peer` for its SNIP and PIP and puts it in the table (a node that introduced
+/// itself, answered after a discovery's quiet, or sent something before we knew it).
 pub(crate) async fn learn(shared: Arc<Shared>, peer: NodeId) {
     let report = nodes::describe(&shared.node, peer).await;
     let list: Vec<_> = {

@@ -502,8 +502,7 @@ impl Service<MemoryLent<'_>> for MemoryConfig {
     /// ends that transfer (the stream endpoint leaves a report about another protocol alone):
     /// a client that gives up its firmware stream so, with TDE, is answered at its Unfreeze.
     fn handle_error_report(&mut self, lent: &mut MemoryLent<'_>, peer: NodeId, report: ErrorReport) -> bool {
-        // Without the `streams` feature there is no Write Stream to end.
-        if report.mti != Some(Mti::DATAGRAM) || !cfg!(feature = "streams") {
+        if report.mti != Some(Mti::DATAGRAM) {
             return false;
         }
         let mut ended = false;

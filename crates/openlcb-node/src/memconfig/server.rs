@@ -884,7 +884,8 @@ impl MemoryServer {
             self.end(index, false);
             ended = true;
         }
-        if let Some(peer) = self.unfreeze_pending.filter(|p| !self.firmware_stream_open(*p)) {
+        // A pending Unfreeze waits for a firmware stream: only an ended one can release it.
+        if ended && let Some(peer) = self.unfreeze_pending.filter(|p| !self.firmware_stream_open(*p)) {
             self.unfreeze_pending = None;
             self.unfreeze(cx, peer);
         }
