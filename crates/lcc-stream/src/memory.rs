@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use clap::Args;
 use openlcb_stream::NodeId;
-use openlcb_tokio::{Error, MemoryTransfer, Node, NodeOptions, Protocols, TransferPath};
+use openlcb_tokio::{Error, Join, MemoryTransfer, Node, NodeOptions, Protocols, TransferPath};
 use serde::Serialize;
 
 use crate::files;
@@ -126,10 +126,14 @@ impl Report {
 }
 
 /// Joins the network as the client node and makes sure `peer` is there (exit 5 if not).
+/// The work starts as soon as the alias is permitted ([`Join::AtLogin`], as OpenMRN's tools
+/// do): a claim of this tool's Node ID within the newcomer window then fails the command
+/// with the words of a duplicate Node ID, instead of holding every command 100 ms.
 pub(crate) async fn join(args: &ClientArgs, command: &str, peer: NodeId) -> Result<Node, Failure> {
     let node = args.connect.join(&args.node_id, |id| {
         let mut options = NodeOptions::new(id);
         options.node.snip = net::snip(command);
+        options.join = Join::AtLogin;
         options
     });
     let node = node.await?;

@@ -117,6 +117,32 @@ async fn a_duplicate_node_id_names_the_option_that_changes_it() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_firmware_upgrade_under_a_taken_node_id_exits_10_and_a_rerun_goes_through() {
+    let (_hub, addr, _, _) = hub().await;
+    let dir = scratch("taken-firmware");
+    let image = dir.join("image.bin");
+    std::fs::write(&image, vec![0x5A; 300]).unwrap();
+    let image = image.to_str().unwrap();
+    let firmware_out = dir.join("fw.bin");
+    let _serve =
+        start(&["serve", "--connect", &addr, "--firmware-out", firmware_out.to_str().unwrap()], "serving").await;
+    let taken = "05.01.01.01.22.77";
+    let _holder =
+        start(&["recv", "--connect", &addr, "--node-id", taken, "--out", dir.to_str().unwrap()], "listening").await;
+    // The tool starts its work at login; the holder's claim comes within the newcomer
+    // window, so it leaves with the words of a duplicate, and a second upgrade with a free
+    // Node ID goes through at once.
+    let upgrade = run(&["firmware", image, "--to", "05.01.01.01.22.F2", "--node-id", taken, "--connect", &addr]).await;
+    let stderr = exits(&upgrade, 10);
+    assert!(stderr.contains("already has Node ID 05.01.01.01.22.77") && stderr.contains("--node-id"), "{stderr}");
+    assert!(!firmware_out.exists(), "no image may arrive under a taken Node ID");
+    let again = run(&["firmware", image, "--to", "05.01.01.01.22.F2", "--connect", &addr]).await;
+    assert!(again.status.success(), "{}", text(&again.stderr));
+    assert_eq!(std::fs::read(&firmware_out).unwrap(), vec![0x5A; 300]);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn memory_configuration_codes_are_worded_and_steps_are_logged_with_v() {
     let (_hub, addr, _, _) = hub().await;
     let dir = scratch("codes");

@@ -15,7 +15,7 @@ use crate::clock::ClockDriver;
 use crate::events::EventDriver;
 use crate::io::{ByteReader, ByteWriter, try_write};
 use crate::memory::MemoryDriver;
-use crate::node::{Command, Control, NodeStats, SentBytes, Shared};
+use crate::node::{Command, Control, Join, NodeStats, SentBytes, Shared};
 use crate::requests::Requests;
 use crate::train::TrainDriver;
 use crate::wire::{Wire, WireStats};
@@ -96,6 +96,8 @@ pub(crate) struct Driver {
     write_timeout: std::time::Duration,
     /// When the socket last took bytes, or had nothing to take.
     last_write: tokio::time::Instant,
+    /// See [`NodeOptions::join`].
+    join: Join,
 }
 
 impl Driver {
@@ -108,7 +110,7 @@ impl Driver {
         incoming: mpsc::Sender<RecvStream>,
         shared: Shared,
     ) -> Self {
-        let NodeOptions { node_id, node, can, write_timeout, .. } = options;
+        let NodeOptions { node_id, node, can, write_timeout, join, .. } = options;
         let read_slice = notice_slice(node.transmit_queue_limit);
         let start = tokio::time::Instant::now();
         Driver {
@@ -117,6 +119,7 @@ impl Driver {
             start,
             write_timeout,
             last_write: start,
+            join,
             stack: openlcb_node::Node::new(node_id, node),
             requests: Requests::default(),
             memory: MemoryDriver::default(),
@@ -162,7 +165,7 @@ impl Driver {
                 Err(error) => return self.stop(error).await,
             };
             let now = self.now();
-            if self.wire.is_up(now)
+            if self.wire.is_up(now, self.join)
                 && let Some(up) = up.take()
             {
                 let _ = up.send(());

@@ -110,7 +110,7 @@ pub use file_space::{FileSpace, SharedSpace};
 pub use hub::{Hub, HubEvent, HubOptions, HubStats};
 pub use io::ByteStream;
 pub use memory::{MemoryTransfer, ServerEvents};
-pub use node::{DISCOVER_LIMIT, Node, NodeOptions, NodeStats, RecvStream, SendStream, SentBytes};
+pub use node::{DISCOVER_LIMIT, Join, Node, NodeOptions, NodeStats, RecvStream, SendStream, SentBytes};
 pub use train::{ThrottleEvents, TrainEvents};
 
 // What a user of this crate needs from the ones below it, so that sending a stream takes

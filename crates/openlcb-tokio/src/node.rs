@@ -35,10 +35,10 @@ pub struct NodeOptions {
     /// [`Node::accept`]).
     pub node: NodeConfig,
     /// The CAN link's bounds and timers (GridConnect only). After its login the node sends a
-    /// global Verify Node ID naming itself and joins only once
-    /// [`CanConfig::newcomer_window`] has passed without an answer: a second node with a
-    /// running node's ID then fails with [`Error::DuplicateNodeId`], and the running node
-    /// keeps running. By default the link's own frame queue has room for one frame per frame
+    /// global Verify Node ID naming itself; an answer within [`CanConfig::newcomer_window`]
+    /// means a running node has this node's ID: this node then fails with
+    /// [`Error::DuplicateNodeId`] (from [`Node::connect`] itself unless [`join`](Self::join)
+    /// says otherwise), and the running node keeps running. By default the link's own frame queue has room for one frame per frame
     /// of a whole read (`frame_queue_limit` 5461), so that a burst of datagrams from many
     /// nodes gets every answer.
     pub can: CanConfig,
@@ -48,17 +48,38 @@ pub struct NodeOptions {
     /// given up with [`Error::WriteStalled`] (a hub that stopped reading). Default 30 s,
     /// the endpoint's Proceed timeout.
     pub write_timeout: Duration,
+    /// When [`Node::connect`] and [`Node::over`] return on CAN: after the newcomer window
+    /// (the default) or as soon as the alias is permitted.
+    pub join: Join,
+}
+
+/// When a CAN node's [`Node::connect`] returns. Either way the newcomer window runs its
+/// course, and a node that finds its Node ID taken within it leaves the network.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Join {
+    /// Once [`CanConfig::newcomer_window`] has passed with nobody claiming this Node ID, so
+    /// that a duplicate is the error of the connect itself: for a node that runs for long (a
+    /// board, a server), which must not start work it cannot finish.
+    #[default]
+    AfterNewcomerWindow,
+    /// As soon as the alias is permitted and Initialization Complete is sent, as OpenMRN's
+    /// nodes and tools do: a command starts its work one newcomer window sooner. A claim of
+    /// this Node ID within the window then ends the running node with
+    /// [`Error::DuplicateNodeId`], which whatever it is doing gets: for a short-lived tool.
+    AtLogin,
 }
 
 /// The link's defaults, but room for one frame of its own (a Datagram Rejected, an AMD, an
 /// OIR) for every frame of one read from the socket, however short: a burst of datagrams
 /// from many nodes is answered in full before the driver sends (each frame causes at most
-/// one); and a newcomer window of 100 ms, the wait before [`Node::connect`] returns. A node
-/// that has this Node ID answers the global Verify Node ID within a few milliseconds, on the
-/// same hub or bus, through an adapter too; every command of a tool waits this long once
-/// (500 ms made a firmware upgrade of 200 kB into OpenMRN's Bootloader 12% slower than
-/// OpenMRN's own client, which waits for none). An answer later than that finds this node
-/// joined: both nodes then report the duplicate and stay, as two that started together do.
+/// one); and a newcomer window of 100 ms, the wait before [`Node::connect`] returns unless
+/// [`NodeOptions::join`] is [`Join::AtLogin`]. A node that has this Node ID answers the
+/// global Verify Node ID within a few milliseconds, on the same hub or bus, through an
+/// adapter too (500 ms made a firmware upgrade of 200 kB into OpenMRN's Bootloader 12% slower
+/// than OpenMRN's own client, which waits for none). An answer later than that finds this
+/// node joined: both nodes then report the duplicate and stay, as two that started together
+/// do.
 fn can_config() -> CanConfig {
     let mut can = CanConfig::default();
     can.frame_queue_limit = crate::driver::READ_CHUNK / crate::driver::SHORTEST_FRAME;
@@ -75,6 +96,7 @@ impl NodeOptions {
             can: can_config(),
             connect_timeout: Duration::from_secs(5),
             write_timeout: Duration::from_secs(30),
+            join: Join::AfterNewcomerWindow,
         }
     }
 }

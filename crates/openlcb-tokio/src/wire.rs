@@ -10,6 +10,7 @@ use openlcb_stream::{Instant, Message, MessageRef, NodeId, PeerChange, PeerChang
 use openlcb_tcp::TcpLink;
 
 use crate::Error;
+use crate::node::Join;
 
 /// Which framing a node speaks to its hub.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -164,15 +165,19 @@ impl Wire {
         }
     }
 
-    /// The node has joined: its alias is permitted and nobody claimed its Node ID within the
-    /// newcomer window (always true on OpenLCB-TCP).
-    pub(crate) fn is_up(&mut self, now: Instant) -> bool {
+    /// The node has joined as `join` asks: its alias is permitted and, unless `join` is
+    /// [`Join::AtLogin`], nobody claimed its Node ID within the newcomer window (always true
+    /// on OpenLCB-TCP).
+    pub(crate) fn is_up(&mut self, now: Instant, join: Join) -> bool {
         match self {
             Wire::GridConnect { joining, .. } => {
                 if matches!(*joining, Joining::Until(at) if at <= now) {
                     *joining = Joining::Joined;
                 }
-                *joining == Joining::Joined
+                match join {
+                    Join::AfterNewcomerWindow => *joining == Joining::Joined,
+                    Join::AtLogin => *joining != Joining::LoggingIn,
+                }
             }
             Wire::Tcp { .. } => true,
         }

@@ -9,7 +9,7 @@ use std::time::Duration;
 use bytes::BytesMut;
 use openlcb_stream::{Message, Mti, NodeId, OpenOptions};
 use openlcb_tcp::{CaptureTime, Decoder, LinkPrefix, TcpFrame};
-use openlcb_tokio::{Error, Framing, Node, NodeOptions};
+use openlcb_tokio::{Error, Framing, Join, Node, NodeOptions};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
@@ -286,6 +286,29 @@ async fn a_second_node_with_a_taken_node_id_refuses_to_join_and_the_first_keeps_
     let reports = frames.iter().filter(|f| f.starts_with(":X195B4") && f.ends_with("N0101000000000201;")).count();
     assert_eq!(reports, 2, "both nodes report it: {frames:?}");
     let sender = bounded("joining", join(id(0x21))).await.unwrap();
+    transfer(&sender, &mut first, 10_000, 2048).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_that_joins_at_login_talks_at_once_and_leaves_when_its_node_id_is_claimed() {
+    let hub = start_hub(HubOptions::default()).await;
+    let addr = hub.local_addr().to_string();
+    let taken = id(0x22);
+    let mut first =
+        bounded("joining", Node::connect(&addr, Framing::GridConnect, NodeOptions::new(taken))).await.unwrap();
+    let mut options = NodeOptions::new(taken);
+    // The first node's answer comes long before the window ends, however loaded the machine:
+    // a connect that waited for the window would fail.
+    options.can.newcomer_window = openlcb_stream::Duration::from_secs(1);
+    options.join = Join::AtLogin;
+    let mut second = bounded("joining at login", Node::connect(&addr, Framing::GridConnect, options))
+        .await
+        .expect("a node that joins at login is connected before anyone could claim its Node ID");
+    // The claim ends it within the window all the same.
+    let error = bounded("the duplicate found", second.closed()).await;
+    assert!(matches!(error, Error::DuplicateNodeId { .. }), "got {error:?}");
+    let sender =
+        bounded("joining", Node::connect(&addr, Framing::GridConnect, NodeOptions::new(id(0x23)))).await.unwrap();
     transfer(&sender, &mut first, 10_000, 2048).await;
 }
 
