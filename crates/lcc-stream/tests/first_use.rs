@@ -10,7 +10,7 @@ use std::process::{Output, Stdio};
 
 use common::{bounded, command, scratch};
 use serde_json::Value;
-use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::process::Child;
 
 /// `lcc-stream hub` on ephemeral ports: the child and its GridConnect and OpenLCB-TCP
@@ -129,12 +129,26 @@ async fn a_firmware_upgrade_under_a_taken_node_id_exits_10_and_a_rerun_goes_thro
     let taken = "05.01.01.01.22.77";
     let _holder =
         start(&["recv", "--connect", &addr, "--node-id", taken, "--out", dir.to_str().unwrap()], "listening").await;
+    // Every frame on the hub, to see what the tool sent.
+    let mut observer = tokio::net::TcpStream::connect(&addr).await.unwrap();
     // The tool starts its work at login; the holder's claim comes within the newcomer
-    // window, so it leaves with the words of a duplicate, and a second upgrade with a free
-    // Node ID goes through at once.
+    // window, while the tool still asks the target's protocols, so it leaves with the words
+    // of a duplicate before it has frozen anything, and a second upgrade with a free Node ID
+    // goes through at once.
     let upgrade = run(&["firmware", image, "--to", "05.01.01.01.22.F2", "--node-id", taken, "--connect", &addr]).await;
     let stderr = exits(&upgrade, 10);
     assert!(stderr.contains("already has Node ID 05.01.01.01.22.77") && stderr.contains("--node-id"), "{stderr}");
+    let mut seen = Vec::new();
+    let mut buf = [0u8; 4096];
+    while let Ok(Ok(n @ 1..)) =
+        tokio::time::timeout(std::time::Duration::from_millis(500), observer.read(&mut buf)).await
+    {
+        seen.extend_from_slice(&buf[..n]);
+    }
+    let seen = text(&seen);
+    let tool_joined = seen.lines().any(|f| f.starts_with(":X19100") && f.ends_with("N050101012277;"));
+    assert!(tool_joined, "the observer saw the tool's Initialization Complete: {seen}");
+    assert!(!seen.contains("N20A1EF;"), "a Freeze went out under a taken Node ID: {seen}");
     assert!(!firmware_out.exists(), "no image may arrive under a taken Node ID");
     let again = run(&["firmware", image, "--to", "05.01.01.01.22.F2", "--connect", &addr]).await;
     assert!(again.status.success(), "{}", text(&again.stderr));

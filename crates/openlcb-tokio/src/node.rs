@@ -38,9 +38,9 @@ pub struct NodeOptions {
     /// global Verify Node ID naming itself; an answer within [`CanConfig::newcomer_window`]
     /// means a running node has this node's ID: this node then fails with
     /// [`Error::DuplicateNodeId`] (from [`Node::connect`] itself unless [`join`](Self::join)
-    /// says otherwise), and the running node keeps running. By default the link's own frame queue has room for one frame per frame
-    /// of a whole read (`frame_queue_limit` 5461), so that a burst of datagrams from many
-    /// nodes gets every answer.
+    /// says otherwise), and the running node keeps running. By default the link's own frame
+    /// queue has room for one frame per frame of a whole read (`frame_queue_limit` 5461), so
+    /// that a burst of datagrams from many nodes gets every answer.
     pub can: CanConfig,
     /// How long to wait for the TCP connection and the alias login.
     pub connect_timeout: Duration,
