@@ -230,22 +230,18 @@ impl ConnectArgs {
     async fn checked(&self, options: NodeOptions) -> Result<Node, Failure> {
         let mut node = match self.node(options).await {
             Ok(node) => node,
-            // The hub closed the connection as soon as it heard us (as `lcc-stream hub` does on
-            // bytes of the other protocol), or sent what cannot be decoded.
-            Err(error @ (Error::Protocol(_) | Error::ConnectionLost(_))) => {
-                return Err(self.wrong_protocol(&error).unwrap_or(Failure::Net(error)));
-            }
+            // An unexpected end of the connection is a lost connection (a hub that closed it
+            // as soon as it heard us).
             Err(Error::Connect { source, .. }) if source.kind() == std::io::ErrorKind::UnexpectedEof => {
-                let error = Error::ConnectionLost(source);
-                return Err(self.wrong_protocol(&error).unwrap_or(Failure::Net(error)));
+                return Err(self.ended(Error::ConnectionLost(source)));
             }
-            Err(error) => return Err(Failure::Net(error)),
+            Err(error) => return Err(self.ended(error)),
         };
         if self.protocol == ProtocolArg::Tcp && self.serial.is_none() {
             // OpenLCB-TCP has no login to wait for: a hub of the other protocol shows itself
             // by closing the connection once it has read our first message.
             if let Ok(error) = tokio::time::timeout(TCP_SETTLE, node.closed()).await {
-                return Err(self.wrong_protocol(&error).unwrap_or(Failure::Net(error)));
+                return Err(self.ended(error));
             }
         }
         match self.heard_the_other_protocol(&node).await {
@@ -262,13 +258,24 @@ impl ConnectArgs {
     pub(crate) async fn heard_the_other_protocol(&self, node: &Node) -> Option<Failure> {
         let stats = match node.stats().await {
             Ok(stats) => stats.wire,
-            // The hub closed the connection (as one does on bytes of the other protocol).
-            Err(error) => return self.wrong_protocol(&error),
+            // The node has ended: the hub closed the connection (as one does on bytes of the
+            // other protocol), or another node claimed our Node ID.
+            Err(error) => return Some(self.ended(error)),
         };
         if stats.decode_errors == 0 || stats.frames_in > 0 {
             return None;
         }
         self.wrong_protocol(&Error::Protocol(format!("{} undecodable pieces and no message", stats.decode_errors)))
+    }
+
+    /// The failure of a node that ended while it joined: a hub that speaks the other protocol
+    /// if the end looks like one (the hub closed the connection as soon as it heard us, or
+    /// sent what cannot be decoded), else `error` itself (a claim of our Node ID, ...).
+    fn ended(&self, error: Error) -> Failure {
+        match &error {
+            Error::Protocol(_) | Error::ConnectionLost(_) => self.wrong_protocol(&error).unwrap_or(Failure::Net(error)),
+            _ => Failure::Net(error),
+        }
     }
 
     /// The failure of a hub that answered in the other protocol, if `error` looks like one.
@@ -429,4 +436,35 @@ pub(crate) fn json_line(report: &impl serde::Serialize) -> String {
         .unwrap_or_else(|error| serde_json::json!({ "error": format!("cannot write JSON: {error}") }).to_string());
     line.push('\n');
     line
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hub_args() -> ConnectArgs {
+        ConnectArgs {
+            connect: Some("127.0.0.1:12021".into()),
+            serial: None,
+            #[cfg(target_os = "linux")]
+            can: None,
+            baud: openlcb_tokio::serial::DEFAULT_BAUD,
+            protocol: ProtocolArg::Gridconnect,
+        }
+    }
+
+    #[test]
+    fn a_node_that_ends_on_a_claim_of_its_node_id_fails_as_a_duplicate_not_as_the_other_protocol() {
+        let node = NodeId::new(0x05_01_01_01_22_77).unwrap();
+        let failure = hub_args().ended(Error::DuplicateNodeId { node });
+        assert!(matches!(failure, Failure::Net(Error::DuplicateNodeId { .. })), "{failure:?}");
+        assert_eq!(failure.outcome(), Outcome::DuplicateNodeId);
+    }
+
+    #[test]
+    fn a_hub_that_closes_at_once_is_taken_for_one_of_the_other_protocol() {
+        let lost = std::io::Error::from(std::io::ErrorKind::UnexpectedEof);
+        let failure = hub_args().ended(Error::ConnectionLost(lost.into()));
+        assert!(matches!(&failure, Failure::WrongProtocol(words) if words.contains("--protocol tcp")), "{failure:?}");
+    }
 }

@@ -116,6 +116,56 @@ async fn a_duplicate_node_id_names_the_option_that_changes_it() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// A target scripted on the hub's GridConnect port, Node ID 05.01.01.01.22.F3 (alias 0x5F3),
+/// that answers a lookup of its Node ID at once but the first PIP request only once the hub
+/// has carried another node's Verified Node ID for `claimed` (12 hex digits): the asker gets
+/// that claim first, on the same connection. It stops `quiet` after the last frame once
+/// `done` is set (or after 20 s) and returns every frame it saw.
+async fn target_answering_after_a_claim(
+    addr: &str,
+    claimed: &'static str,
+    done: tokio::sync::watch::Receiver<bool>,
+) -> tokio::task::JoinHandle<String> {
+    let mut socket = tokio::net::TcpStream::connect(addr).await.unwrap();
+    socket.write_all(b":X107015F3N0501010122F3;").await.unwrap();
+    tokio::spawn(async move {
+        let quiet = std::time::Duration::from_millis(300);
+        let give_up = tokio::time::Instant::now() + std::time::Duration::from_secs(20);
+        let (mut seen, mut buf) = (String::new(), [0u8; 4096]);
+        let (mut asker, mut claim_seen, mut answered) = (None::<String>, false, false);
+        while tokio::time::Instant::now() < give_up {
+            let n = match tokio::time::timeout(quiet, socket.read(&mut buf)).await {
+                Ok(Ok(n @ 1..)) => n,
+                Ok(_) => break,
+                Err(_) if *done.borrow() => break,
+                Err(_) => continue,
+            };
+            let before = seen.len();
+            seen.push_str(&text(&buf[..n]));
+            for frame in seen[before..].split_inclusive(';').filter(|f| f.ends_with(';')) {
+                let (header, data) = frame.trim().split_once('N').unwrap_or(("", ""));
+                let lookup = (header.starts_with(":X10702") || header.starts_with(":X19490"))
+                    && (data == ";" || data == "0501010122F3;");
+                if lookup {
+                    socket.write_all(b":X107015F3N0501010122F3;:X191705F3N0501010122F3;").await.unwrap();
+                }
+                if header.starts_with(":X19828") && data == "05F3;" {
+                    asker = Some(header[7..10].to_string());
+                }
+                let from = header.get(7..10).unwrap_or("");
+                if header.starts_with(":X19170") && data == format!("{claimed};") && Some(from) != asker.as_deref() {
+                    claim_seen = true;
+                }
+                if let (Some(asker), true, false) = (&asker, claim_seen, answered) {
+                    socket.write_all(format!(":X196685F3N0{asker}705820000000;").as_bytes()).await.unwrap();
+                    answered = true;
+                }
+            }
+        }
+        seen
+    })
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_firmware_upgrade_under_a_taken_node_id_exits_10_and_a_rerun_goes_through() {
     let (_hub, addr, _, _) = hub().await;
@@ -129,27 +179,23 @@ async fn a_firmware_upgrade_under_a_taken_node_id_exits_10_and_a_rerun_goes_thro
     let taken = "05.01.01.01.22.77";
     let _holder =
         start(&["recv", "--connect", &addr, "--node-id", taken, "--out", dir.to_str().unwrap()], "listening").await;
-    // Every frame on the hub, to see what the tool sent.
-    let mut observer = tokio::net::TcpStream::connect(&addr).await.unwrap();
-    // The tool starts its work at login; the holder's claim comes within the newcomer
-    // window, while the tool still asks the target's protocols, so it leaves with the words
-    // of a duplicate before it has frozen anything, and a second upgrade with a free Node ID
-    // goes through at once.
-    let upgrade = run(&["firmware", image, "--to", "05.01.01.01.22.F2", "--node-id", taken, "--connect", &addr]).await;
+    // The tool starts its work at login, so whether the holder's claim comes before or after
+    // a step depends on how fast the holder answers; this target makes it come before the
+    // target's first answer, so the tool must leave with the words of a duplicate before it
+    // has frozen anything. A second upgrade with a free Node ID then goes through at once.
+    let (done, done_rx) = tokio::sync::watch::channel(false);
+    let target = target_answering_after_a_claim(&addr, "050101012277", done_rx).await;
+    let upgrade = run(&["firmware", image, "--to", "05.01.01.01.22.F3", "--node-id", taken, "--connect", &addr]).await;
+    done.send(true).unwrap();
     let stderr = exits(&upgrade, 10);
     assert!(stderr.contains("already has Node ID 05.01.01.01.22.77") && stderr.contains("--node-id"), "{stderr}");
-    let mut seen = Vec::new();
-    let mut buf = [0u8; 4096];
-    while let Ok(Ok(n @ 1..)) =
-        tokio::time::timeout(std::time::Duration::from_millis(500), observer.read(&mut buf)).await
-    {
-        seen.extend_from_slice(&buf[..n]);
-    }
-    let seen = text(&seen);
-    let tool_joined = seen.lines().any(|f| f.starts_with(":X19100") && f.ends_with("N050101012277;"));
-    assert!(tool_joined, "the observer saw the tool's Initialization Complete: {seen}");
+    let seen = bounded("the target's frames", target).await.unwrap();
+    let frames: Vec<&str> = seen.split(';').map(str::trim).collect();
+    let sent = |mti: &str| frames.iter().any(|f| f.starts_with(mti) && f.ends_with("N050101012277"));
+    assert!(sent(":X19170"), "the holder claimed its Node ID: {seen}");
+    let tool_joined = sent(":X19100");
+    assert!(tool_joined, "the target saw the tool's Initialization Complete: {seen}");
     assert!(!seen.contains("N20A1EF;"), "a Freeze went out under a taken Node ID: {seen}");
-    assert!(!firmware_out.exists(), "no image may arrive under a taken Node ID");
     let again = run(&["firmware", image, "--to", "05.01.01.01.22.F2", "--connect", &addr]).await;
     assert!(again.status.success(), "{}", text(&again.stderr));
     assert_eq!(std::fs::read(&firmware_out).unwrap(), vec![0x5A; 300]);
