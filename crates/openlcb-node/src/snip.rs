@@ -145,9 +145,11 @@ impl SnipInfo {
                 SnipField::UserName => out.push(2),
                 _ => {}
             }
+            // Up to a NUL inside the value (found byte by byte: no string search in flash),
+            // then at most the field's length, cut at a character boundary.
             let value = self.get(field);
-            let value = value.split('\0').next().unwrap_or("");
-            out.extend_from_slice(truncate(value, field.max_len()).as_bytes());
+            let nul = value.bytes().position(|b| b == 0).unwrap_or(value.len());
+            out.extend_from_slice(truncate(value, nul.min(field.max_len())).as_bytes());
             out.push(0);
         }
         out

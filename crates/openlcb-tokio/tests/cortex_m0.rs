@@ -1,13 +1,16 @@
 //! The Cortex-M0 I/O board (`examples/cortex-m0`) under QEMU, on a bus this test drives: a
-//! hub the firmware's UART joins as a GridConnect client, a raw tap that records every frame,
-//! and a tool node. It checks, in order: the board's alias login on the wire (four CIDs
-//! carrying its Node ID, RID 200 ms (on the first login) after the last, AMD, Initialization
-//! Complete) and its answer to a duplicate-alias check; its CDI (which it renders on each
+//! hub the firmware's UART joins through a bridge (binary frames on the UART, GridConnect on
+//! the hub), a raw tap that records every frame, and a tool node. It checks, in order: the
+//! board's alias login on the wire (four CIDs carrying its Node ID, RID 200 ms (on the first
+//! login) after the last, AMD, Initialization Complete) and its answer to a duplicate-alias
+//! check; Lock refused (the board has no optional commands); its CDI (which it renders on each
 //! read) read whole by datagrams and parsed, each line's settings where it keeps them;
-//! Identify Events answered from its configuration; a configuration write by datagrams read back; Update Complete making the new
-//! Event ID the one it answers for; an event its output line consumes; a firmware image
-//! written into space 0xEF and read back; a Reboot (a real reset: it logs in again, and the
-//! configuration it got survives in flash).
+//! Identify Events answered from its configuration; a configuration write by datagrams read
+//! back; Update Complete making the new Event ID the one it answers for; an event its output
+//! line consumes; a firmware image written into space 0xEF and read back; a Reboot (a real
+//! reset: it logs in again, and the configuration it got survives in flash). Before the
+//! Reboot it measures the RAM the run used, in a copy taken through QEMU's monitor, and
+//! prints it (`ram: ...`).
 //!
 //! It needs `qemu-system-arm` and the firmware, so it is ignored by `cargo test`; `.ci/run`
 //! runs it through `.ci/firmware-m0`:
@@ -25,7 +28,7 @@ use std::time::Duration;
 
 use common::bounded;
 use openlcb_tokio::openlcb_can::embedded_can::Frame as _;
-use openlcb_tokio::openlcb_can::{CanFrame, GridConnectDecoder};
+use openlcb_tokio::openlcb_can::{CanFrame, GridConnectDecoder, gridconnect};
 use openlcb_tokio::{
     EventId, EventNotice, EventRole, Framing, Hub, HubOptions, Listen, Node, NodeCommand, NodeId, NodeOptions,
     Protocols, TransferPath,
@@ -81,13 +84,16 @@ fn firmware() -> String {
     std::env::var("OPENLCB_M0_FIRMWARE").expect("OPENLCB_M0_FIRMWARE names the firmware ELF (see the module docs)")
 }
 
-/// Starts the firmware under QEMU, its UART a client of `hub`, its console lines into `console`.
-fn start_qemu(hub: std::net::SocketAddr, console: Arc<Mutex<Console>>) -> Child {
+/// Starts the firmware under QEMU, its UART a client of `uart` (see [`start_uart_bridge`]),
+/// its console lines into `console`, its QMP monitor on the Unix socket `qmp`.
+fn start_qemu(uart: std::net::SocketAddr, qmp: &std::path::Path, console: Arc<Mutex<Console>>) -> Child {
     let mut qemu = Command::new("qemu-system-arm")
         .args(["-machine", "microbit", "-display", "none", "-monitor", "none"])
+        .arg("-qmp")
+        .arg(format!("unix:{},server=on,wait=off", qmp.display()))
         .args(["-semihosting-config", "enable=on,target=native"])
         .arg("-serial")
-        .arg(format!("tcp:{hub}"))
+        .arg(format!("tcp:{uart}"))
         .arg("-kernel")
         .arg(firmware())
         .stdin(Stdio::null())
@@ -104,6 +110,98 @@ fn start_qemu(hub: std::net::SocketAddr, console: Arc<Mutex<Console>>) -> Child 
         }
     });
     qemu
+}
+
+/// Where the nRF51's RAM starts.
+const RAM_START: u32 = 0x2000_0000;
+/// The word the firmware paints its free RAM with at start-up (`examples/cortex-m0/src/ram.rs`).
+const PAINT: u32 = 0x5A5A_A5A5;
+
+/// What the board's RAM shows: static data up to the painted stack's floor, the deepest the
+/// stack went since start-up (down to the first word that lost its paint), and the heap's
+/// high-water mark, from a copy of the RAM taken through QEMU's monitor (QMP) while it runs.
+/// `layout` is the board's `ram layout: FLOOR TOP PEAK` line (addresses in decimal).
+async fn measure_ram(qmp: &std::path::Path, layout: &str) -> String {
+    let numbers: Vec<u32> = layout.split_whitespace().filter_map(|word| word.parse().ok()).collect();
+    let [floor, top, peak] = numbers[..] else { panic!("not a layout: {layout:?}") };
+    let copy = qmp.with_extension("ram");
+    let socket = tokio::net::UnixStream::connect(qmp).await.expect("QEMU's QMP socket");
+    let (read, mut write) = socket.into_split();
+    let mut lines = BufReader::new(read).lines();
+    // The greeting, then each command's answer (events in between are skipped).
+    let mut answer = async || loop {
+        let line = lines.next_line().await.expect("QMP reads").expect("QMP stays open");
+        if line.contains("\"return\"") || line.contains("\"error\"") || line.contains("\"QMP\"") {
+            return line;
+        }
+    };
+    bounded("QMP's greeting", answer()).await;
+    let memsave = format!("memsave {RAM_START} {} \\\"{}\\\"", top - RAM_START, copy.display());
+    for command in [
+        r#"{"execute": "qmp_capabilities"}"#.to_string(),
+        format!(r#"{{"execute": "human-monitor-command", "arguments": {{"command-line": "{memsave}"}}}}"#),
+    ] {
+        write.write_all(format!("{command}\n").as_bytes()).await.unwrap();
+        let reply = bounded("QMP's answer", answer()).await;
+        assert!(reply.contains("\"return\""), "QMP refused {command}: {reply}");
+    }
+    let ram = std::fs::read(&copy).expect("QEMU saved the RAM");
+    let _ = std::fs::remove_file(&copy);
+    let word = |address: u32| {
+        let at = (address - RAM_START) as usize;
+        u32::from_le_bytes(ram[at..at + 4].try_into().unwrap())
+    };
+    let deepest = (floor..top).step_by(4).find(|address| word(*address) != PAINT).unwrap_or(top);
+    let (statics, stack) = (floor - RAM_START, top - deepest);
+    format!("ram: static {statics} B + stack {stack} B = {} B; heap peak {} B", statics + stack, word(peak))
+}
+
+/// The first byte of a frame on the board's UART, plus its data length
+/// (`examples/cortex-m0/src/serial_can.rs`).
+const UART_START: u8 = 0xC0;
+
+/// Bridges the board's UART to `hub`: listens for QEMU's serial port on an ephemeral port
+/// (returned) and carries each binary frame it sends to the hub as GridConnect, and each
+/// frame of the hub back to it in binary. A byte that cannot start a frame ends the bridge
+/// (the firmware never sends one).
+async fn start_uart_bridge(hub: std::net::SocketAddr) -> std::net::SocketAddr {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("a port for QEMU's UART");
+    let uart_addr = listener.local_addr().expect("bound");
+    let (mut hub_in, mut hub_out) = TcpStream::connect(hub).await.expect("the hub listens").into_split();
+    tokio::spawn(async move {
+        let Ok((uart, _)) = listener.accept().await else { return };
+        let (mut uart_in, mut uart_out) = uart.into_split();
+        tokio::spawn(async move {
+            let (mut decoder, mut buf) = (GridConnectDecoder::new(), [0u8; 512]);
+            while let Ok(n @ 1..) = hub_in.read(&mut buf).await {
+                let mut input = &buf[..n];
+                while let Some(result) = decoder.decode(&mut input) {
+                    let Ok(frame) = result else { continue };
+                    let mut bytes = vec![UART_START + frame.data().len() as u8];
+                    bytes.extend(frame.raw_id().to_be_bytes());
+                    bytes.extend(frame.data());
+                    if uart_out.write_all(&bytes).await.is_err() {
+                        return;
+                    }
+                }
+            }
+        });
+        let mut start = [0u8; 1];
+        while uart_in.read_exact(&mut start).await.is_ok() && (UART_START..=UART_START + 8).contains(&start[0]) {
+            let mut rest = vec![0u8; 4 + usize::from(start[0] - UART_START)];
+            if uart_in.read_exact(&mut rest).await.is_err() {
+                return;
+            }
+            let id = u32::from_be_bytes([rest[0], rest[1], rest[2], rest[3]]);
+            let frame = CanFrame::extended(id, &rest[4..]).expect("a frame of at most 8 bytes");
+            let mut text = [0u8; 32];
+            let len = gridconnect::encode(&frame, &mut text).expect("room for one frame");
+            if hub_out.write_all(&text[..len]).await.is_err() {
+                return;
+            }
+        }
+    });
+    uart_addr
 }
 
 /// Connects a raw GridConnect client to the hub, recording every frame into `tap`; returns
@@ -212,7 +310,9 @@ async fn io_board_on_a_cortex_m0() {
     let tool = Node::connect(&addr.to_string(), Framing::GridConnect, options).await.expect("the tool joins");
     let mut notices = tool.event_notices().await.expect("event notices");
     let console = Arc::new(Mutex::new(Console::default()));
-    let mut qemu = start_qemu(addr, console.clone());
+    let qmp = std::env::temp_dir().join(format!("openlcb-m0-qmp-{}.sock", std::process::id()));
+    let _ = std::fs::remove_file(&qmp);
+    let mut qemu = start_qemu(start_uart_bridge(addr).await, &qmp, console.clone());
 
     // The alias login on the wire, then a duplicate-alias check: another node's CID with the
     // board's alias must get a RID from it.
@@ -223,6 +323,21 @@ async fn io_board_on_a_cortex_m0() {
     tap_out.write_all(format!(":X17ABC{alias:03X}N;").as_bytes()).await.unwrap();
     until("the board's RID to a CID with its alias", &console, || {
         tap.lock().unwrap().frames[seen..].iter().any(|(_, f)| f.raw_id() == 0x1070_0000 | alias)
+    })
+    .await;
+
+    // Lock/Reserve, an optional command the board is built without (`openlcb-node`'s
+    // `optional-commands` feature; OpenMRN's nodes have none either): a tap that announced an
+    // alias sends it in one frame and gets Datagram Rejected, 0x1041 (unknown command).
+    let seen = tap.lock().unwrap().frames.len();
+    tap_out
+        .write_all(format!(":X107015A5N0501010122D2;:X1A{alias:03X}5A5N20880501010122D2;").as_bytes())
+        .await
+        .unwrap();
+    until("the board's rejection of Lock", &console, || {
+        tap.lock().unwrap().frames[seen..]
+            .iter()
+            .any(|(_, f)| f.raw_id() == 0x19A4_8000 | alias && f.data() == [0x05, 0xA5, 0x10, 0x41])
     })
     .await;
 
@@ -319,6 +434,7 @@ async fn io_board_on_a_cortex_m0() {
 
     // A firmware image into space 0xEF (Freeze, write, Unfreeze), read back.
     let image: Vec<u8> = (0..20_000u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8).collect();
+    let before_upgrade = tap.lock().unwrap().frames.len();
     let written = bounded("the upgrade", async {
         tool.upgrade_firmware(board, image.clone(), TransferPath::Auto).await?.finish().await
     })
@@ -326,12 +442,25 @@ async fn io_board_on_a_cortex_m0() {
     .expect("the upgrade succeeds");
     assert_eq!(written, image.len() as u64);
     until("the board's word on the image", &console, || printed(&console, "firmware image of 20000 bytes") == 1).await;
+    // At its Unfreeze the board announces itself again (Initialization Complete); a read sent
+    // before the tool has taken that would end as the board's restart. A round trip after it
+    // on the wire shows that the tool has.
+    until("the board's Initialization Complete after the upgrade", &console, || {
+        tap.lock().unwrap().frames[before_upgrade..].iter().any(|(_, f)| f.raw_id() == 0x1910_0000 | alias)
+    })
+    .await;
+    tool.protocols(board, Duration::from_secs(5)).await.expect("the board answers after its Unfreeze");
     let read = bounded("the image read back", async {
         tool.read_memory(board, 0xEF, 0, Some(image.len() as u32), TransferPath::Auto).await?.finish().await
     })
     .await
     .expect("the image reads back");
     assert!(read == image, "space 0xEF holds the image");
+
+    // What the run used of the RAM, before the reset paints it again.
+    let layout = console.lock().unwrap().lines.iter().find(|l| l.starts_with("ram layout: ")).cloned();
+    let ram = measure_ram(&qmp, &layout.expect("the board prints its RAM layout at start-up")).await;
+    println!("{ram}");
 
     // Reboot: a real reset. The board logs in again and its configuration survived.
     bounded("Reboot", async { tool.send_command(board, NodeCommand::Reboot).await?.finish().await })
@@ -352,9 +481,7 @@ async fn io_board_on_a_cortex_m0() {
     assert_eq!(back, new.to_bytes(), "the configuration survived the reboot (flash)");
 
     let frames = tap.lock().unwrap().frames.len();
-    let ram = console.lock().unwrap().lines.iter().find(|l| l.starts_with("ram: ")).cloned();
-    println!("{frames} frames on the bus; {}", ram.as_deref().unwrap_or("no RAM report"));
-    assert!(ram.is_some(), "the board reports its RAM before rebooting");
+    println!("{frames} frames on the bus; {ram}");
     assert!(qemu.try_wait().unwrap().is_none(), "the firmware still runs");
     qemu.kill().await.unwrap();
     tool.close().await;

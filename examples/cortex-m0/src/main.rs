@@ -1,18 +1,20 @@
 //! An 8-line I/O board, the whole OpenLCB node, as Cortex-M0 firmware (QEMU's `microbit`,
-//! an nRF51822 held to 32 KiB of flash and 8 KiB of RAM by `memory.x`).
+//! an nRF51822; its budget is 32 KiB of flash and 8 KiB of RAM, which `.ci/size-report`
+//! prints it against).
 //!
 //! The node: the CAN link (alias login, duplicate detection) through the `openlcb-embedded`
-//! driver on the UART's GridConnect bus (`serial_can`), datagrams, SNIP, PIP, Memory
-//! Configuration with the CDI, the ACDI and a configuration space that flash keeps, events
-//! bound to that configuration (lines 1-4 produce theirs, 5-8 consume theirs and print what
-//! they do), a firmware image space (0xEF) as a bootloader space, Reset/Reboot as a real reset.
-//! Its configuration is declared once with the kit (`openlcb_node::board`): the CDI and the
-//! offsets come from the same calls.
+//! driver on the UART, which carries the CAN frames in binary (`serial_can`), datagrams, SNIP,
+//! PIP, Memory Configuration with the CDI, the ACDI and a configuration space that flash
+//! keeps, events bound to that configuration (lines 1-4 produce theirs, 5-8 consume theirs
+//! and print what they do), a firmware image space (0xEF) as a bootloader space, Reset/Reboot
+//! as a real reset. Memory Configuration's optional commands (Write Under Mask, Lock, Get
+//! Unique ID) are left out, as OpenMRN's nodes leave them. Its configuration is declared once
+//! with the kit (`openlcb_node::board`): the CDI and the offsets come from the same calls.
 //!
-//! Semihosting is its console: each consumed event it acts on (`line 5 on`), each image it
-//! takes, and before each reboot the RAM it used (`ram: ...`, the stack measured by painting).
-//! `.ci/firmware-m0` runs it against a bus the test drives (`cargo test -p openlcb-tokio
-//! --test cortex_m0 -- --ignored`).
+//! Semihosting is its console: where its RAM's figures are (`ram layout: ...`, at start-up),
+//! each consumed event it acts on (`line 5 on`), each image it takes. `.ci/firmware-m0` runs
+//! it against a bus the test drives (`cargo test -p openlcb-tokio --test cortex_m0 --
+//! --ignored`), which also measures the RAM the run used from a copy of it.
 
 #![no_std]
 #![no_main]
@@ -145,16 +147,15 @@ fn memory_server(cdi: CdiSpace<Vec<Line>>, config: ConfigSpace) -> MemoryServer 
 fn main() -> ! {
     ram::paint_stack();
     ram::init_heap();
+    ram::print_layout();
     let Some(id) = NodeId::new(NODE_ID) else { fail("bad Node ID") };
     let (board, lines, node) = start(id);
-    ram::started();
     // Last before the loop: the login's 200 ms count from the link's creation.
     let driver = connect(id);
     let mut rebooting = false;
     loop {
         let Some(idle) = poll(driver, node) else { continue };
         if rebooting && idle {
-            ram::report();
             nrf51::reset();
         }
         while let Some(event) = node.poll_event() {
@@ -221,16 +222,14 @@ fn on_event(event: NodeEvent, board: &Board, lines: &[Line], node: &mut Node) ->
                 cortex_m::asm::udf();
             }
             if !cfg!(feature = "inject-stale-events") {
-                let events = board.events(config_space(node));
-                node.set_events(events);
+                take_events(board, node);
             }
         }
         NodeEvent::Memory(MemoryEvent::FactoryResetRequested { .. }) => {
             if board.factory_reset(config_space(node)).is_err() {
                 fail("factory reset");
             }
-            let events = board.events(config_space(node));
-            node.set_events(events);
+            take_events(board, node);
         }
         NodeEvent::Memory(MemoryEvent::ResetRequested { .. }) => return true,
         NodeEvent::Memory(MemoryEvent::Unfrozen { image_len, .. }) => {
@@ -240,6 +239,12 @@ fn on_event(event: NodeEvent, board: &Board, lines: &[Line], node: &mut Node) ->
         _ => {}
     }
     false
+}
+
+/// The node produces and consumes the events its configuration holds now.
+fn take_events(board: &Board, node: &mut Node) {
+    let events = board.events(config_space(node));
+    node.set_events(events);
 }
 
 /// Ends the run with a failure: QEMU exits with status 1.

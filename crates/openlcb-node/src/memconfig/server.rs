@@ -204,6 +204,7 @@ impl MemoryServer {
 
     /// Event IDs Get Unique ID hands out, each once (MC §4.19). Without any, the command is
     /// refused with 0x1041.
+    #[cfg(feature = "optional-commands")]
     pub fn with_unique_ids(mut self, ids: impl IntoIterator<Item = [u8; 8]>) -> Self {
         self.unique_ids.extend(ids);
         self
@@ -252,6 +253,7 @@ impl MemoryServer {
     }
 
     /// Who holds the lock (0: nobody).
+    #[cfg(feature = "optional-commands")]
     pub fn lock_owner(&self) -> u64 {
         self.lock
     }
@@ -260,7 +262,7 @@ impl MemoryServer {
     /// are refused with 0x2000 (temporary: locked, MC-TN §2.4.4). MC §4.17 makes the lock
     /// voluntary; refusing writes is what keeps two tools from mixing their data.
     fn locked_out(&self, now: Instant, peer: NodeId) -> bool {
-        self.lock != 0 && self.lock != peer.as_raw() && now < self.lock_deadline
+        cfg!(feature = "optional-commands") && self.lock != 0 && self.lock != peer.as_raw() && now < self.lock_deadline
     }
 
     /// The node that took the lock, when the lock keeps `peer` out (it names another node
@@ -326,7 +328,10 @@ impl MemoryServer {
 
     /// `peer` did something: a lock it holds (or took) lasts on.
     fn touch_lock(&mut self, now: Instant, timeout: openlcb_stream::Duration, peer: NodeId) {
-        if self.lock != 0 && (self.lock == peer.as_raw() || self.lock_by == Some(peer)) {
+        if cfg!(feature = "optional-commands")
+            && self.lock != 0
+            && (self.lock == peer.as_raw() || self.lock_by == Some(peer))
+        {
             self.lock_deadline = now + timeout;
         }
     }
@@ -471,8 +476,10 @@ impl MemoryServer {
 
     /// The Options reply (node-protocols.md §3.7): stream bit 0x01 only with streams (C-5).
     fn options(&self, streams: bool) -> OptionsReply {
-        let mut commands =
-            OptionsReply::WRITE_UNDER_MASK | OptionsReply::UNALIGNED_READS | OptionsReply::UNALIGNED_WRITES;
+        let mut commands = OptionsReply::UNALIGNED_READS | OptionsReply::UNALIGNED_WRITES;
+        if cfg!(feature = "optional-commands") {
+            commands |= OptionsReply::WRITE_UNDER_MASK;
+        }
         if self.acdi {
             commands |=
                 OptionsReply::ACDI_MANUFACTURER_READ | OptionsReply::ACDI_USER_READ | OptionsReply::ACDI_USER_WRITE;
@@ -566,7 +573,7 @@ impl MemoryServer {
                 cx.send_server_reply(peer, reply, form);
             }
             Command::Write { space, address, data } => self.write(cx, peer, (space, form), address, &data, None),
-            Command::WriteUnderMask { space, address, mask, data } => {
+            Command::WriteUnderMask { space, address, mask, data } if cfg!(feature = "optional-commands") => {
                 self.write(cx, peer, (space, form), address, &data, Some(&mask));
             }
             Command::ReadStream { space, address, destination_stream, count } => {
@@ -583,7 +590,7 @@ impl MemoryServer {
                 cx.ok(peer, pending);
                 cx.send_server_reply(peer, Reply::SpaceInfo(self.space_info(space)), SpaceForm::Short);
             }
-            Command::Lock { node } => {
+            Command::Lock { node } if cfg!(feature = "optional-commands") => {
                 // MC §4.17: test-and-set; a Node ID of 0 releases. A lapsed lock is free. The
                 // node that took it gets its answers at once, whatever Node IDs it names; for
                 // another, a taker that is gone is found so first (refused for now).
@@ -602,7 +609,7 @@ impl MemoryServer {
                 cx.ok(peer, pending);
                 cx.send_server_reply(peer, Reply::Lock { owner: self.lock }, SpaceForm::Short);
             }
-            Command::GetUniqueId { count } => {
+            Command::GetUniqueId { count } if cfg!(feature = "optional-commands") => {
                 if self.unique_ids.is_empty() {
                     return self.reject(cx, peer, codes::UNKNOWN_COMMAND);
                 }
@@ -610,6 +617,10 @@ impl MemoryServer {
                 let ids = self.unique_ids.drain(..n).collect();
                 cx.ok(peer, pending);
                 cx.send_server_reply(peer, Reply::UniqueIds { ids }, SpaceForm::Short);
+            }
+            // Without the `optional-commands` feature: none is implemented.
+            Command::Lock { .. } | Command::GetUniqueId { .. } | Command::WriteUnderMask { .. } => {
+                self.reject(cx, peer, codes::UNKNOWN_COMMAND);
             }
             Command::Freeze { space } => {
                 if space != SPACE_FIRMWARE || !self.has_firmware() {
