@@ -254,7 +254,8 @@ impl ConnectArgs {
     }
 
     /// A failure if the hub has sent only bytes that never made a message (it speaks the
-    /// other protocol), for commands to ask when nobody answered.
+    /// other protocol), or if the node has already ended (see [`ended`](Self::ended)), for
+    /// commands to ask when nobody answered.
     pub(crate) async fn heard_the_other_protocol(&self, node: &Node) -> Option<Failure> {
         let stats = match node.stats().await {
             Ok(stats) => stats.wire,

@@ -340,6 +340,7 @@ async fn io_board_on_a_cortex_m0() {
             .any(|(_, f)| f.raw_id() == 0x19A4_8000 | alias && f.data() == [0x05, 0xA5, 0x10, 0x41])
     })
     .await;
+    println!("Lock: :X1A{alias:03X}5A5N20880501010122D2; rejected with :X19A48{alias:03X}N05A51041;");
 
     // Its PIP: what an I/O board serves, and no streams (the firmware is built without them).
     let protocols =
