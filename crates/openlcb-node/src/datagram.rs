@@ -10,6 +10,7 @@ use core::fmt;
 use openlcb_stream::wire::{ErrorCode, ErrorReport};
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId, Queue};
 
+use crate::node::bump;
 use crate::node::{NodeEvent, Outputs};
 use crate::service::{Lent, Service, ServiceChange, earliest};
 
@@ -171,28 +172,31 @@ pub enum DatagramError {
 }
 
 /// Counters of the datagram service.
+///
+/// Each counter stops at `u32::MAX` (32 bits: 64-bit counters cost flash on a
+/// microcontroller).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct DatagramStats {
     /// Datagrams handed to the application.
-    pub received: u64,
+    pub received: u32,
     /// Received datagrams rejected at once: empty, or a content ID nobody claimed (0x1042).
-    pub rejected_unclaimed: u64,
+    pub rejected_unclaimed: u32,
     /// Received datagrams rejected because the answer table was full or the source already
     /// had one waiting (0x2020).
-    pub rejected_busy: u64,
+    pub rejected_busy: u32,
     /// Received datagrams the application did not answer in time (rejected with 0x2020).
-    pub answer_timeouts: u64,
+    pub answer_timeouts: u32,
     /// Datagrams sent, resends included.
-    pub sent: u64,
+    pub sent: u32,
     /// Resends after a temporary rejection.
-    pub resent: u64,
+    pub resent: u32,
     /// Datagrams answered with Received OK.
-    pub delivered: u64,
+    pub delivered: u32,
     /// Datagrams that failed.
-    pub failed: u64,
+    pub failed: u32,
     /// OK or Rejected from a node we were not waiting for.
-    pub stray_answers: u64,
+    pub stray_answers: u32,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -366,7 +370,7 @@ impl DatagramService {
             && next.state == SendState::Queued
         {
             next.state = SendState::InFlight { deadline };
-            self.stats.sent += 1;
+            bump(&mut self.stats.sent);
             out.transmit(Message::addressed(Mti::DATAGRAM, out.node, to, next.payload.clone()));
         }
     }
@@ -390,8 +394,8 @@ impl DatagramService {
     /// Gives the outcome of `done` to its owner.
     fn report(&mut self, out: &mut Outputs, done: &Outgoing, result: Outcome) {
         match result {
-            Ok(_) => self.stats.delivered += 1,
-            Err(_) => self.stats.failed += 1,
+            Ok(_) => bump(&mut self.stats.delivered),
+            Err(_) => bump(&mut self.stats.failed),
         }
         let (id, to) = (done.id, done.to);
         match (done.owner, result) {
@@ -426,7 +430,7 @@ impl DatagramService {
         payload: &[u8],
     ) {
         let Some(index) = self.active(from) else {
-            self.stats.stray_answers += 1;
+            bump(&mut self.stats.stray_answers);
             return;
         };
         let flags = OkFlags::from_byte(payload.first().copied().unwrap_or(0));
@@ -436,7 +440,7 @@ impl DatagramService {
     /// Datagram Rejected, or an OIR/TDE naming Datagram (or nothing), from `from`.
     fn on_rejected(&mut self, config: &DatagramConfig, now: Instant, out: &mut Outputs, from: NodeId, code: ErrorCode) {
         let Some(index) = self.active(from) else {
-            self.stats.stray_answers += 1;
+            bump(&mut self.stats.stray_answers);
             return;
         };
         let (retries, delay) = (config.max_retries, config.retry_delay);
@@ -475,14 +479,14 @@ impl DatagramService {
         for o in self.outgoing.iter_mut() {
             if matches!(o.state, SendState::Backoff { until } if until <= now) {
                 o.state = SendState::InFlight { deadline };
-                self.stats.sent += 1;
-                self.stats.resent += 1;
+                bump(&mut self.stats.sent);
+                bump(&mut self.stats.resent);
                 out.transmit(Message::addressed(Mti::DATAGRAM, out.node, o.to, o.payload.clone()));
             }
         }
         while let Some(index) = self.awaiting().iter().position(|a| a.deadline <= now) {
             let expired = self.awaiting.swap_remove(index);
-            self.stats.answer_timeouts += 1;
+            bump(&mut self.stats.answer_timeouts);
             out.reply(rejected(out.node, expired.from, ErrorCode::BUFFER_UNAVAILABLE));
         }
     }
@@ -496,7 +500,7 @@ impl DatagramService {
             #[cfg(feature = "app-datagrams")]
             Some(datagram) => self.hand_to_application(config, now, out, from, datagram),
             _ => {
-                self.stats.rejected_unclaimed += 1;
+                bump(&mut self.stats.rejected_unclaimed);
                 out.reply(rejected(out.node, from, ErrorCode::NOT_IMPLEMENTED_DATAGRAM_TYPE));
             }
         }
@@ -514,11 +518,11 @@ impl DatagramService {
     ) {
         let busy = self.awaiting.len() >= config.max_awaiting_answer || self.awaiting.iter().any(|a| a.from == from);
         if busy {
-            self.stats.rejected_busy += 1;
+            bump(&mut self.stats.rejected_busy);
             return out.reply(rejected(out.node, from, ErrorCode::BUFFER_UNAVAILABLE));
         }
         self.awaiting.push(Awaiting { from, deadline: now + config.answer_timeout });
-        self.stats.received += 1;
+        bump(&mut self.stats.received);
         out.event(NodeEvent::DatagramReceived { from, datagram: Box::new(datagram) });
     }
 
@@ -584,7 +588,7 @@ impl Service<Lent<'_>> for DatagramService {
                 if cfg!(feature = "app-datagrams") && done.owner == DatagramOwner::Application {
                     self.report(out, &done, Err(DatagramFailure::PeerLost));
                 } else {
-                    self.stats.failed += 1;
+                    bump(&mut self.stats.failed);
                 }
             }
         }

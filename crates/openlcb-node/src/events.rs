@@ -20,6 +20,7 @@ use openlcb_stream::wire::ErrorReport;
 use openlcb_stream::{EventId, Instant, Message, MessageRef, Mti, NodeId};
 
 use crate::node::Outputs;
+use crate::node::bump;
 use crate::service::{Lent, Service, ServiceChange};
 use crate::{Node, NodeEvent};
 
@@ -243,21 +244,24 @@ pub enum EventError {
 }
 
 /// Counters of the event service.
+///
+/// Each counter stops at `u32::MAX` (32 bits: 64-bit counters cost flash on a
+/// microcontroller).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct EventStats {
     /// Identify Events messages received (each starts or extends one announcement pass).
-    pub identify_events: u64,
+    pub identify_events: u32,
     /// Reports received and handed to the application.
-    pub reports_delivered: u64,
+    pub reports_delivered: u32,
     /// Reports received for events this node does not consume (with [`Listen::Consumed`]).
-    pub reports_ignored: u64,
+    pub reports_ignored: u32,
     /// Event messages too short to hold an Event ID.
-    pub malformed: u64,
+    pub malformed: u32,
     /// Notices dropped because the application left
     /// [`NodeConfig::transmit_queue_limit`](crate::NodeConfig::transmit_queue_limit) events
     /// waiting.
-    pub notices_dropped: u64,
+    pub notices_dropped: u32,
 }
 
 /// The Event Transport service of a node. Its declarations are the node's
@@ -310,12 +314,12 @@ impl EventService {
     /// A received message with an event MTI (the node routes only those here).
     fn on_message(&mut self, config: &EventConfig, out: &mut Outputs, msg: MessageRef<'_>) {
         if matches!(msg.mti, Mti::IDENTIFY_EVENTS_GLOBAL | Mti::IDENTIFY_EVENTS_ADDRESSED) {
-            self.stats.identify_events += 1;
+            bump(&mut self.stats.identify_events);
             self.announce(config);
             return;
         }
         let Some(event) = EventId::from_slice(msg.payload) else {
-            self.stats.malformed += 1;
+            bump(&mut self.stats.malformed);
             return;
         };
         let from = msg.source;
@@ -325,11 +329,11 @@ impl EventService {
             Mti::IDENTIFY_CONSUMER => answer(out, &config.consumed, EventRole::Consumer, event),
             Mti::PRODUCER_CONSUMER_EVENT_REPORT => {
                 if everything || find(&config.consumed, event).is_some() {
-                    self.stats.reports_delivered += 1;
+                    bump(&mut self.stats.reports_delivered);
                     let payload = msg.payload.get(8..).unwrap_or_default().to_vec();
                     self.notify(out, EventNotice::Report { from, event, payload });
                 } else {
-                    self.stats.reports_ignored += 1;
+                    bump(&mut self.stats.reports_ignored);
                 }
             }
             Mti::LEARN_EVENT => self.notify(out, EventNotice::Learn { from, event }),
@@ -346,7 +350,7 @@ impl EventService {
 
     fn notify(&mut self, out: &mut Outputs, notice: EventNotice) {
         if !out.notify(NodeEvent::Events(notice)) {
-            self.stats.notices_dropped += 1;
+            bump(&mut self.stats.notices_dropped);
         }
     }
 }

@@ -147,8 +147,10 @@ struct MessageCounts {
     stray_error_reports: u32,
 }
 
-/// Counts one more, stopping at `u32::MAX`.
-fn bump(counter: &mut u32) {
+/// Counts one more, stopping at `u32::MAX`. Out of line: one call is smaller than the
+/// saturating add (flash).
+#[inline(never)]
+pub(crate) fn bump(counter: &mut u32) {
     *counter = counter.saturating_add(1);
 }
 
@@ -159,7 +161,7 @@ pub(crate) struct Outputs {
     limit: usize,
     transmits: Queue<Message>,
     events: Queue<NodeEvent>,
-    answers_dropped: u64,
+    answers_dropped: u32,
 }
 
 impl Outputs {
@@ -182,7 +184,7 @@ impl Outputs {
     /// floods queries must not grow it without bound.
     pub(crate) fn reply(&mut self, message: Message) {
         if self.transmits.len() >= self.limit {
-            self.answers_dropped += 1;
+            bump(&mut self.answers_dropped);
         } else {
             self.transmits.push_back(message);
         }
@@ -365,9 +367,9 @@ impl Node {
             not_for_us: counts.not_for_us.into(),
             unknown_mti_rejected: counts.unknown_mti_rejected.into(),
             stray_error_reports: counts.stray_error_reports.into(),
-            answers_dropped: self.out.answers_dropped,
-            snip_answered: self.services.snip.answered,
-            stray_snip_replies: self.services.snip.stray_replies,
+            answers_dropped: self.out.answers_dropped.into(),
+            snip_answered: self.services.snip.answered.into(),
+            stray_snip_replies: self.services.snip.stray_replies.into(),
             datagrams: self.services.datagrams.stats,
         }
     }

@@ -9,6 +9,7 @@ use core::fmt;
 use openlcb_stream::wire::ErrorReport;
 use openlcb_stream::{Instant, Message, MessageRef, Mti, NodeId};
 
+use crate::node::bump;
 use crate::node::{NodeEvent, Outputs};
 use crate::service::{Lent, Service, ServiceChange, earliest};
 
@@ -327,9 +328,9 @@ pub(crate) struct SnipService {
     reply: Vec<u8>,
     requests: Vec<PendingSnip>,
     /// Requests answered.
-    pub(crate) answered: u64,
+    pub(crate) answered: u32,
     /// Replies nobody here asked for.
-    pub(crate) stray_replies: u64,
+    pub(crate) stray_replies: u32,
 }
 
 impl SnipService {
@@ -397,12 +398,12 @@ impl Service<Lent<'_>> for SnipService {
         let (out, peer) = (&mut *cx.out, msg.source);
         match msg.mti {
             Mti::SIMPLE_NODE_INFO_REQUEST => {
-                self.answered += 1;
+                bump(&mut self.answered);
                 out.reply(Message::addressed(Mti::SIMPLE_NODE_INFO_REPLY, out.node, peer, self.reply.clone()));
             }
             Mti::SIMPLE_NODE_INFO_REPLY => {
                 let Some(index) = self.requests().iter().position(|p| p.peer == peer) else {
-                    self.stray_replies += 1;
+                    bump(&mut self.stray_replies);
                     return true;
                 };
                 if self.requests.get_mut(index).is_some_and(|p| p.push(msg.payload)) {

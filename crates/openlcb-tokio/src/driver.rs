@@ -446,7 +446,7 @@ impl Driver {
     // ----- the node's events -----
 
     fn node_events(&mut self, now: Instant) {
-        self.events.node_dropped(self.stack.event_stats().notices_dropped);
+        self.events.node_dropped(self.stack.event_stats().notices_dropped.into());
         while let Some(event) = self.stack.poll_event() {
             let event = match event {
                 NodeEvent::Stream(event) => event,

@@ -87,14 +87,18 @@ impl MemorySpace for ConfigSpace {
 /// time an upgrade writes into it; a new upgrade (a Freeze, a retry) starts over. Readable,
 /// so that a tool can verify what it wrote.
 pub struct FirmwareSpace {
-    /// Bit n: page n of the space was erased during this upgrade.
-    erased: u128,
+    /// Bit n % 32 of word n / 32: page n of the space was erased during this upgrade (32-bit
+    /// words: a Cortex-M0 shifts a `u128` in a library call).
+    erased: [u32; ERASED_WORDS],
 }
+
+/// Words of [`FirmwareSpace::erased`]: a bit for each page of space 0xEF.
+const ERASED_WORDS: usize = FIRMWARE_LEN.div_ceil(PAGE_SIZE * 32) as usize;
 
 impl FirmwareSpace {
     /// The space; nothing is erased until an upgrade writes.
     pub fn new() -> Self {
-        FirmwareSpace { erased: 0 }
+        FirmwareSpace { erased: [0; ERASED_WORDS] }
     }
 }
 
@@ -119,9 +123,12 @@ impl MemorySpace for FirmwareSpace {
         for (i, byte) in data.iter().enumerate() {
             let at = address + i as u32;
             let page = at / PAGE_SIZE;
-            if self.erased & (1 << page) == 0 {
+            let (word, bit) = (page as usize / 32, 1 << (page % 32));
+            if let Some(erased) = self.erased.get_mut(word)
+                && *erased & bit == 0
+            {
                 erase_page(FIRMWARE_START + page * PAGE_SIZE);
-                self.erased |= 1 << page;
+                *erased |= bit;
             }
             let shift = 8 * (at & 3);
             let word = !(0xFF << shift) | (u32::from(*byte) << shift);
@@ -131,6 +138,6 @@ impl MemorySpace for FirmwareSpace {
     }
 
     fn discard(&mut self) {
-        self.erased = 0;
+        self.erased = [0; ERASED_WORDS];
     }
 }

@@ -7,6 +7,7 @@ use super::calendar::{DAY_MS, MINUTE_MS};
 use super::model::Model;
 use super::wire::{ClockMessage, Rate};
 use super::{Bus, ClockChange, ClockState, ConsumerConfig, Heard};
+use crate::node::bump;
 
 /// How late a report of a minute's start may arrive, in real milliseconds, and still be taken
 /// as that start.
@@ -77,7 +78,7 @@ impl Consumer {
     /// Sends a query now.
     pub(crate) fn query(&mut self, bus: &mut Bus<'_>) {
         self.query_due = None;
-        bus.stats.queries_sent += 1;
+        bump(&mut bus.stats.queries_sent);
         bus.report(ClockMessage::Query);
     }
 
@@ -98,7 +99,7 @@ impl Consumer {
             }
             Mti::PRODUCER_CONSUMER_EVENT_REPORT => match ClockMessage::decode(heard.suffix) {
                 Some(message) => self.on_clock_message(now, bus, heard.from, message, false),
-                None => bus.stats.reserved_ignored += 1,
+                None => bump(&mut bus.stats.reserved_ignored),
             },
             Mti::PRODUCER_IDENTIFIED_VALID => {
                 if let Some(message) = ClockMessage::decode(heard.suffix) {
@@ -123,7 +124,7 @@ impl Consumer {
         let from_generator = message.is_report() || identified || message == ClockMessage::DateRollover;
         if from_generator {
             if self.generator.is_some_and(|g| g != from) {
-                bus.stats.other_generators += 1;
+                bump(&mut bus.stats.other_generators);
             }
             self.generator = Some(from);
             self.last_heard = Some(now);
@@ -180,7 +181,7 @@ impl Consumer {
                     model.set_ms(now, ms);
                     self.set_told(now, bus, before, from);
                 }
-                None => bus.stats.reserved_ignored += 1,
+                None => bump(&mut bus.stats.reserved_ignored),
             },
             ClockMessage::ReportYear(year) => {
                 model.set_ms(now, model.with_year(now, year));

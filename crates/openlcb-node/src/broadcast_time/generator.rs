@@ -6,6 +6,7 @@ use super::calendar::{ClockTime, DAY_MS, MINUTE_MS};
 use super::model::Model;
 use super::wire::{ClockMessage, Rate};
 use super::{Bus, ClockChange, ClockError, ClockSet, ClockState, GeneratorConfig, Heard, SyncTail};
+use crate::node::bump;
 
 /// Reports of the time while running are at least this far apart (§6.2), but for the
 /// minutes a consumer asked for and midnight.
@@ -98,7 +99,7 @@ impl Generator {
                 }
             }
             Mti(0x0544..=0x0547) if ClockMessage::decode(heard.suffix).is_some_and(ClockMessage::is_report) => {
-                bus.stats.other_generators += 1;
+                bump(&mut bus.stats.other_generators);
             }
             _ => {}
         }
@@ -107,20 +108,20 @@ impl Generator {
 
     fn on_report(&mut self, now: Instant, bus: &mut Bus<'_>, heard: Heard) {
         let Some(message) = ClockMessage::decode(heard.suffix) else {
-            bus.stats.reserved_ignored += 1;
+            bump(&mut bus.stats.reserved_ignored);
             return;
         };
         match message {
             ClockMessage::Query => {
-                bus.stats.queries += 1;
+                bump(&mut bus.stats.queries);
                 self.request_sync(now);
             }
-            _ if message.is_report() => bus.stats.other_generators += 1,
+            _ if message.is_report() => bump(&mut bus.stats.other_generators),
             _ => {
                 if let Some(set) = ClockSet::of(message)
                     && (!self.config.accept_sets || self.set(now, bus, set, Some(heard.from)).is_err())
                 {
-                    bus.stats.sets_refused += 1;
+                    bump(&mut bus.stats.sets_refused);
                 }
             }
         }
@@ -200,7 +201,7 @@ impl Generator {
                 (None, ClockChange::Stopped)
             }
         };
-        bus.stats.sets_applied += 1;
+        bump(&mut bus.stats.sets_applied);
         self.minute = self.model.minute(now);
         self.tail_pending = false;
         if let Some(echo) = echo {
@@ -269,7 +270,7 @@ impl Generator {
         self.sync_due = None;
         self.sets_since = None;
         self.last_sync = Some(now);
-        bus.stats.syncs_sent += 1;
+        bump(&mut bus.stats.syncs_sent);
         let minute = self.model.minute(now);
         self.minute = minute;
         let state = if self.model.running { ClockMessage::Start } else { ClockMessage::Stop };
@@ -290,7 +291,7 @@ impl Generator {
 
     fn note_time_report(&mut self, now: Instant, bus: &mut Bus<'_>) {
         self.last_report = Some(now);
-        bus.stats.time_reports_sent += 1;
+        bump(&mut bus.stats.time_reports_sent);
     }
 
     fn retime(&mut self, now: Instant) {

@@ -114,6 +114,7 @@ pub use wire::{ClockId, ClockMessage, Rate, RateError};
 
 use crate::events::EventRange;
 use crate::node::Outputs;
+use crate::node::bump;
 use crate::service::{Lent, Service, ServiceChange, earliest};
 use crate::{Node, NodeEvent};
 use consumer::Consumer;
@@ -361,33 +362,36 @@ pub enum ClockError {
 }
 
 /// Counters of the clocks.
+///
+/// Each counter stops at `u32::MAX` (32 bits: 64-bit counters cost flash on a
+/// microcontroller).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct ClockStats {
     /// Set commands a generator carried out.
-    pub sets_applied: u64,
+    pub sets_applied: u32,
     /// Set commands a generator refused ([`GeneratorConfig::accept_sets`] off, or a day the
     /// month lacks).
-    pub sets_refused: u64,
+    pub sets_refused: u32,
     /// Queries a generator received.
-    pub queries: u64,
+    pub queries: u32,
     /// Synchronization sequences sent.
-    pub syncs_sent: u64,
+    pub syncs_sent: u32,
     /// Report Time events sent.
-    pub time_reports_sent: u64,
+    pub time_reports_sent: u32,
     /// Events of a clock's range with a reserved meaning, ignored (§4.12).
-    pub reserved_ignored: u64,
+    pub reserved_ignored: u32,
     /// Event messages too short to hold an Event ID.
-    pub malformed: u64,
+    pub malformed: u32,
     /// Reports of a clock from a second node: another generator of a clock this node
     /// generates, or a consumer's generator changing (a misconfigured layout).
-    pub other_generators: u64,
+    pub other_generators: u32,
     /// Queries a consumer sent.
-    pub queries_sent: u64,
+    pub queries_sent: u32,
     /// Clock events dropped because the application left
     /// [`NodeConfig::transmit_queue_limit`](crate::NodeConfig::transmit_queue_limit) events
     /// waiting.
-    pub notices_dropped: u64,
+    pub notices_dropped: u32,
 }
 
 /// What a clock's role lends its work: the node's queues, its Node ID, the clock and the
@@ -420,7 +424,7 @@ impl Bus<'_> {
     /// Tells the application.
     fn tell(&mut self, change: ClockChange, from: Option<NodeId>) {
         if !self.out.notify(NodeEvent::Clock(ClockEvent { clock: self.clock, change, from })) {
-            self.stats.notices_dropped += 1;
+            bump(&mut self.stats.notices_dropped);
         }
     }
 
@@ -517,7 +521,7 @@ impl Service<Lent<'_>> for ClockService {
             return true;
         }
         let Some(event) = EventId::from_slice(msg.payload) else {
-            self.stats.malformed += 1;
+            bump(&mut self.stats.malformed);
             return false;
         };
         let heard = |suffix| Heard { from: msg.source, mti: msg.mti, suffix };

@@ -330,6 +330,14 @@ impl Cx<'_> {
         self.send_reply(to, &reply.to_bytes_in(form));
     }
 
+    /// Answers the command datagram `to` sent with a Datagram OK promising a reply, then the
+    /// reply `reply` (a command answered at once by a reply datagram).
+    #[inline(never)]
+    pub(crate) fn answer(&mut self, to: NodeId, reply: Reply, form: SpaceForm) {
+        self.ok(to, OkFlags { reply_pending: true, timeout_exponent: 0 });
+        self.send_server_reply(to, reply, form);
+    }
+
     /// A reply to `to` could be queued now.
     pub(crate) fn has_reply_room(&self, to: NodeId) -> bool {
         self.datagrams.has_room(self.datagram_config, to)

@@ -15,6 +15,7 @@ use super::wire::SPACE_FUNCTIONS;
 use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceForm, SpaceInfoReply, codes};
 use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FDI, SPACE_FIRMWARE};
 use super::{MemoryEvent, MemoryEvent as E};
+use crate::node::bump;
 use crate::service::{ServiceChange, earliest};
 use crate::{OkFlags, Protocols, SnipInfo};
 
@@ -22,20 +23,23 @@ use crate::{OkFlags, Protocols, SnipInfo};
 const CHUNK: usize = 256;
 
 /// Counters of the server.
+///
+/// Each counter stops at `u32::MAX` (32 bits: 64-bit counters cost flash on a
+/// microcontroller).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct MemoryServerStats {
     /// Commands answered.
-    pub commands: u64,
+    pub commands: u32,
     /// Commands refused with Datagram Rejected.
-    pub rejected: u64,
+    pub rejected: u32,
     /// Stream transfers finished (both directions).
-    pub streams_done: u64,
+    pub streams_done: u32,
     /// Stream transfers that ended early (terminated, timed out, refused, a space error).
-    pub streams_failed: u64,
+    pub streams_failed: u32,
     /// Holders of the lock or of an upgrade that did not answer a Verify Node ID: gone,
     /// what they held ended.
-    pub holders_gone: u64,
+    pub holders_gone: u32,
 }
 
 /// A Verify Node ID sent to the node holding the lock or the upgrade because another node
@@ -320,7 +324,7 @@ impl MemoryServer {
         let Some(check) = self.holder_check.filter(|c| cx.now >= c.deadline) else { return };
         self.holder_check = None;
         if !check.answered {
-            self.stats.holders_gone += 1;
+            bump(&mut self.stats.holders_gone);
             self.forget_peer(Some(check.holder));
             cx.departed = Some(check.holder);
         }
@@ -534,7 +538,7 @@ impl MemoryServer {
     /// A command datagram from `peer`: answers it with Datagram OK or Rejected and, where
     /// the command has one, a reply datagram.
     pub(crate) fn on_command(&mut self, cx: &mut Cx<'_>, peer: NodeId, bytes: &[u8]) {
-        self.stats.commands += 1;
+        bump(&mut self.stats.commands);
         if !cx.has_reply_room(peer) {
             // No reply could be queued: refused for now (the sender resends) rather than
             // promised and dropped. The bound is per peer, so one that never acknowledges
@@ -552,7 +556,6 @@ impl MemoryServer {
             }
             Err(_) => return self.reject(cx, peer, codes::INVALID_ARGUMENTS),
         };
-        let pending = OkFlags { reply_pending: true, timeout_exponent: 0 };
         let form = SpaceForm::of(bytes);
         match command {
             Command::Read { space, address, count } => {
@@ -569,8 +572,7 @@ impl MemoryServer {
                     Ok(_) => failed(FailedKind::Read, space, address, codes::OUT_OF_BOUNDS),
                     Err(e) => failed(FailedKind::Read, space, address, e.code()),
                 };
-                cx.ok(peer, pending);
-                cx.send_server_reply(peer, reply, form);
+                cx.answer(peer, reply, form);
             }
             Command::Write { space, address, data } => self.write(cx, peer, (space, form), address, &data, None),
             Command::WriteUnderMask { space, address, mask, data } if cfg!(feature = "optional-commands") => {
@@ -583,12 +585,10 @@ impl MemoryServer {
                 self.write_stream(cx, peer, (space, form), address, source_stream);
             }
             Command::GetOptions => {
-                cx.ok(peer, pending);
-                cx.send_server_reply(peer, Reply::Options(self.options(cx.streams_enabled())), SpaceForm::Short);
+                cx.answer(peer, Reply::Options(self.options(cx.streams_enabled())), SpaceForm::Short);
             }
             Command::GetSpaceInfo { space } => {
-                cx.ok(peer, pending);
-                cx.send_server_reply(peer, Reply::SpaceInfo(self.space_info(space)), SpaceForm::Short);
+                cx.answer(peer, Reply::SpaceInfo(self.space_info(space)), SpaceForm::Short);
             }
             Command::Lock { node } if cfg!(feature = "optional-commands") => {
                 // MC §4.17: test-and-set; a Node ID of 0 releases. A lapsed lock is free. The
@@ -606,8 +606,7 @@ impl MemoryServer {
                     self.lock_by = (node != 0).then_some(peer);
                     self.lock_deadline = cx.now + cx.options.lock_timeout;
                 }
-                cx.ok(peer, pending);
-                cx.send_server_reply(peer, Reply::Lock { owner: self.lock }, SpaceForm::Short);
+                cx.answer(peer, Reply::Lock { owner: self.lock }, SpaceForm::Short);
             }
             Command::GetUniqueId { count } if cfg!(feature = "optional-commands") => {
                 if self.unique_ids.is_empty() {
@@ -615,8 +614,7 @@ impl MemoryServer {
                 }
                 let n = usize::from(count.max(1)).min(self.unique_ids.len());
                 let ids = self.unique_ids.drain(..n).collect();
-                cx.ok(peer, pending);
-                cx.send_server_reply(peer, Reply::UniqueIds { ids }, SpaceForm::Short);
+                cx.answer(peer, Reply::UniqueIds { ids }, SpaceForm::Short);
             }
             // Without the `optional-commands` feature: none is implemented.
             Command::Lock { .. } | Command::GetUniqueId { .. } | Command::WriteUnderMask { .. } => {
@@ -677,7 +675,7 @@ impl MemoryServer {
     }
 
     fn reject(&mut self, cx: &mut Cx<'_>, peer: NodeId, code: ErrorCode) {
-        self.stats.rejected += 1;
+        bump(&mut self.stats.rejected);
         cx.reject(peer, code);
     }
 
@@ -725,12 +723,10 @@ impl MemoryServer {
             // the end of the whole write, dropping every chunk after the first.
             Ok(()) if space == SPACE_FIRMWARE => cx.ok(peer, OkFlags::default()),
             Ok(()) => {
-                cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
-                cx.send_server_reply(peer, Reply::WriteOk { space, address }, form);
+                cx.answer(peer, Reply::WriteOk { space, address }, form);
             }
             Err(e) => {
-                cx.ok(peer, OkFlags { reply_pending: true, timeout_exponent: 0 });
-                cx.send_server_reply(peer, failed(FailedKind::Write, space, address, e.code()), form);
+                cx.answer(peer, failed(FailedKind::Write, space, address, e.code()), form);
             }
         }
     }
@@ -809,7 +805,7 @@ impl MemoryServer {
                 },
             }),
             Err(_) => {
-                self.stats.streams_failed += 1;
+                bump(&mut self.stats.streams_failed);
                 cx.send_server_reply(peer, failed(FailedKind::ReadStream, space, address, codes::BUSY), form);
             }
         }
@@ -1021,9 +1017,9 @@ impl MemoryServer {
             }
             let transfer = self.transfers.swap_remove(index);
             if done {
-                self.stats.streams_done += 1;
+                bump(&mut self.stats.streams_done);
             } else {
-                self.stats.streams_failed += 1;
+                bump(&mut self.stats.streams_failed);
                 // FWU §5.4.3: a stream into the image that ends early aborts the upgrade.
                 if matches!(transfer.job, Job::Write { space: SPACE_FIRMWARE, .. }) {
                     self.firmware_aborted = true;

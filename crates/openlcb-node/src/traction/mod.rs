@@ -102,6 +102,7 @@ pub use wire::{
 use crate::memconfig::wire::SPACE_FUNCTIONS;
 use crate::memconfig::{FunctionMirror, MemoryServer};
 use crate::node::Outputs;
+use crate::node::bump;
 use crate::service::{Lent, Service, ServiceChange, earliest};
 use crate::{Node, NodeEvent};
 use throttle::Throttle;
@@ -252,27 +253,30 @@ pub struct TrainState {
 }
 
 /// Counters of the traction service.
+///
+/// Each counter stops at `u32::MAX` (32 bits: 64-bit counters cost flash on a
+/// microcontroller).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct TrainStats {
     /// Commands carried out or answered.
-    pub commands: u64,
+    pub commands: u32,
     /// Commands rejected (too short, unknown, out of bounds).
-    pub rejected: u64,
+    pub rejected: u32,
     /// Commands forwarded to listeners.
-    pub forwarded: u64,
+    pub forwarded: u32,
     /// Heartbeat requests sent.
-    pub heartbeats_sent: u64,
+    pub heartbeats_sent: u32,
     /// Heartbeats the controller let pass.
-    pub heartbeat_timeouts: u64,
+    pub heartbeat_timeouts: u32,
     /// Forwarded commands that came back round a listener loop, dropped.
-    pub loops_cut: u64,
+    pub loops_cut: u32,
     /// Train Search queries answered.
-    pub searches_answered: u64,
+    pub searches_answered: u32,
     /// Train Search queries with reserved values, ignored.
-    pub searches_reserved: u64,
+    pub searches_reserved: u32,
     /// Events dropped because the application left too many waiting.
-    pub notices_dropped: u64,
+    pub notices_dropped: u32,
 }
 
 /// Why a train command could not be given.
@@ -348,7 +352,7 @@ impl Bus<'_> {
     }
 
     fn reject(&mut self, to: NodeId, code: ErrorCode) {
-        self.stats.rejected += 1;
+        bump(&mut self.stats.rejected);
         let node = self.out.node;
         let report = ErrorReport { code, mti: Some(Mti::TRACTION_CONTROL_COMMAND) };
         self.out.reply(Message::addressed(Mti::OPTIONAL_INTERACTION_REJECTED, node, to, report.to_bytes()));
@@ -361,7 +365,7 @@ impl Bus<'_> {
 
     fn tell(&mut self, change: TrainChange, from: Option<NodeId>) {
         if !self.out.notify(NodeEvent::Train(TrainEvent { change, from })) {
-            self.stats.notices_dropped += 1;
+            bump(&mut self.stats.notices_dropped);
         }
     }
 }
@@ -461,7 +465,7 @@ impl Train {
                 TractionCommand::EmergencyStop { .. } => TractionCommand::EmergencyStop { forwarded: true },
                 _ => continue,
             };
-            bus.stats.forwarded += 1;
+            bump(&mut bus.stats.forwarded);
             bus.command(listener.node, forwarded);
         }
     }
@@ -472,10 +476,10 @@ impl Train {
             Err(CommandError::Short) => return bus.reject(from, ErrorCode::INVALID_ARGUMENTS),
             Err(CommandError::Unknown) => return bus.reject(from, ErrorCode::NOT_IMPLEMENTED_SUBCOMMAND),
         };
-        bus.stats.commands += 1;
+        bump(&mut bus.stats.commands);
         let heard = self.controller == Some(from);
         if self.is_echo(now, command) {
-            bus.stats.loops_cut += 1;
+            bump(&mut bus.stats.loops_cut);
             return self.rearm(now, heard);
         }
         match command {
@@ -647,7 +651,7 @@ impl Train {
         if self.heartbeat_deadline.is_some_and(|d| d <= now) {
             self.heartbeat_deadline = None;
             self.heartbeat_at = None;
-            bus.stats.heartbeat_timeouts += 1;
+            bump(&mut bus.stats.heartbeat_timeouts);
             let stop = TractionCommand::SetSpeed { speed: self.set_speed.stopped(), forwarded: true };
             self.set_speed = self.set_speed.stopped();
             self.last_forward = Some((now, self.set_speed));
@@ -664,7 +668,7 @@ impl Train {
             // The deadline in one byte, as OpenMRN and OpenLCB_Java (JMRI's throttles) read it.
             let secs = self.heartbeat_secs().min(u32::from(u8::MAX));
             bus.reply(controller, alloc::vec![wire::MANAGEMENT, wire::MANAGEMENT_NOOP, secs as u8]);
-            bus.stats.heartbeats_sent += 1;
+            bump(&mut bus.stats.heartbeats_sent);
             self.heartbeat_deadline = Some(now + Duration::from_secs(u64::from(secs)));
         }
     }
@@ -698,7 +702,7 @@ impl Train {
             Mti::IDENTIFY_PRODUCER => match SearchQuery::parse(event) {
                 Ok(query) => {
                     if query.matches(&self.config.identity) {
-                        bus.stats.searches_answered += 1;
+                        bump(&mut bus.stats.searches_answered);
                         bus.event(Mti::PRODUCER_IDENTIFIED_VALID, event);
                     } else if query.allocate() && self.config.allocate {
                         allocate(bus, query, event, msg.source);
@@ -706,7 +710,7 @@ impl Train {
                     true
                 }
                 Err(SearchError::Reserved) => {
-                    bus.stats.searches_reserved += 1;
+                    bump(&mut bus.stats.searches_reserved);
                     true
                 }
                 Err(SearchError::NotSearch) => false,
@@ -816,7 +820,7 @@ impl Service<Lent<'_>> for TrainService {
             };
             if let Some(event) = event {
                 if !cx.out.notify(NodeEvent::Throttle(event)) {
-                    self.stats.notices_dropped += 1;
+                    bump(&mut self.stats.notices_dropped);
                 }
                 return true;
             }
@@ -860,7 +864,7 @@ impl Service<Lent<'_>> for TrainService {
             return false;
         }
         if !cx.out.notify(NodeEvent::Throttle(ThrottleEvent::Rejected { train: peer, code: report.code })) {
-            self.stats.notices_dropped += 1;
+            bump(&mut self.stats.notices_dropped);
         }
         true
     }
@@ -869,7 +873,7 @@ impl Service<Lent<'_>> for TrainService {
         if let Some(throttle) = &mut self.throttle
             && !throttle.peer_changed(out, change)
         {
-            self.stats.notices_dropped += 1;
+            bump(&mut self.stats.notices_dropped);
         }
         let Some(train) = &mut self.train else { return };
         if let Some(holder) = train.reserved_by
