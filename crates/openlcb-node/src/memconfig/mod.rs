@@ -285,7 +285,38 @@ pub(crate) struct Cx<'a> {
     pub(crate) departed: Option<NodeId>,
 }
 
-impl Cx<'_> {
+impl<'a> Cx<'a> {
+    /// What [`MemoryConfig::run`] lends for one call. Out of line: one copy for every kind of
+    /// call (flash).
+    #[inline(never)]
+    fn new(lent: &'a mut MemoryLent<'_>, ended: &'a mut Vec<StreamHandle>) -> Self {
+        Cx {
+            now: lent.lent.now,
+            out: lent.lent.out,
+            datagrams: lent.datagrams,
+            datagram_config: &lent.lent.config.datagrams,
+            streams: lent.streams,
+            streams_enabled: crate::streams::enabled(lent.lent.config),
+            options: &lent.lent.config.memory,
+            ended,
+            announce: false,
+            reboot: false,
+            departed: None,
+        }
+    }
+
+    /// The call is over: what it asks of the node goes to `reboot` and `departed`, and the
+    /// Initialization Complete of a change of Firmware Upgrade state goes out.
+    fn finish(self, reboot: &mut bool, departed: &mut Option<NodeId>) {
+        *reboot |= self.reboot;
+        *departed = departed.or(self.departed);
+        if self.announce {
+            // FWU §5.2: every change of state ends with a new Initialization Complete.
+            let node = self.out.node;
+            self.out.transmit(Message::initialization_complete(node));
+        }
+    }
+
     /// Streams are in use: never without the `streams` feature, which the compiler sees, so
     /// that it links none of Memory Configuration's stream paths.
     pub(crate) fn streams_enabled(&self) -> bool {
@@ -380,27 +411,9 @@ impl MemoryConfig {
         f: impl FnOnce(&mut Cx<'_>, Option<&mut MemoryServer>, &mut MemoryClient) -> T,
     ) -> T {
         let MemoryConfig { server, client, ended, reboot, departed } = self;
-        let mut cx = Cx {
-            now: lent.lent.now,
-            out: lent.lent.out,
-            datagrams: lent.datagrams,
-            datagram_config: &lent.lent.config.datagrams,
-            streams: lent.streams,
-            streams_enabled: crate::streams::enabled(lent.lent.config),
-            options: &lent.lent.config.memory,
-            ended,
-            announce: false,
-            reboot: false,
-            departed: None,
-        };
+        let mut cx = Cx::new(lent, ended);
         let result = f(&mut cx, server.as_mut(), client);
-        *reboot |= cx.reboot;
-        *departed = departed.or(cx.departed);
-        if cx.announce {
-            // FWU §5.2: every change of state ends with a new Initialization Complete.
-            let node = cx.out.node;
-            cx.out.transmit(Message::initialization_complete(node));
-        }
+        cx.finish(reboot, departed);
         result
     }
 
