@@ -536,9 +536,7 @@ impl DatagramService {
         let index = self.awaiting.iter().position(|a| a.from == from).ok_or(DatagramError::NotAwaitingAnswer)?;
         self.awaiting.swap_remove(index);
         let message = match answer {
-            DatagramAnswer::Ok(flags) => {
-                Message::addressed(Mti::DATAGRAM_RECEIVED_OK, out.node, from, [flags.to_byte()].to_vec())
-            }
+            DatagramAnswer::Ok(flags) => received_ok(out.node, from, flags),
             DatagramAnswer::Rejected(code) => rejected(out.node, from, code),
         };
         out.transmit(message);
@@ -613,8 +611,14 @@ impl Service<Lent<'_>> for DatagramService {
     }
 }
 
+/// Datagram Received OK from `local` for the datagram `to` sent.
+pub(crate) fn received_ok(local: NodeId, to: NodeId, flags: OkFlags) -> Message {
+    Message::addressed(Mti::DATAGRAM_RECEIVED_OK, local, to, [flags.to_byte()].to_vec())
+}
+
+/// Datagram Rejected with `code` from `local` for the datagram `to` sent.
 pub(crate) fn rejected(local: NodeId, to: NodeId, code: ErrorCode) -> Message {
-    Message::addressed(Mti::DATAGRAM_REJECTED, local, to, code.0.to_be_bytes())
+    Message::addressed(Mti::DATAGRAM_REJECTED, local, to, code.0.to_be_bytes().to_vec())
 }
 
 /// The error code of a Datagram Rejected payload, read liberally (node-protocols.md §2.3,

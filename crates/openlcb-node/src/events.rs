@@ -461,9 +461,9 @@ fn identified(node: NodeId, role: EventRole, declared: DeclaredEvents, event: Ev
         EventRole::Consumer => (Mti::CONSUMER_IDENTIFIED_VALID, Mti::CONSUMER_RANGE_IDENTIFIED),
     };
     if declared.range.is_single() {
-        Message::global(Mti(single.0 | declared.state.mti_bits()), node, event.to_bytes())
+        Message::global(Mti(single.0 | declared.state.mti_bits()), node, event.to_bytes().to_vec())
     } else {
-        Message::global(range, node, declared.range.encoded().to_bytes())
+        Message::global(range, node, declared.range.encoded().to_bytes().to_vec())
     }
 }
 

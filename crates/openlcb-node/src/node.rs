@@ -172,7 +172,7 @@ impl Outputs {
     fn announce_start(&mut self) {
         let node = self.node;
         self.transmit(Message::initialization_complete(node));
-        self.transmit(Message::global(Mti::VERIFY_NODE_ID_GLOBAL, node, node.to_bytes()));
+        self.transmit(Message::global(Mti::VERIFY_NODE_ID_GLOBAL, node, node.to_bytes().to_vec()));
     }
 
     /// Queues a message the node must send (a datagram, a request).

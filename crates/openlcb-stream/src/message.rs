@@ -48,12 +48,12 @@ impl Message {
 
     /// Initialization Complete for `node` (MN §3.3.1): the first message a node sends.
     pub fn initialization_complete(node: NodeId) -> Self {
-        Message::global(Mti::INITIALIZATION_COMPLETE, node, node.to_bytes())
+        Message::global(Mti::INITIALIZATION_COMPLETE, node, node.to_bytes().to_vec())
     }
 
     /// Verified Node ID for `node` (MN §3.3.2): the answer to Verify Node ID.
     pub fn verified_node_id(node: NodeId) -> Self {
-        Message::global(Mti::VERIFIED_NODE_ID, node, node.to_bytes())
+        Message::global(Mti::VERIFIED_NODE_ID, node, node.to_bytes().to_vec())
     }
 
     /// The transport now names the peer `from` as `to` (see `PeerChange::Renamed`): a

@@ -32,7 +32,7 @@ use openlcb_stream::wire::{ErrorCode, ErrorReport};
 use openlcb_stream::{Duration, Event, Instant, Message, MessageRef, Mti, NodeId, StreamHandle, TimeoutKind};
 
 use crate::Protocols;
-use crate::datagram::{DatagramId, DatagramOwner, DatagramService, OkFlags, Outcome, rejected};
+use crate::datagram::{DatagramId, DatagramOwner, DatagramService, OkFlags, Outcome, received_ok, rejected};
 use crate::node::Outputs;
 use crate::service::{Lent, Service, ServiceChange, earliest};
 pub(crate) use client::MemoryClient;
@@ -325,8 +325,7 @@ impl<'a> Cx<'a> {
 
     /// Datagram Received OK for the datagram `to` sent.
     pub(crate) fn ok(&mut self, to: NodeId, flags: OkFlags) {
-        let ok = Message::addressed(Mti::DATAGRAM_RECEIVED_OK, self.out.node, to, [flags.to_byte()].to_vec());
-        self.out.reply(ok);
+        self.out.reply(received_ok(self.out.node, to, flags));
     }
 
     /// Datagram Rejected for the datagram `to` sent.
