@@ -61,7 +61,7 @@ use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId, PeerCh
 use crate::cache::AliasCache;
 use crate::fragment::{Cursor, EncodeError, Fragments, FramePosition, event_report};
 use crate::frame::{CanFrame, FrameError};
-use crate::header::{self, CanHeader, DatagramFrame, FrameKind};
+use crate::header::{self, CanHeader, FrameKind};
 use crate::login::{AliasLogin, LoginEvent, LoginState};
 use crate::reassembly::{Reassembler, ReassemblyError, ReassemblyErrorCounts, ReassemblyKey};
 use crate::{NodeAlias, add, bump, earlier, node_bytes, push_bounded};
@@ -263,23 +263,6 @@ impl Outgoing {
     fn is_for(&self, node: NodeId) -> bool {
         self.message.destination == Some(node)
     }
-}
-
-/// A whole message taken from received frames, to deliver.
-struct Received<'a> {
-    /// Its MTI tells whether it is addressed to us (addressed, stream data and datagram MTIs
-    /// have the address bit) or global.
-    mti: Mti,
-    payload: Payload<'a>,
-}
-
-/// Where the payload of a [`Received`] message is.
-enum Payload<'a> {
-    /// In the frame.
-    Frame(&'a [u8]),
-    /// In this slot of the reassembler for its MTI, which keeps it until the next frame is
-    /// added there.
-    Reassembled(usize),
 }
 
 /// One node's CAN adapter: alias login, framing, reassembly (messages and datagrams) and
@@ -709,140 +692,89 @@ impl CanLink {
             return;
         }
         let source = header.source;
-        let message = match header.kind {
+        // Every message frame, whatever its format: its MTI, its destination alias (read for
+        // addressed MTIs only), where it sits in its message, and its payload.
+        let (mti, destination, position, body) = match header.kind {
             FrameKind::AliasMapDefinition => {
                 // One with our Node ID is the login's to report.
                 if let Some(node) = NodeId::from_slice(data) {
                     self.learn(source, node, above);
                 }
-                None
+                return;
             }
-            FrameKind::AliasMapReset => {
-                self.forget(source, above);
-                None
-            }
+            FrameKind::AliasMapReset => return self.forget(source, above),
             // CFT §6.2.3: a global AME drops every cached mapping; the AMDs it causes refill it.
-            FrameKind::AliasMapEnquiry if data.is_empty() => {
-                self.forget_all_mappings(above);
-                None
+            FrameKind::AliasMapEnquiry if data.is_empty() => return self.forget_all_mappings(above),
+            FrameKind::Message { can_mti } => {
+                let mti = Mti(can_mti);
+                if let Some(position) = event_report::position(can_mti) {
+                    // A report with payload: global, so keyed by its source alone.
+                    (Mti::PRODUCER_CONSUMER_EVENT_REPORT, None, position, data)
+                } else if mti.is_addressed() {
+                    let [flags_and_high, low, body @ ..] = data else {
+                        return bump(&mut self.stats.invalid_frames);
+                    };
+                    let destination = NodeAlias::new(u16::from_be_bytes([flags_and_high & 0x0F, *low]));
+                    (mti, destination, FramePosition::from_flags(*flags_and_high), body)
+                } else {
+                    if mti.announces_sender() {
+                        match NodeId::from_slice(data) {
+                            Some(node) if node == self.node => return self.duplicate(now, source),
+                            Some(node) => self.learn(source, node, above),
+                            None => {}
+                        }
+                    }
+                    (mti, None, FramePosition::Only, data)
+                }
             }
-            FrameKind::Message { can_mti } => self.on_message(now, source, Mti(can_mti), data, above),
             FrameKind::StreamData { destination } => {
                 above.medium_busy(now);
-                self.on_stream_data(destination, data)
+                (Mti::STREAM_DATA_SEND, Some(destination), FramePosition::Only, data)
             }
-            FrameKind::Datagram { frame: part, destination } => {
-                self.on_datagram_frame(now, source, part, destination, data)
-            }
-            FrameKind::ReservedFormat { .. } => ignore(&mut self.stats.unsupported_ignored),
-            _ => None,
+            FrameKind::Datagram { frame, destination } => (Mti::DATAGRAM, Some(destination), frame.position(), data),
+            FrameKind::ReservedFormat { .. } => return bump(&mut self.stats.unsupported_ignored),
+            _ => return,
         };
-        if let Some(Received { mti, payload }) = message {
-            let source = self.name_sender(source);
-            let destination = mti.is_addressed().then_some(self.node);
-            let payload = match payload {
-                Payload::Frame(data) => data,
-                Payload::Reassembled(slot) => self.reassembler(mti).completed(slot),
-            };
-            above.handle_message(now, MessageRef { mti, source, destination, payload });
+        // Addressed messages, stream data and datagrams are ours only if sent to our alias; a
+        // global message in several frames is keyed by its source alone.
+        let addressee = if mti.is_addressed() {
+            match self.login.alias() {
+                Some(ours) if destination == Some(ours) => ours,
+                _ => return bump(&mut self.stats.not_for_us),
+            }
+        } else {
+            source
+        };
+        if mti == Mti::STREAM_DATA_SEND && body.is_empty() {
+            // Wire-spec §7.3: DLC 0 is invalid (no DID).
+            return bump(&mut self.stats.invalid_frames);
         }
+        let key = ReassemblyKey { source, destination: addressee, mti };
+        let whole = if position == FramePosition::Only {
+            if mti == Mti::DATAGRAM {
+                // A whole datagram: the sender has given up any datagram it left open.
+                self.datagrams.discard(key);
+            }
+            // The usual case: the payload is handed over straight from the frame.
+            None
+        } else {
+            match self.reassembler(mti).add(now, key, position, body) {
+                Ok(Some(slot)) => Some(slot),
+                Ok(None) => return,
+                Err(error) => return self.reassembly_error(key, error),
+            }
+        };
+        let source = self.name_sender(source);
+        let destination = mti.is_addressed().then_some(self.node);
+        // A whole multi-frame message stays in its slot until the next frame is added there.
+        let payload = match whole {
+            Some(slot) => self.reassembler(mti).completed(slot),
+            None => body,
+        };
+        above.handle_message(now, MessageRef { mti, source, destination, payload });
     }
 
     // ----- received messages -----
-
-    /// A format 1 frame: a global or addressed message whole, or once its last frame came.
-    fn on_message<'a>(
-        &mut self,
-        now: Instant,
-        source: NodeAlias,
-        mti: Mti,
-        data: &'a [u8],
-        above: Above<'_>,
-    ) -> Option<Received<'a>> {
-        if let Some(position) = event_report::position(mti.0) {
-            // A report with payload: global, so keyed by its source alone.
-            let key = ReassemblyKey { source, destination: source, mti: Mti::PRODUCER_CONSUMER_EVENT_REPORT };
-            return self.reassemble(now, key, position, data);
-        }
-        if !mti.is_addressed() {
-            if mti.announces_sender() {
-                match NodeId::from_slice(data) {
-                    Some(node) if node == self.node => {
-                        self.duplicate(now, source);
-                        return None;
-                    }
-                    Some(node) => self.learn(source, node, above),
-                    None => {}
-                }
-            }
-            return Some(Received { mti, payload: Payload::Frame(data) });
-        }
-        let [flags_and_high, low, body @ ..] = data else {
-            return ignore(&mut self.stats.invalid_frames);
-        };
-        let destination = NodeAlias::new(u16::from_be_bytes([flags_and_high & 0x0F, *low]));
-        let Some(ours) = self.login.alias().filter(|ours| destination == Some(*ours)) else {
-            return ignore(&mut self.stats.not_for_us);
-        };
-        let position = FramePosition::from_flags(*flags_and_high);
-        if position == FramePosition::Only {
-            // The usual case: the payload is handed over straight from the frame.
-            return Some(Received { mti, payload: Payload::Frame(body) });
-        }
-        self.reassemble(now, ReassemblyKey { source, destination: ours, mti }, position, body)
-    }
-
-    /// A format 7 frame: stream data to us.
-    fn on_stream_data<'a>(&mut self, destination: NodeAlias, data: &'a [u8]) -> Option<Received<'a>> {
-        if Some(destination) != self.login.alias() {
-            return ignore(&mut self.stats.not_for_us);
-        }
-        if data.is_empty() {
-            // Wire-spec §7.3: DLC 0 is invalid (no DID).
-            return ignore(&mut self.stats.invalid_frames);
-        }
-        Some(Received { mti: Mti::STREAM_DATA_SEND, payload: Payload::Frame(data) })
-    }
-
-    /// A datagram frame (formats 2-5): the datagram once whole.
-    fn on_datagram_frame<'a>(
-        &mut self,
-        now: Instant,
-        source: NodeAlias,
-        frame: DatagramFrame,
-        destination: NodeAlias,
-        data: &'a [u8],
-    ) -> Option<Received<'a>> {
-        let Some(ours) = self.login.alias().filter(|ours| *ours == destination) else {
-            return ignore(&mut self.stats.not_for_us);
-        };
-        let key = ReassemblyKey { source, destination: ours, mti: Mti::DATAGRAM };
-        let position = frame.position();
-        if position == FramePosition::Only {
-            // A whole datagram: the sender has given up any datagram it left open.
-            self.datagrams.discard(key);
-            return Some(Received { mti: Mti::DATAGRAM, payload: Payload::Frame(data) });
-        }
-        self.reassemble(now, key, position, data)
-    }
-
-    /// Adds a frame of a multi-frame message or datagram (`key.mti` tells which, the frame is
-    /// not `Only`); the whole message once its last frame came, left in its slot.
-    fn reassemble<'a>(
-        &mut self,
-        now: Instant,
-        key: ReassemblyKey,
-        position: FramePosition,
-        data: &[u8],
-    ) -> Option<Received<'a>> {
-        match self.reassembler(key.mti).add(now, key, position, data) {
-            Ok(whole) => Some(Received { mti: key.mti, payload: Payload::Reassembled(whole?) }),
-            Err(error) => {
-                self.reassembly_error(key, error);
-                None
-            }
-        }
-    }
 
     /// The reassembler for messages of `mti`: datagrams or addressed messages.
     fn reassembler(&mut self, mti: Mti) -> &mut Reassembler {
@@ -1036,10 +968,4 @@ type Above<'a> = &'a mut dyn PeerChanges;
 /// Tells `above` that `alias`, known as `node` until now, goes back to its provisional name.
 fn unname(alias: NodeAlias, node: NodeId, above: Above<'_>) {
     above.peer_changed(PeerChange::Renamed { from: node, to: alias.provisional_node_id() });
-}
-
-/// Counts a frame that delivers nothing.
-fn ignore<T>(counter: &mut u32) -> Option<T> {
-    bump(counter);
-    None
 }
