@@ -230,7 +230,7 @@ impl Reassembler {
     /// A datagram's error is answered now: its later frames are dropped without a word.
     /// `false` when the record is full: then it is not answered now (its last frame is).
     fn mute(&mut self, key: ReassemblyKey) -> bool {
-        if self.answered.contains(&key) {
+        if self.answered_at(key).is_some() {
             return true;
         }
         if self.answered.len() >= self.answered.capacity() {
@@ -243,10 +243,20 @@ impl Reassembler {
     /// A frame of the datagram `key` that was already answered: true if so (its last frame
     /// ends the silence).
     fn unmute(&mut self, key: ReassemblyKey, position: FramePosition) -> bool {
-        let Some(index) = self.answered.iter().position(|k| *k == key) else { return false };
-        if position == FramePosition::Last {
-            self.answered.remove(index);
-        }
+        if position == FramePosition::Last { self.forget_answer(key) } else { self.answered_at(key).is_some() }
+    }
+
+    /// Where the datagram `key` is in the record of those answered (once at most).
+    fn answered_at(&self, key: ReassemblyKey) -> Option<usize> {
+        self.answered.iter().position(|k| *k == key)
+    }
+
+    /// Forgets that the datagram `key` was answered (it is recorded once at most); true if it
+    /// was.
+    fn forget_answer(&mut self, key: ReassemblyKey) -> bool {
+        let Some(index) = self.answered_at(key) else { return false };
+        // The record is a set: its order does not matter.
+        self.answered.swap_remove(index);
         true
     }
 
@@ -260,10 +270,7 @@ impl Reassembler {
         let first = position == FramePosition::First;
         if first {
             // A new datagram: whatever was answered before is over.
-            // By position, with the `remove` `mute` has: smaller than `retain` (flash).
-            while let Some(index) = self.answered.iter().position(|k| *k == key) {
-                self.answered.remove(index);
-            }
+            self.forget_answer(key);
         }
         let open = self.slots.iter().position(|s| s.key.is_some_and(|k| k == key));
         let index = match open {
