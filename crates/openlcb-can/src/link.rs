@@ -241,11 +241,13 @@ struct Outgoing {
     destination: Option<NodeAlias>,
     /// While waiting: when to give up, set once the AME went out.
     deadline: Option<Instant>,
+    /// Stream control in the lane that overtakes stream data (see [`CanLink::ready`]).
+    ahead: bool,
 }
 
 impl Outgoing {
     fn new(message: Message, destination: Option<NodeAlias>) -> Self {
-        Outgoing { message, destination, deadline: None }
+        Outgoing { message, destination, deadline: None, ahead: false }
     }
 
     /// A destination's answers (Initiate Reply, Proceed): the lane that goes between two
@@ -292,17 +294,16 @@ pub struct CanLink {
     datagrams: Reassembler,
     frames: Queue<CanFrame>,
     /// Messages ready to send, in the order they came (stream data, a stream's Complete
-    /// behind its data, a datagram such as an Unfreeze behind the stream before it).
+    /// behind its data, a datagram such as an Unfreeze behind the stream before it), but for
+    /// those marked [`ahead`](Outgoing::ahead): stream control ([`Outgoing::is_stream_control`])
+    /// that came when only stream data waited. Those go first, in their own order, before the
+    /// next frame of stream data, as a Reply or a Proceed must not wait behind this node's own
+    /// data to others (which loses arbitration on a busy bus, as all stream data does).
     messages: Queue<Outgoing>,
-    /// Stream control ready to send ([`Outgoing::is_stream_control`]) that came when only
-    /// stream data waited: it goes before the next frame of stream data, as a Reply or a
-    /// Proceed must not wait behind this node's own data to others (which loses arbitration
-    /// on a busy bus, as all stream data does).
-    stream_control: Queue<Outgoing>,
     /// The message being framed, from `messages`; other frames go between its frames only
     /// if it is stream data.
     current: Option<Fragments<Vec<u8>>>,
-    /// The stream control message being framed.
+    /// The stream control message being framed (one that was ahead).
     current_control: Option<Fragments<Vec<u8>>>,
     /// Messages waiting for their destination's alias (an AME answer).
     unresolved: Queue<Outgoing>,
@@ -330,7 +331,6 @@ impl CanLink {
             datagrams: Reassembler::for_datagrams(config.datagram_slots, config.reassembly_timeout),
             frames: Queue::with_capacity(config.frame_queue_limit),
             messages: Queue::with_capacity(config.transmit_queue_limit),
-            stream_control: Queue::new(),
             current: None,
             current_control: None,
             unresolved: Queue::with_capacity(config.unresolved_limit.min(config.transmit_queue_limit)),
@@ -412,7 +412,6 @@ impl CanLink {
     /// Messages accepted by `send` and not yet fully framed.
     pub fn queued_messages(&self) -> usize {
         self.messages.len()
-            + self.stream_control.len()
             + self.unresolved.len()
             + usize::from(self.current.as_ref().is_some_and(Fragments::has_more))
             + usize::from(self.current_control.as_ref().is_some_and(Fragments::has_more))
@@ -438,7 +437,7 @@ impl CanLink {
     /// [`CanConfig::transmit_queue_limit`] messages are queued (ready or waiting for an alias).
     #[inline(always)]
     fn queue_full(&self) -> bool {
-        self.messages.len() + self.stream_control.len() + self.unresolved.len() >= self.config.transmit_queue_limit
+        self.messages.len() + self.unresolved.len() >= self.config.transmit_queue_limit
     }
 
     // ----- commands -----
@@ -491,17 +490,13 @@ impl CanLink {
         Ok(())
     }
 
-    /// Queues a message whose destination alias is known in its lane. Never refused: the
-    /// queues together hold at most the limit (the callers checked), and stream control
-    /// takes memory only while some is queued.
-    fn ready(&mut self, outgoing: Outgoing) {
+    /// Queues a message whose destination alias is known, in its lane. Never refused: the
+    /// queues together hold at most the limit (the callers checked).
+    fn ready(&mut self, mut outgoing: Outgoing) {
         // Ahead of stream data only, never of another message queued before it (the scan
         // runs for stream control only: once per window).
-        if outgoing.is_stream_control() && self.messages.iter().all(Outgoing::is_stream_data) {
-            self.stream_control.push_back(outgoing);
-        } else {
-            self.messages.push_within(self.config.transmit_queue_limit, outgoing);
-        }
+        outgoing.ahead = outgoing.is_stream_control() && self.messages.iter().all(|m| m.ahead || m.is_stream_data());
+        self.messages.push_within(self.config.transmit_queue_limit, outgoing);
     }
 
     /// The alias to send to `node`: its provisional alias, or its cached one unless messages
@@ -572,8 +567,12 @@ impl CanLink {
                 }
                 self.current_control = None;
             }
-            // Stream control between two frames of stream data, never inside another message.
-            if !inside_current && let Some(outgoing) = self.stream_control.pop_front() {
+            // Stream control between two frames of stream data, never inside another message
+            // (so a message that is ahead is never taken below as the next message).
+            if !inside_current
+                && let Some(index) = self.messages.iter().position(|m| m.ahead)
+                && let Some(outgoing) = self.messages.remove(index)
+            {
                 self.current_control = self.fragments(alias, outgoing);
                 continue;
             }
@@ -833,8 +832,7 @@ impl CanLink {
     fn forget(&mut self, alias: NodeAlias, above: Above<'_>) {
         self.reassembly.forget_source(alias);
         self.datagrams.forget_source(alias);
-        let dropped = self.messages.retain(|m| m.destination != Some(alias))
-            + self.stream_control.retain(|m| m.destination != Some(alias));
+        let dropped = self.messages.retain(|m| m.destination != Some(alias));
         add(&mut self.stats.messages_dropped, dropped);
         let node = self.cache.remove_alias(alias).unwrap_or(alias.provisional_node_id());
         above.peer_changed(PeerChange::Lost(node));
@@ -922,7 +920,6 @@ impl CanLink {
         let queued = self.queued_messages();
         add(&mut self.stats.messages_dropped, queued);
         self.messages.clear();
-        self.stream_control.clear();
         self.unresolved.clear();
         self.current = None;
         self.current_control = None;
