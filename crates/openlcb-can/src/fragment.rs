@@ -138,10 +138,8 @@ enum Layout {
         destination: NodeAlias,
     },
     StreamData,
-    Datagram {
-        source: NodeAlias,
-        destination: NodeAlias,
-    },
+    /// The identifier held is the only frame's (format 2); formats 3-5 follow the position.
+    Datagram,
 }
 
 /// An iterator over the frames of one message. Holds the payload (any `AsRef<[u8]>`, e.g. the
@@ -221,7 +219,7 @@ impl Cursor {
                 return Err(EncodeError::DatagramTooLong(len));
             }
             // The identifier changes frame by frame (formats 2-5): see `next_frame`.
-            (FrameKind::Datagram { frame: DatagramFrame::Only, destination }, Layout::Datagram { source, destination })
+            (FrameKind::Datagram { frame: DatagramFrame::Only, destination }, Layout::Datagram)
         } else if mti == Mti::PRODUCER_CONSUMER_EVENT_REPORT && len > CanFrame::MAX_DATA {
             // The identifier changes frame by frame: see `next_frame`.
             (FrameKind::Message { can_mti: event_report::FIRST }, Layout::EventReport)
@@ -252,7 +250,7 @@ impl Cursor {
                 let body_left = len.saturating_sub(1).saturating_sub(self.offset);
                 body_left.div_ceil(STREAM_PAYLOAD_PER_FRAME).max(1)
             }
-            Layout::Datagram { .. } | Layout::EventReport => {
+            Layout::Datagram | Layout::EventReport => {
                 len.saturating_sub(self.offset).div_ceil(DATAGRAM_PAYLOAD_PER_FRAME).max(1)
             }
         }
@@ -270,7 +268,7 @@ impl Cursor {
             Layout::Addressed { .. } => (ADDRESSED_PAYLOAD_PER_FRAME, payload),
             // The DID goes in every frame; the offset counts the bytes after it.
             Layout::StreamData => (STREAM_PAYLOAD_PER_FRAME, payload.get(1..).unwrap_or(&[])),
-            Layout::Datagram { .. } => (DATAGRAM_PAYLOAD_PER_FRAME, payload),
+            Layout::Datagram => (DATAGRAM_PAYLOAD_PER_FRAME, payload),
         };
         let (chunk, position) = next_chunk(body, &mut self.offset, per_frame);
         self.finished = position.is_last();
@@ -291,9 +289,10 @@ impl Cursor {
                 head[0] = payload.first().copied().unwrap_or(0);
                 (self.id, 1)
             }
-            Layout::Datagram { source, destination } => {
-                let frame = DatagramFrame::at(position);
-                (CanHeader { kind: FrameKind::Datagram { frame, destination }, source }.to_id(), 0)
+            Layout::Datagram => {
+                // Formats 2 to 5 in the order of `DatagramFrame` (bits 26-24).
+                let above_only = DatagramFrame::at(position) as u32;
+                (self.id + (above_only << 24), 0)
             }
         };
         Some(CanFrame::build(id, head.get(..head_len).unwrap_or(&[]), chunk))
