@@ -821,8 +821,9 @@ impl CanLink {
             above.peer_changed(PeerChange::Renamed { from: alias.provisional_node_id(), to: node });
         }
         while let Some(index) = self.unresolved.iter().position(|waiting| waiting.is_for(node)) {
-            if let Some(Outgoing { message, .. }) = self.unresolved.remove(index) {
-                self.ready(Outgoing::new(message, Some(alias)));
+            if let Some(mut waiting) = self.unresolved.remove(index) {
+                waiting.destination = Some(alias);
+                self.ready(waiting);
             }
         }
     }
