@@ -257,8 +257,6 @@ impl Cursor {
     }
 
     /// The next frame of `payload` (the same payload every call), if any is left.
-    // Out of line: inlined into its caller it cost more flash on a Cortex-M3.
-    #[inline(never)]
     pub(crate) fn next_frame(&mut self, payload: &[u8]) -> Option<CanFrame> {
         if self.finished {
             return None;

@@ -240,8 +240,6 @@ impl AliasLogin {
     /// call has at most one). Whether the frame came from our alias is
     /// [`holds`](Self::holds) of its source, asked before this call (the frame may move the
     /// login to another alias).
-    // Out of line: inlined into its caller it cost more flash on a Cortex-M3.
-    #[inline(never)]
     pub(crate) fn header(&mut self, now: Instant, header: &CanHeader, data: &[u8]) -> Option<LoginEvent> {
         if self.state == LoginState::Stopped {
             return None;
