@@ -179,10 +179,12 @@ impl<P: AsRef<[u8]>> Fragments<P> {
         !self.cursor.finished
     }
 
-    /// Stream data: each frame stands alone (it names its stream), so other frames may go
-    /// between two of them.
-    pub(crate) fn is_stream_data(&self) -> bool {
-        matches!(self.cursor.layout, Layout::StreamData)
+    /// Frames are still to come, and no other message's frame may go between them: all but
+    /// stream data, whose frames stand alone (each names its stream).
+    // Out of line: the one copy of the test `poll_transmit` makes for each message it frames.
+    #[inline(never)]
+    pub(crate) fn is_inside(&self) -> bool {
+        self.has_more() && !matches!(self.cursor.layout, Layout::StreamData)
     }
 }
 

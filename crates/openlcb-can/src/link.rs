@@ -551,9 +551,7 @@ impl CanLink {
         }
         let alias = self.login.alias()?;
         // Inside a message that is not stream data no other message's frame goes between.
-        let inside = |current: &Option<Fragments<Vec<u8>>>| {
-            current.as_ref().is_some_and(|f| f.has_more() && !f.is_stream_data())
-        };
+        let inside = |current: &Option<Fragments<Vec<u8>>>| current.as_ref().is_some_and(Fragments::is_inside);
         let mut inside_current = inside(&self.current);
         if let Some(front) = self.frames.front()
             && (!(inside_current || inside(&self.current_control)) || !header::is_message_id(front.raw_id()))
