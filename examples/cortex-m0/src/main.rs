@@ -165,7 +165,7 @@ fn main() -> ! {
 }
 
 /// The board declared, then its node built, its configuration space loaded (or its defaults
-/// written). The node (0.8 KiB) lives in static RAM, placed there by `ram::place`, out of
+/// written). The node (0.7 KiB) lives in static RAM, placed there by `ram::place`, out of
 /// `main`'s frame. Apart from `main` and out of line, like the declaration before it, so that
 /// what they need on the stack is given back before the node runs.
 #[inline(never)]
