@@ -10,8 +10,7 @@ use core::fmt;
 use openlcb_stream::wire::{ErrorCode, ErrorReport};
 use openlcb_stream::{Duration, Instant, Message, MessageRef, Mti, NodeId, Queue};
 
-use crate::node::bump;
-use crate::node::{NodeEvent, Outputs};
+use crate::node::{NodeEvent, Outputs, bump};
 use crate::service::{Lent, Service, ServiceChange, earliest};
 
 /// The longest datagram (DG §4.1).

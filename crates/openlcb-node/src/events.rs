@@ -19,8 +19,7 @@ use alloc::vec::Vec;
 use openlcb_stream::wire::ErrorReport;
 use openlcb_stream::{EventId, Instant, Message, MessageRef, Mti, NodeId};
 
-use crate::node::Outputs;
-use crate::node::bump;
+use crate::node::{Outputs, bump};
 use crate::service::{Lent, Service, ServiceChange};
 use crate::{Node, NodeEvent};
 

@@ -941,3 +941,17 @@ fn is_answer(mti: Mti) -> bool {
             | Mti::SIMPLE_NODE_INFO_REPLY
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::bump;
+
+    #[test]
+    fn a_counter_stops_at_its_maximum() {
+        let mut counter = u32::MAX - 1;
+        bump(&mut counter);
+        assert_eq!(counter, u32::MAX);
+        bump(&mut counter);
+        assert_eq!(counter, u32::MAX, "it does not wrap to 0");
+    }
+}

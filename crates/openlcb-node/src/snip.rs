@@ -9,8 +9,7 @@ use core::fmt;
 use openlcb_stream::wire::ErrorReport;
 use openlcb_stream::{Instant, Message, MessageRef, Mti, NodeId};
 
-use crate::node::bump;
-use crate::node::{NodeEvent, Outputs};
+use crate::node::{NodeEvent, Outputs, bump};
 use crate::service::{Lent, Service, ServiceChange, earliest};
 
 /// The most bytes a SNIP reply can carry (SNIP-TN §2.5.1).

@@ -123,8 +123,8 @@ impl MemorySpace for FirmwareSpace {
         for (i, byte) in data.iter().enumerate() {
             let at = address + i as u32;
             let page = at / PAGE_SIZE;
-            let (word, bit) = (page as usize / 32, 1 << (page % 32));
-            if let Some(erased) = self.erased.get_mut(word)
+            let (index, bit) = (page as usize / 32, 1 << (page % 32));
+            if let Some(erased) = self.erased.get_mut(index)
                 && *erased & bit == 0
             {
                 erase_page(FIRMWARE_START + page * PAGE_SIZE);

@@ -113,8 +113,7 @@ pub use calendar::ClockTime;
 pub use wire::{ClockId, ClockMessage, Rate, RateError};
 
 use crate::events::EventRange;
-use crate::node::Outputs;
-use crate::node::bump;
+use crate::node::{Outputs, bump};
 use crate::service::{Lent, Service, ServiceChange, earliest};
 use crate::{Node, NodeEvent};
 use consumer::Consumer;

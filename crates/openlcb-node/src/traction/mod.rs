@@ -101,8 +101,7 @@ pub use wire::{
 
 use crate::memconfig::wire::SPACE_FUNCTIONS;
 use crate::memconfig::{FunctionMirror, MemoryServer};
-use crate::node::Outputs;
-use crate::node::bump;
+use crate::node::{Outputs, bump};
 use crate::service::{Lent, Service, ServiceChange, earliest};
 use crate::{Node, NodeEvent};
 use throttle::Throttle;
