@@ -22,6 +22,7 @@
 extern crate alloc;
 
 mod flash;
+mod heap;
 mod mem;
 mod nrf51;
 mod ram;

@@ -7,14 +7,15 @@
 //! QEMU's monitor (the stack's depth is where the paint ends).
 
 use core::alloc::{GlobalAlloc, Layout};
-use core::cell::Cell;
+use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;
 
-use cortex_m::interrupt::{self, Mutex};
+use cortex_m::interrupt;
 use cortex_m_semihosting::{debug, hio};
-use embedded_alloc::LlffHeap;
 
-/// Bytes of RAM given to the heap: the run under QEMU peaks at 3 796 B (see the README), and
+use crate::heap::Heap;
+
+/// Bytes of RAM given to the heap: the run under QEMU peaks at 3 808 B (see the README), and
 /// the rest is room for what a run with more datagrams in flight holds (the CAN link's tables
 /// and the board's are allocated at their bounds at start-up).
 pub const HEAP_SIZE: usize = 4224;
@@ -24,32 +25,36 @@ const PAINT: u32 = 0x5A5A_A5A5;
 /// Words kept unpainted below the stack pointer of `paint_stack` (its own frame).
 const PAINT_MARGIN_WORDS: usize = 16;
 
-/// The heap, counting the most it ever held.
-struct PeakHeap {
-    heap: LlffHeap,
-    peak: Mutex<Cell<usize>>,
+/// The heap, lent one call at a time in a critical section.
+struct BoardHeap(UnsafeCell<Heap>);
+
+// SAFETY: the heap is only reached inside `interrupt::free`, one call at a time.
+#[allow(unsafe_code)]
+unsafe impl Sync for BoardHeap {}
+
+impl BoardHeap {
+    /// Runs `use_heap` on the heap, with interrupts off.
+    fn with<R>(&self, use_heap: impl FnOnce(&mut Heap) -> R) -> R {
+        // SAFETY: interrupts are off and no call of the heap calls another: the one borrow.
+        #[allow(unsafe_code)]
+        interrupt::free(|_| use_heap(unsafe { &mut *self.0.get() }))
+    }
 }
 
 #[global_allocator]
-static HEAP: PeakHeap = PeakHeap { heap: LlffHeap::empty(), peak: Mutex::new(Cell::new(0)) };
+static HEAP: BoardHeap = BoardHeap(UnsafeCell::new(Heap::empty()));
 
-// SAFETY: forwards to `LlffHeap`, which is a correct allocator; only counts besides.
+// SAFETY: `Heap` lends disjoint blocks of its memory and takes them back.
 #[allow(unsafe_code)]
-unsafe impl GlobalAlloc for PeakHeap {
+unsafe impl GlobalAlloc for BoardHeap {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        // SAFETY: the caller's contract, passed on.
-        let block = unsafe { self.heap.alloc(layout) };
-        let used = self.heap.used();
-        interrupt::free(|cs| {
-            let peak = self.peak.borrow(cs);
-            peak.set(peak.get().max(used));
-        });
-        block
+        // SAFETY: the heap was given its memory first thing (`init_heap`).
+        self.with(|heap| unsafe { heap.allocate(layout) })
     }
 
     unsafe fn dealloc(&self, block: *mut u8, layout: Layout) {
-        // SAFETY: the caller's contract, passed on.
-        unsafe { self.heap.dealloc(block, layout) }
+        // SAFETY: the caller's contract: the block and layout of an `alloc`.
+        self.with(|heap| unsafe { heap.deallocate(block, layout) })
     }
 }
 
@@ -67,7 +72,7 @@ pub fn init_heap() {
     // SAFETY: called once at start-up, before any allocation; HEAP_MEM is used by nothing else.
     #[allow(unsafe_code)]
     unsafe {
-        HEAP.heap.init(&raw mut HEAP_MEM as usize, HEAP_SIZE)
+        HEAP.with(|heap| heap.init((&raw mut HEAP_MEM).cast::<u8>(), HEAP_SIZE))
     }
 }
 
@@ -104,7 +109,7 @@ pub fn paint_stack() {
 /// QEMU's monitor): `ram layout: S T P`, addresses in decimal: S the end of static data (the
 /// painted stack's floor), T the top of the stack, P the heap's high-water mark (a `u32`).
 pub fn print_layout() {
-    let peak = interrupt::free(|cs| HEAP.peak.borrow(cs).as_ptr() as u32);
+    let peak = HEAP.with(|heap| heap.peak_address() as u32);
     print(&[
         b"ram layout: ",
         digits(stack_floor() as u32).as_bytes(),
