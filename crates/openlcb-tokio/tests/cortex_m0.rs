@@ -3,7 +3,8 @@
 //! the hub), a raw tap that records every frame, and a tool node. It checks, in order: the
 //! board's alias login on the wire (four CIDs carrying its Node ID, RID 200 ms (on the first
 //! login) after the last, AMD, Initialization Complete) and its answer to a duplicate-alias
-//! check; Lock refused (the board has no optional commands); its CDI (which it renders on each
+//! check; Lock, Write Under Mask and both stream commands refused (the board is built
+//! without them); its CDI (which it renders on each
 //! read) read whole by datagrams and parsed, each line's settings where it keeps them;
 //! Identify Events answered from its configuration; a configuration write by datagrams read
 //! back; Update Complete making the new Event ID the one it answers for; an event its output
@@ -326,21 +327,27 @@ async fn io_board_on_a_cortex_m0() {
     })
     .await;
 
-    // Lock/Reserve, an optional command the board is built without (`openlcb-node`'s
-    // `optional-commands` feature; OpenMRN's nodes have none either): a tap that announced an
-    // alias sends it in one frame and gets Datagram Rejected, 0x1041 (unknown command).
-    let seen = tap.lock().unwrap().frames.len();
-    tap_out
-        .write_all(format!(":X107015A5N0501010122D2;:X1A{alias:03X}5A5N20880501010122D2;").as_bytes())
-        .await
-        .unwrap();
-    until("the board's rejection of Lock", &console, || {
-        tap.lock().unwrap().frames[seen..]
-            .iter()
-            .any(|(_, f)| f.raw_id() == 0x19A4_8000 | alias && f.data() == [0x05, 0xA5, 0x10, 0x41])
-    })
-    .await;
-    println!("Lock: :X1A{alias:03X}5A5N20880501010122D2; rejected with :X19A48{alias:03X}N05A51041;");
+    // Commands the board is built without, each sent in one frame by a tap that announced an
+    // alias, each answered with Datagram Rejected, 0x1041 (unknown command): Lock/Reserve and
+    // Write Under Mask (`openlcb-node`'s `optional-commands` feature; OpenMRN's nodes have
+    // neither), Write Stream and Read Stream (its `streams` feature).
+    tap_out.write_all(b":X107015A5N0501010122D2;").await.unwrap();
+    for (name, command) in [
+        ("Lock", "20880501010122D2"),
+        ("Write Under Mask", "200900000000FF00"),
+        ("Write Stream", "20210000000004"),
+        ("Read Stream", "206100000000FF04"),
+    ] {
+        let seen = tap.lock().unwrap().frames.len();
+        tap_out.write_all(format!(":X1A{alias:03X}5A5N{command};").as_bytes()).await.unwrap();
+        until(&format!("the board's rejection of {name}"), &console, || {
+            tap.lock().unwrap().frames[seen..]
+                .iter()
+                .any(|(_, f)| f.raw_id() == 0x19A4_8000 | alias && f.data() == [0x05, 0xA5, 0x10, 0x41])
+        })
+        .await;
+        println!("{name}: :X1A{alias:03X}5A5N{command}; rejected with :X19A48{alias:03X}N05A51041;");
+    }
 
     // Its PIP: what an I/O board serves, and no streams (the firmware is built without them).
     let protocols =

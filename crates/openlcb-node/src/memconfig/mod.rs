@@ -347,25 +347,19 @@ impl<'a> Cx<'a> {
         finished
     }
 
-    /// Sends a reply datagram of the server that a Datagram OK promised: never dropped (its
-    /// delivery is the datagram service's business).
-    pub(crate) fn send_reply(&mut self, to: NodeId, payload: &[u8]) {
-        self.datagrams.send_promised(self.datagram_config, self.now, self.out, to, payload);
-    }
-
-    /// Sends the server's reply datagram `reply` to `to`, naming its space in `form`. Out of
-    /// line, taking the reply by value: one copy of its encoding and its drop (flash).
+    /// Sends the server's reply datagram `reply` to `to`, which a Datagram OK promised: never
+    /// dropped (its delivery is the datagram service's business). Out of line, taking the
+    /// reply by value: one copy of its drop (flash).
     #[inline(never)]
-    pub(crate) fn send_server_reply(&mut self, to: NodeId, reply: Reply, form: SpaceForm) {
-        self.send_reply(to, &reply.to_bytes_in(form));
+    pub(crate) fn send_reply(&mut self, to: NodeId, reply: Vec<u8>) {
+        self.datagrams.send_promised(self.datagram_config, self.now, self.out, to, &reply);
     }
 
     /// Answers the command datagram `to` sent with a Datagram OK promising a reply, then the
-    /// reply `reply` (a command answered at once by a reply datagram).
-    #[inline(never)]
-    pub(crate) fn answer(&mut self, to: NodeId, reply: Reply, form: SpaceForm) {
+    /// reply datagram `reply` (a command answered at once).
+    pub(crate) fn answer(&mut self, to: NodeId, reply: Vec<u8>) {
         self.ok(to, OkFlags { reply_pending: true, timeout_exponent: 0 });
-        self.send_server_reply(to, reply, form);
+        self.send_reply(to, reply);
     }
 
     /// A reply to `to` could be queued now.

@@ -12,8 +12,10 @@ use super::Cx;
 use super::space::{MemorySpace, SpaceError, acdi_manufacturer_bytes, acdi_user_bytes, read_slice};
 #[cfg(feature = "traction")]
 use super::wire::SPACE_FUNCTIONS;
-use super::wire::{Command, DecodeError, FailedKind, OptionsReply, Reply, SpaceForm, SpaceInfoReply, codes};
+use super::wire::{Command, DecodeError, FailedKind, OptionsReply, SpaceForm, SpaceInfoReply, codes};
 use super::wire::{MAX_DATA_LEN, SPACE_ACDI_MANUFACTURER, SPACE_ACDI_USER, SPACE_CDI, SPACE_FDI, SPACE_FIRMWARE};
+use super::wire::{failed_bytes, lock_bytes, read_ok_bytes, read_stream_ok_bytes, unique_ids_bytes};
+use super::wire::{write_ok_bytes, write_stream_ok_bytes};
 use super::{MemoryEvent, MemoryEvent as E};
 use crate::node::bump;
 use crate::service::{ServiceChange, earliest};
@@ -568,11 +570,11 @@ impl MemoryServer {
                 let mut buf = [0u8; MAX_DATA_LEN];
                 let want = usize::from(count).clamp(1, MAX_DATA_LEN);
                 let reply = match self.read_space(space, address, buf.get_mut(..want).unwrap_or_default()) {
-                    Ok(n) if n > 0 => Reply::ReadOk { space, address, data: buf.get(..n).unwrap_or_default().to_vec() },
-                    Ok(_) => failed(FailedKind::Read, space, address, codes::OUT_OF_BOUNDS),
-                    Err(e) => failed(FailedKind::Read, space, address, e.code()),
+                    Ok(n) if n > 0 => read_ok_bytes(space, address, buf.get(..n).unwrap_or_default(), form),
+                    Ok(_) => failed_bytes(FailedKind::Read, Some(space), address, codes::OUT_OF_BOUNDS, form),
+                    Err(e) => failed_bytes(FailedKind::Read, Some(space), address, e.code(), form),
                 };
-                cx.answer(peer, reply, form);
+                cx.answer(peer, reply);
             }
             Command::Write { space, address, data } => self.write(cx, peer, (space, form), address, &data, None),
             Command::WriteUnderMask { space, address, mask, data } if cfg!(feature = "optional-commands") => {
@@ -585,10 +587,10 @@ impl MemoryServer {
                 self.write_stream(cx, peer, (space, form), address, source_stream);
             }
             Command::GetOptions => {
-                cx.answer(peer, Reply::Options(self.options(cx.streams_enabled())), SpaceForm::Short);
+                cx.answer(peer, self.options(cx.streams_enabled()).to_bytes());
             }
             Command::GetSpaceInfo { space } => {
-                cx.answer(peer, Reply::SpaceInfo(self.space_info(space)), SpaceForm::Short);
+                cx.answer(peer, self.space_info(space).to_bytes());
             }
             Command::Lock { node } if cfg!(feature = "optional-commands") => {
                 // MC §4.17: test-and-set; a Node ID of 0 releases. A lapsed lock is free. The
@@ -606,15 +608,15 @@ impl MemoryServer {
                     self.lock_by = (node != 0).then_some(peer);
                     self.lock_deadline = cx.now + cx.options.lock_timeout;
                 }
-                cx.answer(peer, Reply::Lock { owner: self.lock }, SpaceForm::Short);
+                cx.answer(peer, lock_bytes(self.lock));
             }
             Command::GetUniqueId { count } if cfg!(feature = "optional-commands") => {
                 if self.unique_ids.is_empty() {
                     return self.reject(cx, peer, codes::UNKNOWN_COMMAND);
                 }
                 let n = usize::from(count.max(1)).min(self.unique_ids.len());
-                let ids = self.unique_ids.drain(..n).collect();
-                cx.answer(peer, Reply::UniqueIds { ids }, SpaceForm::Short);
+                let ids: Vec<[u8; 8]> = self.unique_ids.drain(..n).collect();
+                cx.answer(peer, unique_ids_bytes(&ids));
             }
             // Without the `optional-commands` feature: none is implemented.
             Command::Lock { .. } | Command::GetUniqueId { .. } | Command::WriteUnderMask { .. } => {
@@ -723,10 +725,10 @@ impl MemoryServer {
             // the end of the whole write, dropping every chunk after the first.
             Ok(()) if space == SPACE_FIRMWARE => cx.ok(peer, OkFlags::default()),
             Ok(()) => {
-                cx.answer(peer, Reply::WriteOk { space, address }, form);
+                cx.answer(peer, write_ok_bytes(space, address, form));
             }
             Err(e) => {
-                cx.answer(peer, failed(FailedKind::Write, space, address, e.code()), form);
+                cx.answer(peer, failed_bytes(FailedKind::Write, Some(space), address, e.code(), form));
             }
         }
     }
@@ -806,7 +808,7 @@ impl MemoryServer {
             }),
             Err(_) => {
                 bump(&mut self.stats.streams_failed);
-                cx.send_server_reply(peer, failed(FailedKind::ReadStream, space, address, codes::BUSY), form);
+                cx.send_reply(peer, failed_bytes(FailedKind::ReadStream, Some(space), address, codes::BUSY, form));
             }
         }
     }
@@ -852,11 +854,11 @@ impl MemoryServer {
         };
         *reply = WriteReply::Sent;
         let reply = match error {
-            None => Reply::WriteStreamOk { space: Some(*space), address: *address, streams: Some((*sid, *did)) },
-            Some(code) => failed(FailedKind::WriteStream, *space, *address, code),
+            None => write_stream_ok_bytes(Some(*space), *address, Some((*sid, *did)), *form),
+            Some(code) => failed_bytes(FailedKind::WriteStream, Some(*space), *address, code, *form),
         };
-        let (peer, form) = (*peer, *form);
-        cx.send_server_reply(peer, reply, form);
+        let peer = *peer;
+        cx.send_reply(peer, reply);
     }
 
     // ----- streams -----
@@ -965,15 +967,10 @@ impl MemoryServer {
                     self.transfers.get_mut(index)
                 {
                     *opened = true;
-                    let reply = Reply::ReadStreamOk {
-                        space: Some(*space),
-                        address: *address,
-                        source_stream: info.source_stream.as_raw(),
-                        destination_stream: info.destination_stream.map_or(0xFF, StreamId::as_raw),
-                        count: Some(*count),
-                    };
-                    let (peer, form) = (*peer, *form);
-                    cx.send_server_reply(peer, reply, form);
+                    let streams = (info.source_stream.as_raw(), info.destination_stream.map_or(0xFF, StreamId::as_raw));
+                    let reply = read_stream_ok_bytes(Some(*space), *address, streams, Some(*count), *form);
+                    let peer = *peer;
+                    cx.send_reply(peer, reply);
                 }
                 self.pump_read(cx, index);
             }
@@ -983,9 +980,9 @@ impl MemoryServer {
             Event::Rejected { code, .. } => {
                 if let Some(Transfer { peer, form, job: Job::Read { space, address, .. } }) = self.transfers.get(index)
                 {
-                    let reply = failed(FailedKind::ReadStream, *space, *address, ErrorCode(code.0));
-                    let (peer, form) = (*peer, *form);
-                    cx.send_server_reply(peer, reply, form);
+                    let reply = failed_bytes(FailedKind::ReadStream, Some(*space), *address, ErrorCode(code.0), *form);
+                    let peer = *peer;
+                    cx.send_reply(peer, reply);
                 }
                 self.end(index, false);
             }
@@ -994,9 +991,9 @@ impl MemoryServer {
                 if let Some(Transfer { peer, form, job: Job::Read { space, address, opened: false, .. } }) =
                     self.transfers.get(index)
                 {
-                    let reply = failed(FailedKind::ReadStream, *space, *address, ErrorCode::TIMEOUT);
-                    let (peer, form) = (*peer, *form);
-                    cx.send_server_reply(peer, reply, form);
+                    let reply = failed_bytes(FailedKind::ReadStream, Some(*space), *address, ErrorCode::TIMEOUT, *form);
+                    let peer = *peer;
+                    cx.send_reply(peer, reply);
                 }
                 // So does a Write Stream whose reply waited for a Complete that never came.
                 if self.write_reply(index) == Some(WriteReply::AfterComplete) {
@@ -1222,8 +1219,4 @@ impl MemoryServer {
             self.end(index, false);
         }
     }
-}
-
-fn failed(kind: FailedKind, space: u8, address: u32, code: ErrorCode) -> Reply {
-    Reply::Failed { kind, space: Some(space), address, code }
 }

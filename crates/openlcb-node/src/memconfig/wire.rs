@@ -252,6 +252,11 @@ pub enum Command {
 
 impl Command {
     /// Reads a command datagram (byte 0 = 0x20), liberally where peers differ.
+    ///
+    /// A command the crate is built without is [`DecodeError::UnknownCommand`], as the server
+    /// built so answers it, and a firmware links none of its decoding: without the
+    /// `optional-commands` feature Write Under Mask, Lock and Get Unique ID; without `streams`
+    /// Read Stream and Write Stream.
     pub fn parse(bytes: &[u8]) -> Result<Self, DecodeError> {
         let [CONTENT_ID, command, rest @ ..] = bytes else { return Err(DecodeError::NotMemoryConfiguration) };
         let command = *command;
@@ -265,7 +270,7 @@ impl Command {
                 }
                 Ok(Command::Write { space, address, data: data.to_vec() })
             }
-            0x08..=0x0B => {
+            0x08..=0x0B if cfg!(feature = "optional-commands") => {
                 let (address, space, pairs) = address_and_space(bytes)?;
                 if pairs.len() < 2 || pairs.len() > MAX_DATA_LEN || pairs.len() % 2 != 0 {
                     return Err(DecodeError::BadLength);
@@ -280,7 +285,7 @@ impl Command {
                 }
                 Ok(Command::WriteUnderMask { space, address, mask, data })
             }
-            0x20..=0x23 => {
+            0x20..=0x23 if cfg!(feature = "streams") => {
                 let (address, space, rest) = address_and_space(bytes)?;
                 // C-1: the FWU-TN trace puts 0xFF before the SID; take the byte after it.
                 let source_stream = match rest {
@@ -295,7 +300,7 @@ impl Command {
                 let count = rest.first().ok_or(DecodeError::TooShort("count"))? & 0x7F;
                 Ok(Command::Read { space, address, count })
             }
-            0x60..=0x63 => {
+            0x60..=0x63 if cfg!(feature = "streams") => {
                 let (address, space, rest) = address_and_space(bytes)?;
                 // The 0xFF placeholder is ignored on receipt; a missing count means "to end".
                 let [_, did, count @ ..] = rest else { return Err(DecodeError::TooShort("destination stream ID")) };
@@ -304,8 +309,10 @@ impl Command {
             }
             0x80 => Ok(Command::GetOptions),
             0x84 => Ok(Command::GetSpaceInfo { space: byte("space")? }),
-            0x88 => Ok(Command::Lock { node: u48(rest).ok_or(DecodeError::TooShort("Node ID"))? }),
-            0x8C => Ok(Command::GetUniqueId { count: byte("count")? & 0x07 }),
+            0x88 if cfg!(feature = "optional-commands") => {
+                Ok(Command::Lock { node: u48(rest).ok_or(DecodeError::TooShort("Node ID"))? })
+            }
+            0x8C if cfg!(feature = "optional-commands") => Ok(Command::GetUniqueId { count: byte("count")? & 0x07 }),
             0xA0 => Ok(Command::Unfreeze { space: byte("space")? }),
             0xA1 => Ok(Command::Freeze { space: byte("space")? }),
             0xA8 => Ok(Command::UpdateComplete),
@@ -659,83 +666,162 @@ impl Reply {
     /// [`to_bytes`](Self::to_bytes), naming the space in `form`: a server answers in the form
     /// it was asked.
     pub fn to_bytes_in(&self, form: SpaceForm) -> Vec<u8> {
-        let mut out = Vec::with_capacity(16);
-        let put_stream_header = |out: &mut Vec<u8>, base: u8, space: Option<u8>, address: u32| match space {
-            Some(space) => put_header(out, base, space, address, form),
-            None => {
-                out.extend_from_slice(&[CONTENT_ID, base]);
-                out.extend_from_slice(&address.to_be_bytes());
-            }
-        };
         match self {
-            Reply::ReadOk { space, address, data } => {
-                put_header(&mut out, 0x50, *space, *address, form);
-                out.extend_from_slice(data);
-            }
-            Reply::WriteOk { space, address } => put_header(&mut out, 0x10, *space, *address, form),
+            Reply::ReadOk { space, address, data } => read_ok_bytes(*space, *address, data, form),
+            Reply::WriteOk { space, address } => write_ok_bytes(*space, *address, form),
             Reply::ReadStreamOk { space, address, source_stream, destination_stream, count } => {
-                put_stream_header(&mut out, 0x70, *space, *address);
-                out.extend_from_slice(&[*source_stream, *destination_stream]);
-                if let Some(count) = count {
-                    out.extend_from_slice(&count.to_be_bytes());
-                }
+                read_stream_ok_bytes(*space, *address, (*source_stream, *destination_stream), *count, form)
             }
-            Reply::WriteStreamOk { space, address, streams } => {
-                put_stream_header(&mut out, 0x30, *space, *address);
-                if let Some((sid, did)) = streams {
-                    out.extend_from_slice(&[*sid, *did]);
-                }
-            }
-            Reply::Failed { kind, space, address, code } => {
-                match kind {
-                    FailedKind::Read | FailedKind::Write => {
-                        put_header(&mut out, kind.base(), space.unwrap_or(0), *address, form)
-                    }
-                    FailedKind::ReadStream | FailedKind::WriteStream => {
-                        put_stream_header(&mut out, kind.base(), *space, *address);
-                    }
-                }
-                out.extend_from_slice(&code.0.to_be_bytes());
-            }
-            Reply::Options(options) => {
-                out.extend_from_slice(&[CONTENT_ID, 0x82]);
-                out.extend_from_slice(&options.commands.to_be_bytes());
-                out.extend_from_slice(&[options.write_lengths, options.highest_space]);
-                if let Some(lowest) = options.lowest_space {
-                    out.push(lowest);
-                    if !options.name.is_empty() {
-                        out.extend_from_slice(&options.name);
-                        out.push(0);
-                    }
-                }
-            }
-            Reply::SpaceInfo(info) => {
-                out.extend_from_slice(&[CONTENT_ID, if info.present { 0x87 } else { 0x86 }, info.space]);
-                if let Some(highest) = info.highest_address {
-                    out.extend_from_slice(&highest.to_be_bytes());
-                    let lowest = info.lowest_address.filter(|low| *low != 0);
-                    out.push(u8::from(info.read_only) | if lowest.is_some() { 0x02 } else { 0 });
-                    if let Some(low) = lowest {
-                        out.extend_from_slice(&low.to_be_bytes());
-                    }
-                    if !info.description.is_empty() {
-                        out.extend_from_slice(&info.description);
-                        out.push(0);
-                    }
-                }
-            }
-            Reply::Lock { owner } => {
-                out.extend_from_slice(&[CONTENT_ID, 0x8A]);
-                put_u48(&mut out, *owner);
-            }
-            Reply::UniqueIds { ids } => {
-                out.extend_from_slice(&[CONTENT_ID, 0x8D]);
-                for id in ids.iter().take(7) {
-                    out.extend_from_slice(id);
-                }
+            Reply::WriteStreamOk { space, address, streams } => write_stream_ok_bytes(*space, *address, *streams, form),
+            Reply::Failed { kind, space, address, code } => failed_bytes(*kind, *space, *address, *code, form),
+            Reply::Options(options) => options.to_bytes(),
+            Reply::SpaceInfo(info) => info.to_bytes(),
+            Reply::Lock { owner } => lock_bytes(*owner),
+            Reply::UniqueIds { ids } => unique_ids_bytes(ids),
+        }
+    }
+}
+
+// One encoder per reply, which `Reply::to_bytes_in` dispatches to and the server calls
+// directly: a firmware links the encoders of the replies it sends, not every reply's.
+
+/// A reply datagram `put` writes.
+fn reply_bytes(put: impl FnOnce(&mut Vec<u8>)) -> Vec<u8> {
+    let mut out = Vec::with_capacity(16);
+    put(&mut out);
+    out
+}
+
+/// A stream reply's header: `space` in `form`, or none (OpenLcbCLib's form, C-8).
+fn put_stream_header(out: &mut Vec<u8>, base: u8, space: Option<u8>, address: u32, form: SpaceForm) {
+    match space {
+        Some(space) => put_header(out, base, space, address, form),
+        None => {
+            out.extend_from_slice(&[CONTENT_ID, base]);
+            out.extend_from_slice(&address.to_be_bytes());
+        }
+    }
+}
+
+/// Read Reply OK: the header, then `data`.
+pub(crate) fn read_ok_bytes(space: u8, address: u32, data: &[u8], form: SpaceForm) -> Vec<u8> {
+    reply_bytes(|out| {
+        put_header(out, 0x50, space, address, form);
+        out.extend_from_slice(data);
+    })
+}
+
+/// Write Reply OK: the header alone.
+pub(crate) fn write_ok_bytes(space: u8, address: u32, form: SpaceForm) -> Vec<u8> {
+    reply_bytes(|out| put_header(out, 0x10, space, address, form))
+}
+
+/// Read Stream Reply OK: the header, the (SID, DID), the count if any.
+pub(crate) fn read_stream_ok_bytes(
+    space: Option<u8>,
+    address: u32,
+    (sid, did): (u8, u8),
+    count: Option<u32>,
+    form: SpaceForm,
+) -> Vec<u8> {
+    reply_bytes(|out| {
+        put_stream_header(out, 0x70, space, address, form);
+        out.extend_from_slice(&[sid, did]);
+        if let Some(count) = count {
+            out.extend_from_slice(&count.to_be_bytes());
+        }
+    })
+}
+
+/// Write Stream Reply OK: the header, the (SID, DID) if any.
+pub(crate) fn write_stream_ok_bytes(
+    space: Option<u8>,
+    address: u32,
+    streams: Option<(u8, u8)>,
+    form: SpaceForm,
+) -> Vec<u8> {
+    reply_bytes(|out| {
+        put_stream_header(out, 0x30, space, address, form);
+        if let Some((sid, did)) = streams {
+            out.extend_from_slice(&[sid, did]);
+        }
+    })
+}
+
+/// A failed command's reply: the header (a Read's or Write's names a space, 0 for none),
+/// then `code`.
+pub(crate) fn failed_bytes(
+    kind: FailedKind,
+    space: Option<u8>,
+    address: u32,
+    code: ErrorCode,
+    form: SpaceForm,
+) -> Vec<u8> {
+    reply_bytes(|out| {
+        match kind {
+            FailedKind::Read | FailedKind::Write => put_header(out, kind.base(), space.unwrap_or(0), address, form),
+            FailedKind::ReadStream | FailedKind::WriteStream => {
+                put_stream_header(out, kind.base(), space, address, form)
             }
         }
-        out
+        out.extend_from_slice(&code.0.to_be_bytes());
+    })
+}
+
+/// Lock / Reserve Reply: the lock's owner.
+pub(crate) fn lock_bytes(owner: u64) -> Vec<u8> {
+    reply_bytes(|out| {
+        out.extend_from_slice(&[CONTENT_ID, 0x8A]);
+        put_u48(out, owner);
+    })
+}
+
+/// Get Unique ID Reply: up to 7 IDs.
+pub(crate) fn unique_ids_bytes(ids: &[[u8; 8]]) -> Vec<u8> {
+    reply_bytes(|out| {
+        out.extend_from_slice(&[CONTENT_ID, 0x8D]);
+        for id in ids.iter().take(7) {
+            out.extend_from_slice(id);
+        }
+    })
+}
+
+impl OptionsReply {
+    /// The reply's datagram (0x82).
+    pub(crate) fn to_bytes(&self) -> Vec<u8> {
+        reply_bytes(|out| {
+            out.extend_from_slice(&[CONTENT_ID, 0x82]);
+            out.extend_from_slice(&self.commands.to_be_bytes());
+            out.extend_from_slice(&[self.write_lengths, self.highest_space]);
+            if let Some(lowest) = self.lowest_space {
+                out.push(lowest);
+                if !self.name.is_empty() {
+                    out.extend_from_slice(&self.name);
+                    out.push(0);
+                }
+            }
+        })
+    }
+}
+
+impl SpaceInfoReply {
+    /// The reply's datagram (0x87 present, 0x86 not: then 3 bytes, C-10).
+    pub(crate) fn to_bytes(&self) -> Vec<u8> {
+        reply_bytes(|out| {
+            out.extend_from_slice(&[CONTENT_ID, if self.present { 0x87 } else { 0x86 }, self.space]);
+            if let Some(highest) = self.highest_address {
+                out.extend_from_slice(&highest.to_be_bytes());
+                let lowest = self.lowest_address.filter(|low| *low != 0);
+                out.push(u8::from(self.read_only) | if lowest.is_some() { 0x02 } else { 0 });
+                if let Some(low) = lowest {
+                    out.extend_from_slice(&low.to_be_bytes());
+                }
+                if !self.description.is_empty() {
+                    out.extend_from_slice(&self.description);
+                    out.push(0);
+                }
+            }
+        })
     }
 }
 
