@@ -901,8 +901,10 @@ mod tests {
     #[test]
     fn write_stream_of_worked_example_9_3() {
         command(&[0x20, 0xA1, 0xEF], Command::Freeze { space: 0xEF }, &[0x20, 0xA1, 0xEF]);
-        let bytes = [0x20, 0x20, 0, 0, 0, 0, 0xEF, 0x55];
-        command(&bytes, Command::WriteStream { space: 0xEF, address: 0, source_stream: 0x55 }, &bytes);
+        if cfg!(feature = "streams") {
+            let bytes = [0x20, 0x20, 0, 0, 0, 0, 0xEF, 0x55];
+            command(&bytes, Command::WriteStream { space: 0xEF, address: 0, source_stream: 0x55 }, &bytes);
+        }
         // The reply as the OpenMRN Bootloader sends it: no stream IDs (C-2).
         let openmrn = [0x20, 0x30, 0, 0, 0, 0, 0xEF];
         reply(&openmrn, Reply::WriteStreamOk { space: Some(0xEF), address: 0, streams: None }, &openmrn);
@@ -925,11 +927,13 @@ mod tests {
     #[test]
     fn write_stream_with_the_fwu_tn_placeholder_is_accepted() {
         // C-1: the FWU-TN trace's 9-byte form, 0xFF before the SID; sent in the [MC] form.
-        command(
-            &[0x20, 0x20, 0, 0, 0, 0, 0xEF, 0xFF, 0x55],
-            Command::WriteStream { space: 0xEF, address: 0, source_stream: 0x55 },
-            &[0x20, 0x20, 0, 0, 0, 0, 0xEF, 0x55],
-        );
+        if cfg!(feature = "streams") {
+            command(
+                &[0x20, 0x20, 0, 0, 0, 0, 0xEF, 0xFF, 0x55],
+                Command::WriteStream { space: 0xEF, address: 0, source_stream: 0x55 },
+                &[0x20, 0x20, 0, 0, 0, 0, 0xEF, 0x55],
+            );
+        }
         // Its reply, DID before SID, is classified by byte 1 alone (C-2).
         assert!(matches!(
             Reply::parse(&[0x20, 0x30, 0, 0, 0, 0, 0xEF, 0x5A, 0x55]),
@@ -961,8 +965,6 @@ mod tests {
 
     #[test]
     fn read_stream_of_worked_example_9_4() {
-        let bytes = [0x20, 0x61, 0, 0, 0, 0, 0xFF, 0x01, 0, 0, 0, 0xC8];
-        command(&bytes, Command::ReadStream { space: 0xFD, address: 0, destination_stream: 1, count: 200 }, &bytes);
         let answer = [0x20, 0x71, 0, 0, 0, 0, 0x02, 0x01, 0, 0, 0, 0xC8];
         reply(
             &answer,
@@ -975,18 +977,23 @@ mod tests {
             },
             &answer,
         );
-        // The byte-6 form of the same command.
-        let byte6 = [0x20, 0x60, 0, 0, 0, 0, 0xFD, 0xFF, 0x01, 0, 0, 0, 0xC8];
-        let parsed = Command::parse(&byte6).unwrap();
-        assert_eq!(parsed, Command::ReadStream { space: 0xFD, address: 0, destination_stream: 1, count: 200 });
-        let low = [0x20, 0x60, 0, 0, 0, 0, 0x22, 0xFF, 0x01, 0, 0, 0, 0xC8];
-        command(&low, Command::ReadStream { space: 0x22, address: 0, destination_stream: 1, count: 200 }, &low);
         let failed = [0x20, 0x79, 0, 0, 0, 0, 0x10, 0x82];
         reply(
             &failed,
             Reply::Failed { kind: FailedKind::ReadStream, space: Some(0xFD), address: 0, code: ErrorCode(0x1082) },
             &failed,
         );
+        if !cfg!(feature = "streams") {
+            return;
+        }
+        let bytes = [0x20, 0x61, 0, 0, 0, 0, 0xFF, 0x01, 0, 0, 0, 0xC8];
+        command(&bytes, Command::ReadStream { space: 0xFD, address: 0, destination_stream: 1, count: 200 }, &bytes);
+        // The byte-6 form of the same command.
+        let byte6 = [0x20, 0x60, 0, 0, 0, 0, 0xFD, 0xFF, 0x01, 0, 0, 0, 0xC8];
+        let parsed = Command::parse(&byte6).unwrap();
+        assert_eq!(parsed, Command::ReadStream { space: 0xFD, address: 0, destination_stream: 1, count: 200 });
+        let low = [0x20, 0x60, 0, 0, 0, 0, 0x22, 0xFF, 0x01, 0, 0, 0, 0xC8];
+        command(&low, Command::ReadStream { space: 0x22, address: 0, destination_stream: 1, count: 200 }, &low);
         // OpenMRN: a command without a count reads to the end.
         assert_eq!(
             Command::parse(&[0x20, 0x61, 0, 0, 0, 0, 0xFF, 0x01]).unwrap(),
@@ -1068,12 +1075,14 @@ mod tests {
     #[test]
     fn control_commands_and_their_replies() {
         let id = [0x05, 0x01, 0x01, 0x01, 0x40, 0x01];
-        let lock = [0x20, 0x88, 0x05, 0x01, 0x01, 0x01, 0x40, 0x01];
-        command(&lock, Command::Lock { node: 0x05_01_01_01_40_01 }, &lock);
+        if cfg!(feature = "optional-commands") {
+            let lock = [0x20, 0x88, 0x05, 0x01, 0x01, 0x01, 0x40, 0x01];
+            command(&lock, Command::Lock { node: 0x05_01_01_01_40_01 }, &lock);
+            command(&[0x20, 0x8C, 0xFA], Command::GetUniqueId { count: 2 }, &[0x20, 0x8C, 0x02]);
+        }
         let mut locked = vec![0x20, 0x8A];
         locked.extend_from_slice(&id);
         reply(&locked, Reply::Lock { owner: 0x05_01_01_01_40_01 }, &locked);
-        command(&[0x20, 0x8C, 0xFA], Command::GetUniqueId { count: 2 }, &[0x20, 0x8C, 0x02]);
         let ids = [0x20, 0x8D, 5, 1, 1, 1, 0x40, 2, 0, 1];
         reply(&ids, Reply::UniqueIds { ids: vec![[5, 1, 1, 1, 0x40, 2, 0, 1]] }, &ids);
         command(&[0x20, 0xA8], Command::UpdateComplete, &[0x20, 0xA8]);
@@ -1084,6 +1093,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "optional-commands")]
     fn write_under_mask_pairs() {
         let bytes = [0x20, 0x09, 0, 0, 0, 4, 0xF0, 0xAB, 0x0F, 0xCD];
         command(
@@ -1092,6 +1102,25 @@ mod tests {
             &bytes,
         );
         assert_eq!(Command::parse(&[0x20, 0x09, 0, 0, 0, 4, 0xF0]), Err(DecodeError::BadLength));
+    }
+
+    #[test]
+    fn commands_the_crate_is_built_without_are_unknown() {
+        let optional: [&[u8]; 3] =
+            [&[0x20, 0x09, 0, 0, 0, 4, 0xF0, 0xAB], &[0x20, 0x88, 5, 1, 1, 1, 0x40, 1], &[0x20, 0x8C, 2]];
+        let stream: [&[u8]; 2] = [&[0x20, 0x20, 0, 0, 0, 0, 0xEF, 0x55], &[0x20, 0x61, 0, 0, 0, 0, 0xFF, 1]];
+        for (built, commands) in
+            [(cfg!(feature = "optional-commands"), optional.as_slice()), (cfg!(feature = "streams"), &stream)]
+        {
+            for bytes in commands {
+                let parsed = Command::parse(bytes);
+                if built {
+                    assert!(parsed.is_ok(), "{bytes:02X?}: {parsed:?}");
+                } else {
+                    assert_eq!(parsed, Err(DecodeError::UnknownCommand(bytes[1])), "{bytes:02X?}");
+                }
+            }
+        }
     }
 
     #[test]
