@@ -1,6 +1,7 @@
 //! The Cortex-M0 board's heap (`examples/cortex-m0/src/heap.rs`, which has no target code),
-//! checked on the host against a model: blocks aligned, inside the heap, never overlapping,
-//! their bytes kept; the counts true; and everything freed merges back into one block.
+//! checked on the host against a model: each block where first fit over the gaps between live
+//! blocks puts it (refused when none holds it), aligned, inside the heap, never overlapping,
+//! its bytes kept; the counts true; and everything freed merges back into one block.
 
 #![allow(unsafe_code)]
 
@@ -50,6 +51,23 @@ fn rounded(layout: Layout) -> usize {
     layout.size().max(1).div_ceil(GRAIN) * GRAIN
 }
 
+/// Where first fit over the model's free memory puts `size` bytes: the start of the first gap
+/// between live blocks (in address order, within `low..high`) that holds them. A heap that
+/// merges freed neighbours has exactly these gaps as its free blocks.
+fn first_fit(live: &[Live], low: usize, high: usize, size: usize) -> Option<usize> {
+    let mut taken: Vec<(usize, usize)> =
+        live.iter().map(|b| (b.at as usize, b.at as usize + rounded(b.layout))).collect();
+    taken.sort_unstable();
+    let mut gap_start = low;
+    for (start, end) in taken.into_iter().chain([(high, high)]) {
+        if start - gap_start >= size {
+            return Some(gap_start);
+        }
+        gap_start = end;
+    }
+    None
+}
+
 proptest! {
     #[test]
     fn blocks_are_disjoint_kept_and_merged_back(steps in prop::collection::vec(step(), 1..300)) {
@@ -61,11 +79,12 @@ proptest! {
             match step {
                 Step::Allocate { size, align } => {
                     let layout = Layout::from_size_align(size, align).unwrap();
+                    let expected = first_fit(&live, low, high, rounded(layout));
                     // SAFETY: after init.
                     let at = unsafe { heap.allocate(layout) };
+                    // Refused exactly when no gap holds it; otherwise from the first that does.
+                    prop_assert_eq!((!at.is_null()).then_some(at as usize), expected);
                     if at.is_null() {
-                        // Refused only when no free block is that large: less than it is free.
-                        prop_assert!(ARENA - heap.used() < rounded(layout) || !live.is_empty());
                         continue;
                     }
                     let (start, end) = (at as usize, at as usize + rounded(layout));
