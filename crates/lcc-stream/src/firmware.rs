@@ -31,7 +31,7 @@ pub(crate) struct FirmwareArgs {
 }
 
 pub(crate) fn run(args: &FirmwareArgs) -> Result<ExitCode, String> {
-    net::runtime()?.block_on(memory::upload(
+    net::transfer_runtime()?.block_on(memory::upload(
         &args.client,
         "firmware",
         args.to,

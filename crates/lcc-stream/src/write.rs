@@ -36,7 +36,7 @@ pub(crate) struct WriteArgs {
 
 pub(crate) fn run(args: &WriteArgs) -> Result<ExitCode, String> {
     let what = Upload::Space { space: args.space, address: args.address, update_complete: !args.no_update_complete };
-    net::runtime()?.block_on(memory::upload(&args.client, "write", args.to, &args.file, what, |report| {
+    net::transfer_runtime()?.block_on(memory::upload(&args.client, "write", args.to, &args.file, what, |report| {
         format!(
             "wrote {} bytes of {} into space 0x{:02X} of {} in {:.3} s ({})",
             report.bytes,
