@@ -407,6 +407,12 @@ async fn a_node_id_that_left_the_openlcb_tcp_side_can_join_over_gridconnect() {
     let roaming = id(0x24);
     let sender = bounded("joining", Node::connect(&tcp, Framing::Tcp, NodeOptions::new(id(0x25)))).await.unwrap();
     let mut was_here = bounded("joining", Node::connect(&tcp, Framing::Tcp, NodeOptions::new(roaming))).await.unwrap();
+    // On OpenLCB-TCP a node has joined once its Initialization Complete is written, which can
+    // be before the hub has taken its connection: a request the sender (whose connection the
+    // hub serves already) sent then would reach every client but it. A peer that learns of
+    // the node from its Initialization Complete never meets that; this sender knows it
+    // beforehand, so it waits for the hub.
+    until_clients(&hub, 2).await;
     // The gateway gives every OpenLCB-TCP node a proxy alias on the CAN side.
     transfer(&sender, &mut was_here, 1000, 2048).await;
     // It leaves without a word, like a program that was killed.
