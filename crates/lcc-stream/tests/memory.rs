@@ -1165,3 +1165,100 @@ async fn ctrl_c_on_read_keeps_the_part_and_says_how_many_bytes_it_holds() {
         assert!(!out.exists());
     }
 }
+
+/// Bytes a space holds, shared with the test.
+type SharedBytes = std::sync::Arc<std::sync::Mutex<Vec<u8>>>;
+
+/// A writable space that takes `delay` for every write and keeps what it was given where the
+/// test can see it.
+struct SlowSpace {
+    bytes: SharedBytes,
+    delay: std::time::Duration,
+    writes: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl MemorySpace for SlowSpace {
+    fn len(&self) -> u32 {
+        self.bytes.lock().unwrap().len() as u32
+    }
+    fn read_only(&self) -> bool {
+        false
+    }
+    fn read(&mut self, address: u32, buf: &mut [u8]) -> Result<usize, SpaceError> {
+        let bytes = self.bytes.lock().unwrap();
+        let held = bytes.get(address as usize..).unwrap_or_default();
+        let n = buf.len().min(held.len());
+        buf[..n].copy_from_slice(&held[..n]);
+        Ok(n)
+    }
+    fn write(&mut self, address: u32, data: &[u8]) -> Result<(), SpaceError> {
+        std::thread::sleep(self.delay);
+        self.writes.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let mut bytes = self.bytes.lock().unwrap();
+        let at = address as usize;
+        bytes.get_mut(at..at + data.len()).ok_or(SpaceError::OutOfBounds)?.copy_from_slice(data);
+        Ok(())
+    }
+}
+
+/// Ctrl-C (SIGINT) in the middle of `write` (by datagrams and by stream) and of `firmware`,
+/// which run on a runtime of one thread: each exits 130 at once, and what the node stored
+/// is the file's first bytes, nothing else.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ctrl_c_on_write_and_firmware_ends_them_with_the_node_holding_the_files_first_bytes() {
+    use std::sync::atomic::Ordering;
+    let (_hub, addr) = hub().await;
+    let len = 256 * 1024;
+    let delay = std::time::Duration::from_millis(5);
+    let writes = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let config = SharedBytes::new(std::sync::Mutex::new(vec![0u8; len]));
+    let firmware = SharedBytes::new(std::sync::Mutex::new(vec![0u8; len]));
+    let space = |bytes: &SharedBytes| SlowSpace { bytes: bytes.clone(), delay, writes: writes.clone() };
+    let server = MemoryServer::new().with_space(0xFD, space(&config)).with_space(0xEF, space(&firmware));
+    node_in_process(&addr, Some(server)).await;
+    let dir = scratch("write-interrupted");
+    let file = dir.join("image.bin");
+    std::fs::write(&file, data(len, 4)).unwrap();
+    let runs: [(&[&str], &SharedBytes); 3] = [
+        (&["write", "--to", SERVER, "--space", "0xFD", "--no-stream"], &config),
+        (&["write", "--to", SERVER, "--space", "0xFD"], &config),
+        (&["firmware", "--to", SERVER], &firmware),
+    ];
+    for (command, stored) in runs {
+        stored.lock().unwrap().fill(0);
+        let mut args = command.to_vec();
+        args.extend([path_arg(&file), "--connect", &addr]);
+        let child = common::spawn(&args);
+        let before = writes.load(Ordering::Relaxed);
+        bounded("the first writes", async {
+            while writes.load(Ordering::Relaxed) < before + 20 {
+                tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+            }
+        })
+        .await;
+        let pid = child.id().unwrap().to_string();
+        let killed = Command::new("kill").args(["-INT", &pid]).status();
+        assert!(bounded("kill", killed).await.unwrap().success());
+        let output = bounded("the exit after Ctrl-C", child.wait_with_output()).await.unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(130), "{command:?}: {stderr}");
+        assert!(stderr.contains("interrupted"), "{command:?}: {stderr}");
+        // The node writes what had arrived before the transfer ended (each write takes
+        // `delay` on its thread); then it holds the file's first bytes, and the next command
+        // finds it answering again.
+        bounded("the node's last writes", async {
+            loop {
+                let seen = writes.load(Ordering::Relaxed);
+                tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+                if writes.load(Ordering::Relaxed) == seen {
+                    break;
+                }
+            }
+        })
+        .await;
+        let stored = stored.lock().unwrap().clone();
+        let written = stored.iter().rposition(|&b| b != 0).map_or(0, |last| last + 1);
+        assert!(written > 0 && written < len, "{command:?}: {written} bytes stored");
+        assert_eq!(stored[..written], data(len, 4)[..written], "{command:?}: the file's first bytes");
+    }
+}
