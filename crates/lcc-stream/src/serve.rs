@@ -234,7 +234,12 @@ async fn serve(args: &ServeArgs) -> Result<ExitCode, String> {
                 Some(event) => {
                     // A tool's change takes effect when it says it is done (or the node restarts).
                     let applies = matches!(event, MemoryEvent::UpdateComplete { .. } | MemoryEvent::ResetRequested { .. });
+                    let user_info = matches!(event, MemoryEvent::UserInfoChanged);
                     on_event(event, args, &image, &mut report);
+                    // A new login after a lost hub keeps the user name and description a tool wrote.
+                    if user_info && let Ok(snip) = node.own_snip().await {
+                        options.node.snip = snip;
+                    }
                     match applies {
                         true => match apply_board(&node, &spaces, args, &mut configured).await {
                             Ok(()) => continue,

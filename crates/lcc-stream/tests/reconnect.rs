@@ -129,7 +129,7 @@ async fn restart(hub: Hub, addr: &str, tool: &mut Tool, back: &str) -> Hub {
 }
 
 #[tokio::test(flavor = "multi_thread")]
-async fn serve_rejoins_a_restarted_hub_with_its_spaces_and_answers_a_read() {
+async fn serve_rejoins_a_restarted_hub_with_its_spaces_and_user_name_and_answers_a_read() {
     let dir = scratch("reconnect-serve");
     let (hub, addr) = first_hub().await;
     // Firmware images would go to the scratch folder, not the current one.
@@ -143,16 +143,42 @@ async fn serve_rejoins_a_restarted_hub_with_its_spaces_and_answers_a_read() {
     std::fs::write(&written, &bytes).unwrap();
     let (status, stderr) = run(&["write", written.to_str().unwrap(), "--to", SERVER, "--connect", &addr]).await;
     assert!(status.success(), "{stderr}");
+    // A user name written by a tool (space 0xFB, after its version byte) outlives the login too.
+    let name = dir.join("name.bin");
+    std::fs::write(&name, b"Yard 7\0").unwrap();
+    let name = name.to_str().unwrap();
+    let write_name = ["write", name, "--to", SERVER, "--space", "0xFB", "--address", "1", "--connect", addr.as_str()];
+    let (status, stderr) = run(&write_name).await;
+    assert!(status.success(), "{stderr}");
+    serve.said("user name and description changed").await;
 
     let hub = restart(hub, &addr, &mut serve, "rejoined the hub").await;
     let back = serve.said.lines().find(|l| l.contains("rejoined the hub")).unwrap_or_default().to_string();
     assert!(back.contains(&format!("at {addr} as ")) && back.ends_with(&format!("/{SERVER}")), "{back}");
 
     let read = dir.join("read.bin");
+    let read_path = read.to_str().unwrap();
     let (status, stderr) =
-        run(&["read", "--from", SERVER, "--length", "64", "--out", read.to_str().unwrap(), "--connect", &addr]).await;
+        run(&["read", "--from", SERVER, "--length", "64", "--out", read_path, "--connect", &addr]).await;
     assert!(status.success(), "{stderr}");
     assert_eq!(std::fs::read(&read).unwrap(), bytes, "the space kept what was written before the restart");
+    let listed = tokio::process::Command::new(BIN)
+        .args(["nodes", "--connect", &addr, "--json", "--wait", "0.5"])
+        .stdin(std::process::Stdio::null())
+        .kill_on_drop(true)
+        .output();
+    let listed = bounded("nodes", listed).await.unwrap();
+    let listed = String::from_utf8_lossy(&listed.stdout).into_owned();
+    let server = listed
+        .lines()
+        .map(|line| serde_json::from_str::<serde_json::Value>(line).unwrap())
+        .find(|node| node["node_id"] == SERVER);
+    let server = server.unwrap_or_else(|| panic!("`nodes` did not list {SERVER}: {listed}"));
+    assert_eq!(server["snip"]["user_name"], "Yard 7", "SNIP after the new login: {server}");
+    let read_name = ["read", "--from", SERVER, "--space", "0xFB", "--address", "1", "--length", "7"];
+    let (status, stderr) = run(&[&read_name[..], &["--out", read_path, "--force", "--connect", &addr]].concat()).await;
+    assert!(status.success(), "{stderr}");
+    assert_eq!(std::fs::read(&read).unwrap(), b"Yard 7\0", "space 0xFB after the new login");
     drop(hub);
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -436,6 +436,9 @@ impl Driver {
                     event_notices_dropped: self.events.dropped(),
                 });
             }
+            Command::OwnSnip { reply } => {
+                let _ = reply.send(self.stack.config().snip.clone());
+            }
             Command::Memory(command) => self.memory.command(now, &mut self.stack, command),
             Command::Events(command) => self.events.command(&mut self.stack, command),
             Command::Clock(command) => self.clocks.command(now, &mut self.stack, command),

@@ -148,6 +148,10 @@ pub(crate) enum Command {
     Stats {
         reply: oneshot::Sender<NodeStats>,
     },
+    /// This node's own Simple Node Information as it is now.
+    OwnSnip {
+        reply: oneshot::Sender<SnipInfo>,
+    },
     /// Send Verify Node ID to everyone; forward every Verified Node ID to `sink`.
     Discover {
         sink: mpsc::Sender<NodeId>,
@@ -363,6 +367,14 @@ impl Node {
     /// Frame and stream counters.
     pub async fn stats(&self) -> Result<NodeStats, Error> {
         self.control.call(|reply| Command::Stats { reply }).await
+    }
+
+    /// This node's own Simple Node Information as it is now: a tool may have changed the user
+    /// name and description (space 0xFB) since it connected, which the memory server reports as
+    /// `MemoryEvent::UserInfoChanged`. A program that joins again after a lost connection
+    /// passes this in its new [`NodeOptions`] to keep what the tool wrote.
+    pub async fn own_snip(&self) -> Result<SnipInfo, Error> {
+        self.control.call(|reply| Command::OwnSnip { reply }).await
     }
 
     /// Asks every node on the network who it is (global Verify Node ID) and returns the Node

@@ -81,3 +81,15 @@ async fn errors_are_typed() {
     let itself = client.read_memory(client.node_id(), 0xFD, 0, None, TransferPath::Auto).await.unwrap();
     assert!(matches!(bounded("self", itself.finish()).await, Err(Error::MemoryRequest(_))));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn own_snip_carries_the_user_name_a_tool_wrote() {
+    let (_hub, server, client, mut events) = pair(Framing::GridConnect).await;
+    assert_eq!(server.own_snip().await.unwrap().user_name, "");
+    // Space 0xFB: the layout's version byte, then the user name (NUL-terminated).
+    let write = client.write_memory(server.node_id(), 0xFB, 1, b"Yard 7\0".to_vec(), TransferPath::Datagrams);
+    assert_eq!(bounded("write the name", write.await.unwrap().finish()).await.unwrap(), 7);
+    assert_eq!(bounded("the server's event", events.next()).await, Some(MemoryEvent::UserInfoChanged));
+    let own = server.own_snip().await.unwrap();
+    assert_eq!((own.user_name.as_str(), own.user_description.as_str()), ("Yard 7", ""));
+}
