@@ -960,8 +960,7 @@ async fn an_interrupted_restore_says_how_many_settings_it_wrote_and_a_rerun_fini
         .spawn()
         .unwrap();
     bounded("the third write", stall.recv()).await;
-    let pid = restore.id().unwrap().to_string();
-    assert!(bounded("kill", Command::new("kill").args(["-INT", &pid]).status()).await.unwrap().success());
+    common::interrupt(&restore).await;
     let output = bounded("the interrupted restore", restore.wait_with_output()).await.unwrap();
     let json: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
     assert_eq!((output.status.code(), json["result"].as_str()), (Some(130), Some("interrupted")), "{json}");
@@ -1123,12 +1122,26 @@ async fn a_node_without_firmware_upgrade_has_no_firmware_upgrade_in_words() {
 
 /// A stream sent to a node without streams (`serve --no-streams`, OIR 0x1043): "this node
 /// has no streams", exit 4.
+/// Sends `child` Ctrl-C once `served` (a count the test's space keeps of its reads or writes)
+/// has grown by `count`, and returns how the command ended.
+async fn interrupt_after(child: Child, served: &std::sync::atomic::AtomicUsize, count: usize) -> std::process::Output {
+    use std::sync::atomic::Ordering;
+    let before = served.load(Ordering::Relaxed);
+    bounded("the node serving the command", async {
+        while served.load(Ordering::Relaxed) < before + count {
+            tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+        }
+    })
+    .await;
+    common::interrupt(&child).await;
+    bounded("the exit after Ctrl-C", child.wait_with_output()).await.unwrap()
+}
+
 /// Ctrl-C (SIGINT) in the middle of `read --out FILE` from a node that trickles, by
 /// datagrams and by stream: exit 130, FILE.part kept with the first bytes of the space, and
 /// the message says how many; FILE is not made.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn ctrl_c_on_read_keeps_the_part_and_says_how_many_bytes_it_holds() {
-    use std::sync::atomic::Ordering;
     let (_hub, addr) = hub().await;
     let len = 1024 * 1024;
     let reads = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
@@ -1142,19 +1155,8 @@ async fn ctrl_c_on_read_keeps_the_part_and_says_how_many_bytes_it_holds() {
         let _ = std::fs::remove_file(&part);
         let mut args = vec!["read", "--from", SERVER, "--out", path_arg(&out), "--connect", &addr];
         args.extend(extra);
-        let child = common::spawn(&args);
-        // Some bytes have been served (the first read answers the size, the rest data).
-        let before = reads.load(Ordering::Relaxed);
-        bounded("the first bytes served", async {
-            while reads.load(Ordering::Relaxed) < before + 40 {
-                tokio::time::sleep(std::time::Duration::from_millis(20)).await;
-            }
-        })
-        .await;
-        let pid = child.id().unwrap().to_string();
-        let killed = Command::new("kill").args(["-INT", &pid]).status();
-        assert!(bounded("kill", killed).await.unwrap().success());
-        let output = bounded("read's exit", child.wait_with_output()).await.unwrap();
+        // Ctrl-C once some bytes have been served (the first read answers the size, the rest data).
+        let output = interrupt_after(common::spawn(&args), &reads, 40).await;
         let stderr = String::from_utf8_lossy(&output.stderr);
         assert_eq!(output.status.code(), Some(130), "{extra:?}: {stderr}");
         let kept = std::fs::read(&part).unwrap();
@@ -1228,18 +1230,7 @@ async fn ctrl_c_on_write_and_firmware_ends_them_with_the_node_holding_the_files_
         stored.lock().unwrap().fill(0);
         let mut args = command.to_vec();
         args.extend([path_arg(&file), "--connect", &addr]);
-        let child = common::spawn(&args);
-        let before = writes.load(Ordering::Relaxed);
-        bounded("the first writes", async {
-            while writes.load(Ordering::Relaxed) < before + 20 {
-                tokio::time::sleep(std::time::Duration::from_millis(10)).await;
-            }
-        })
-        .await;
-        let pid = child.id().unwrap().to_string();
-        let killed = Command::new("kill").args(["-INT", &pid]).status();
-        assert!(bounded("kill", killed).await.unwrap().success());
-        let output = bounded("the exit after Ctrl-C", child.wait_with_output()).await.unwrap();
+        let output = interrupt_after(common::spawn(&args), &writes, 20).await;
         let stderr = String::from_utf8_lossy(&output.stderr);
         assert_eq!(output.status.code(), Some(130), "{command:?}: {stderr}");
         assert!(stderr.contains("interrupted"), "{command:?}: {stderr}");
